@@ -1,0 +1,19 @@
+#pragma once
+// Each command group (model, landmarks, send/receive, render, ...) lives in its own
+// *_commands.cc and registers itself here at static-initialisation time, so main.cc never
+// changes when a group is added.
+#include <CLI/CLI.hpp>
+#include <functional>
+
+namespace face_reenact::cli {
+
+using CommandAdder = std::function<void(CLI::App& app)>;
+
+// Returns true so it can initialise a namespace-scope constant.
+bool register_commands(const char* group, CommandAdder adder);
+void add_all_commands(CLI::App& app);
+
+}  // namespace face_reenact::cli
+
+#define FR_REGISTER_COMMANDS(group, fn) \
+  static const bool fr_registered_##group = ::face_reenact::cli::register_commands(#group, fn)
