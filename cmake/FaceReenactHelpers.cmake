@@ -41,9 +41,13 @@ function(fr_test name)
                ENVIRONMENT "FR_SOURCE_DIR=${PROJECT_SOURCE_DIR};FR_SHARED_DATA=${FR_SHARED_DATA};FR_MODEL=${FR_MODEL_FILE};FR_CLI=$<TARGET_FILE:face-reenact>;ASAN_OPTIONS=detect_leaks=1:abort_on_error=1;UBSAN_OPTIONS=print_stacktrace=1")
 endfunction()
 
-# fr_fuzzer(name SOURCES ... DEPS ...): a libFuzzer target (only with FR_FUZZ and clang).
+# fr_fuzzer(name SOURCES ... DEPS ... [SEEDS dir-or-files...]): a libFuzzer target (only with
+# FR_FUZZ and clang), registered with CTest as a bounded run of FR_FUZZ_SECONDS that starts
+# from the seed inputs. The libraries it links are rebuilt with the fuzzer's instrumentation
+# through FR_FUZZ's global flags (see top-level CMakeLists.txt).
+set(FR_FUZZ_SECONDS 30 CACHE STRING "Seconds each fuzz target runs under CTest")
 function(fr_fuzzer name)
-  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;SEEDS" ${ARGN})
   if(NOT FR_FUZZ)
     return()
   endif()
@@ -51,4 +55,13 @@ function(fr_fuzzer name)
   target_link_libraries(${name} PRIVATE ${ARG_DEPS})
   target_compile_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
   target_link_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
+  set(corpus ${CMAKE_CURRENT_BINARY_DIR}/${name}_corpus)
+  add_test(NAME ${name}
+           COMMAND ${CMAKE_COMMAND} -E env ASAN_OPTIONS=detect_leaks=1
+                   $<TARGET_FILE:${name}> -max_total_time=${FR_FUZZ_SECONDS} -rss_limit_mb=2048
+                   -print_final_stats=1 ${corpus} ${ARG_SEEDS})
+  set_tests_properties(${name} PROPERTIES LABELS fuzz TIMEOUT 600
+                       FIXTURES_REQUIRED ${name}_corpus)
+  add_test(NAME ${name}_corpus_dir COMMAND ${CMAKE_COMMAND} -E make_directory ${corpus})
+  set_tests_properties(${name}_corpus_dir PROPERTIES FIXTURES_SETUP ${name}_corpus)
 endfunction()
