@@ -25,20 +25,22 @@ function(fr_library name)
 endfunction()
 
 # fr_test(name SOURCES ... DEPS ... [LABELS ...] [TIMEOUT s]): one GoogleTest executable,
-# registered test-by-test with CTest. Tests run from the build folder with
-# FR_SOURCE_DIR / FR_SHARED_DATA / FR_MODEL in the environment.
+# registered test-by-test with CTest. Its main (tests/test_main.cc) puts FR_SOURCE_DIR,
+# FR_SHARED_DATA, FR_MODEL (+ FACE_REENACT_MODEL) and FR_CLI into the environment unless the
+# caller already set them, so tests and the programs they start see the same paths.
 function(fr_test name)
   cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
-  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main)
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} fr_test_main GTest::gtest)
   fr_target_defaults(${name})
   if(NOT ARG_TIMEOUT)
     set(ARG_TIMEOUT 600)
   endif()
-  gtest_discover_tests(${name}
-    DISCOVERY_TIMEOUT 60
-    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}"
-               ENVIRONMENT "FR_SOURCE_DIR=${PROJECT_SOURCE_DIR};FR_SHARED_DATA=${FR_SHARED_DATA};FR_MODEL=${FR_MODEL_FILE};FR_CLI=$<TARGET_FILE:face-reenact>;ASAN_OPTIONS=detect_leaks=1:abort_on_error=1;UBSAN_OPTIONS=print_stacktrace=1")
+  set(props TIMEOUT ${ARG_TIMEOUT})
+  if(ARG_LABELS)
+    list(APPEND props LABELS "${ARG_LABELS}")
+  endif()
+  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES ${props})
 endfunction()
 
 # fr_fuzzer(name SOURCES ... DEPS ... [SEEDS dir-or-files...]): a libFuzzer target (only with
