@@ -97,7 +97,9 @@ std::vector<uint8_t> serialize_face_model(const FaceModel& m) {
                         {"source_sha256", m.source_sha256},
                         {"identity_samples", m.identity_samples},
                         {"build_seed", m.build_seed},
-                        {"identity_explained_variance", m.identity_explained_variance}};
+                        {"identity_explained_variance", m.identity_explained_variance},
+                        {"builder", m.builder},
+                        {"build_options", m.build_options}};
     ByteWriter w;
     w.str(j.dump());
     sections.push_back({kMeta, w.take()});
@@ -231,6 +233,8 @@ FaceModel parse_face_model(std::span<const uint8_t> bytes, const std::string& wh
     m.identity_samples = j.value("identity_samples", uint64_t(0));
     m.build_seed = j.value("build_seed", uint64_t(0));
     m.identity_explained_variance = j.value("identity_explained_variance", 0.f);
+    m.builder = j.value("builder", "");
+    m.build_options = j.value("build_options", "");
     if (m.units != "metres") r.fail("unsupported units '" + m.units + "'");
   }
   uint32_t n;

@@ -80,6 +80,8 @@ struct FaceModel {
   std::string source_sha256;
   uint64_t identity_samples = 0;  // heads sampled to learn the identity PCA
   uint64_t build_seed = 0;
+  std::string builder;        // e.g. "face-reenact model build v1": the code that made the model
+  std::string build_options;  // the builder's options as canonical JSON (for up-to-date checks)
 
   int num_vertices() const { return static_cast<int>(vertex_part.size()); }
   int num_triangles() const { return static_cast<int>(triangles.size()); }

