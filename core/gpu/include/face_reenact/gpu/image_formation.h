@@ -1,0 +1,143 @@
+#pragma once
+// The image formation model S(P) of the paper (Sec. 4, Eq. 1-4) as plain data, shared by the
+// Vulkan renderer (renderer.h) and its CPU twin (cpu_renderer.h). docs/renderer.md is the spec.
+//
+// Conventions (both implementations follow them exactly):
+// - Camera frame: computer-vision style, right-handed, x right, y down, z forward (the camera
+//   looks down +z; visible points have z > 0). Units: metres.
+// - Pose: X_cam = R v + t with R = Rz(rz) * Ry(ry) * Rx(rx) (rotate about the model's x axis
+//   first, then y, then z; angles in radians). The model frame has +y up and +z out of the
+//   face, so a face looking straight at the camera has rx = pi (see frontal_pose()).
+// - Pinhole projection: u = fx * x / z + cx, v = fy * y / z + cy in pixels, where the CENTRE of
+//   the top-left pixel is (0, 0) (OpenCV). Pixel (i, j) samples the scene at (u, v) = (i, j).
+// - Lighting: Lambertian, 3-band real spherical harmonics of the camera-space unit normal,
+//   per colour channel: colour_c = albedo_c * sum_k gamma[c * 9 + k] * y_k(n) (Eq. 3), per
+//   vertex, then interpolated (Gouraud) across triangles.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace face_reenact {
+struct FaceModel;
+}
+
+namespace face_reenact::gpu {
+
+inline constexpr int kNumShBands = 3;
+inline constexpr int kNumShCoefficients = 9;   // per colour channel
+inline constexpr int kNumShParameters = 27;    // gamma: [channel * 9 + k], channel = R, G, B
+
+// The 9 real SH basis functions of unit vector n = (x, y, z), orthonormal on the sphere:
+//   y0 = 0.282095                      (1 / (2 sqrt(pi)))
+//   y1 = 0.488603 y, y2 = 0.488603 z, y3 = 0.488603 x          (sqrt(3 / (4 pi)))
+//   y4 = 1.092548 x y, y5 = 1.092548 y z, y7 = 1.092548 x z    (sqrt(15 / (4 pi)))
+//   y6 = 0.315392 (3 z^2 - 1)                                    (sqrt(5 / (16 pi)))
+//   y8 = 0.546274 (x^2 - y^2)                                    (sqrt(15 / (16 pi)))
+// Evaluated in the camera frame (x right, y down, z forward).
+std::array<float, kNumShCoefficients> sh_basis(const Eigen::Vector3f& n);
+
+// Camera-space lighting coefficients for a uniform (ambient) light of RGB irradiance `rgb`:
+// only the DC term, gamma[c * 9] = rgb[c] / y0.
+std::array<float, kNumShParameters> ambient_sh(const Eigen::Vector3f& rgb);
+
+// R = Rz(rz) * Ry(ry) * Rx(rx).
+Eigen::Matrix3f rotation_from_euler(const Eigen::Vector3f& euler_xyz);
+
+// P = (alpha, beta, delta, gamma, R, t), Eq. 4.
+struct FaceParameters {
+  Eigen::VectorXf alpha;   // identity; may be shorter than the model's K_id (rest zero)
+  Eigen::VectorXf beta;    // albedo; may be shorter than K_alb (rest zero)
+  Eigen::VectorXf delta;   // expression; may be shorter than K_exp (rest zero)
+  std::array<float, kNumShParameters> gamma{};  // SH lighting, gamma[channel * 9 + k]
+  Eigen::Vector3f euler = Eigen::Vector3f::Zero();        // (rx, ry, rz), radians
+  Eigen::Vector3f translation = Eigen::Vector3f::Zero();  // metres, camera frame
+
+  // All values finite and each vector no longer than the model allows (pass -1 to skip a size).
+  bool IsValid(std::string* why, int max_identity = -1, int max_expression = -1, int max_albedo = -1) const;
+};
+
+// Neutral parameters at `distance` metres in front of the camera, facing it (rx = pi), under a
+// white ambient light of irradiance 1.
+FaceParameters frontal_pose(float distance);
+
+struct PinholeCamera {
+  float fx = 525.0f;
+  float fy = 525.0f;
+  float cx = 319.5f;
+  float cy = 239.5f;
+  int width = 640;
+  int height = 480;
+  // Triangles with any vertex nearer than near_plane or farther than far_plane are dropped
+  // whole (no clipping): a face never straddles these planes in use.
+  float near_plane = 0.05f;
+  float far_plane = 50.0f;
+
+  bool IsValid(std::string* why) const;
+  // The camera of pyramid level `level` (each level halves the resolution, rounding down): the
+  // focal lengths halve and the principal point maps as c' = (c + 0.5) / 2 - 0.5, so that
+  // pixel centres of the coarse level sit at the centres of 2x2 fine blocks.
+  PinholeCamera Downsampled(int level) const;
+};
+
+// Bit (1 << FacePart) per model part to draw.
+using PartMask = uint32_t;
+inline constexpr PartMask kAllParts = 0x1FF;
+// Face | Scalp | Ear | Neck: the skin the tracker fits.
+inline constexpr PartMask kSkinParts = 0x0F;
+
+struct RenderOptions {
+  PartMask parts = kSkinParts;  // a triangle is drawn when all three vertices are in `parts`
+  bool cull_back_faces = true;  // drop triangles that face away from the camera
+  bool IsValid(std::string* why) const;
+};
+
+// The linear model the renderer evaluates: a FaceModel's geometry and albedo, or any other
+// mesh with the same structure (test geometry). Bases are 3N x K, interleaved xyz rows.
+struct RenderModel {
+  std::vector<std::array<int32_t, 3>> triangles;  // counter-clockwise seen from outside
+  std::vector<uint8_t> vertex_part;               // N, FacePart values (0..31)
+  Eigen::VectorXf mean_shape;                     // 3N, metres, model frame
+  Eigen::MatrixXf identity_basis;                 // 3N x K_id
+  Eigen::MatrixXf expression_basis;               // 3N x K_exp
+  Eigen::VectorXf mean_albedo;                    // 3N, linear RGB
+  Eigen::MatrixXf albedo_basis;                   // 3N x K_alb
+
+  int num_vertices() const { return static_cast<int>(vertex_part.size()); }
+  int num_triangles() const { return static_cast<int>(triangles.size()); }
+  bool IsValid(std::string* why) const;
+  static RenderModel FromFaceModel(const FaceModel& model);
+};
+
+// The per-pixel output of S(P) read back to the host. Pixel (i, j) is at index j * width + i.
+// Uncovered pixels have triangle == -1 and zeros everywhere else.
+struct GBuffer {
+  int width = 0;
+  int height = 0;
+  std::vector<float> color;        // 3 per pixel: C_S, shaded linear RGB
+  std::vector<float> position;     // 3 per pixel: X_S, camera space (m)
+  std::vector<float> normal;       // 3 per pixel: N_S, unit, camera space
+  std::vector<float> barycentric;  // 3 per pixel: perspective-correct, sum 1
+  std::vector<int32_t> triangle;   // 1 per pixel: model triangle index, -1 = not covered
+  std::vector<int32_t> vertices;   // 3 per pixel: the triangle's vertex indices (-1 if none)
+
+  void Resize(int w, int h);
+  bool covered(int i, int j) const { return triangle[static_cast<size_t>(j) * width + i] >= 0; }
+  size_t covered_count() const;
+  // Camera-space depth z of a pixel, 0 when not covered.
+  float depth(int i, int j) const { return position[(static_cast<size_t>(j) * width + i) * 3 + 2]; }
+};
+
+// Per-vertex results of the model and lighting stages (for tests and the tracker's CPU paths).
+struct VertexState {
+  Eigen::VectorXf model_positions;   // 3N, model frame: a_id + E_id alpha + E_exp delta
+  Eigen::VectorXf albedo;            // 3N: a_alb + E_alb beta
+  Eigen::VectorXf camera_positions;  // 3N: R v + t
+  Eigen::VectorXf camera_normals;    // 3N: R n, n = normalised area-weighted sum of face normals
+  Eigen::VectorXf colors;            // 3N: albedo * SH irradiance(camera normal)
+};
+
+}  // namespace face_reenact::gpu

@@ -1,0 +1,119 @@
+#pragma once
+// The Vulkan image formation model S(P) (paper Sec. 5.2): per frame
+//   1. identity_eval.comp a_id + E_id alpha and the albedo, only when alpha/beta change,
+//      model_eval.comp    + E_exp delta                                              [model]
+//   2. vertex_shade.comp  area-weighted normals, R v + t, SH shading per vertex    [shade]
+//   3. gbuffer.vert/.frag rasterisation into the G-buffer (5 colour targets + depth) [raster]
+// each bracketed by timestamp queries. The G-buffer stays on the GPU (targets()) for the
+// tracker's compute passes; read_gbuffer() copies it to the host for tests and tools.
+// Conventions and formats: image_formation.h and docs/renderer.md. The CPU twin is
+// cpu_renderer.h.
+#include <map>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include "face_reenact/gpu/buffer.h"
+#include "face_reenact/gpu/command.h"
+#include "face_reenact/gpu/image.h"
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/gpu/pipeline.h"
+
+namespace face_reenact::gpu {
+
+class Context;
+
+// The G-buffer images of one resolution. After render() they are in VK_IMAGE_LAYOUT_GENERAL
+// and visible to any later shader read or transfer.
+struct GBufferTargets {
+  Image color;        // RGBA32F: C_S, a = 1 where covered
+  Image position;     // RGBA32F: X_S (camera space, m), w = 1 where covered
+  Image normal;       // RGBA32F: N_S (unit, camera space), w = 0
+  Image barycentric;  // RGBA32F: b0, b1, b2 (perspective-correct), w = 0
+  Image ids;          // RGBA32UI: model triangle + 1 (0 = not covered), v0, v1, v2
+  Image depth;        // D32: d = far (z - near) / ((far - near) z), 1 where empty
+};
+
+inline constexpr VkFormat kGBufferFloatFormat = VK_FORMAT_R32G32B32A32_SFLOAT;
+inline constexpr VkFormat kGBufferIdFormat = VK_FORMAT_R32G32B32A32_UINT;
+inline constexpr VkFormat kGBufferDepthFormat = VK_FORMAT_D32_SFLOAT;
+
+struct RenderTimings {
+  double model_ms = -1;   // GPU time per stage from timestamp queries (-1: not supported)
+  double shade_ms = -1;
+  double raster_ms = -1;
+  double gpu_total_ms = -1;
+  double wall_ms = 0;     // host time from recording to completion
+  size_t drawn_triangles = 0;
+  bool identity_updated = false;  // this render re-evaluated a_id + E_id alpha and the albedo
+};
+
+class Renderer {
+ public:
+  struct Options {
+    // Timestamp queries around the stages. Cheap on GPUs; on lavapipe each one flushes the
+    // rasteriser, so a tracker loop may turn them off (RenderTimings then has -1 stage times).
+    bool timestamps = true;
+  };
+
+  Renderer(const Context& context, const RenderModel& model) : Renderer(context, model, Options{}) {}
+  Renderer(const Context& context, const RenderModel& model, const Options& options);
+  ~Renderer();
+  Renderer(const Renderer&) = delete;
+  Renderer& operator=(const Renderer&) = delete;
+
+  const RenderModel& model() const { return model_; }
+
+  // Renders S(P) at `camera`'s resolution and waits for the GPU. Invalid parameters (NaN,
+  // infinity, too many coefficients), cameras or options throw face_reenact::Error before any
+  // GPU work is recorded.
+  RenderTimings render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options = {});
+
+  // The G-buffer of the last render() (throws if nothing was rendered yet).
+  const GBufferTargets& targets() const;
+  const PinholeCamera& last_camera() const { return last_camera_; }
+  GBuffer read_gbuffer() const;
+  // Per-vertex results of the last render().
+  VertexState read_vertex_state() const;
+
+  // Device buffers of the last render() for later GPU passes.
+  const Buffer& camera_positions() const { return camera_positions_; }  // vec4 per vertex
+  const Buffer& camera_normals() const { return camera_normals_; }      // vec4 per vertex
+  const Buffer& vertex_colors() const { return colors_; }               // vec4 per vertex
+  const Buffer& model_positions() const { return shape_; }              // float 3N
+  const Buffer& albedo() const { return albedo_; }                      // float 3N
+
+ private:
+  GBufferTargets& targets_for(int width, int height);
+  void update_draw_list(const RenderOptions& options);
+  const GraphicsPipeline& raster_pipeline(bool cull);
+
+  const Context& context_;
+  Options options_;
+  RenderModel model_;
+  uint32_t num_vertices_ = 0;
+  uint32_t coefficient_count_ = 0;
+
+  Buffer mean_shape_, identity_basis_, expression_basis_, mean_albedo_, albedo_basis_;
+  Buffer triangles_, adjacency_offsets_, adjacency_;
+  Buffer coefficients_, frame_;  // host-written per frame
+  Buffer base_shape_, shape_, albedo_, camera_positions_, camera_normals_, colors_;
+  // alpha | beta (padded) of the last identity pass, valid after the first render.
+  std::vector<float> identity_key_;
+  bool identity_valid_ = false;
+  Buffer draw_list_;
+  uint32_t draw_count_ = 0;
+  PartMask draw_list_parts_ = ~0u;
+
+  std::unique_ptr<ComputePipeline> identity_pipeline_;
+  std::unique_ptr<ComputePipeline> model_pipeline_;
+  std::unique_ptr<ComputePipeline> shade_pipeline_;
+  std::unique_ptr<GraphicsPipeline> raster_pipelines_[2];  // [cull back faces]
+  std::unique_ptr<TimestampQueries> timestamps_;
+
+  std::map<std::pair<int, int>, std::unique_ptr<GBufferTargets>> targets_;
+  GBufferTargets* last_targets_ = nullptr;
+  PinholeCamera last_camera_;
+};
+
+}  // namespace face_reenact::gpu

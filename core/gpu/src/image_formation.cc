@@ -1,0 +1,172 @@
+#include "face_reenact/gpu/image_formation.h"
+
+#include <cmath>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+
+namespace face_reenact::gpu {
+namespace {
+
+bool all_finite(const Eigen::VectorXf& v) { return v.size() == 0 || v.allFinite(); }
+
+bool fail(std::string* why, const std::string& message) {
+  if (why) *why = message;
+  return false;
+}
+
+}  // namespace
+
+std::array<float, kNumShCoefficients> sh_basis(const Eigen::Vector3f& n) {
+  const float x = n.x(), y = n.y(), z = n.z();
+  return {0.282095f,
+          0.488603f * y,
+          0.488603f * z,
+          0.488603f * x,
+          1.092548f * x * y,
+          1.092548f * y * z,
+          0.315392f * (3.0f * z * z - 1.0f),
+          1.092548f * x * z,
+          0.546274f * (x * x - y * y)};
+}
+
+std::array<float, kNumShParameters> ambient_sh(const Eigen::Vector3f& rgb) {
+  std::array<float, kNumShParameters> gamma{};
+  for (int c = 0; c < 3; ++c) gamma[c * kNumShCoefficients] = rgb[c] / 0.282095f;
+  return gamma;
+}
+
+Eigen::Matrix3f rotation_from_euler(const Eigen::Vector3f& e) {
+  const float cx = std::cos(e.x()), sx = std::sin(e.x());
+  const float cy = std::cos(e.y()), sy = std::sin(e.y());
+  const float cz = std::cos(e.z()), sz = std::sin(e.z());
+  Eigen::Matrix3f rx, ry, rz;
+  rx << 1, 0, 0, 0, cx, -sx, 0, sx, cx;
+  ry << cy, 0, sy, 0, 1, 0, -sy, 0, cy;
+  rz << cz, -sz, 0, sz, cz, 0, 0, 0, 1;
+  return rz * ry * rx;
+}
+
+bool FaceParameters::IsValid(std::string* why, int max_identity, int max_expression, int max_albedo) const {
+  if (!all_finite(alpha)) return fail(why, "identity coefficients (alpha) contain NaN or infinity");
+  if (!all_finite(beta)) return fail(why, "albedo coefficients (beta) contain NaN or infinity");
+  if (!all_finite(delta)) return fail(why, "expression coefficients (delta) contain NaN or infinity");
+  for (float g : gamma) {
+    if (!std::isfinite(g)) return fail(why, "SH lighting coefficients (gamma) contain NaN or infinity");
+  }
+  if (!euler.allFinite()) return fail(why, "rotation (Euler angles) contains NaN or infinity");
+  if (!translation.allFinite()) return fail(why, "translation contains NaN or infinity");
+  auto too_long = [&](const Eigen::VectorXf& v, int max, const char* what) {
+    return max >= 0 && v.size() > max
+               ? fail(why, std::string(what) + " has " + std::to_string(v.size()) + " coefficients, the model has " +
+                               std::to_string(max))
+               : true;
+  };
+  return too_long(alpha, max_identity, "alpha") && too_long(delta, max_expression, "delta") &&
+         too_long(beta, max_albedo, "beta");
+}
+
+FaceParameters frontal_pose(float distance) {
+  FaceParameters p;
+  p.euler = Eigen::Vector3f(static_cast<float>(M_PI), 0.f, 0.f);
+  p.translation = Eigen::Vector3f(0.f, 0.f, distance);
+  p.gamma = ambient_sh(Eigen::Vector3f::Ones());
+  return p;
+}
+
+bool PinholeCamera::IsValid(std::string* why) const {
+  if (!(std::isfinite(fx) && std::isfinite(fy) && std::isfinite(cx) && std::isfinite(cy))) {
+    return fail(why, "camera intrinsics contain NaN or infinity");
+  }
+  if (!(fx > 0 && fy > 0)) return fail(why, "camera focal lengths must be positive");
+  if (width <= 0 || height <= 0 || width > 16384 || height > 16384) {
+    return fail(why, "camera size " + std::to_string(width) + "x" + std::to_string(height) + " is outside 1..16384");
+  }
+  if (!(std::isfinite(near_plane) && std::isfinite(far_plane) && near_plane > 0 && far_plane > near_plane)) {
+    return fail(why, "camera needs 0 < near_plane < far_plane");
+  }
+  return true;
+}
+
+PinholeCamera PinholeCamera::Downsampled(int level) const {
+  if (level < 0 || level > 12) throw Error("pyramid level " + std::to_string(level) + " is outside 0..12");
+  PinholeCamera c = *this;
+  for (int l = 0; l < level; ++l) {
+    c.fx *= 0.5f;
+    c.fy *= 0.5f;
+    c.cx = (c.cx + 0.5f) * 0.5f - 0.5f;
+    c.cy = (c.cy + 0.5f) * 0.5f - 0.5f;
+    c.width = std::max(1, c.width / 2);
+    c.height = std::max(1, c.height / 2);
+  }
+  return c;
+}
+
+bool RenderOptions::IsValid(std::string* why) const {
+  if (parts & ~kAllParts) return fail(why, "part mask has bits outside the 9 face parts");
+  return true;
+}
+
+bool RenderModel::IsValid(std::string* why) const {
+  const int n = num_vertices();
+  if (n == 0) return fail(why, "render model has no vertices");
+  const Eigen::Index rows = 3 * static_cast<Eigen::Index>(n);
+  if (mean_shape.size() != rows || mean_albedo.size() != rows) {
+    return fail(why, "render model: mean shape/albedo must have 3N entries");
+  }
+  if (identity_basis.rows() != rows && identity_basis.cols() != 0) return fail(why, "identity basis must have 3N rows");
+  if (expression_basis.rows() != rows && expression_basis.cols() != 0) return fail(why, "expression basis must have 3N rows");
+  if (albedo_basis.rows() != rows && albedo_basis.cols() != 0) return fail(why, "albedo basis must have 3N rows");
+  if (!mean_shape.allFinite() || !mean_albedo.allFinite() || !identity_basis.allFinite() ||
+      !expression_basis.allFinite() || !albedo_basis.allFinite()) {
+    return fail(why, "render model contains NaN or infinity");
+  }
+  for (const auto& t : triangles) {
+    for (int k = 0; k < 3; ++k) {
+      if (t[k] < 0 || t[k] >= n) return fail(why, "render model: triangle vertex index out of range");
+    }
+  }
+  for (uint8_t p : vertex_part) {
+    if (p >= 32) return fail(why, "render model: vertex part out of range");
+  }
+  return true;
+}
+
+RenderModel RenderModel::FromFaceModel(const FaceModel& model) {
+  RenderModel r;
+  r.triangles = model.triangles;
+  r.vertex_part.reserve(model.vertex_part.size());
+  for (FacePart p : model.vertex_part) r.vertex_part.push_back(static_cast<uint8_t>(p));
+  r.mean_shape = model.mean_shape;
+  r.identity_basis = model.identity_basis;
+  r.expression_basis = model.expression_basis;
+  r.mean_albedo = model.mean_albedo;
+  r.albedo_basis = model.albedo_basis;
+  const Eigen::Index rows = r.mean_shape.size();
+  if (r.identity_basis.cols() == 0) r.identity_basis.resize(rows, 0);
+  if (r.expression_basis.cols() == 0) r.expression_basis.resize(rows, 0);
+  if (r.albedo_basis.cols() == 0) r.albedo_basis.resize(rows, 0);
+  std::string why;
+  if (!r.IsValid(&why)) throw Error("face model cannot be rendered: " + why);
+  return r;
+}
+
+void GBuffer::Resize(int w, int h) {
+  width = w;
+  height = h;
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  color.assign(3 * n, 0.f);
+  position.assign(3 * n, 0.f);
+  normal.assign(3 * n, 0.f);
+  barycentric.assign(3 * n, 0.f);
+  triangle.assign(n, -1);
+  vertices.assign(3 * n, -1);
+}
+
+size_t GBuffer::covered_count() const {
+  size_t c = 0;
+  for (int32_t t : triangle) c += t >= 0;
+  return c;
+}
+
+}  // namespace face_reenact::gpu

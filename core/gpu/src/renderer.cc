@@ -1,0 +1,435 @@
+#include "face_reenact/gpu/renderer.h"
+
+#include <chrono>
+#include <cstring>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/gpu/context.h"
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/gpu/embedded_shaders.h"
+#include "face_reenact/gpu/vk_check.h"
+
+namespace face_reenact::gpu {
+namespace {
+
+constexpr uint32_t kLocalSize = 64;
+
+// Mirrors FrameBlock in shaders/common.glsl (std430).
+struct FrameBlock {
+  float rotation_rows[3][4];
+  float translation[4];
+  float gamma[kNumShParameters];
+};
+static_assert(sizeof(FrameBlock) == 172, "FrameBlock must match the std430 layout in common.glsl");
+
+struct IdentityEvalPush {
+  uint32_t rows, num_identity, num_albedo, albedo_offset;
+};
+struct ModelEvalPush {
+  uint32_t rows, num_expression, expression_offset, pad;
+};
+struct ShadePush {
+  uint32_t num_vertices;
+};
+struct RasterPush {
+  float fx, fy, cx, cy, width, height, near_plane, far_plane;
+};
+
+constexpr VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+
+// A storage buffer holding `data` (at least 16 bytes, so empty bases still bind).
+Buffer device_buffer_with(const Context& context, const void* data, size_t bytes, const std::string& name) {
+  Buffer b(context, std::max<size_t>(bytes, 16), kStorage, BufferDomain::Device, name);
+  if (bytes) b.write(data, bytes);
+  return b;
+}
+
+Buffer matrix_buffer(const Context& context, const Eigen::MatrixXf& m, const std::string& name) {
+  return device_buffer_with(context, m.data(), static_cast<size_t>(m.size()) * sizeof(float), name);
+}
+
+void copy_padded(float* out, const Eigen::VectorXf& v, Eigen::Index n) {
+  for (Eigen::Index i = 0; i < n; ++i) out[i] = i < v.size() ? v[i] : 0.f;
+}
+
+}  // namespace
+
+Renderer::Renderer(const Context& context, const RenderModel& model, const Options& options)
+    : context_(context), options_(options), model_(model) {
+  std::string why;
+  if (!model_.IsValid(&why)) throw Error("GPU renderer: " + why);
+  num_vertices_ = static_cast<uint32_t>(model_.num_vertices());
+  const size_t rows = 3 * static_cast<size_t>(num_vertices_);
+  coefficient_count_ = static_cast<uint32_t>(model_.identity_basis.cols() + model_.expression_basis.cols() +
+                                             model_.albedo_basis.cols());
+  const VkDeviceSize max_range = context.properties().limits.maxStorageBufferRange;
+  for (const Eigen::MatrixXf* m : {&model_.identity_basis, &model_.expression_basis, &model_.albedo_basis}) {
+    if (static_cast<VkDeviceSize>(m->size()) * sizeof(float) > max_range) {
+      throw Error("GPU renderer: a model basis of " + std::to_string(m->size() * sizeof(float)) +
+                  " bytes exceeds the device's storage buffer range of " + std::to_string(max_range));
+    }
+  }
+
+  // The G-buffer formats must be renderable (and storage-capable for the tracker's passes).
+  auto require_format = [&](VkFormat format, VkFormatFeatureFlags features, const char* what) {
+    VkFormatProperties props{};
+    vkGetPhysicalDeviceFormatProperties(context.physical_device(), format, &props);
+    if ((props.optimalTilingFeatures & features) != features) {
+      throw Error(std::string("GPU renderer: device '") + context.device_info().name + "' cannot use " + what +
+                  " for the G-buffer");
+    }
+  };
+  require_format(kGBufferFloatFormat,
+                 VK_FORMAT_FEATURE_COLOR_ATTACHMENT_BIT | VK_FORMAT_FEATURE_STORAGE_IMAGE_BIT | VK_FORMAT_FEATURE_TRANSFER_SRC_BIT,
+                 "RGBA32F colour/storage images");
+  require_format(kGBufferIdFormat,
+                 VK_FORMAT_FEATURE_COLOR_ATTACHMENT_BIT | VK_FORMAT_FEATURE_STORAGE_IMAGE_BIT | VK_FORMAT_FEATURE_TRANSFER_SRC_BIT,
+                 "RGBA32UI colour/storage images");
+  require_format(kGBufferDepthFormat, VK_FORMAT_FEATURE_DEPTH_STENCIL_ATTACHMENT_BIT, "D32 depth");
+
+  mean_shape_ = matrix_buffer(context, model_.mean_shape, "mean shape a_id");
+  identity_basis_ = matrix_buffer(context, model_.identity_basis, "identity basis E_id");
+  expression_basis_ = matrix_buffer(context, model_.expression_basis, "expression basis E_exp");
+  mean_albedo_ = matrix_buffer(context, model_.mean_albedo, "mean albedo a_alb");
+  albedo_basis_ = matrix_buffer(context, model_.albedo_basis, "albedo basis E_alb");
+
+  // Triangles flat, and the vertex -> incident triangle adjacency as CSR.
+  std::vector<uint32_t> flat;
+  flat.reserve(model_.triangles.size() * 3);
+  std::vector<uint32_t> offsets(num_vertices_ + 1, 0);
+  for (const auto& t : model_.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      flat.push_back(static_cast<uint32_t>(t[k]));
+      ++offsets[t[k] + 1];
+    }
+  }
+  for (uint32_t v = 0; v < num_vertices_; ++v) offsets[v + 1] += offsets[v];
+  std::vector<uint32_t> adjacency(offsets.back());
+  std::vector<uint32_t> fill(offsets.begin(), offsets.end() - 1);
+  for (size_t t = 0; t < model_.triangles.size(); ++t) {
+    for (int k = 0; k < 3; ++k) adjacency[fill[model_.triangles[t][k]]++] = static_cast<uint32_t>(t);
+  }
+  triangles_ = device_buffer_with(context, flat.data(), flat.size() * sizeof(uint32_t), "triangles");
+  adjacency_offsets_ = device_buffer_with(context, offsets.data(), offsets.size() * sizeof(uint32_t), "adjacency offsets");
+  adjacency_ = device_buffer_with(context, adjacency.data(), adjacency.size() * sizeof(uint32_t), "vertex-triangle adjacency");
+
+  coefficients_ = Buffer(context, std::max<size_t>(coefficient_count_ * sizeof(float), 16), kStorage, BufferDomain::Upload,
+                         "coefficients alpha|delta|beta");
+  frame_ = Buffer(context, 176, kStorage, BufferDomain::Upload, "frame pose + lighting");
+  base_shape_ = Buffer(context, rows * sizeof(float), kStorage, BufferDomain::Device, "identity shape a_id + E_id alpha");
+  shape_ = Buffer(context, rows * sizeof(float), kStorage, BufferDomain::Device, "model positions");
+  albedo_ = Buffer(context, rows * sizeof(float), kStorage, BufferDomain::Device, "vertex albedo");
+  camera_positions_ = Buffer(context, num_vertices_ * 16ull, kStorage, BufferDomain::Device, "camera positions");
+  camera_normals_ = Buffer(context, num_vertices_ * 16ull, kStorage, BufferDomain::Device, "camera normals");
+  colors_ = Buffer(context, num_vertices_ * 16ull, kStorage, BufferDomain::Device, "shaded vertex colours");
+  draw_list_ = Buffer(context, std::max<size_t>(model_.triangles.size(), 1) * 16, kStorage, BufferDomain::Device,
+                      "draw list");
+
+  identity_pipeline_ = std::make_unique<ComputePipeline>(context, shaders::identity_eval_comp, 7,
+                                                         sizeof(IdentityEvalPush), "identity + albedo evaluation");
+  model_pipeline_ = std::make_unique<ComputePipeline>(context, shaders::model_eval_comp, 4, sizeof(ModelEvalPush),
+                                                      "expression evaluation");
+  shade_pipeline_ = std::make_unique<ComputePipeline>(context, shaders::vertex_shade_comp, 9, sizeof(ShadePush),
+                                                      "vertex normals + shading");
+  if (options_.timestamps) timestamps_ = std::make_unique<TimestampQueries>(context, 4, "render timestamps");
+}
+
+Renderer::~Renderer() = default;
+
+const GraphicsPipeline& Renderer::raster_pipeline(bool cull) {
+  auto& slot = raster_pipelines_[cull ? 1 : 0];
+  if (!slot) {
+    GraphicsPipeline::Options o;
+    o.color_formats = {kGBufferFloatFormat, kGBufferFloatFormat, kGBufferFloatFormat, kGBufferFloatFormat,
+                       kGBufferIdFormat};
+    o.depth_format = kGBufferDepthFormat;
+    o.cull_mode = cull ? VK_CULL_MODE_BACK_BIT : VK_CULL_MODE_NONE;
+    // Counter-clockwise from outside in the model becomes Vulkan's counter-clockwise (positive
+    // area in framebuffer coordinates) under our y-down camera; see docs/renderer.md.
+    o.front_face = VK_FRONT_FACE_COUNTER_CLOCKWISE;
+    slot = std::make_unique<GraphicsPipeline>(context_, shaders::gbuffer_vert, shaders::gbuffer_frag, 4,
+                                              static_cast<uint32_t>(sizeof(RasterPush)), o,
+                                              cull ? "G-buffer raster (cull back)" : "G-buffer raster");
+  }
+  return *slot;
+}
+
+GBufferTargets& Renderer::targets_for(int width, int height) {
+  auto& slot = targets_[{width, height}];
+  if (!slot) {
+    const uint32_t w = static_cast<uint32_t>(width), h = static_cast<uint32_t>(height);
+    const VkImageUsageFlags color_usage = VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | VK_IMAGE_USAGE_TRANSFER_SRC_BIT |
+                                          VK_IMAGE_USAGE_STORAGE_BIT | VK_IMAGE_USAGE_SAMPLED_BIT;
+    const std::string suffix = " " + std::to_string(width) + "x" + std::to_string(height);
+    auto t = std::make_unique<GBufferTargets>();
+    t->color = Image(context_, w, h, kGBufferFloatFormat, color_usage, "G-buffer colour" + suffix);
+    t->position = Image(context_, w, h, kGBufferFloatFormat, color_usage, "G-buffer position" + suffix);
+    t->normal = Image(context_, w, h, kGBufferFloatFormat, color_usage, "G-buffer normal" + suffix);
+    t->barycentric = Image(context_, w, h, kGBufferFloatFormat, color_usage, "G-buffer barycentric" + suffix);
+    t->ids = Image(context_, w, h, kGBufferIdFormat, color_usage, "G-buffer ids" + suffix);
+    t->depth = Image(context_, w, h, kGBufferDepthFormat,
+                     VK_IMAGE_USAGE_DEPTH_STENCIL_ATTACHMENT_BIT | VK_IMAGE_USAGE_TRANSFER_SRC_BIT,
+                     "G-buffer depth" + suffix);
+    slot = std::move(t);
+  }
+  return *slot;
+}
+
+void Renderer::update_draw_list(const RenderOptions& options) {
+  if (options.parts == draw_list_parts_) return;
+  std::vector<uint32_t> list;
+  for (int32_t t : drawn_triangles(model_, options)) {
+    const auto& tri = model_.triangles[t];
+    list.insert(list.end(), {static_cast<uint32_t>(tri[0]), static_cast<uint32_t>(tri[1]), static_cast<uint32_t>(tri[2]),
+                             static_cast<uint32_t>(t)});
+  }
+  if (!list.empty()) draw_list_.write(list.data(), list.size() * sizeof(uint32_t));
+  draw_count_ = static_cast<uint32_t>(list.size() / 4);
+  draw_list_parts_ = options.parts;
+}
+
+RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options) {
+  std::string why;
+  if (!params.IsValid(&why, static_cast<int>(model_.identity_basis.cols()), static_cast<int>(model_.expression_basis.cols()),
+                      static_cast<int>(model_.albedo_basis.cols()))) {
+    throw Error("invalid face parameters: " + why);
+  }
+  if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
+  if (!options.IsValid(&why)) throw Error("invalid render options: " + why);
+  const VkPhysicalDeviceLimits& limits = context_.properties().limits;
+  const uint32_t max_w = std::min(limits.maxFramebufferWidth, limits.maxImageDimension2D);
+  const uint32_t max_h = std::min(limits.maxFramebufferHeight, limits.maxImageDimension2D);
+  if (static_cast<uint32_t>(camera.width) > max_w || static_cast<uint32_t>(camera.height) > max_h) {
+    throw Error("camera size " + std::to_string(camera.width) + "x" + std::to_string(camera.height) +
+                " exceeds the device's framebuffer limit " + std::to_string(max_w) + "x" + std::to_string(max_h));
+  }
+  const auto start = std::chrono::steady_clock::now();
+
+  // Per-frame data: coefficients and pose + lighting (host-visible, read by the shaders).
+  std::vector<float> coeffs(std::max<uint32_t>(coefficient_count_, 1), 0.f);
+  const Eigen::Index kid = model_.identity_basis.cols(), kexp = model_.expression_basis.cols();
+  copy_padded(coeffs.data(), params.alpha, kid);
+  copy_padded(coeffs.data() + kid, params.delta, kexp);
+  copy_padded(coeffs.data() + kid + kexp, params.beta, model_.albedo_basis.cols());
+  if (coefficient_count_) coefficients_.write(coeffs.data(), coefficient_count_ * sizeof(float));
+  // The identity pass runs only when alpha or beta differ from the last one it ran for.
+  std::vector<float> identity_key(coeffs.begin(), coeffs.begin() + kid);
+  identity_key.insert(identity_key.end(), coeffs.begin() + kid + kexp, coeffs.begin() + coefficient_count_);
+  const bool run_identity = !identity_valid_ || identity_key != identity_key_;
+  FrameBlock frame{};
+  const Eigen::Matrix3f r = rotation_from_euler(params.euler);
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) frame.rotation_rows[i][j] = r(i, j);
+    frame.translation[i] = params.translation[i];
+  }
+  std::memcpy(frame.gamma, params.gamma.data(), sizeof(frame.gamma));
+  frame_.write(&frame, sizeof(frame));
+
+  update_draw_list(options);
+  GBufferTargets& targets = targets_for(camera.width, camera.height);
+  const GraphicsPipeline& raster = raster_pipeline(options.cull_back_faces);
+
+  context_.submit_and_wait(
+      [&](VkCommandBuffer cmd) {
+        CommandRecorder rec(context_, cmd);
+        if (timestamps_) {
+          timestamps_->reset(cmd);
+          timestamps_->write(cmd, 0);
+        }
+
+        if (run_identity) {
+          rec.bind(*identity_pipeline_);
+          const Buffer* identity_buffers[] = {&mean_shape_, &identity_basis_, &mean_albedo_, &albedo_basis_,
+                                              &coefficients_, &base_shape_, &albedo_};
+          for (uint32_t i = 0; i < 7; ++i) rec.set_storage_buffer(i, *identity_buffers[i]);
+          rec.push_constants(IdentityEvalPush{3 * num_vertices_, static_cast<uint32_t>(kid),
+                                              static_cast<uint32_t>(model_.albedo_basis.cols()),
+                                              static_cast<uint32_t>(kid + kexp)});
+          rec.dispatch_1d(3 * num_vertices_, kLocalSize);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+        }
+        rec.bind(*model_pipeline_);
+        const Buffer* model_buffers[] = {&base_shape_, &expression_basis_, &coefficients_, &shape_};
+        for (uint32_t i = 0; i < 4; ++i) rec.set_storage_buffer(i, *model_buffers[i]);
+        rec.push_constants(ModelEvalPush{3 * num_vertices_, static_cast<uint32_t>(kexp), static_cast<uint32_t>(kid), 0});
+        rec.dispatch_1d(3 * num_vertices_, kLocalSize);
+        rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                           VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+        if (timestamps_) timestamps_->write(cmd, 1);
+
+        rec.bind(*shade_pipeline_);
+        const Buffer* shade_buffers[] = {&shape_, &albedo_, &triangles_, &adjacency_offsets_, &adjacency_,
+                                         &frame_, &camera_positions_, &camera_normals_, &colors_};
+        for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *shade_buffers[i]);
+        rec.push_constants(ShadePush{num_vertices_});
+        rec.dispatch_1d(num_vertices_, kLocalSize);
+        if (timestamps_) timestamps_->write(cmd, 2);
+
+        // One barrier: vertex results -> vertex shader, and every target -> attachment. The
+        // targets are cleared, so their old contents need not survive (UNDEFINED); the source
+        // scope covers readers of the previous frame's G-buffer (write-after-read).
+        Image* colour_targets[] = {&targets.color, &targets.position, &targets.normal, &targets.barycentric, &targets.ids};
+        BarrierBatch pre;
+        pre.memory(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                   VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                   VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+        for (Image* image : colour_targets) {
+          image->layout = VK_IMAGE_LAYOUT_UNDEFINED;
+          pre.image(*image, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                    VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_COLOR_ATTACHMENT_OUTPUT_BIT,
+                    VK_ACCESS_2_COLOR_ATTACHMENT_WRITE_BIT);
+        }
+        targets.depth.layout = VK_IMAGE_LAYOUT_UNDEFINED;
+        pre.image(targets.depth, VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                  VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_EARLY_FRAGMENT_TESTS_BIT | VK_PIPELINE_STAGE_2_LATE_FRAGMENT_TESTS_BIT,
+                  VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_READ_BIT | VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT);
+        pre.record(cmd);
+
+        VkRenderingAttachmentInfo colour_attachments[5];
+        for (int i = 0; i < 5; ++i) {
+          colour_attachments[i] = {VK_STRUCTURE_TYPE_RENDERING_ATTACHMENT_INFO};
+          colour_attachments[i].imageView = colour_targets[i]->view();
+          colour_attachments[i].imageLayout = VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL;
+          colour_attachments[i].loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
+          colour_attachments[i].storeOp = VK_ATTACHMENT_STORE_OP_STORE;
+          colour_attachments[i].clearValue = {};  // zeros (float and uint alike)
+        }
+        VkRenderingAttachmentInfo depth_attachment{VK_STRUCTURE_TYPE_RENDERING_ATTACHMENT_INFO};
+        depth_attachment.imageView = targets.depth.view();
+        depth_attachment.imageLayout = VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL;
+        depth_attachment.loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
+        depth_attachment.storeOp = VK_ATTACHMENT_STORE_OP_STORE;
+        depth_attachment.clearValue.depthStencil = {1.0f, 0};
+        VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
+        rendering.renderArea = {{0, 0}, {static_cast<uint32_t>(camera.width), static_cast<uint32_t>(camera.height)}};
+        rendering.layerCount = 1;
+        rendering.colorAttachmentCount = 5;
+        rendering.pColorAttachments = colour_attachments;
+        rendering.pDepthAttachment = &depth_attachment;
+        vkCmdBeginRendering(cmd, &rendering);
+        VkViewport viewport{0.f, 0.f, static_cast<float>(camera.width), static_cast<float>(camera.height), 0.f, 1.f};
+        VkRect2D scissor = rendering.renderArea;
+        vkCmdSetViewport(cmd, 0, 1, &viewport);
+        vkCmdSetScissor(cmd, 0, 1, &scissor);
+        rec.bind(raster);
+        rec.set_storage_buffer(0, camera_positions_);
+        rec.set_storage_buffer(1, camera_normals_);
+        rec.set_storage_buffer(2, colors_);
+        rec.set_storage_buffer(3, draw_list_);
+        rec.push_constants(RasterPush{camera.fx, camera.fy, camera.cx, camera.cy, static_cast<float>(camera.width),
+                                      static_cast<float>(camera.height), camera.near_plane, camera.far_plane});
+        rec.draw(3 * draw_count_);
+        vkCmdEndRendering(cmd);
+
+        BarrierBatch post;
+        for (Image* image : colour_targets) {
+          post.image(*image, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_COLOR_ATTACHMENT_OUTPUT_BIT,
+                     VK_ACCESS_2_COLOR_ATTACHMENT_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                     VK_ACCESS_2_MEMORY_READ_BIT);
+        }
+        post.image(targets.depth, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_LATE_FRAGMENT_TESTS_BIT,
+                   VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                   VK_ACCESS_2_MEMORY_READ_BIT);
+        post.record(cmd);
+        if (timestamps_) timestamps_->write(cmd, 3);
+      },
+      "render G-buffer");
+
+  identity_key_ = std::move(identity_key);
+  identity_valid_ = true;
+  RenderTimings timings;
+  timings.identity_updated = run_identity;
+  timings.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  timings.drawn_triangles = draw_count_;
+  if (timestamps_) {
+    timestamps_->fetch();
+    timings.model_ms = timestamps_->elapsed_ms(0, 1);
+    timings.shade_ms = timestamps_->elapsed_ms(1, 2);
+    timings.raster_ms = timestamps_->elapsed_ms(2, 3);
+    timings.gpu_total_ms = timestamps_->elapsed_ms(0, 3);
+  }
+  last_targets_ = &targets;
+  last_camera_ = camera;
+  return timings;
+}
+
+const GBufferTargets& Renderer::targets() const {
+  if (!last_targets_) throw Error("GPU renderer: no G-buffer yet (call render first)");
+  return *last_targets_;
+}
+
+GBuffer Renderer::read_gbuffer() const {
+  targets();  // throws when nothing was rendered
+  GBufferTargets& t = *last_targets_;
+  const uint32_t w = t.color.width(), h = t.color.height();
+  const VkDeviceSize plane = static_cast<VkDeviceSize>(w) * h * 16;
+  Image* images[] = {&t.color, &t.position, &t.normal, &t.barycentric, &t.ids};
+  Buffer staging(context_, plane * 5, VK_BUFFER_USAGE_TRANSFER_DST_BIT, BufferDomain::Readback, "G-buffer readback");
+  context_.submit_and_wait(
+      [&](VkCommandBuffer cmd) {
+        CommandRecorder rec(context_, cmd);
+        rec.image_barriers({images[0], images[1], images[2], images[3], images[4]}, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                           VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
+                           VK_ACCESS_2_TRANSFER_READ_BIT);
+        for (int i = 0; i < 5; ++i) {
+          VkBufferImageCopy region{};
+          region.bufferOffset = plane * i;
+          region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+          region.imageExtent = {w, h, 1};
+          vkCmdCopyImageToBuffer(cmd, images[i]->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, staging.handle(), 1,
+                                 &region);
+        }
+        // Back to GENERAL, where the tracker's compute passes expect the G-buffer.
+        rec.image_barriers({images[0], images[1], images[2], images[3], images[4]}, VK_IMAGE_LAYOUT_GENERAL,
+                           VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                           VK_ACCESS_2_MEMORY_READ_BIT);
+        rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                           VK_ACCESS_2_HOST_READ_BIT);
+      },
+      "G-buffer readback");
+  std::vector<float> floats(static_cast<size_t>(plane / 4) * 4);
+  staging.read(floats.data(), plane * 4);
+  std::vector<uint32_t> ids(static_cast<size_t>(w) * h * 4);
+  staging.read(ids.data(), plane, plane * 4);
+
+  GBuffer g;
+  g.Resize(static_cast<int>(w), static_cast<int>(h));
+  const size_t n = static_cast<size_t>(w) * h;
+  const size_t stride = n * 4;  // floats per plane
+  for (size_t p = 0; p < n; ++p) {
+    for (int c = 0; c < 3; ++c) {
+      g.color[3 * p + c] = floats[0 * stride + 4 * p + c];
+      g.position[3 * p + c] = floats[1 * stride + 4 * p + c];
+      g.normal[3 * p + c] = floats[2 * stride + 4 * p + c];
+      g.barycentric[3 * p + c] = floats[3 * stride + 4 * p + c];
+    }
+    const uint32_t tri = ids[4 * p];
+    g.triangle[p] = tri == 0 ? -1 : static_cast<int32_t>(tri - 1);
+    for (int c = 0; c < 3; ++c) g.vertices[3 * p + c] = tri == 0 ? -1 : static_cast<int32_t>(ids[4 * p + 1 + c]);
+  }
+  return g;
+}
+
+VertexState Renderer::read_vertex_state() const {
+  const Eigen::Index n = num_vertices_;
+  VertexState s;
+  s.model_positions.resize(3 * n);
+  s.albedo.resize(3 * n);
+  shape_.read(s.model_positions.data(), 3 * n * sizeof(float));
+  albedo_.read(s.albedo.data(), 3 * n * sizeof(float));
+  auto read_vec4 = [&](const Buffer& b, Eigen::VectorXf& out) {
+    std::vector<float> tmp(4 * n);
+    b.read(tmp.data(), tmp.size() * sizeof(float));
+    out.resize(3 * n);
+    for (Eigen::Index v = 0; v < n; ++v) {
+      for (int c = 0; c < 3; ++c) out[3 * v + c] = tmp[4 * v + c];
+    }
+  };
+  read_vec4(camera_positions_, s.camera_positions);
+  read_vec4(camera_normals_, s.camera_normals);
+  read_vec4(colors_, s.colors);
+  return s;
+}
+
+}  // namespace face_reenact::gpu

@@ -1,0 +1,158 @@
+// The renderer on the real face model (env FR_MODEL: the project's test command builds it
+// first). Fails with a clear message when the model file is missing.
+#include <cstdlib>
+#include <filesystem>
+#include <random>
+
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/gpu/renderer.h"
+#include "face_reenact/model/model_file.h"
+#include "gpu_renderer_compare.h"
+#include "gpu_test_support.h"
+
+namespace face_reenact::gpu {
+namespace {
+
+using testing::ValidatedGpuTest;
+
+const FaceModel& face_model() {
+  static const FaceModel model = [] {
+    const char* path = std::getenv("FR_MODEL");
+    if (!path || !*path) {
+      ADD_FAILURE() << "FR_MODEL is not set: run the tests through ctest (which sets it) after building the face model";
+      return FaceModel{};
+    }
+    if (!std::filesystem::exists(path)) {
+      ADD_FAILURE() << "face model " << path << " is missing: build it first with `face-reenact model build`";
+      return FaceModel{};
+    }
+    return load_face_model(path);
+  }();
+  return model;
+}
+
+// Parameters drawn from the model's priors: alpha_i ~ N(0, sigma_id_i), beta_i ~ N(0, sigma_alb_i),
+// delta_i ~ U(0, 0.6), a head turn of up to ~25 degrees, and random SH lighting.
+FaceParameters random_face_parameters(const FaceModel& m, std::mt19937& rng) {
+  std::normal_distribution<float> gauss(0.f, 1.f);
+  std::uniform_real_distribution<float> unit(0.f, 1.f);
+  FaceParameters p = frontal_pose(0.55f);
+  p.alpha = Eigen::VectorXf(m.num_identity());
+  for (int i = 0; i < m.num_identity(); ++i) p.alpha[i] = m.identity_sigma[i] * gauss(rng);
+  p.beta = Eigen::VectorXf(m.num_albedo());
+  for (int i = 0; i < m.num_albedo(); ++i) p.beta[i] = m.albedo_sigma[i] * gauss(rng);
+  p.delta = Eigen::VectorXf(m.num_expression());
+  for (int i = 0; i < m.num_expression(); ++i) p.delta[i] = 0.6f * unit(rng);
+  p.euler += Eigen::Vector3f(0.15f * gauss(rng), 0.25f * gauss(rng), 0.1f * gauss(rng));
+  p.translation += Eigen::Vector3f(0.03f * gauss(rng), 0.03f * gauss(rng), 0.1f * gauss(rng));
+  for (int c = 0; c < 3; ++c) {
+    p.gamma[c * 9] = 3.0f + 0.3f * gauss(rng);
+    for (int k = 1; k < 9; ++k) p.gamma[c * 9 + k] = 0.3f * gauss(rng);
+  }
+  return p;
+}
+
+class FaceModelRenderTest : public ValidatedGpuTest {
+ protected:
+  void SetUp() override {
+    ValidatedGpuTest::SetUp();
+    if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
+  }
+};
+
+TEST_F(FaceModelRenderTest, FrontalFaceCoversTheImageCentre) {
+  const RenderModel model = RenderModel::FromFaceModel(face_model());
+  Renderer renderer(context(), model);
+  const PinholeCamera cam;
+  renderer.render(frontal_pose(0.5f), cam);
+  const GBuffer g = renderer.read_gbuffer();
+  // A face is ~0.2 m tall: at 0.5 m and f = 525 px that is ~200 px, so thousands of pixels.
+  EXPECT_GT(g.covered_count(), 10000u);
+  EXPECT_LT(g.covered_count(), 640u * 480u / 2);
+  // The model origin (between the eyes) projects to the principal point, which is covered, and
+  // the surface there lies a little in front of the origin (the bridge of the nose).
+  const size_t c = 240 * 640 + 320;
+  ASSERT_GE(g.triangle[c], 0);
+  EXPECT_LT(g.position[3 * c + 2], 0.5f);
+  EXPECT_GT(g.position[3 * c + 2], 0.45f);
+  // The face looks at the camera: normals near the centre point back towards it (n_z < 0).
+  EXPECT_LT(g.normal[3 * c + 2], -0.5f);
+  // The chin is below the eyes: covered pixels reach further down (larger v) than up past the
+  // forehead? Not necessarily; but the face must extend both above and below the centre.
+  int min_j = 480, max_j = -1;
+  for (int j = 0; j < 480; ++j) {
+    for (int i = 0; i < 640; ++i) {
+      if (g.covered(i, j)) {
+        min_j = std::min(min_j, j);
+        max_j = std::max(max_j, j);
+      }
+    }
+  }
+  EXPECT_LT(min_j, 200);
+  EXPECT_GT(max_j, 300);
+}
+
+TEST_F(FaceModelRenderTest, GpuMatchesCpuAtEveryPyramidLevel) {
+  const RenderModel model = RenderModel::FromFaceModel(face_model());
+  Renderer renderer(context(), model);
+  CpuRenderer cpu(model);
+  std::mt19937 rng(2015);
+  for (int level = 0; level < 3; ++level) {
+    const PinholeCamera cam = PinholeCamera{}.Downsampled(level);
+    for (int trial = 0; trial < 3; ++trial) {
+      const FaceParameters p = random_face_parameters(face_model(), rng);
+      RenderOptions options;
+      options.parts = trial == 2 ? kAllParts : kSkinParts;
+      renderer.render(p, cam, options);
+      const GBuffer gpu = renderer.read_gbuffer();
+      const GBuffer ref = cpu.render(p, cam, options);
+      SCOPED_TRACE("level " + std::to_string(level) + " trial " + std::to_string(trial));
+      testing::expect_gbuffers_agree(gpu, ref);
+    }
+  }
+}
+
+TEST_F(FaceModelRenderTest, VertexStageMatchesCpu) {
+  const RenderModel model = RenderModel::FromFaceModel(face_model());
+  Renderer renderer(context(), model);
+  CpuRenderer cpu(model);
+  std::mt19937 rng(7);
+  const FaceParameters p = random_face_parameters(face_model(), rng);
+  renderer.render(p, PinholeCamera{});
+  const VertexState gpu = renderer.read_vertex_state();
+  const VertexState ref = cpu.evaluate(p);
+  EXPECT_LT((gpu.model_positions - ref.model_positions).cwiseAbs().maxCoeff(), 2e-6f);
+  EXPECT_LT((gpu.albedo - ref.albedo).cwiseAbs().maxCoeff(), 2e-5f);
+  EXPECT_LT((gpu.camera_positions - ref.camera_positions).cwiseAbs().maxCoeff(), 2e-6f);
+  // Normals of tiny or sliver triangles are the most sensitive to summation order.
+  EXPECT_LT((gpu.camera_normals - ref.camera_normals).cwiseAbs().maxCoeff(), 1e-3f);
+  EXPECT_LT((gpu.colors - ref.colors).cwiseAbs().maxCoeff(), 1e-3f);
+}
+
+TEST_F(FaceModelRenderTest, MouthInteriorIsSelectedByThePartMask) {
+  const FaceModel& fm = face_model();
+  const RenderModel model = RenderModel::FromFaceModel(fm);
+  Renderer renderer(context(), model);
+  // Open the jaw so the teeth and tongue are visible, and draw only those parts.
+  FaceParameters p = frontal_pose(0.5f);
+  p.delta = Eigen::VectorXf::Zero(fm.num_expression());
+  const int jaw = arkit_blendshape_index("jawOpen");
+  ASSERT_GE(jaw, 0);
+  p.delta[jaw] = 1.0f;
+  RenderOptions mouth;
+  mouth.parts = (1u << static_cast<int>(FacePart::UpperTeeth)) | (1u << static_cast<int>(FacePart::LowerTeeth)) |
+                (1u << static_cast<int>(FacePart::Tongue));
+  mouth.cull_back_faces = false;
+  renderer.render(p, PinholeCamera{}, mouth);
+  const GBuffer g = renderer.read_gbuffer();
+  EXPECT_GT(g.covered_count(), 0u);
+  for (size_t q = 0; q < g.triangle.size(); ++q) {
+    if (g.triangle[q] < 0) continue;
+    const auto part = fm.vertex_part[fm.triangles[g.triangle[q]][0]];
+    ASSERT_TRUE(part == FacePart::UpperTeeth || part == FacePart::LowerTeeth || part == FacePart::Tongue)
+        << face_part_name(part);
+  }
+}
+
+}  // namespace
+}  // namespace face_reenact::gpu
