@@ -1,0 +1,77 @@
+#pragma once
+// Landmarks on video: the whole frame is searched only on the first frame, after a loss and
+// (in a band around the face) every redetect_interval frames; otherwise the shape predictor
+// starts from the previous frame's landmarks, re-centred, which keeps the per-frame cost to a
+// few shape-predictor runs (the paper's preprocessing budget is about 6 ms per frame).
+#include <cstdint>
+#include <string>
+
+#include "face_reenact/landmarks/landmark_detector.h"
+#include "face_reenact/landmarks/smoothing.h"
+
+namespace face_reenact::landmarks {
+
+struct TrackerOptions {
+  DetectorOptions detector = [] {
+    DetectorOptions d;
+    d.confidence_samples = 3;  // per-frame budget: 3 predictor runs of ~1.2 ms
+    d.max_upsample = 0;        // never upsample a whole video frame
+    return d;
+  }();
+  // Search the whole frame every frame (no tracking): the reference mode.
+  bool detect_every_frame = false;
+  // Frames between band re-detections around the tracked face (0: never).
+  int redetect_interval = 30;
+  // The band: the tracked box grown by this fraction of its size on every side.
+  float redetect_band = 0.6f;
+  // The start box follows the previous points only when it moves or scales by more than this
+  // fraction of its size: a still face then keeps an identical start, and the predictor's
+  // output does not pick up noise fed back through the box.
+  float start_box_deadband = 0.03f;
+  // A tracked fit whose mean confidence falls below this is a lost track.
+  float min_track_confidence = 0.25f;
+  // After losing the followed face, only a face overlapping its last box is taken for this
+  // many frames (it may come back after a blur or a turn); then the largest face is.
+  int reacquire_frames = 15;
+  SmoothingOptions smoothing;
+
+  bool IsValid(std::string* error) const;
+};
+
+// What the tracker did so far (why searches happened, how often the face was lost).
+struct TrackerSummary {
+  int64_t frames = 0;
+  int64_t frames_with_landmarks = 0;
+  int64_t full_searches = 0;        // whole-frame HOG searches
+  int64_t band_searches = 0;        // periodic searches around the tracked face
+  int64_t band_misses = 0;          // band searches that found no face
+  int64_t tracked_frames = 0;       // frames fitted from the previous landmarks
+  int64_t losses = 0;               // tracks dropped (implausible shape, low confidence, left frame)
+  std::string last_loss_reason;
+
+  std::string BriefReport() const;
+};
+
+class LandmarkTracker {
+ public:
+  explicit LandmarkTracker(const TrackerOptions& options = {});
+  ~LandmarkTracker();
+  LandmarkTracker(LandmarkTracker&&) noexcept;
+  LandmarkTracker& operator=(LandmarkTracker&&) noexcept;
+
+  // One frame. `timestamp_s` drives the smoothing filter (must increase); `pose` is the
+  // tracked head pose of the previous frame, if any, for pose pruning.
+  LandmarkResult Track(const ImageView& frame, double timestamp_s, const HeadPose* pose = nullptr);
+  // Forget the face (next frame is searched from scratch).
+  void Reset();
+
+  bool tracking() const;
+  const TrackerSummary& summary() const;
+  const TrackerOptions& options() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace face_reenact::landmarks
