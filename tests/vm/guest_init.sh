@@ -1,0 +1,28 @@
+#!/bin/busybox sh
+# /init of the test VM (see run_v4l2_vm_test.sh): load v4l2loopback the way users do
+# (exclusive_caps=1), mount the host's root read-only and the exchange folder over its /tmp,
+# run /tmp/guest.sh in a chroot of the host, then power off.
+/bin/busybox --install -s /bin
+mount -t proc proc /proc
+mount -t sysfs sysfs /sys
+mount -t devtmpfs devtmpfs /dev
+
+for name in mc videodev virtio_ring virtio virtio_pci_legacy_dev virtio_pci_modern_dev virtio_pci \
+            9pnet 9pnet_virtio netfs fscache 9p; do
+  insmod /modules/$name.ko || echo "init: insmod $name failed"
+done
+insmod /modules/v4l2loopback.ko exclusive_caps=1 video_nr=0 card_label="face-reenact test" \
+  || echo "init: insmod v4l2loopback failed"
+
+mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=524288 host /host || echo "init: mounting host root failed"
+mount -t 9p -o trans=virtio,version=9p2000.L,rw,msize=524288 exchange /host/tmp || echo "init: mounting exchange failed"
+mount -t devtmpfs devtmpfs /host/dev
+mount -t proc proc /host/proc
+mount -t sysfs sysfs /host/sys
+mount -t tmpfs tmpfs /host/run 2>/dev/null
+
+chroot /host /bin/bash /tmp/guest.sh >/host/tmp/guest.log 2>&1
+echo $? >/host/tmp/guest.status
+sync
+umount /host/tmp
+poweroff -f

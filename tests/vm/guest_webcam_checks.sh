@@ -1,0 +1,149 @@
+#!/bin/bash
+# Runs inside the test VM (chroot of the host's root, /tmp = the exchange folder), against the
+# real v4l2loopback module loaded with exclusive_caps=1 at /dev/video0. It only drives programs
+# and records what they said and captured into /tmp/results; the checks live in
+# vm_webcam_test.cc on the host, which reads these files.
+#
+# Input: /tmp/env.sh (FR_CLI=path of face-reenact, written by run_v4l2_vm_test.sh).
+set -u
+. /tmp/env.sh
+results=/tmp/results
+mkdir -p "$results"
+device=/dev/video0
+cd "$results" || exit 1
+
+# The picture sent: 640x480, four 160-pixel bars red, green, blue, white (binary PPM, made by
+# ffmpeg's colour sources in RGB; the host test knows the same layout).
+ffmpeg -hide_banner -nostdin -loglevel error \
+  -f lavfi -i color=c=0xFF0000:s=160x480 -f lavfi -i color=c=0x00FF00:s=160x480 \
+  -f lavfi -i color=c=0x0000FF:s=160x480 -f lavfi -i color=c=0xFFFFFF:s=160x480 \
+  -filter_complex "[0][1][2][3]hstack=inputs=4,format=rgb24" -frames:v 1 -y /tmp/pattern.ppm \
+  >pattern.log 2>&1
+
+now() { date +%s.%N; }
+step() { echo "== $* ($(now))"; }
+
+# Starts the writer in the background and waits until the device announces capture (the
+# exclusive_caps flip), at most 60 s (program start-up is slow under software emulation).
+start_writer() {  # name, args...
+  local name=$1; shift
+  "$FR_CLI" webcam --device "$device" "$@" >"$name-writer.log" 2>&1 &
+  writer_pid=$!
+  for _ in $(seq 600); do
+    if v4l2-ctl -d "$device" -D 2>/dev/null | grep -q "Video Capture"; then return 0; fi
+    kill -0 "$writer_pid" 2>/dev/null || return 1
+    sleep 0.1
+  done
+  return 1
+}
+
+stop_writer() {  # name
+  kill -TERM "$writer_pid" 2>/dev/null
+  wait "$writer_pid"
+  echo $? >"$1-writer.rc"
+}
+
+# v4l2-ctl streams with mmap buffers, logging each buffer's sequence number and timestamp. The
+# frames go to the guest's tmpfs first (writing them over 9p would slow the reader down) and
+# into the results afterwards.
+capture_mmap() {  # name, count
+  v4l2-ctl -d "$device" --stream-mmap=4 --stream-count="$2" --stream-to="/run/$1.raw" --verbose \
+    >"$1-capture.log" 2>&1
+  echo $? >"$1-capture.rc"
+  mv "/run/$1.raw" "$1.raw"
+}
+
+step "warm-up: load the programs once (9p page cache)"
+"$FR_CLI" --help >/dev/null 2>&1
+ffmpeg -version >/dev/null 2>&1
+
+step "modules and devices"
+lsmod >lsmod.txt 2>&1 || cat /proc/modules >lsmod.txt
+v4l2-ctl --list-devices >devices.txt 2>&1
+v4l2-ctl -d "$device" -D >caps-before.txt 2>&1
+
+# --- YUYV 640x480 at 30 fps from a still image ------------------------------------------------
+step "yuyv writer"
+if start_writer yuyv --input /tmp/pattern.ppm --size 640x480 --fps 30 --format yuyv --status; then
+  echo started >yuyv-started.txt
+fi
+v4l2-ctl -d "$device" -D >caps-streaming.txt 2>&1
+v4l2-ctl -d "$device" --get-fmt-video >yuyv-fmt.txt 2>&1
+v4l2-ctl -d "$device" --get-parm >yuyv-parm.txt 2>&1
+step "yuyv capture (v4l2-ctl)"
+capture_mmap yuyv 90
+step "yuyv capture (ffmpeg)"
+ffmpeg -hide_banner -nostdin -f v4l2 -i "$device" -frames:v 15 -f rawvideo -y yuyv-ffmpeg.raw \
+  >yuyv-ffmpeg.log 2>&1
+echo $? >yuyv-ffmpeg.rc
+# The reader went away (both closed); the writer must keep going and serve the next reader.
+sleep 2
+step "yuyv reader comes back"
+capture_mmap yuyv-again 20
+kill -0 "$writer_pid" 2>/dev/null && echo alive >yuyv-alive-after-readers.txt
+step "second writer while the first runs"
+timeout 60 "$FR_CLI" webcam --device "$device" --seconds 1 >busy.log 2>&1
+echo $? >busy.rc
+step "stop yuyv writer"
+stop_writer yuyv
+v4l2-ctl -d "$device" -D >caps-after-writer.txt 2>&1
+
+# --- I420 1280x720 at 15 fps: the 640x480 picture pillarboxed ---------------------------------
+step "i420 writer"
+if start_writer i420 --input /tmp/pattern.ppm --size 1280x720 --fps 15 --format i420; then
+  echo started >i420-started.txt
+fi
+v4l2-ctl -d "$device" --get-fmt-video >i420-fmt.txt 2>&1
+v4l2-ctl -d "$device" --get-parm >i420-parm.txt 2>&1
+step "i420 capture"
+capture_mmap i420 30
+ffmpeg -hide_banner -nostdin -f v4l2 -i "$device" -frames:v 5 -f rawvideo -y i420-ffmpeg.raw \
+  >i420-ffmpeg.log 2>&1
+echo $? >i420-ffmpeg.rc
+step "stop i420 writer (SIGINT)"
+kill -INT "$writer_pid" 2>/dev/null
+wait "$writer_pid"
+echo $? >i420-writer.rc
+
+# --- a writer restarted with a reader attached the whole time --------------------------------
+step "reader stays while the writer restarts"
+if start_writer restart1 --size 640x480 --fps 30; then echo started >restart1-started.txt; fi
+stdbuf -oL -eL v4l2-ctl -d "$device" --stream-mmap=4 --stream-count=100000 --stream-to=/dev/null \
+  --verbose >restart-reader.log 2>&1 &
+reader_pid=$!
+# Stop the first writer once the reader has seen some of its frames (at most 60 s).
+for _ in $(seq 600); do
+  [[ $(grep -c "ts:" restart-reader.log) -ge 15 ]] && break
+  sleep 0.1
+done
+stop_writer restart1
+sleep 0.5
+grep -c "ts:" restart-reader.log >restart-frames-writer1.txt
+start_writer restart2 --size 640x480 --fps 30 --seconds 3
+wait "$writer_pid"; echo $? >restart2-writer.rc
+grep -c "ts:" restart-reader.log >restart-frames-total.txt
+kill -INT "$reader_pid" 2>/dev/null
+sleep 1
+kill -KILL "$reader_pid" 2>/dev/null
+wait "$reader_pid" 2>/dev/null
+
+# --- wrong devices (argument errors are covered by the host tests: every program start costs
+# seconds under emulation) ---------------------------------------------------------------------
+step "error cases"
+timeout 60 "$FR_CLI" webcam --device /dev/null --seconds 1 >devnull.log 2>&1; echo $? >devnull.rc
+timeout 60 "$FR_CLI" webcam --device /dev/video7 --seconds 1 >missing.log 2>&1; echo $? >missing.rc
+
+# --- EBUSY at open: the module reloaded with max_openers=1 and the device held open ----------
+step "EBUSY"
+if rmmod v4l2loopback >reload.log 2>&1 &&
+   insmod /tmp/v4l2loopback.ko exclusive_caps=1 max_openers=1 card_label=face-reenact >>reload.log 2>&1; then
+  for _ in $(seq 100); do [[ -e $device ]] && break; sleep 0.1; done
+  exec 3<>"$device"
+  timeout 60 "$FR_CLI" webcam --device "$device" --seconds 1 >ebusy.log 2>&1
+  echo $? >ebusy.rc
+  exec 3>&-
+fi
+
+v4l2-ctl -d "$device" -D >caps-end.txt 2>&1
+dmesg >dmesg.txt 2>&1
+step "done"

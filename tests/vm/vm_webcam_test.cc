@@ -1,0 +1,252 @@
+// End to end against the real v4l2loopback kernel module: run_v4l2_vm_test.sh boots Debian's
+// kernel in QEMU with the module loaded (exclusive_caps=1), guest_webcam_checks.sh drives our
+// `face-reenact webcam` writer and real V4L2 readers (v4l2-ctl with mmap streaming, ffmpeg)
+// inside it, and the tests below check what the readers received: format, size, frame rate
+// (buffer timestamps), picture content, and the error and recovery cases.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <opencv2/core.hpp>
+#include <regex>
+#include <sstream>
+
+#include "face_reenact/output/pixel_conversion.h"
+
+namespace face_reenact::output {
+namespace {
+
+namespace fs = std::filesystem;
+
+const fs::path kExchange = FR_VM_EXCHANGE_DIR;
+const fs::path kResults = kExchange / "results";
+
+// The picture the guest script sends (its make_pattern): 640x480, four 160-pixel bars, red,
+// green, blue, white (BGR order below).
+const cv::Vec3b kBars[4] = {{0, 0, 255}, {0, 255, 0}, {255, 0, 0}, {255, 255, 255}};
+
+std::string read_text_at(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string read_text(const std::string& name) { return read_text_at(kResults / name); }
+
+int read_rc(const std::string& name) {
+  std::string t = read_text(name);
+  return t.empty() ? -1000 : std::atoi(t.c_str());
+}
+
+std::vector<uint8_t> read_bytes(const std::string& name) {
+  std::ifstream in(kResults / name, std::ios::binary);
+  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
+}
+
+// The VM runs once, as the CTest fixture vm_webcam_boot (see CMakeLists.txt); each test here
+// checks one aspect of what it recorded.
+class VmWebcamTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string skip = read_text_at(kExchange / "skip-reason.txt");
+    if (!skip.empty()) GTEST_SKIP() << "VM prerequisites missing: " << skip;
+    if (::geteuid() != 0 && !fs::exists(kExchange / "guest.status"))
+      GTEST_SKIP() << "needs root to boot the QEMU VM with the host's root file system shared";
+    ASSERT_TRUE(fs::exists(kExchange / "guest.status"))
+        << "the VM has not run: run the CTest fixture vm_webcam_boot first (ctest -L vm), or "
+           "tests/vm/run_v4l2_vm_test.sh by hand";
+  }
+  void TearDown() override {
+    if (HasFailure())
+      std::cerr << "--- guest log (" << (kExchange / "guest.log").string() << ") ---\n"
+                << read_text_at(kExchange / "guest.log") << "\n";
+  }
+};
+
+struct BufferLog {
+  std::vector<double> timestamps;  // seconds, set by the driver when the writer wrote the frame
+  std::vector<int64_t> sequence;   // the driver's count of frames written
+};
+
+// v4l2-ctl --verbose lines: "cap dqbuf: 1 seq:     23 bytesused: 614400 ts: 30.931277 ...".
+BufferLog parse_buffers(const std::string& log) {
+  BufferLog b;
+  std::regex re("seq:\\s*([0-9]+)\\s+bytesused:\\s*[0-9]+\\s+ts:\\s*([0-9]+\\.[0-9]+)");
+  for (auto it = std::sregex_iterator(log.begin(), log.end(), re); it != std::sregex_iterator(); ++it) {
+    b.sequence.push_back(std::stoll((*it)[1].str()));
+    b.timestamps.push_back(std::stod((*it)[2].str()));
+  }
+  return b;
+}
+
+int buffers_received(const std::string& log) { return static_cast<int>(parse_buffers(log).timestamps.size()); }
+
+// The rate at which frames entered the device, as the driver recorded it: written frames
+// (sequence numbers) over their write timestamps. A slow reader skips frames but does not
+// change this.
+double write_rate(const std::string& log) {
+  BufferLog b = parse_buffers(log);
+  if (b.timestamps.size() < 10) return 0;
+  size_t first = 2;  // the first buffers may predate the reader
+  double seconds = b.timestamps.back() - b.timestamps[first];
+  return seconds > 0 ? double(b.sequence.back() - b.sequence[first]) / seconds : 0;
+}
+
+// Fraction of deadlines the writer reported as missed (it woke too late: the emulated machine
+// got too little CPU), from its final summary line.
+double missed_fraction(const std::string& writer_log) {
+  std::smatch m;
+  std::regex re("written ([0-9]+) .*missed deadlines ([0-9]+)");
+  std::string last;
+  std::istringstream lines(writer_log);
+  for (std::string line; std::getline(lines, line);)
+    if (std::regex_search(line, m, re)) last = line;
+  if (!std::regex_search(last, m, re)) return 1;
+  double written = std::stod(m[1].str()), missed = std::stod(m[2].str());
+  return written + missed > 0 ? missed / (written + missed) : 1;
+}
+
+// Frames enter the device at the requested rate: never faster (no bursts after a stall), and
+// no slower than the deadlines the writer itself reports missing, within 10%.
+void expect_rate(const std::string& capture_log, const std::string& writer_log, double fps) {
+  double rate = write_rate(capture_log);
+  double missed = missed_fraction(writer_log);
+  EXPECT_LE(rate, fps * 1.05) << capture_log;
+  EXPECT_GE(rate, fps * (1 - missed) * 0.9) << "missed fraction " << missed << "\n" << capture_log;
+  std::cout << "write rate seen by the reader: " << rate << " fps (requested " << fps << ", writer missed "
+            << 100 * missed << "% of deadlines)\n";
+}
+
+cv::Vec3d mean_bgr(const cv::Mat& img, cv::Rect r) {
+  cv::Scalar m = cv::mean(img(r));
+  return {m[0], m[1], m[2]};
+}
+
+void expect_colour(const cv::Mat& img, cv::Rect r, cv::Vec3b want, const std::string& what) {
+  cv::Vec3d got = mean_bgr(img, r);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(got[c], want[c], 6) << what << " channel " << c;
+}
+
+TEST_F(VmWebcamTest, LoopbackDeviceIsThereAndStartsAsOutputOnly) {
+  EXPECT_NE(read_text("devices.txt").find("/dev/video0"), std::string::npos) << read_text("devices.txt");
+  std::string caps = read_text("caps-before.txt");
+  EXPECT_NE(caps.find("v4l2 loopback"), std::string::npos) << caps;
+  EXPECT_NE(caps.find("Video Output"), std::string::npos) << caps;
+  EXPECT_EQ(caps.find("Video Capture"), std::string::npos) << caps;
+}
+
+TEST_F(VmWebcamTest, YuyvWriterTurnsTheDeviceIntoACameraWithTheRightFormat) {
+  EXPECT_FALSE(read_text("yuyv-started.txt").empty()) << read_text("yuyv-writer.log");
+  std::string caps = read_text("caps-streaming.txt");
+  EXPECT_NE(caps.find("Video Capture"), std::string::npos) << caps;  // exclusive_caps flipped
+  std::string fmt = read_text("yuyv-fmt.txt");
+  EXPECT_NE(fmt.find("640/480"), std::string::npos) << fmt;
+  EXPECT_NE(fmt.find("'YUYV'"), std::string::npos) << fmt;
+  std::string parm = read_text("yuyv-parm.txt");
+  EXPECT_NE(parm.find("30.000"), std::string::npos) << parm;
+}
+
+TEST_F(VmWebcamTest, YuyvFramesArriveAtThirtyFpsWithTheSentPicture) {
+  EXPECT_EQ(read_rc("yuyv-capture.rc"), 0) << read_text("yuyv-capture.log");
+  const size_t frame = frame_bytes(PixelFormat::kYuyv, 640, 480);
+  std::vector<uint8_t> raw = read_bytes("yuyv.raw");
+  ASSERT_EQ(raw.size(), 90 * frame);
+  EXPECT_EQ(buffers_received(read_text("yuyv-capture.log")), 90);
+  expect_rate(read_text("yuyv-capture.log"), read_text("yuyv-writer.log"), 30);
+  for (int index : {10, 89}) {
+    cv::Mat img = convert_to_bgr(std::span(raw).subspan(index * frame, frame), PixelFormat::kYuyv, 640, 480);
+    for (int i = 0; i < 4; ++i)
+      expect_colour(img, cv::Rect(160 * i + 10, 20, 140, 440), kBars[i], "frame " + std::to_string(index) + " bar " + std::to_string(i));
+  }
+}
+
+TEST_F(VmWebcamTest, FfmpegReadsTheDeviceAsAYuyvCamera) {
+  std::string log = read_text("yuyv-ffmpeg.log");
+  EXPECT_EQ(read_rc("yuyv-ffmpeg.rc"), 0) << log;
+  EXPECT_NE(log.find("yuyv422"), std::string::npos) << log;
+  EXPECT_NE(log.find("640x480"), std::string::npos) << log;
+  const size_t frame = frame_bytes(PixelFormat::kYuyv, 640, 480);
+  std::vector<uint8_t> raw = read_bytes("yuyv-ffmpeg.raw");
+  ASSERT_EQ(raw.size(), 15 * frame) << log;
+  cv::Mat img = convert_to_bgr(std::span(raw).subspan(14 * frame, frame), PixelFormat::kYuyv, 640, 480);
+  for (int i = 0; i < 4; ++i) expect_colour(img, cv::Rect(160 * i + 10, 20, 140, 440), kBars[i], "ffmpeg bar " + std::to_string(i));
+}
+
+TEST_F(VmWebcamTest, ReaderThatLeftAndCameBackGetsFramesAgain) {
+  EXPECT_EQ(read_text("yuyv-alive-after-readers.txt"), "alive\n") << read_text("yuyv-writer.log");
+  EXPECT_EQ(read_rc("yuyv-again-capture.rc"), 0) << read_text("yuyv-again-capture.log");
+  EXPECT_EQ(read_bytes("yuyv-again.raw").size(), 20 * frame_bytes(PixelFormat::kYuyv, 640, 480));
+  EXPECT_EQ(buffers_received(read_text("yuyv-again-capture.log")), 20);
+  expect_rate(read_text("yuyv-again-capture.log"), read_text("yuyv-writer.log"), 30);
+}
+
+TEST_F(VmWebcamTest, SecondWriterIsToldTheDeviceIsBusy) {
+  EXPECT_EQ(read_rc("busy.rc"), 1) << read_text("busy.log");
+  EXPECT_NE(read_text("busy.log").find("busy"), std::string::npos) << read_text("busy.log");
+}
+
+TEST_F(VmWebcamTest, SigtermStopsTheWriterCleanlyWithStatistics) {
+  EXPECT_EQ(read_rc("yuyv-writer.rc"), 0) << read_text("yuyv-writer.log");
+  std::string log = read_text("yuyv-writer.log");
+  EXPECT_NE(log.find("stopped by SIGTERM"), std::string::npos) << log;
+  EXPECT_NE(log.find("write errors 0"), std::string::npos) << log;
+  EXPECT_NE(log.find("status:"), std::string::npos) << log;  // --status lines
+  // After the writer left, the device offers output again for the next writer.
+  EXPECT_NE(read_text("caps-after-writer.txt").find("Video Output"), std::string::npos) << read_text("caps-after-writer.txt");
+}
+
+TEST_F(VmWebcamTest, I420PillarboxedAtFifteenFps) {
+  EXPECT_FALSE(read_text("i420-started.txt").empty()) << read_text("i420-writer.log");
+  std::string fmt = read_text("i420-fmt.txt");
+  EXPECT_NE(fmt.find("1280/720"), std::string::npos) << fmt;
+  EXPECT_NE(fmt.find("'YU12'"), std::string::npos) << fmt;
+  EXPECT_NE(read_text("i420-parm.txt").find("15.000"), std::string::npos) << read_text("i420-parm.txt");
+  const size_t frame = frame_bytes(PixelFormat::kI420, 1280, 720);
+  std::vector<uint8_t> raw = read_bytes("i420.raw");
+  ASSERT_EQ(raw.size(), 30 * frame) << read_text("i420-capture.log");
+  EXPECT_EQ(buffers_received(read_text("i420-capture.log")), 30);
+  expect_rate(read_text("i420-capture.log"), read_text("i420-writer.log"), 15);
+  cv::Mat img = convert_to_bgr(std::span(raw).subspan(29 * frame, frame), PixelFormat::kI420, 1280, 720);
+  // 640x480 fills 960x720 from x = 160: bars 240 wide, black pillars either side.
+  expect_colour(img, cv::Rect(0, 0, 150, 720), {0, 0, 0}, "left pillar");
+  expect_colour(img, cv::Rect(1130, 0, 150, 720), {0, 0, 0}, "right pillar");
+  for (int i = 0; i < 4; ++i)
+    expect_colour(img, cv::Rect(160 + 240 * i + 20, 20, 200, 680), kBars[i], "i420 bar " + std::to_string(i));
+  std::string ffmpeg = read_text("i420-ffmpeg.log");
+  EXPECT_EQ(read_rc("i420-ffmpeg.rc"), 0) << ffmpeg;
+  EXPECT_NE(ffmpeg.find("yuv420p"), std::string::npos) << ffmpeg;
+  EXPECT_NE(ffmpeg.find("1280x720"), std::string::npos) << ffmpeg;
+  EXPECT_EQ(read_rc("i420-writer.rc"), 0) << read_text("i420-writer.log");
+  EXPECT_NE(read_text("i420-writer.log").find("stopped by SIGINT"), std::string::npos) << read_text("i420-writer.log");
+}
+
+TEST_F(VmWebcamTest, WriterRestartWhileAReaderStaysAttached) {
+  EXPECT_EQ(read_rc("restart1-writer.rc"), 0) << read_text("restart1-writer.log");
+  EXPECT_EQ(read_rc("restart2-writer.rc"), 0) << read_text("restart2-writer.log");
+  // The reader saw the first writer's frames, then (same open file, same format) the second's:
+  // the second runs 3 s at 30 fps; at least a second's worth must have reached the reader.
+  int first = std::atoi(read_text("restart-frames-writer1.txt").c_str());
+  int total = std::atoi(read_text("restart-frames-total.txt").c_str());
+  EXPECT_GE(first, 15) << read_text("restart-reader.log");
+  EXPECT_GE(total - first, 30) << read_text("restart-reader.log");
+}
+
+TEST_F(VmWebcamTest, WrongDevicesFailWithClearMessages) {
+  EXPECT_EQ(read_rc("devnull.rc"), 1);
+  EXPECT_NE(read_text("devnull.log").find("not a V4L2 video device"), std::string::npos) << read_text("devnull.log");
+  EXPECT_EQ(read_rc("missing.rc"), 1);
+  EXPECT_NE(read_text("missing.log").find("modprobe v4l2loopback"), std::string::npos) << read_text("missing.log");
+}
+
+TEST_F(VmWebcamTest, TooManyOpenersIsReportedAsBusy) {
+  ASSERT_FALSE(read_text("ebusy.rc").empty()) << "module reload failed: " << read_text("reload.log");
+  EXPECT_EQ(read_rc("ebusy.rc"), 1) << read_text("ebusy.log");
+  EXPECT_NE(read_text("ebusy.log").find("max_openers"), std::string::npos) << read_text("ebusy.log");
+}
+
+}  // namespace
+}  // namespace face_reenact::output
