@@ -1,0 +1,124 @@
+#pragma once
+// The tracking energy of Sec. 5 (Eq. 5-11) and its analytic Jacobian (Sec. 6).
+//
+//   E = w_point E_point + w_plane E_plane + w_col E_col + w_lan E_lan + w_reg E_reg
+//
+// Units and normalisation (docs/tracker.md): the paper's weights are used as given, with
+//  - geometric distances (E_point, E_plane) in units of `geometry_unit_m` (default 1 cm),
+//  - colours as linear RGB in [0, 1],
+//  - landmark offsets in pixels of an image `landmark_reference_width` (640) pixels wide, so the
+//    term means the same on every pyramid level,
+//  - dense terms averaged over the pixels that carry them and E_lan over the confidence-weighted
+//    landmark count, so the balance does not depend on resolution; E_reg is summed (Eq. 11).
+// Each residual r_i is stored pre-weighted so that E = sum r_i^2.
+//
+// Linearisation (what stays fixed within one Gauss-Newton step): the pixel correspondences of
+// the rendered G-buffer (triangle, vertices, barycentrics), which pixels and landmarks carry
+// which term, and the model-frame vertex normals. Normals are therefore treated as constant
+// with respect to shape (alpha, delta) inside one step, as many implementations do; they do
+// rotate with the pose, and that derivative is exact. Within these rules the Jacobian below is
+// the exact derivative of the residual function, which the gradient checker verifies.
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/input_frame.h"
+#include "face_reenact/tracker/parameter_layout.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact::tracker {
+
+enum class Term { kPoint = 0, kPlane, kColor, kLandmark, kRegularizer };
+inline constexpr int kNumTerms = 5;
+const char* term_name(Term t);
+
+// Weighted term values (each already multiplied by its weight); total() is E.
+struct TermEnergies {
+  std::array<double, kNumTerms> value{};
+  double operator[](Term t) const { return value[static_cast<int>(t)]; }
+  double total() const;
+};
+
+struct EnergyOptions {
+  bool use_point = true;
+  bool use_plane = true;
+  bool use_color = true;
+  bool use_landmarks = true;
+  bool use_regularizer = true;
+  double w_point = 2.0;
+  double w_plane = 10.0;
+  double w_col = 20.0;
+  double w_lan = 0.125;
+  double w_reg = 0.025;
+
+  double geometry_unit_m = 0.01;            // E_point/E_plane distances are in these units
+  double landmark_reference_width = 640.0;  // landmark offsets in pixels of an image this wide
+  // Correspondence pruning (per linearisation): a pixel carries the geometric terms only when
+  // |X_S - X_I| <= max_point_distance_m and N_S . N_I >= min_normal_dot (the plane terms also
+  // need N_I). Landmarks count only when their vertex faces the camera.
+  double max_point_distance_m = 0.05;
+  double min_normal_dot = 0.2;
+  float max_depth_jump_m = 0.02f;  // input normals are not taken across larger jumps
+  bool inner_landmarks_only = true;  // the paper's 38 inner points (no jaw line, no brows)
+
+  bool IsValid(std::string* why) const;
+};
+
+// One pixel that is valid in both the synthetic and the input image.
+struct PixelSample {
+  int32_t i = 0, j = 0;
+  std::array<int32_t, 3> vertex{};
+  std::array<double, 3> bary{};
+  Eigen::Vector3d input_color = Eigen::Vector3d::Zero();
+  Eigen::Vector3d input_point = Eigen::Vector3d::Zero();
+  Eigen::Vector3d input_normal = Eigen::Vector3d::Zero();
+  bool point = false;  // carries E_point (3 residuals)
+  bool plane = false;  // carries E_plane (2 residuals)
+  bool color = false;  // carries E_col (3 residuals)
+};
+
+struct LandmarkSample {
+  int32_t vertex = 0;
+  Eigen::Vector2d target = Eigen::Vector2d::Zero();  // pixels of the level
+  double confidence = 1.0;
+};
+
+// Everything held fixed while one Gauss-Newton step is solved.
+struct Linearization {
+  ParameterLayout layout;
+  gpu::FaceParameters base;     // parameters at the linearisation point (supplies fixed blocks)
+  gpu::PinholeCamera camera;    // of the pyramid level
+  std::vector<PixelSample> pixels;
+  std::vector<LandmarkSample> landmarks;
+  Eigen::VectorXd model_normals;  // 3N, model frame, unit (frozen for this step)
+  // Counts that normalise the dense terms, and the confidence sum of the landmarks.
+  int num_point = 0, num_plane = 0, num_color = 0;
+  double landmark_weight_sum = 0;
+  int num_regularizer = 0;
+  // False for all but one frame of a multi-frame calibration, so the shared identity/albedo
+  // prior is counted once: then only the expression prior has rows here.
+  bool regularize_shared = true;
+  // First row of each term in r / J; term_rows[kNumTerms] is the number of residuals.
+  std::array<Eigen::Index, kNumTerms + 1> term_rows{};
+
+  Eigen::Index num_residuals() const { return term_rows[kNumTerms]; }
+};
+
+// Builds the linearisation at parameters `params` from their render (`state` from
+// CpuRenderer::evaluate or the GPU twin, `gbuffer` rendered with `level_frame.camera`).
+Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout, const gpu::FaceParameters& params,
+                        const gpu::VertexState& state, const gpu::GBuffer& gbuffer, const InputFrame& level_frame,
+                        const EnergyOptions& options, bool regularize_shared = true);
+
+using JacobianMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+// r(x) and, when `jacobian` is not null, J = dr/dx (num_residuals x layout.num_parameters()).
+// `energies` (optional) receives the weighted value of each term.
+void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, const EnergyOptions& options,
+                       const Eigen::VectorXd& x, Eigen::VectorXd* residuals, JacobianMatrix* jacobian,
+                       TermEnergies* energies = nullptr);
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,60 @@
+#pragma once
+// The tracker's input: one RGB-D frame with optional 2D landmarks, as plain data. Recording
+// formats (core/capture) convert into this; the tracker never reads files itself.
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "face_reenact/gpu/image_formation.h"
+
+namespace face_reenact::tracker {
+
+struct InputLandmark {
+  int32_t ibug_index = 0;              // 0..67, iBUG 300-W order
+  Eigen::Vector2f position{0.f, 0.f};  // pixels of this frame (OpenCV centre convention)
+  float confidence = 1.0f;             // >= 0; 0 ignores the point
+};
+
+struct InputFrame {
+  gpu::PinholeCamera camera;         // intrinsics; width x height is the image size
+  std::vector<float> color;          // 3 per pixel, linear RGB in [0, 1], row-major (j * w + i)
+  std::vector<float> depth;          // 1 per pixel, metres along +z; 0 or NaN = no measurement;
+                                     // empty = the frame has no depth at all (colour-only)
+  std::vector<InputLandmark> landmarks;
+
+  int width() const { return camera.width; }
+  int height() const { return camera.height; }
+  bool has_depth() const { return !depth.empty(); }
+  // Valid depth sample at (i, j): finite, > 0 and inside the camera's near/far range.
+  bool depth_valid(int i, int j) const;
+  // Back-projected point X_I(p) (camera frame, metres); only meaningful where depth_valid.
+  Eigen::Vector3d point(int i, int j) const;
+
+  bool IsValid(std::string* why) const;
+
+  // Fills `color` from 8-bit sRGB (3 bytes per pixel, row-major) with the sRGB transfer
+  // function undone, so that C_I is linear like the renderer's C_S.
+  void SetColorFromSrgb8(const uint8_t* rgb, size_t size_bytes);
+};
+
+struct PyramidOptions {
+  int levels = 3;                     // level 0 = the input itself
+  float depth_edge_threshold = 0.03f; // metres: depth samples farther than this from the block's
+                                      // nearest sample are not averaged across (silhouettes)
+  bool IsValid(std::string* why) const;
+};
+
+// Gaussian pyramid (Sec. 6.1): each level blurs with the separable [1 3 3 1] / 8 kernel centred
+// on the 2x2 block it replaces and takes one sample per block, so coarse pixel centres sit where
+// PinholeCamera::Downsampled puts them. Depth averages only valid samples near the block's
+// nearest depth; landmarks move with the camera convention. Throws face_reenact::Error on an
+// invalid frame or options.
+std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options);
+
+// The input normal N_I(p): the cross product of the central differences of X_I along i and j,
+// oriented towards the camera. False where a neighbour is missing or across a depth jump larger
+// than `max_depth_jump` metres.
+bool InputNormal(const InputFrame& frame, int i, int j, float max_depth_jump, Eigen::Vector3d* normal);
+
+}  // namespace face_reenact::tracker

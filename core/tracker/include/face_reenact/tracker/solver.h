@@ -1,0 +1,130 @@
+#pragma once
+// The CPU reference tracker solve (Sec. 6.1-6.2): coarse-to-fine Gauss-Newton over a Gaussian
+// pyramid of the input; every Gauss-Newton iteration re-renders the model (synthesis) with the
+// CPU renderer, linearises the energy at the new G-buffer and solves the normal equations with
+// Jacobi-preconditioned CG (analysis). It is the oracle a GPU path is compared against.
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/tracker/energy.h"
+#include "face_reenact/tracker/input_frame.h"
+#include "face_reenact/tracker/parameter_layout.h"
+#include "face_reenact/tracker/pcg.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact::tracker {
+
+struct LevelSchedule {
+  int level = 0;  // pyramid level (0 = full resolution)
+  int gauss_newton_iterations = 1;
+  int pcg_iterations = 4;
+};
+
+enum class LinearSolverType { kMatrixFree, kAssembled };
+
+struct SolverOptions {
+  EnergyOptions energy;
+  PyramidOptions pyramid;  // levels = 3
+  // Coarse to fine, each level run in turn (paper: 7 GN x 4 PCG on the coarsest, 1 x 4 next).
+  std::vector<LevelSchedule> schedule = {{2, 7, 4}, {1, 1, 4}};
+  LinearSolverType linear_solver = LinearSolverType::kMatrixFree;
+  // Levenberg-style damping D = lambda * diag(J^T J) (0 = plain Gauss-Newton).
+  double damping = 1e-4;
+  // Halve a step (up to this many times) when it raises the energy evaluated with the step's
+  // correspondences held (no re-render); 0 takes every step as the paper does.
+  int max_step_halvings = 4;
+  // Stop a level early when an accepted step lowers E by less than this fraction.
+  double function_tolerance = 1e-9;
+  // Blendshape weights are projected onto [0, 1] after each step (the model's valid range).
+  bool clamp_expression = true;
+  double pcg_relative_tolerance = 1e-10;
+  gpu::RenderOptions render;  // which parts are drawn (skin)
+
+  bool IsValid(std::string* why) const;
+};
+
+enum class Termination {
+  kScheduleDone,      // every scheduled iteration ran (or each level converged)
+  kNoValidResiduals,  // nothing to fit: the face is not visible in the input
+  kNoProgress,        // no step lowered the energy (after halvings); result = best parameters
+  kNonFinite,         // the linear solve produced NaN/Inf; parameters left at the last good
+};
+const char* termination_name(Termination t);
+
+struct IterationRecord {
+  int level = 0;
+  int iteration = 0;
+  Eigen::Index residuals = 0;
+  TermEnergies energy_before;  // at the linearisation point
+  TermEnergies energy_after;   // after the accepted step (same level)
+  int pcg_iterations = 0;
+  double pcg_relative_residual = 0;
+  double step_norm = 0;
+  int step_halvings = 0;
+  double synthesis_ms = 0;  // rendering at the new parameters
+  double analysis_ms = 0;   // linearisation, residuals + J, PCG
+};
+
+struct SolverSummary {
+  Termination termination = Termination::kScheduleDone;
+  std::string message;          // why it stopped, in words
+  TermEnergies initial_energy;  // at the start, on the first scheduled level
+  TermEnergies final_energy;    // at the result, on the last scheduled level
+  std::vector<IterationRecord> iterations;
+  double pyramid_ms = 0;
+  double synthesis_ms = 0;
+  double analysis_ms = 0;
+  double total_ms = 0;
+  std::string BriefReport() const;
+  std::string FullReport() const;
+};
+
+class CpuSolver {
+ public:
+  // Throws face_reenact::Error on an invalid model.
+  explicit CpuSolver(TrackerModel model);
+  const TrackerModel& model() const { return model_; }
+  const gpu::CpuRenderer& renderer() const { return renderer_; }
+
+  // Fits `*params` (the start; overwritten with the result) to `frame`, solving the blocks of
+  // `layout`. Throws face_reenact::Error on invalid options, frame or start parameters; a frame
+  // the face cannot be fitted to is not an error (see summary.termination).
+  SolverSummary Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                      gpu::FaceParameters* params) const;
+  // The same on an already built pyramid (BuildPyramid with options.pyramid).
+  SolverSummary Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                      const SolverOptions& options, gpu::FaceParameters* params) const;
+
+  // Calibration over several frames (Sec. 6.3): the identity and albedo blocks of `layout` are
+  // shared by all frames (started from (*params)[0]), expression, lighting and pose are per
+  // frame; the shared prior is counted once. On return every element of *params holds the
+  // shared identity/albedo and its frame's own parameters. Energies and residual counts in the
+  // summary are sums over the frames.
+  SolverSummary SolveFrames(const std::vector<InputFrame>& frames, const ParameterLayout& layout,
+                            const SolverOptions& options, std::vector<gpu::FaceParameters>* params) const;
+
+  // Renders `params` for `level_frame` and linearises the energy there.
+  Linearization LinearizeAt(const InputFrame& level_frame, const ParameterLayout& layout, const EnergyOptions& options,
+                            const gpu::FaceParameters& params, const gpu::RenderOptions& render = {}) const;
+  // Energy of `params` on one pyramid level frame.
+  TermEnergies Energy(const InputFrame& level_frame, const ParameterLayout& layout, const EnergyOptions& options,
+                      const gpu::FaceParameters& params, const gpu::RenderOptions& render = {}) const;
+
+ private:
+  SolverSummary SolvePyramids(const std::vector<const std::vector<InputFrame>*>& pyramids, const ParameterLayout& layout,
+                              const SolverOptions& options, std::vector<gpu::FaceParameters>* params) const;
+
+  TrackerModel model_;
+  gpu::CpuRenderer renderer_;
+};
+
+// A synthetic input frame rendered by the CPU renderer at `params` (the test oracle and the
+// benchmark input): colour and depth from the G-buffer (background: grey `background`, no
+// depth), landmarks by projecting the model's landmark vertices (confidence 1).
+InputFrame RenderSyntheticFrame(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                                const gpu::FaceParameters& params, const gpu::PinholeCamera& camera,
+                                const gpu::RenderOptions& render = {}, float background = 0.2f);
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,386 @@
+#include "face_reenact/tracker/energy.h"
+
+#include <cmath>
+#include <unordered_map>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+#include "math_internal.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+bool fail(std::string* why, const std::string& message) {
+  if (why) *why = message;
+  return false;
+}
+
+bool weight_ok(double w) { return std::isfinite(w) && w >= 0; }
+
+// The full coefficient vectors (double) of the current x: solved blocks from x, the rest from
+// the linearisation's base parameters, zero-padded to the model's sizes.
+struct Coefficients {
+  Eigen::VectorXd alpha, beta, delta;
+  std::array<double, gpu::kNumShParameters> gamma{};
+  Eigen::Vector3d euler, translation;
+};
+
+Eigen::VectorXd padded(const Eigen::VectorXf& v, int n) {
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(n);
+  const int k = std::min<int>(n, static_cast<int>(v.size()));
+  out.head(k) = v.head(k).cast<double>();
+  return out;
+}
+
+Coefficients coefficients(const TrackerModel& model, const Linearization& lin, const Eigen::VectorXd& x) {
+  const ParameterLayout& l = lin.layout;
+  Coefficients c;
+  c.alpha = padded(lin.base.alpha, model.num_identity());
+  c.beta = padded(lin.base.beta, model.num_albedo());
+  c.delta = padded(lin.base.delta, model.num_expression());
+  c.alpha.head(l.num_identity) = x.segment(l.offset(Block::kIdentity), l.num_identity);
+  c.beta.head(l.num_albedo) = x.segment(l.offset(Block::kAlbedo), l.num_albedo);
+  c.delta.head(l.num_expression) = x.segment(l.offset(Block::kExpression), l.num_expression);
+  for (int k = 0; k < gpu::kNumShParameters; ++k) c.gamma[k] = x[l.offset(Block::kLighting) + k];
+  c.euler = x.segment<3>(l.offset(Block::kRotation));
+  c.translation = x.segment<3>(l.offset(Block::kTranslation));
+  return c;
+}
+
+// Model-frame vertex positions and albedos, evaluated on demand in double precision.
+class VertexCache {
+ public:
+  VertexCache(const TrackerModel& model, const Coefficients& c) : model_(model), c_(c) {
+    const size_t n = static_cast<size_t>(model.num_vertices());
+    position_.resize(n);
+    albedo_.resize(n);
+    have_position_.assign(n, 0);
+    have_albedo_.assign(n, 0);
+  }
+  const Eigen::Vector3d& position(int v) {
+    if (!have_position_[v]) {
+      const auto& m = model_.render;
+      Eigen::Vector3d p = m.mean_shape.segment<3>(3 * v).cast<double>();
+      if (m.identity_basis.cols() > 0) p += m.identity_basis.middleRows<3>(3 * v).cast<double>() * c_.alpha;
+      if (m.expression_basis.cols() > 0) p += m.expression_basis.middleRows<3>(3 * v).cast<double>() * c_.delta;
+      position_[v] = p;
+      have_position_[v] = 1;
+    }
+    return position_[v];
+  }
+  const Eigen::Vector3d& albedo(int v) {
+    if (!have_albedo_[v]) {
+      const auto& m = model_.render;
+      Eigen::Vector3d a = m.mean_albedo.segment<3>(3 * v).cast<double>();
+      if (m.albedo_basis.cols() > 0) a += m.albedo_basis.middleRows<3>(3 * v).cast<double>() * c_.beta;
+      albedo_[v] = a;
+      have_albedo_[v] = 1;
+    }
+    return albedo_[v];
+  }
+
+ private:
+  const TrackerModel& model_;
+  const Coefficients& c_;
+  std::vector<Eigen::Vector3d> position_, albedo_;
+  std::vector<uint8_t> have_position_, have_albedo_;
+};
+
+}  // namespace
+
+const char* term_name(Term t) {
+  switch (t) {
+    case Term::kPoint: return "point";
+    case Term::kPlane: return "plane";
+    case Term::kColor: return "color";
+    case Term::kLandmark: return "landmark";
+    case Term::kRegularizer: return "regularizer";
+  }
+  return "?";
+}
+
+double TermEnergies::total() const {
+  double s = 0;
+  for (double v : value) s += v;
+  return s;
+}
+
+bool EnergyOptions::IsValid(std::string* why) const {
+  if (!weight_ok(w_point) || !weight_ok(w_plane) || !weight_ok(w_col) || !weight_ok(w_lan) || !weight_ok(w_reg)) {
+    return fail(why, "energy: term weights must be finite and non-negative");
+  }
+  if (!(geometry_unit_m > 0) || !std::isfinite(geometry_unit_m)) return fail(why, "energy: geometry_unit_m must be positive");
+  if (!(landmark_reference_width > 0) || !std::isfinite(landmark_reference_width)) {
+    return fail(why, "energy: landmark_reference_width must be positive");
+  }
+  if (!(max_point_distance_m > 0)) return fail(why, "energy: max_point_distance_m must be positive");
+  if (!(min_normal_dot >= -1 && min_normal_dot <= 1)) return fail(why, "energy: min_normal_dot must be in [-1, 1]");
+  if (!(max_depth_jump_m > 0)) return fail(why, "energy: max_depth_jump_m must be positive");
+  if (!use_point && !use_plane && !use_color && !use_landmarks && !use_regularizer) {
+    return fail(why, "energy: every term is switched off");
+  }
+  return true;
+}
+
+Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout, const gpu::FaceParameters& params,
+                        const gpu::VertexState& state, const gpu::GBuffer& gbuffer, const InputFrame& frame,
+                        const EnergyOptions& options, bool regularize_shared) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error(why);
+  if (!layout.IsValid(&why, model.num_identity(), model.num_albedo(), model.num_expression())) throw Error(why);
+  if (gbuffer.width != frame.width() || gbuffer.height != frame.height()) {
+    throw Error("linearise: the G-buffer is " + std::to_string(gbuffer.width) + "x" + std::to_string(gbuffer.height) +
+                " but the input frame is " + std::to_string(frame.width()) + "x" + std::to_string(frame.height()));
+  }
+  const int n = model.num_vertices();
+  if (state.camera_normals.size() != 3 * n || state.camera_positions.size() != 3 * n) {
+    throw Error("linearise: vertex state does not match the model");
+  }
+  Linearization lin;
+  lin.layout = layout;
+  lin.base = params;
+  lin.camera = frame.camera;
+  const Eigen::Matrix3d rotation = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
+  lin.model_normals.resize(3 * n);
+  for (int v = 0; v < n; ++v) {
+    Eigen::Vector3d m = rotation.transpose() * state.camera_normals.segment<3>(3 * v).cast<double>();
+    const double len = m.norm();
+    lin.model_normals.segment<3>(3 * v) = len > 0 ? Eigen::Vector3d(m / len) : Eigen::Vector3d::Zero();
+  }
+
+  const bool want_geometry = frame.has_depth() && (options.use_point || options.use_plane);
+  const int w = frame.width();
+  for (int j = 0; j < frame.height(); ++j) {
+    for (int i = 0; i < w; ++i) {
+      const size_t p = static_cast<size_t>(j) * w + i;
+      if (gbuffer.triangle[p] < 0) continue;
+      if (frame.has_depth() && !frame.depth_valid(i, j)) continue;  // input invalid
+      PixelSample s;
+      s.i = i;
+      s.j = j;
+      for (int k = 0; k < 3; ++k) {
+        s.vertex[k] = gbuffer.vertices[3 * p + k];
+        s.bary[k] = gbuffer.barycentric[3 * p + k];
+      }
+      if (s.vertex[0] < 0 || s.vertex[1] < 0 || s.vertex[2] < 0) continue;
+      s.input_color = Eigen::Vector3d(frame.color[3 * p], frame.color[3 * p + 1], frame.color[3 * p + 2]);
+      s.color = options.use_color;
+      if (want_geometry) {
+        s.input_point = frame.point(i, j);
+        const Eigen::Vector3d synthetic(gbuffer.position[3 * p], gbuffer.position[3 * p + 1], gbuffer.position[3 * p + 2]);
+        const Eigen::Vector3d synthetic_normal(gbuffer.normal[3 * p], gbuffer.normal[3 * p + 1], gbuffer.normal[3 * p + 2]);
+        const bool near = (synthetic - s.input_point).norm() <= options.max_point_distance_m;
+        s.point = options.use_point && near;
+        if (options.use_plane && near && InputNormal(frame, i, j, options.max_depth_jump_m, &s.input_normal)) {
+          s.plane = synthetic_normal.dot(s.input_normal) >= options.min_normal_dot;
+        }
+      }
+      if (!s.point && !s.plane && !s.color) continue;
+      lin.num_point += s.point;
+      lin.num_plane += s.plane;
+      lin.num_color += s.color;
+      lin.pixels.push_back(s);
+    }
+  }
+
+  if (options.use_landmarks) {
+    std::unordered_map<int, const TrackerLandmark*> by_index;
+    for (const auto& l : model.landmarks) {
+      if (options.inner_landmarks_only && !(l.flags & kLandmarkInner)) continue;
+      by_index[l.ibug_index] = &l;
+    }
+    for (const auto& in : frame.landmarks) {
+      if (!(in.confidence > 0.f)) continue;
+      auto it = by_index.find(in.ibug_index);
+      if (it == by_index.end()) continue;
+      const int v = it->second->vertex;
+      const Eigen::Vector3d x = state.camera_positions.segment<3>(3 * v).cast<double>();
+      const Eigen::Vector3d nrm = state.camera_normals.segment<3>(3 * v).cast<double>();
+      // Visibility pruning: the vertex must be in front of the camera and face it.
+      if (!(x.z() > frame.camera.near_plane) || nrm.dot(x) >= 0) continue;
+      lin.landmarks.push_back({v, in.position.cast<double>(), in.confidence});
+      lin.landmark_weight_sum += in.confidence;
+    }
+  }
+  lin.regularize_shared = regularize_shared;
+  if (options.use_regularizer) {
+    lin.num_regularizer = (regularize_shared ? layout.num_identity + layout.num_albedo : 0) + layout.num_expression;
+  }
+
+  lin.term_rows[0] = 0;
+  lin.term_rows[1] = lin.term_rows[0] + 3 * static_cast<Eigen::Index>(lin.num_point);
+  lin.term_rows[2] = lin.term_rows[1] + 2 * static_cast<Eigen::Index>(lin.num_plane);
+  lin.term_rows[3] = lin.term_rows[2] + 3 * static_cast<Eigen::Index>(lin.num_color);
+  lin.term_rows[4] = lin.term_rows[3] + 2 * static_cast<Eigen::Index>(lin.landmarks.size());
+  lin.term_rows[5] = lin.term_rows[4] + lin.num_regularizer;
+  return lin;
+}
+
+void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, const EnergyOptions& options,
+                       const Eigen::VectorXd& x, Eigen::VectorXd* residuals, JacobianMatrix* jacobian,
+                       TermEnergies* energies) {
+  const ParameterLayout& layout = lin.layout;
+  if (x.size() != layout.num_parameters()) throw Error("evaluate residuals: parameter vector has the wrong size");
+  const Eigen::Index m = lin.num_residuals();
+  const int np = layout.num_parameters();
+  Eigen::VectorXd local_r;
+  Eigen::VectorXd& r = residuals ? *residuals : local_r;
+  r.resize(m);
+  if (jacobian) jacobian->setZero(m, np);
+
+  const Coefficients c = coefficients(model, lin, x);
+  const internal::RotationWithDerivatives rot = internal::rotation_with_derivatives(c.euler);
+  const Eigen::Matrix3d& R = rot.r;
+  VertexCache cache(model, c);
+  const auto& rm = model.render;
+  const int k_id = layout.num_identity, k_alb = layout.num_albedo, k_exp = layout.num_expression;
+  const int o_id = layout.offset(Block::kIdentity), o_alb = layout.offset(Block::kAlbedo);
+  const int o_exp = layout.offset(Block::kExpression), o_gam = layout.offset(Block::kLighting);
+  const int o_rot = layout.offset(Block::kRotation), o_t = layout.offset(Block::kTranslation);
+
+  const double unit = options.geometry_unit_m;
+  const double s_point = lin.num_point ? std::sqrt(options.w_point / lin.num_point) / unit : 0;
+  const double s_plane = lin.num_plane ? std::sqrt(options.w_plane / lin.num_plane) / unit : 0;
+  const double s_col = lin.num_color ? std::sqrt(options.w_col / lin.num_color) : 0;
+
+  Eigen::Index row_point = lin.term_rows[0], row_plane = lin.term_rows[1], row_col = lin.term_rows[2];
+  // Scratch for the pixel-level derivatives of X_S (3 x np) - only the shape/pose columns are used.
+  Eigen::Matrix<double, 3, Eigen::Dynamic> dx(3, np);
+  Eigen::MatrixXd e_id(3, k_id), e_exp(3, k_exp);
+
+  for (const PixelSample& s : lin.pixels) {
+    Eigen::Vector3d v_bar = Eigen::Vector3d::Zero(), n_bar = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 3; ++k) {
+      v_bar += s.bary[k] * cache.position(s.vertex[k]);
+      n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
+    }
+    const Eigen::Vector3d xs = R * v_bar + c.translation;
+    if (s.point || s.plane) {
+      const Eigen::Vector3d diff = xs - s.input_point;
+      if (jacobian) {
+        dx.setZero();
+        if (k_id > 0) {
+          e_id.setZero();
+          for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
+          dx.middleCols(o_id, k_id) = R * e_id;
+        }
+        if (k_exp > 0) {
+          e_exp.setZero();
+          for (int k = 0; k < 3; ++k) e_exp += s.bary[k] * rm.expression_basis.block(3 * s.vertex[k], 0, 3, k_exp).cast<double>();
+          dx.middleCols(o_exp, k_exp) = R * e_exp;
+        }
+        for (int a = 0; a < 3; ++a) dx.col(o_rot + a) = rot.d[a] * v_bar;
+        dx.middleCols<3>(o_t).setIdentity();
+      }
+      if (s.point) {
+        r.segment<3>(row_point) = s_point * diff;
+        if (jacobian) jacobian->middleRows(row_point, 3) = s_point * dx;
+        row_point += 3;
+      }
+      if (s.plane) {
+        const double n_len = n_bar.norm();
+        const Eigen::Vector3d n_model = n_len > 0 ? Eigen::Vector3d(n_bar / n_len) : Eigen::Vector3d::Zero();
+        const Eigen::Vector3d n_s = R * n_model;
+        r[row_plane] = s_plane * s.input_normal.dot(diff);
+        r[row_plane + 1] = s_plane * n_s.dot(diff);
+        if (jacobian) {
+          jacobian->row(row_plane) = s_plane * (s.input_normal.transpose() * dx);
+          jacobian->row(row_plane + 1) = s_plane * (n_s.transpose() * dx);
+          for (int a = 0; a < 3; ++a) (*jacobian)(row_plane + 1, o_rot + a) += s_plane * (rot.d[a] * n_model).dot(diff);
+        }
+        row_plane += 2;
+      }
+    }
+    if (s.color) {
+      // C_c = sum_k b_k a_kc sum_j gamma_cj y_j(R n_k)
+      Eigen::Vector3d color = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 3; ++k) {
+        const int v = s.vertex[k];
+        const Eigen::Vector3d n_model = lin.model_normals.segment<3>(3 * v);
+        const Eigen::Vector3d n_cam = R * n_model;
+        const auto y = internal::sh_basis(n_cam);
+        const Eigen::Vector3d& albedo = cache.albedo(v);
+        std::array<Eigen::Vector3d, 9> grad;
+        std::array<Eigen::Vector3d, 3> dn;  // d n_cam / d euler_a
+        if (jacobian) {
+          grad = internal::sh_basis_gradient(n_cam);
+          for (int a = 0; a < 3; ++a) dn[a] = rot.d[a] * n_model;
+        }
+        for (int ch = 0; ch < 3; ++ch) {
+          double irradiance = 0;
+          for (int q = 0; q < 9; ++q) irradiance += c.gamma[ch * 9 + q] * y[q];
+          color[ch] += s.bary[k] * albedo[ch] * irradiance;
+          if (!jacobian) continue;
+          auto jrow = jacobian->row(row_col + ch);
+          const double ba = s_col * s.bary[k] * albedo[ch];
+          for (int q = 0; q < 9; ++q) jrow[o_gam + ch * 9 + q] += ba * y[q];
+          if (k_alb > 0) {
+            jrow.segment(o_alb, k_alb) +=
+                (s_col * s.bary[k] * irradiance) * rm.albedo_basis.row(3 * v + ch).head(k_alb).cast<double>();
+          }
+          for (int a = 0; a < 3; ++a) {
+            double d_irr = 0;
+            for (int q = 1; q < 9; ++q) d_irr += c.gamma[ch * 9 + q] * grad[q].dot(dn[a]);
+            jrow[o_rot + a] += ba * d_irr;
+          }
+        }
+      }
+      r.segment<3>(row_col) = s_col * (color - s.input_color);
+      row_col += 3;
+    }
+  }
+
+  // Landmarks (Eq. 10): projections of the landmark vertices against the detected points.
+  Eigen::Index row = lin.term_rows[3];
+  if (!lin.landmarks.empty()) {
+    const auto& cam = lin.camera;
+    const double s_lan = std::sqrt(options.w_lan / lin.landmark_weight_sum) * options.landmark_reference_width / cam.width;
+    for (const LandmarkSample& l : lin.landmarks) {
+      const Eigen::Vector3d& v = cache.position(l.vertex);
+      const Eigen::Vector3d X = R * v + c.translation;
+      const double s = s_lan * std::sqrt(l.confidence);
+      const double iz = 1.0 / X.z();
+      const Eigen::Vector2d uv(cam.fx * X.x() * iz + cam.cx, cam.fy * X.y() * iz + cam.cy);
+      r.segment<2>(row) = s * (uv - l.target);
+      if (jacobian) {
+        Eigen::Matrix<double, 2, 3> dproj;
+        dproj << cam.fx * iz, 0, -cam.fx * X.x() * iz * iz, 0, cam.fy * iz, -cam.fy * X.y() * iz * iz;
+        const Eigen::Matrix<double, 2, 3> dr = s * dproj;
+        const Eigen::Matrix<double, 2, 3> drr = dr * R;
+        if (k_id > 0) jacobian->block(row, o_id, 2, k_id) = drr * rm.identity_basis.block(3 * l.vertex, 0, 3, k_id).cast<double>();
+        if (k_exp > 0) {
+          jacobian->block(row, o_exp, 2, k_exp) = drr * rm.expression_basis.block(3 * l.vertex, 0, 3, k_exp).cast<double>();
+        }
+        for (int a = 0; a < 3; ++a) jacobian->block<2, 1>(row, o_rot + a) = dr * (rot.d[a] * v);
+        jacobian->block<2, 3>(row, o_t) = dr;
+      }
+      row += 2;
+    }
+  }
+
+  // Regulariser (Eq. 11).
+  if (lin.num_regularizer > 0) {
+    const double s_reg = std::sqrt(options.w_reg);
+    auto prior = [&](int offset, int count, auto sigma_of) {
+      for (int q = 0; q < count; ++q) {
+        const double inv = s_reg / sigma_of(q);
+        r[row] = inv * x[offset + q];
+        if (jacobian) (*jacobian)(row, offset + q) = inv;
+        ++row;
+      }
+    };
+    if (lin.regularize_shared) {
+      prior(o_id, k_id, [&](int q) { return static_cast<double>(model.identity_sigma[q]); });
+      prior(o_alb, k_alb, [&](int q) { return static_cast<double>(model.albedo_sigma[q]); });
+    }
+    prior(o_exp, k_exp, [&](int) { return static_cast<double>(model.expression_sigma); });
+  }
+
+  if (energies) {
+    for (int t = 0; t < kNumTerms; ++t) {
+      energies->value[t] = r.segment(lin.term_rows[t], lin.term_rows[t + 1] - lin.term_rows[t]).squaredNorm();
+    }
+  }
+}
+
+}  // namespace face_reenact::tracker

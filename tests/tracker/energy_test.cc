@@ -1,0 +1,324 @@
+// Energy, Jacobians, gradient checker, pyramid and input validation of the tracker.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/tracker/energy.h"
+#include "face_reenact/tracker/gradient_checker.h"
+#include "face_reenact/tracker/input_frame.h"
+#include "face_reenact/tracker/solver.h"
+#include "math_internal.h"
+#include "tracker_test_support.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+using testing::real_model;
+using testing::sphere_model;
+using testing::test_camera;
+using testing::true_parameters;
+
+TEST(TrackerMath, DoubleTwinsMatchTheRendererConventions) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-3.f, 3.f);
+  for (int trial = 0; trial < 20; ++trial) {
+    const Eigen::Vector3f e(u(rng), u(rng), u(rng));
+    const Eigen::Matrix3d r = internal::rotation_with_derivatives(e.cast<double>()).r;
+    EXPECT_LT((r.cast<float>() - gpu::rotation_from_euler(e)).cwiseAbs().maxCoeff(), 1e-6f);
+    const Eigen::Vector3f n = Eigen::Vector3f(u(rng), u(rng), u(rng)).normalized();
+    const auto a = internal::sh_basis(n.cast<double>());
+    const auto b = gpu::sh_basis(n);
+    for (int k = 0; k < 9; ++k) EXPECT_NEAR(a[k], b[k], 1e-6) << "basis " << k;
+  }
+}
+
+TEST(TrackerMath, RotationAndShDerivativesMatchDifferences) {
+  const Eigen::Vector3d e(0.3, -1.1, 2.0);
+  const auto rd = internal::rotation_with_derivatives(e);
+  for (int a = 0; a < 3; ++a) {
+    Eigen::Vector3d ep = e, em = e;
+    ep[a] += 1e-6;
+    em[a] -= 1e-6;
+    const Eigen::Matrix3d num =
+        (internal::rotation_with_derivatives(ep).r - internal::rotation_with_derivatives(em).r) / 2e-6;
+    EXPECT_LT((num - rd.d[a]).cwiseAbs().maxCoeff(), 1e-8) << "axis " << a;
+  }
+  const Eigen::Vector3d n(0.2, -0.5, 0.8);
+  const auto g = internal::sh_basis_gradient(n);
+  for (int c = 0; c < 3; ++c) {
+    Eigen::Vector3d np = n, nm = n;
+    np[c] += 1e-6;
+    nm[c] -= 1e-6;
+    const auto yp = internal::sh_basis(np), ym = internal::sh_basis(nm);
+    for (int k = 0; k < 9; ++k) EXPECT_NEAR((yp[k] - ym[k]) / 2e-6, g[k][c], 1e-7);
+  }
+}
+
+InputFrame flat_frame(int w, int h, float depth, float grey) {
+  InputFrame f;
+  f.camera = test_camera(w, h);
+  f.color.assign(3 * static_cast<size_t>(w) * h, grey);
+  f.depth.assign(static_cast<size_t>(w) * h, depth);
+  return f;
+}
+
+TEST(TrackerPyramid, LevelsFollowTheCameraConvention) {
+  InputFrame f = flat_frame(64, 48, 0.7f, 0.25f);
+  f.landmarks.push_back({30, Eigen::Vector2f(10.f, 20.f), 0.9f});
+  const auto levels = BuildPyramid(f, PyramidOptions{});
+  ASSERT_EQ(levels.size(), 3u);
+  for (int l = 0; l < 3; ++l) {
+    const gpu::PinholeCamera expect = f.camera.Downsampled(l);
+    EXPECT_EQ(levels[l].width(), expect.width);
+    EXPECT_EQ(levels[l].height(), expect.height);
+    EXPECT_FLOAT_EQ(levels[l].camera.cx, expect.cx);
+    EXPECT_FLOAT_EQ(levels[l].camera.fx, expect.fx);
+    for (float c : levels[l].color) ASSERT_NEAR(c, 0.25f, 1e-6f);
+    for (float d : levels[l].depth) ASSERT_NEAR(d, 0.7f, 1e-6f);
+    ASSERT_EQ(levels[l].landmarks.size(), 1u);
+    EXPECT_FLOAT_EQ(levels[l].landmarks[0].confidence, 0.9f);
+  }
+  // Pixel (10, 20) is the centre of coarse pixel (4.75, 9.75) one level down.
+  EXPECT_NEAR(levels[1].landmarks[0].position.x(), 4.75f, 1e-6f);
+  EXPECT_NEAR(levels[1].landmarks[0].position.y(), 9.75f, 1e-6f);
+}
+
+TEST(TrackerPyramid, DepthIsNotAveragedAcrossSilhouettesOrHoles) {
+  InputFrame f = flat_frame(32, 32, 0.5f, 0.5f);
+  for (int j = 0; j < 32; ++j) {
+    for (int i = 16; i < 32; ++i) f.depth[j * 32 + i] = 1.5f;  // background
+    f.depth[j * 32 + 3] = std::nanf("");                        // a column of holes
+    f.depth[j * 32 + 5] = 0.f;
+  }
+  const auto levels = BuildPyramid(f, PyramidOptions{});
+  for (size_t l = 1; l < levels.size(); ++l) {
+    for (float d : levels[l].depth) {
+      EXPECT_TRUE(std::abs(d - 0.5f) < 1e-5f || std::abs(d - 1.5f) < 1e-5f) << d;
+    }
+  }
+}
+
+TEST(TrackerPyramid, RejectsBadFramesWithClearErrors) {
+  InputFrame f = flat_frame(16, 16, 0.5f, 0.5f);
+  InputFrame bad = f;
+  bad.color.pop_back();
+  std::string why;
+  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_NE(why.find("colour"), std::string::npos);
+  EXPECT_THROW(BuildPyramid(bad, PyramidOptions{}), Error);
+  bad = f;
+  bad.color[7] = std::nanf("");
+  EXPECT_THROW(BuildPyramid(bad, PyramidOptions{}), Error);
+  bad = f;
+  bad.depth.resize(3);
+  EXPECT_THROW(BuildPyramid(bad, PyramidOptions{}), Error);
+  bad = f;
+  bad.landmarks.push_back({80, Eigen::Vector2f(1, 1), 1.f});
+  EXPECT_THROW(BuildPyramid(bad, PyramidOptions{}), Error);
+  bad = f;
+  bad.landmarks.push_back({3, Eigen::Vector2f(1, 1), -1.f});
+  EXPECT_THROW(BuildPyramid(bad, PyramidOptions{}), Error);
+  EXPECT_THROW(BuildPyramid(flat_frame(2, 2, 0.5f, 0.5f), PyramidOptions{4}), Error);
+  PyramidOptions zero;
+  zero.levels = 0;
+  EXPECT_THROW(BuildPyramid(f, zero), Error);
+  // Colour-only frames are fine.
+  InputFrame colour_only = f;
+  colour_only.depth.clear();
+  EXPECT_EQ(BuildPyramid(colour_only, PyramidOptions{}).back().depth.size(), 0u);
+}
+
+TEST(TrackerInput, SrgbConversionIsLinear) {
+  InputFrame f;
+  f.camera = test_camera(2, 1);
+  const uint8_t rgb[6] = {0, 255, 188, 10, 128, 64};
+  f.SetColorFromSrgb8(rgb, 6);
+  EXPECT_FLOAT_EQ(f.color[0], 0.f);
+  EXPECT_NEAR(f.color[1], 1.f, 1e-6f);
+  EXPECT_NEAR(f.color[2], 0.5029f, 1e-3f);
+  EXPECT_NEAR(f.color[4], 0.2158f, 1e-3f);
+  EXPECT_THROW(f.SetColorFromSrgb8(rgb, 5), Error);
+}
+
+TEST(TrackerInput, InputNormalFacesTheCamera) {
+  InputFrame f = flat_frame(9, 9, 0.8f, 0.5f);
+  Eigen::Vector3d n;
+  ASSERT_TRUE(InputNormal(f, 4, 4, 0.02f, &n));
+  EXPECT_NEAR(n.z(), -1.0, 1e-9);
+  EXPECT_FALSE(InputNormal(f, 0, 4, 0.02f, &n));  // border
+  f.depth[4 * 9 + 5] = 1.2f;
+  EXPECT_FALSE(InputNormal(f, 4, 4, 0.02f, &n));  // depth jump
+}
+
+TEST(TrackerEnergy, OptionsValidation) {
+  EnergyOptions o;
+  std::string why;
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+  o.w_col = -1;
+  EXPECT_FALSE(o.IsValid(&why));
+  o = EnergyOptions{};
+  o.geometry_unit_m = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+  o = EnergyOptions{};
+  o.use_point = o.use_plane = o.use_color = o.use_landmarks = o.use_regularizer = false;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("off"), std::string::npos);
+}
+
+// A linearisation of `model` at a point near `truth` against a frame rendered at `truth`.
+struct Linearised {
+  Linearization lin;
+  Eigen::VectorXd x;
+};
+
+Linearised linearised(const TrackerModel& model, const ParameterLayout& layout, const EnergyOptions& eo,
+                 const gpu::PinholeCamera& cam, float distance, uint32_t seed) {
+  const CpuSolver solver(model);
+  const gpu::FaceParameters truth = true_parameters(model, distance, seed);
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, truth, cam);
+  gpu::FaceParameters at = truth;
+  std::mt19937 rng(seed + 1);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  at.euler += 0.02f * Eigen::Vector3f(u(rng), u(rng), u(rng));
+  at.translation += 0.003f * Eigen::Vector3f(u(rng), u(rng), u(rng));
+  for (int k = 0; k < at.delta.size(); ++k) at.delta[k] = std::clamp(at.delta[k] + 0.1f * u(rng), 0.f, 1.f);
+  for (auto& g : at.gamma) g += 0.05f * u(rng);
+  for (int k = 0; k < at.alpha.size(); ++k) at.alpha[k] += 0.3f * u(rng) * model.identity_sigma[k];
+  for (int k = 0; k < at.beta.size(); ++k) at.beta[k] += 0.3f * u(rng) * model.albedo_sigma[k];
+  Linearised s;
+  s.lin = solver.LinearizeAt(frame, layout, eo, at);
+  s.x = layout.Pack(at);
+  return s;
+}
+
+void expect_every_term_present(const Linearization& lin) {
+  for (int t = 0; t < kNumTerms; ++t) {
+    EXPECT_GT(lin.term_rows[t + 1] - lin.term_rows[t], 0) << "term " << term_name(static_cast<Term>(t)) << " has no rows";
+  }
+}
+
+TEST(TrackerGradientCheck, SphereJacobianMatchesFiniteDifferences) {
+  const TrackerModel model = sphere_model();
+  const ParameterLayout layout = ParameterLayout::Calibration(6, 4, 5);
+  for (uint32_t seed : {11u, 12u, 13u}) {
+    const Linearised s = linearised(model, layout, EnergyOptions{}, test_camera(160, 120), 0.5f, seed);
+    expect_every_term_present(s.lin);
+    const GradientCheckResult r = CheckEnergyJacobian(model, s.lin, EnergyOptions{}, s.x, GradientCheckOptions{});
+    EXPECT_TRUE(r.ok) << r.report;
+    for (int t = 0; t < kNumTerms; ++t) {
+      for (int b = 0; b < kNumBlocks; ++b) EXPECT_LE(r.worst_error[t][b], 1e-4) << r.report;
+    }
+  }
+}
+
+TEST(TrackerGradientCheck, FaceModelJacobianMatchesFiniteDifferences) {
+  const TrackerModel* model = real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm); the sphere test covers the math";
+  const ParameterLayout layout = ParameterLayout::Calibration(model->num_identity(), model->num_albedo(), model->num_expression());
+  // 160x120 keeps the pixel count (and the 2 x 175 evaluations) small.
+  const Linearised s = linearised(*model, layout, EnergyOptions{}, test_camera(160, 120), 0.5f, 21);
+  expect_every_term_present(s.lin);
+  const GradientCheckResult r = CheckEnergyJacobian(*model, s.lin, EnergyOptions{}, s.x, GradientCheckOptions{});
+  EXPECT_TRUE(r.ok) << r.report;
+  std::cout << r.report;
+}
+
+TEST(TrackerGradientCheck, CatchesAWrongDerivative) {
+  const TrackerModel model = sphere_model();
+  const ParameterLayout layout = ParameterLayout::Calibration(6, 4, 5);
+  const EnergyOptions eo;
+  const Linearised s = linearised(model, layout, eo, test_camera(160, 120), 0.5f, 5);
+  Eigen::VectorXd r;
+  JacobianMatrix j;
+  EvaluateResiduals(model, s.lin, eo, s.x, &r, &j);
+  auto f = [&](const Eigen::VectorXd& at, Eigen::VectorXd* out) { EvaluateResiduals(model, s.lin, eo, at, out, nullptr); };
+  const GradientCheckOptions opts;
+  ASSERT_TRUE(CompareWithFiniteDifferences(f, s.x, j, layout, s.lin.term_rows, opts).ok);
+
+  // 1. The shading derivative forgotten: colour residuals treated as independent of rotation
+  //    (a classic mistake). Only colour x rotation may fail.
+  JacobianMatrix wrong = j;
+  const int rot = layout.offset(Block::kRotation);
+  const Eigen::Index c0 = s.lin.term_rows[static_cast<int>(Term::kColor)];
+  const Eigen::Index c1 = s.lin.term_rows[static_cast<int>(Term::kColor) + 1];
+  wrong.block(c0, rot, c1 - c0, 3).setZero();
+  GradientCheckResult res = CompareWithFiniteDifferences(f, s.x, wrong, layout, s.lin.term_rows, opts);
+  EXPECT_FALSE(res.ok);
+  for (int t = 0; t < kNumTerms; ++t) {
+    for (int b = 0; b < kNumBlocks; ++b) {
+      const bool culprit = t == static_cast<int>(Term::kColor) && b == static_cast<int>(Block::kRotation);
+      if (culprit) {
+        EXPECT_GT(res.worst_error[t][b], 0.5) << res.report;
+      } else {
+        EXPECT_LE(res.worst_error[t][b], opts.tolerance) << res.report;
+      }
+    }
+  }
+  // 2. A subtle one: one expression column of the point term off by 1%.
+  wrong = j;
+  const int exp0 = layout.offset(Block::kExpression) + 2;
+  wrong.col(exp0).segment(0, s.lin.term_rows[1]) *= 1.01;
+  res = CompareWithFiniteDifferences(f, s.x, wrong, layout, s.lin.term_rows, opts);
+  EXPECT_FALSE(res.ok);
+  EXPECT_NEAR(res.worst_error[static_cast<int>(Term::kPoint)][static_cast<int>(Block::kExpression)], 0.01, 2e-3)
+      << res.report;
+}
+
+TEST(TrackerEnergy, DataTermsVanishAtTheTruthAndGrowAwayFromIt) {
+  const TrackerModel model = sphere_model();
+  const CpuSolver solver(model);
+  const gpu::FaceParameters truth = true_parameters(model, 0.5f, 4);
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, truth, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  const EnergyOptions eo;
+  const TermEnergies at_truth = solver.Energy(frame, layout, eo, truth);
+  EXPECT_LT(at_truth[Term::kPoint], 1e-8);
+  EXPECT_LT(at_truth[Term::kPlane], 2e-2);  // input normals are finite differences of the depth
+  EXPECT_LT(at_truth[Term::kColor], 1e-8);
+  EXPECT_LT(at_truth[Term::kLandmark], 1e-8);
+  gpu::FaceParameters off = truth;
+  off.translation.x() += 0.01f;
+  off.gamma[0] += 0.5f;
+  const TermEnergies away = solver.Energy(frame, layout, eo, off);
+  EXPECT_GT(away[Term::kPoint], 100 * std::max(at_truth[Term::kPoint], 1e-8));
+  EXPECT_GT(away[Term::kColor], 100 * std::max(at_truth[Term::kColor], 1e-8));
+  EXPECT_GT(away[Term::kLandmark], 100 * std::max(at_truth[Term::kLandmark], 1e-8));
+  // E_reg is exactly Eq. 11 for the expression block.
+  double reg = 0;
+  for (int k = 0; k < truth.delta.size(); ++k) reg += truth.delta[k] * truth.delta[k];
+  EXPECT_NEAR(at_truth[Term::kRegularizer], eo.w_reg * reg, 1e-6);
+}
+
+TEST(TrackerEnergy, LinearizeRejectsMismatchedInputs) {
+  const TrackerModel model = sphere_model();
+  const CpuSolver solver(model);
+  const gpu::FaceParameters p = true_parameters(model, 0.5f, 4);
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, p, test_camera(160, 120));
+  const gpu::VertexState st = solver.renderer().evaluate(p);
+  const gpu::GBuffer other = solver.renderer().rasterize(st, test_camera(80, 60), {});
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  EXPECT_THROW(Linearize(model, layout, p, st, other, frame, EnergyOptions{}), Error);
+  EXPECT_THROW(Linearize(model, ParameterLayout::Tracking(99), p, st, solver.renderer().rasterize(st, frame.camera, {}),
+                         frame, EnergyOptions{}),
+               Error);
+  const Linearization lin = solver.LinearizeAt(frame, layout, EnergyOptions{}, p);
+  Eigen::VectorXd r;
+  EXPECT_THROW(EvaluateResiduals(model, lin, EnergyOptions{}, Eigen::VectorXd::Zero(3), &r, nullptr), Error);
+}
+
+TEST(TrackerEnergy, InvisibleLandmarksArePruned) {
+  const TrackerModel model = sphere_model();
+  const CpuSolver solver(model);
+  gpu::FaceParameters p = true_parameters(model, 0.5f, 4);
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, p, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, p).landmarks.size(), model.landmarks.size());
+  p.euler.y() += static_cast<float>(M_PI);  // the landmark side now faces away
+  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, p).landmarks.size(), 0u);
+}
+
+}  // namespace
+}  // namespace face_reenact::tracker
