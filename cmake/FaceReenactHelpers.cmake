@@ -60,6 +60,7 @@ function(fr_fuzzer name)
   set(corpus ${CMAKE_CURRENT_BINARY_DIR}/${name}_corpus)
   add_test(NAME ${name}
            COMMAND ${CMAKE_COMMAND} -E env ASAN_OPTIONS=detect_leaks=1
+                   LSAN_OPTIONS=suppressions=${PROJECT_SOURCE_DIR}/tests/lsan.supp
                    $<TARGET_FILE:${name}> -max_total_time=${FR_FUZZ_SECONDS} -rss_limit_mb=2048
                    -print_final_stats=1 ${corpus} ${ARG_SEEDS})
   set_tests_properties(${name} PROPERTIES LABELS fuzz TIMEOUT 600

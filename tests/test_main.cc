@@ -15,6 +15,7 @@ int main(int argc, char** argv) {
   default_env("FACE_REENACT_MODEL", std::getenv("FR_MODEL"));
   default_env("FR_CLI", FR_TEST_CLI);
   default_env("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1");
+  default_env("LSAN_OPTIONS", "suppressions=" FR_TEST_SOURCE_DIR "/tests/lsan.supp");
   ::testing::InitGoogleTest(&argc, argv);
   return RUN_ALL_TESTS();
 }

@@ -18,8 +18,15 @@
 # failed.
 set -euo pipefail
 
-readonly KVER=6.1.0-56-amd64
-readonly LOOPBACK_VERSION=0.12.7
+# The guest kernel is the Debian kernel whose headers are installed (setup.sh installs
+# linux-headers-amd64, which follows bookworm's current kernel); FR_VM_KERNEL overrides it.
+detect_kernel() {
+  local d
+  for d in $(ls -d /lib/modules/*-amd64/build 2>/dev/null | sort -V -r); do
+    basename "$(dirname "$d")"; return
+  done
+}
+readonly KVER=${FR_VM_KERNEL:-$(detect_kernel)}
 readonly BOOT_TIMEOUT_S=${FR_VM_TIMEOUT_S:-840}
 
 skip() {
@@ -56,7 +63,7 @@ for candidate in /bin/busybox /usr/bin/busybox; do
   fi
 done
 [[ -n $busybox ]] || skip "no static busybox (apt-get install busybox-static)"
-[[ -d /lib/modules/$KVER/build ]] || skip "kernel headers for $KVER missing (apt-get install linux-headers-$KVER)"
+[[ -n $KVER && -d /lib/modules/$KVER/build ]] || skip "no Debian kernel headers installed (apt-get install linux-headers-amd64)"
 command -v clang >/dev/null || command -v gcc >/dev/null || skip "no C compiler to build v4l2loopback"
 
 mkdir -p "$cache"
@@ -85,7 +92,9 @@ fi
 module=$cache/v4l2loopback.ko
 if [[ ! -f $module ]]; then
   build=$cache/v4l2loopback-build
-  rm -rf "$build"; cp -r "$root/usr/src/v4l2loopback-$LOOPBACK_VERSION" "$build"
+  src=$(ls -d "$root"/usr/src/v4l2loopback-* 2>/dev/null | sort -V | tail -1)
+  [[ -n $src ]] || die "the v4l2loopback-dkms package holds no source folder"
+  rm -rf "$build"; cp -r "$src" "$build"
   cc=gcc; command -v gcc >/dev/null || cc=clang
   make -s -C "/lib/modules/$KVER/build" M="$build" CC="$cc" modules >"$cache/module-build.log" 2>&1 \
     || { cat "$cache/module-build.log" >&2; die "building v4l2loopback failed"; }
