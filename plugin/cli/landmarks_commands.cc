@@ -1,6 +1,7 @@
-// `face-reenact landmarks`: 68-point landmarks on an image or a video (JSON + drawings), the
-// accuracy evaluation on annotated photos (--eval) and the video stability/cost report
-// (--video-report); `face-reenact bench landmarks`: per-stage costs.
+// `face-reenact landmarks`: 68-point landmarks on an image, a video or an RGB-D recording
+// folder (JSON + drawings), the accuracy evaluation on annotated photos or on a recording's
+// ground truth (--eval) and the video stability/cost report (--video-report);
+// `face-reenact bench landmarks`: per-stage costs.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -11,6 +12,7 @@
 #include <time.h>
 
 #include "command_registry.h"
+#include "face_reenact/capture/recording.h"
 #include "face_reenact/common/byte_io.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/landmarks/drawing.h"
@@ -56,6 +58,60 @@ lm::TrackerOptions tracker_options(const LandmarkArgs& a) {
   return t;
 }
 
+// A recording folder (docs/recording-format.md) as a landmarks::FrameSource, so fr_landmarks
+// needs no dependency on fr_capture. Keeps the last frame's ground truth for --eval. Bad data
+// (a corrupt PNG, a missing file) throws face_reenact::Error naming the file: a recording is
+// a data set, so a damaged frame is an error rather than an early end as in a video.
+class RecordingLandmarkSource : public lm::FrameSource {
+ public:
+  explicit RecordingLandmarkSource(const std::string& dir) : reader_(dir) {}
+  bool Next(lm::Frame* frame) override {
+    capture::RgbdFrame rgbd;
+    if (!reader_.read_next(&rgbd)) return false;
+    const cv::Mat& color = rgbd.color;  // CV_8UC3 BGR, checked by the reader
+    if (color.type() != CV_8UC3) throw Error(Describe() + ": frame " + std::to_string(rgbd.index) + " is not 8-bit BGR");
+    frame->image.width = color.cols;
+    frame->image.height = color.rows;
+    frame->image.format = lm::PixelFormat::kBGR8;
+    frame->image.pixels.resize(size_t(color.cols) * size_t(color.rows) * 3);
+    for (int y = 0; y < color.rows; ++y) {
+      std::copy_n(color.ptr<uint8_t>(y), size_t(color.cols) * 3,
+                  frame->image.pixels.data() + size_t(y) * size_t(color.cols) * 3);
+    }
+    frame->index = rgbd.index;
+    frame->timestamp_s = rgbd.timestamp_s;
+    ground_truth_ = std::move(rgbd.ground_truth);
+    return true;
+  }
+  std::string Describe() const override { return "recording '" + reader_.dir() + "'"; }
+  double fps() const override { return reader_.info().fps; }
+  int64_t frame_count_hint() const override { return reader_.frame_count(); }
+  const capture::GroundTruth& ground_truth() const { return ground_truth_; }
+
+ private:
+  capture::RecordingReader reader_;
+  capture::GroundTruth ground_truth_;
+};
+
+bool is_directory(const std::string& path) {
+  std::error_code ec;
+  return fs::is_directory(path, ec);
+}
+
+// A folder is taken as a recording when it has the recording's own files (a damaged one
+// without recording.json still gets the recording reader's error naming that file).
+bool looks_like_recording(const std::string& dir) {
+  std::error_code ec;
+  return is_directory(dir) &&
+         (fs::exists(fs::path(dir) / "recording.json", ec) || fs::exists(fs::path(dir) / "frames.jsonl", ec));
+}
+
+// Input files go through landmarks::open_frame_source; folders are recordings.
+std::unique_ptr<lm::FrameSource> open_input(const std::string& path) {
+  if (is_directory(path)) return std::make_unique<RecordingLandmarkSource>(path);
+  return lm::open_frame_source(path);
+}
+
 void print_result_line(const std::string& label, const lm::LandmarkResult& r) {
   if (r.has_landmarks) {
     float mc = 0;
@@ -70,7 +126,7 @@ void print_result_line(const std::string& label, const lm::LandmarkResult& r) {
 }
 
 void run_input(const LandmarkArgs& a) {
-  std::unique_ptr<lm::FrameSource> source = lm::open_frame_source(a.input);
+  std::unique_ptr<lm::FrameSource> source = open_input(a.input);
   nlohmann::json doc;
   doc["input"] = a.input;
   doc["format"] = "face-reenact-landmarks";
@@ -78,7 +134,7 @@ void run_input(const LandmarkArgs& a) {
   doc["layout"] = "ibug68";
   nlohmann::json frames = nlohmann::json::array();
   const bool still = source->is_still_image();
-  doc["kind"] = still ? "image" : "video";
+  doc["kind"] = still ? "image" : is_directory(a.input) ? "recording" : "video";
   const bool sheet = !a.draw.empty() && !still && fs::path(a.draw).extension() == ".png";
   if (!a.draw.empty() && !still && !sheet) {
     std::error_code ec;
@@ -150,9 +206,59 @@ void run_input(const LandmarkArgs& a) {
   }
 }
 
+// --eval on a recording with ground truth: the frames are tracked as a video (the mode the
+// product runs in) and each frame is scored over its ground-truth-visible points.
+lm::EvalReport evaluate_recording(const LandmarkArgs& a) {
+  RecordingLandmarkSource source(a.eval);
+  lm::LandmarkTracker tracker(tracker_options(a));
+  lm::EvalAccumulator accumulator(a.eval, "frame");
+  lm::Frame frame;
+  int n = 0, without_truth = 0;
+  while ((a.max_frames <= 0 || n < a.max_frames) && source.Next(&frame)) {
+    ++n;
+    const auto t0 = std::chrono::steady_clock::now();
+    const lm::LandmarkResult r = tracker.Track(frame.image.view(), frame.timestamp_s);
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    const auto& truth_points = source.ground_truth().landmarks;
+    if (!truth_points) {
+      ++without_truth;  // tracked (the next frames depend on it) but not scored
+      continue;
+    }
+    lm::Shape68 truth{};
+    std::array<bool, lm::kNumLandmarks> visible{};
+    for (size_t i = 0; i < size_t(lm::kNumLandmarks); ++i) {
+      truth[i] = (*truth_points)[i].pixel;
+      visible[i] = (*truth_points)[i].visible;
+    }
+    lm::EvalImage e;
+    char name[32];
+    std::snprintf(name, sizeof(name), "frame %06lld", static_cast<long long>(frame.index));
+    e.path = name;
+    e.index = frame.index;
+    e.milliseconds = ms;
+    accumulator.Add(std::move(e), r, truth, &visible);
+  }
+  if (n == 0) throw Error(source.Describe() + ": has no frames");
+  if (without_truth == n) {
+    throw Error(source.Describe() + ": no frame has ground-truth landmarks (a real recording?); "
+                "--eval needs a synthetic recording (face-reenact synth)");
+  }
+  lm::EvalReport report = accumulator.Finish();
+  if (without_truth > 0) {
+    std::fprintf(stderr, "%s: %d of %d frames have no ground-truth landmarks and were not scored\n",
+                 source.Describe().c_str(), without_truth, n);
+  }
+  return report;
+}
+
 void run_eval(const LandmarkArgs& a) {
-  lm::LandmarkDetector detector(detector_options(a, {}));
-  const lm::EvalReport report = lm::evaluate_annotated_folder(a.eval, &detector);
+  lm::EvalReport report;
+  if (looks_like_recording(a.eval)) {
+    report = evaluate_recording(a);
+  } else {
+    lm::LandmarkDetector detector(detector_options(a, {}));
+    report = lm::evaluate_annotated_folder(a.eval, &detector);
+  }
   if (a.json) {
     std::printf("%s\n", report.ToJson().dump(1).c_str());
     return;
@@ -165,8 +271,8 @@ void run_eval(const LandmarkArgs& a) {
       std::printf("%-60s %s - %s\n", e.path.c_str(), lm::status_name(e.status), e.reason.c_str());
     }
   }
-  std::printf("\n%d images: mean NME %.4f (median %.4f) over %d with landmarks; no face %d; failures (NME > 0.1) %d\n",
-              report.images, report.mean_nme, report.median_nme, report.images - report.no_face, report.no_face,
+  std::printf("\n%d %ss: mean NME %.4f (median %.4f) over %d with landmarks; no face %d; failures (NME > 0.1) %d\n",
+              report.images, report.unit.c_str(), report.mean_nme, report.median_nme, report.images - report.no_face, report.no_face,
               report.failures);
   std::printf("point error (inter-ocular units): high-confidence half %.4f, low-confidence half %.4f; "
               "Spearman(confidence, error) %.3f\n",
@@ -196,8 +302,10 @@ void run_video_report(const LandmarkArgs& a) {
 void add_landmarks(CLI::App& app) {
   auto args = std::make_shared<LandmarkArgs>();
   CLI::App* cmd = app.add_subcommand("landmarks", "68-point facial landmarks on an image or video (dlib)");
-  auto* in = cmd->add_option("--input", args->input, "image or video file");
-  auto* ev = cmd->add_option("--eval", args->eval, "folder of images with .pts annotations (recursive): NME report");
+  auto* in = cmd->add_option("--input", args->input, "image or video file, or an RGB-D recording folder");
+  auto* ev = cmd->add_option("--eval", args->eval,
+                             "folder of images with .pts annotations (recursive), or a recording with ground truth "
+                             "(tracked): NME report");
   auto* vr = cmd->add_option("--video-report", args->video_report,
                              "video: jitter and per-frame cost of tracking vs detection on every frame");
   in->excludes(ev)->excludes(vr);
@@ -207,7 +315,7 @@ void add_landmarks(CLI::App& app) {
                   "PNG with the points drawn; for a video a folder (one PNG per frame) or a .png contact sheet");
   cmd->add_flag("--detect-every-frame", args->detect_every_frame, "search the whole frame every frame (no tracking)");
   cmd->add_flag("--smooth", args->smooth, "One-Euro temporal smoothing of the tracked points");
-  cmd->add_option("--max-frames", args->max_frames, "stop after N frames (0: all)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--max-frames", args->max_frames, "videos, recordings: stop after N frames (0: all)")->check(CLI::NonNegativeNumber);
   cmd->add_flag("--json", args->json, "--eval/--video-report: print JSON instead of a table");
   cmd->add_option("--samples", args->samples, "shape-predictor runs per face for the confidence (1-9)")
       ->check(CLI::Range(1, 9));
@@ -221,7 +329,7 @@ void add_landmarks(CLI::App& app) {
     if (!args->eval.empty()) return run_eval(*args);
     if (!args->video_report.empty()) return run_video_report(*args);
     if (!args->input.empty()) return run_input(*args);
-    throw Error("landmarks: give --input FILE, --eval DIR or --video-report VIDEO");
+    throw Error("landmarks: give --input FILE|RECORDING, --eval DIR|RECORDING or --video-report VIDEO");
   });
 
   struct BenchArgs {

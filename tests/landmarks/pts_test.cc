@@ -51,6 +51,8 @@ TEST(PtsTest, RejectsMalformedFilesWithClearErrors) {
   expect_error("version: 1\nn_points: 68\n{\n1 nan\n", "expected 'x y'");
   expect_error("version: 1\nn_points: 68\n{\n1\n", "expected 'x y'");
   expect_error("", "missing '{'");
+  // Finite as a double but infinite as a float (found by the fuzzer).
+  expect_error("version: 1\nn_points: 68\n{\n1e300 5\n", "out of range");
 }
 
 TEST(PtsTest, MissingFileIsAnError) { EXPECT_THROW(read_pts("/nonexistent/x.pts"), Error); }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <numeric>
 #include <sstream>
 #include <time.h>
@@ -59,6 +60,9 @@ Shape68 parse_pts(const std::string& text, const std::string& what) {
     std::istringstream xy(line);
     double x = 0, y = 0;
     if (!(xy >> x >> y) || !std::isfinite(x) || !std::isfinite(y)) throw fail("expected 'x y'");
+    // Pixel coordinates; anything beyond this is no image (and would overflow the float).
+    constexpr double kMaxCoordinate = 1e7;
+    if (std::abs(x) > kMaxCoordinate || std::abs(y) > kMaxCoordinate) throw fail("coordinate out of range");
     // 300-W coordinates are 1-based (Matlab convention).
     shape[size_t(count++)] = Eigen::Vector2f(float(x - 1.0), float(y - 1.0));
   }
@@ -74,11 +78,23 @@ Shape68 read_pts(const std::string& path) {
 }
 
 float nme_outer_eye(const Shape68& predicted, const Shape68& truth) {
+  std::array<bool, kNumLandmarks> all;
+  all.fill(true);
+  return nme_outer_eye(predicted, truth, all);
+}
+
+float nme_outer_eye(const Shape68& predicted, const Shape68& truth, const std::array<bool, kNumLandmarks>& use) {
   const float norm = outer_eye_distance(truth);
   if (!(norm > 0)) return std::numeric_limits<float>::infinity();
   double sum = 0;
-  for (int i = 0; i < kNumLandmarks; ++i) sum += (predicted[size_t(i)] - truth[size_t(i)]).norm();
-  return float(sum / kNumLandmarks / norm);
+  int used = 0;
+  for (int i = 0; i < kNumLandmarks; ++i) {
+    if (!use[size_t(i)]) continue;
+    sum += (predicted[size_t(i)] - truth[size_t(i)]).norm();
+    ++used;
+  }
+  if (used == 0) return std::numeric_limits<float>::infinity();
+  return float(sum / used / norm);
 }
 
 nlohmann::json to_json(const LandmarkResult& r) {
@@ -167,9 +183,7 @@ EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector
   std::sort(images.begin(), images.end());
   if (images.empty()) throw Error("evaluation folder '" + folder + "': no image with a .pts annotation beside it");
 
-  EvalReport report;
-  report.folder = folder;
-  std::vector<double> nmes, point_conf, point_err;
+  EvalAccumulator accumulator(folder, "image");
   for (const fs::path& p : images) {
     EvalImage e;
     e.path = p.string();
@@ -182,9 +196,7 @@ EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector
     } catch (const Error& err) {
       e.status = DetectionStatus::kInvalidInput;
       e.reason = err.what();
-      report.per_image.push_back(e);
-      ++report.images;
-      ++report.no_face;
+      accumulator.AddUnreadable(std::move(e));
       continue;
     }
     const auto t0 = std::chrono::steady_clock::now();
@@ -199,50 +211,78 @@ EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector
     hint.previous_box = Box{lo.x(), lo.y(), hi.x() - lo.x(), hi.y() - lo.y()};
     const LandmarkResult r = detector->Detect(image.view(), hint);
     e.milliseconds = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    e.status = r.status;
-    e.reason = r.reason;
-    e.faces_found = r.faces_found;
-    e.has_landmarks = r.has_landmarks;
-    ++report.images;
-    if (!r.has_landmarks) {
-      ++report.no_face;
-    } else {
-      e.nme = nme_outer_eye(r.points, truth);
-      nmes.push_back(e.nme);
-      if (e.nme > 0.1f) ++report.failures;
-      const float iod = outer_eye_distance(truth);
-      double sum_conf = 0;
-      for (int i = 0; i < kNumLandmarks; ++i) {
-        point_conf.push_back(r.confidence[size_t(i)]);
-        point_err.push_back((r.points[size_t(i)] - truth[size_t(i)]).norm() / iod);
-        sum_conf += r.confidence[size_t(i)];
-      }
-      e.mean_confidence = float(sum_conf / kNumLandmarks);
+    accumulator.Add(std::move(e), r, truth);
+  }
+  return accumulator.Finish();
+}
+
+EvalAccumulator::EvalAccumulator(std::string folder, std::string unit) {
+  report_.folder = std::move(folder);
+  report_.unit = std::move(unit);
+}
+
+void EvalAccumulator::AddUnreadable(EvalImage e) {
+  e.has_landmarks = false;
+  ++report_.images;
+  ++report_.no_face;
+  report_.per_image.push_back(std::move(e));
+}
+
+void EvalAccumulator::Add(EvalImage e, const LandmarkResult& r, const Shape68& truth,
+                          const std::array<bool, kNumLandmarks>* use) {
+  std::array<bool, kNumLandmarks> all;
+  all.fill(true);
+  const std::array<bool, kNumLandmarks>& mask = use ? *use : all;
+  e.status = r.status;
+  e.reason = r.reason;
+  e.faces_found = r.faces_found;
+  e.has_landmarks = r.has_landmarks;
+  ++report_.images;
+  if (!r.has_landmarks) {
+    ++report_.no_face;
+  } else {
+    e.nme = nme_outer_eye(r.points, truth, mask);
+    // A frame with no usable ground-truth point is not scored (NME is infinite); it counts as
+    // a failure so it cannot hide.
+    if (std::isfinite(e.nme)) nmes_.push_back(e.nme);
+    if (!(e.nme <= 0.1f)) ++report_.failures;
+    const float iod = outer_eye_distance(truth);
+    double sum_conf = 0;
+    for (int i = 0; i < kNumLandmarks; ++i) {
+      sum_conf += r.confidence[size_t(i)];
+      if (!mask[size_t(i)] || !(iod > 0)) continue;
+      point_conf_.push_back(r.confidence[size_t(i)]);
+      point_err_.push_back((r.points[size_t(i)] - truth[size_t(i)]).norm() / iod);
     }
-    report.per_image.push_back(std::move(e));
+    e.mean_confidence = float(sum_conf / kNumLandmarks);
   }
-  if (!nmes.empty()) {
-    report.mean_nme = std::accumulate(nmes.begin(), nmes.end(), 0.0) / double(nmes.size());
-    report.median_nme = percentile(nmes, 0.5);
+  report_.per_image.push_back(std::move(e));
+}
+
+EvalReport EvalAccumulator::Finish() const {
+  EvalReport report = report_;
+  if (!nmes_.empty()) {
+    report.mean_nme = std::accumulate(nmes_.begin(), nmes_.end(), 0.0) / double(nmes_.size());
+    report.median_nme = percentile(nmes_, 0.5);
   }
-  if (!point_conf.empty()) {
+  if (!point_conf_.empty()) {
     // Split at the median confidence (ties broken by rank so both halves are non-empty).
-    const std::vector<double> conf_rank = ranks(point_conf);
-    const double mid = 0.5 * double(point_conf.size() - 1);
+    const std::vector<double> conf_rank = ranks(point_conf_);
+    const double mid = 0.5 * double(point_conf_.size() - 1);
     double hi = 0, lo = 0;
     int nh = 0, nl = 0;
-    for (size_t i = 0; i < point_conf.size(); ++i) {
+    for (size_t i = 0; i < point_conf_.size(); ++i) {
       if (conf_rank[i] > mid) {
-        hi += point_err[i];
+        hi += point_err_[i];
         ++nh;
       } else {
-        lo += point_err[i];
+        lo += point_err_[i];
         ++nl;
       }
     }
     report.point_error_high_confidence = nh ? hi / nh : 0;
     report.point_error_low_confidence = nl ? lo / nl : 0;
-    report.confidence_error_correlation = pearson(conf_rank, ranks(point_err));
+    report.confidence_error_correlation = pearson(conf_rank, ranks(point_err_));
   }
   return report;
 }
@@ -250,7 +290,9 @@ EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector
 nlohmann::json EvalReport::ToJson() const {
   nlohmann::json j;
   j["folder"] = folder;
+  j["unit"] = unit;
   j["images"] = images;
+  if (unit == "frame") j["frames"] = images;
   j["mean_nme"] = mean_nme;
   j["median_nme"] = median_nme;
   j["no_face"] = no_face;
@@ -262,6 +304,7 @@ nlohmann::json EvalReport::ToJson() const {
   for (const EvalImage& e : per_image) {
     nlohmann::json i;
     i["path"] = e.path;
+    if (e.index >= 0) i["index"] = e.index;
     i["status"] = status_name(e.status);
     i["reason"] = e.reason;
     i["faces_found"] = e.faces_found;

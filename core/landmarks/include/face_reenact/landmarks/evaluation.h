@@ -2,6 +2,8 @@
 // Accuracy and stability measurements on real data: NME on 68-point annotated photos
 // (.pts files, 300-W convention) and jitter / per-frame cost on videos. Used by the
 // `face-reenact landmarks --eval/--video-report` command and by the tests.
+#include <array>
+#include <cstdint>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -18,11 +20,15 @@ Shape68 parse_pts(const std::string& text, const std::string& what);
 
 // Mean point error normalised by the outer-eye-corner distance (points 36, 45) of `truth`.
 float nme_outer_eye(const Shape68& predicted, const Shape68& truth);
+// The same over the points with `use[i]` (e.g. the ground-truth-visible ones); the
+// normalisation still uses points 36 and 45 of `truth`. Infinity when no point is used.
+float nme_outer_eye(const Shape68& predicted, const Shape68& truth, const std::array<bool, kNumLandmarks>& use);
 
 nlohmann::json to_json(const LandmarkResult& result);
 
 struct EvalImage {
   std::string path;
+  int64_t index = -1;         // frame number when evaluating a recording
   DetectionStatus status = DetectionStatus::kNoFace;
   std::string reason;
   bool has_landmarks = false;
@@ -33,7 +39,8 @@ struct EvalImage {
 };
 
 struct EvalReport {
-  std::string folder;
+  std::string folder;         // the annotated folder or the recording
+  std::string unit = "image"; // what per_image holds: "image" (photos) or "frame" (a recording)
   int images = 0;
   int no_face = 0;            // images without landmarks
   int failures = 0;           // images with landmarks and NME > 0.1
@@ -54,6 +61,24 @@ struct EvalReport {
 // only chooses among detector boxes). Throws face_reenact::Error
 // when the folder is missing or holds no annotated image.
 EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector* detector);
+
+// Builds an EvalReport from scored images/frames, so every evaluation (annotated photos,
+// recordings with ground truth) shares one NME, failure and confidence statistic.
+class EvalAccumulator {
+ public:
+  explicit EvalAccumulator(std::string folder, std::string unit = "image");
+  // Adds one image/frame; `result` is scored against `truth` over the points with use[i]
+  // (nullptr: all 68). `entry` carries path, timing; status and NME are filled in here.
+  void Add(EvalImage entry, const LandmarkResult& result, const Shape68& truth,
+           const std::array<bool, kNumLandmarks>* use = nullptr);
+  // Adds an image/frame that could not be read (counts as no_face).
+  void AddUnreadable(EvalImage entry);
+  EvalReport Finish() const;
+
+ private:
+  EvalReport report_;
+  std::vector<double> nmes_, point_conf_, point_err_;
+};
 
 struct VideoModeReport {
   std::string mode;
