@@ -45,7 +45,9 @@ class VideoFileSource : public FrameSource {
  public:
   explicit VideoFileSource(const MediaSourceOptions& options) : options_(options) {
     try {
-      if (!capture_.open(options.path, cv::CAP_ANY) || !capture_.isOpened())
+      // Files are decoded by FFmpeg only: CAP_ANY would also probe GStreamer and camera
+      // back-ends for a bad path, slowly and with their own leaks.
+      if (!capture_.open(options.path, cv::CAP_FFMPEG) || !capture_.isOpened())
         throw Error("cannot open input '" + options.path + "': not a video or image that OpenCV/ffmpeg can read");
       double fps = capture_.get(cv::CAP_PROP_FPS);
       fps_ = (std::isfinite(fps) && fps >= 1 && fps <= 240) ? fps : options.fallback_fps;
@@ -74,7 +76,7 @@ class VideoFileSource : public FrameSource {
           }
           // Rewind by reopening: seeking is unreliable for some containers (wmv, streams).
           capture_.release();
-          if (!capture_.open(options_.path, cv::CAP_ANY) || !capture_.read(image) || image.empty()) {
+          if (!capture_.open(options_.path, cv::CAP_FFMPEG) || !capture_.read(image) || image.empty()) {
             if (error) *error = "input '" + options_.path + "' could not be read again for looping";
             return SourceStatus::kError;
           }
