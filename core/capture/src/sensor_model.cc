@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/srgb.h"
 
 namespace face_reenact::capture {
 namespace {
@@ -35,22 +36,6 @@ enum Stream : uint64_t {
   kWhiteBalance,
 };
 
-// Smooth noise of unit variance over time: cosine interpolation of Gaussian knots `period` apart.
-double smooth_noise(uint64_t key, double t, double period) {
-  const double s = t / period;
-  const double k = std::floor(s);
-  const double f = s - k;
-  const double a = gaussian(hash_key(key, static_cast<uint64_t>(static_cast<int64_t>(k))));
-  const double b = gaussian(hash_key(key, static_cast<uint64_t>(static_cast<int64_t>(k) + 1)));
-  const double w = 0.5 - 0.5 * std::cos(M_PI * f);
-  // Renormalise: the blend of two independent unit Gaussians has variance (1-w)^2 + w^2.
-  return ((1 - w) * a + w * b) / std::sqrt((1 - w) * (1 - w) + w * w);
-}
-
-double srgb_encode(double linear) {
-  linear = std::clamp(linear, 0.0, 1.0);
-  return linear <= 0.0031308 ? 12.92 * linear : 1.055 * std::pow(linear, 1.0 / 2.4) - 0.055;
-}
 
 }  // namespace
 
@@ -67,6 +52,17 @@ double gaussian(uint64_t key) {
   const double u1 = 1.0 - uniform01(key ^ 0x5555555555555555ull);  // (0, 1]
   const double u2 = uniform01(key ^ 0xAAAAAAAAAAAAAAAAull);
   return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * M_PI * u2);
+}
+
+double smooth_noise(uint64_t key, double t, double period) {
+  const double s = t / period;
+  const double k = std::floor(s);
+  const double f = s - k;
+  const double a = gaussian(hash_key(key, static_cast<uint64_t>(static_cast<int64_t>(k))));
+  const double b = gaussian(hash_key(key, static_cast<uint64_t>(static_cast<int64_t>(k) + 1)));
+  const double w = 0.5 - 0.5 * std::cos(M_PI * f);
+  // Renormalise: the blend of two independent unit Gaussians has variance (1-w)^2 + w^2.
+  return ((1 - w) * a + w * b) / std::sqrt((1 - w) * (1 - w) + w * w);
 }
 
 bool SensorModelOptions::IsValid(std::string* why) const {

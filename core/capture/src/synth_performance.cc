@@ -39,15 +39,6 @@ enum Stream : uint64_t {
   kLook,
 };
 
-// Smooth random signal of unit variance (cosine-interpolated Gaussian knots `period` apart).
-double smooth(uint64_t key, double t, double period) {
-  const double s = t / period, k = std::floor(s), f = s - k;
-  const double a = gaussian(hash_key(key, static_cast<uint64_t>(static_cast<int64_t>(k))));
-  const double b = gaussian(hash_key(key, static_cast<uint64_t>(static_cast<int64_t>(k) + 1)));
-  const double w = 0.5 - 0.5 * std::cos(M_PI * f);
-  return ((1 - w) * a + w * b) / std::sqrt((1 - w) * (1 - w) + w * w);
-}
-
 double smoothstep01(double x) {
   x = std::clamp(x, 0.0, 1.0);
   return x * x * (3 - 2 * x);
@@ -225,20 +216,20 @@ Timeline random_timeline(uint64_t seed, int frames, double fps) {
     k.time_s = t;
     PerformanceState& s = k.state;
     // Head: slow looks around, within the documented ranges.
-    s.head_deg.y() = static_cast<float>(std::clamp(14.0 * smooth(key(kYaw), t, 2.2), -30.0, 30.0));
-    s.head_deg.x() = static_cast<float>(std::clamp(6.0 * smooth(key(kPitch), t, 1.8), -15.0, 15.0));
-    s.head_deg.z() = static_cast<float>(std::clamp(4.0 * smooth(key(kRoll), t, 2.6), -10.0, 10.0));
-    s.translation = Eigen::Vector3f(static_cast<float>(0.04 * smooth(key(kTx), t, 3.0)),
-                                    static_cast<float>(-0.07 + 0.02 * smooth(key(kTy), t, 3.0)),
-                                    static_cast<float>(distance + 0.05 * smooth(key(kTz), t, 4.0)));
+    s.head_deg.y() = static_cast<float>(std::clamp(14.0 * smooth_noise(key(kYaw), t, 2.2), -30.0, 30.0));
+    s.head_deg.x() = static_cast<float>(std::clamp(6.0 * smooth_noise(key(kPitch), t, 1.8), -15.0, 15.0));
+    s.head_deg.z() = static_cast<float>(std::clamp(4.0 * smooth_noise(key(kRoll), t, 2.6), -10.0, 10.0));
+    s.translation = Eigen::Vector3f(static_cast<float>(0.04 * smooth_noise(key(kTx), t, 3.0)),
+                                    static_cast<float>(-0.07 + 0.02 * smooth_noise(key(kTy), t, 3.0)),
+                                    static_cast<float>(distance + 0.05 * smooth_noise(key(kTz), t, 4.0)));
     // Speech: bursts (gate) of syllables at ~4-5 Hz driving jaw and lips.
-    const double gate = smoothstep01((smooth(key(kTalkGate), t, 1.6) + 0.3) * 2.0);
-    const double phase = 2 * M_PI * 4.3 * t + 2.5 * smooth(key(kTalkPhase), t, 0.6);
+    const double gate = smoothstep01((smooth_noise(key(kTalkGate), t, 1.6) + 0.3) * 2.0);
+    const double phase = 2 * M_PI * 4.3 * t + 2.5 * smooth_noise(key(kTalkPhase), t, 0.6);
     const double syllable = std::pow(std::max(0.0, std::sin(phase)), 1.5);
-    const double amp = 0.5 + 0.2 * smooth(key(kSyllable), t, 0.4);
+    const double amp = 0.5 + 0.2 * smooth_noise(key(kSyllable), t, 0.4);
     set_weight(s, "jawOpen", gate * amp * syllable * 0.55);
-    set_weight(s, "mouthFunnel", gate * 0.35 * std::max(0.0, smooth(hash_key(seed, kSyllable, 1), t, 0.35)));
-    set_weight(s, "mouthPucker", gate * 0.3 * std::max(0.0, smooth(hash_key(seed, kSyllable, 2), t, 0.45) - 0.3));
+    set_weight(s, "mouthFunnel", gate * 0.35 * std::max(0.0, smooth_noise(hash_key(seed, kSyllable, 1), t, 0.35)));
+    set_weight(s, "mouthPucker", gate * 0.3 * std::max(0.0, smooth_noise(hash_key(seed, kSyllable, 2), t, 0.45) - 0.3));
     set_weight(s, "mouthLowerDownLeft", gate * syllable * 0.25);
     set_weight(s, "mouthLowerDownRight", gate * syllable * 0.25);
     set_weight(s, "mouthUpperUpLeft", gate * 0.15 * std::max(0.0, std::sin(phase + 1.0)));
@@ -254,34 +245,34 @@ Timeline random_timeline(uint64_t seed, int frames, double fps) {
     set_weight(s, "eyeBlinkLeft", blink);
     set_weight(s, "eyeBlinkRight", blink);
     // Smiles (slightly asymmetric), brow raises, occasional frowns.
-    const double smile = std::clamp((smooth(key(kSmile), t, 2.8) - 0.2) * 1.1, 0.0, 1.0);
-    const double side = 0.15 * smooth(key(kSmileSide), t, 3.0);
+    const double smile = std::clamp((smooth_noise(key(kSmile), t, 2.8) - 0.2) * 1.1, 0.0, 1.0);
+    const double side = 0.15 * smooth_noise(key(kSmileSide), t, 3.0);
     set_weight(s, "mouthSmileLeft", smile * (1 + side));
     set_weight(s, "mouthSmileRight", smile * (1 - side));
     set_weight(s, "cheekSquintLeft", 0.5 * smile);
     set_weight(s, "cheekSquintRight", 0.5 * smile);
-    const double brow = std::clamp((smooth(key(kBrow), t, 1.7) - 0.5) * 1.4, 0.0, 1.0);
+    const double brow = std::clamp((smooth_noise(key(kBrow), t, 1.7) - 0.5) * 1.4, 0.0, 1.0);
     set_weight(s, "browInnerUp", brow);
     set_weight(s, "browOuterUpLeft", 0.8 * brow);
     set_weight(s, "browOuterUpRight", 0.8 * brow);
-    const double frown = std::clamp((smooth(key(kFrown), t, 3.3) - 1.0) * 1.2, 0.0, 0.8);
+    const double frown = std::clamp((smooth_noise(key(kFrown), t, 3.3) - 1.0) * 1.2, 0.0, 0.8);
     set_weight(s, "browDownLeft", frown);
     set_weight(s, "browDownRight", frown);
     // Gaze follows the head a little.
-    const double look = smooth(key(kLook), t, 1.5);
+    const double look = smooth_noise(key(kLook), t, 1.5);
     set_weight(s, "eyeLookOutLeft", std::max(0.0, look) * 0.4);
     set_weight(s, "eyeLookInRight", std::max(0.0, look) * 0.4);
     set_weight(s, "eyeLookInLeft", std::max(0.0, -look) * 0.4);
     set_weight(s, "eyeLookOutRight", std::max(0.0, -look) * 0.4);
     // Light: a key light above and to one side of the camera, drifting, with ambient fill.
-    const double az = 0.6 * smooth(key(kLightAzimuth), t, 6.0) - 0.3;
-    const double el = 0.5 + 0.15 * smooth(key(kLightElevation), t, 7.0);
+    const double az = 0.6 * smooth_noise(key(kLightAzimuth), t, 6.0) - 0.3;
+    const double el = 0.5 + 0.15 * smooth_noise(key(kLightElevation), t, 7.0);
     s.light.direction = Eigen::Vector3f(static_cast<float>(std::sin(az) * std::cos(el)), static_cast<float>(-std::sin(el)),
                                         static_cast<float>(-std::cos(az) * std::cos(el)))
                             .normalized();
-    s.light.intensity = static_cast<float>(0.8 + 0.12 * smooth(key(kLightIntensity), t, 5.0));
-    s.light.ambient = static_cast<float>(0.42 + 0.06 * smooth(key(kLightAmbient), t, 5.0));
-    const double tint = 0.04 * smooth(key(kLightTint), t, 8.0);
+    s.light.intensity = static_cast<float>(0.8 + 0.12 * smooth_noise(key(kLightIntensity), t, 5.0));
+    s.light.ambient = static_cast<float>(0.42 + 0.06 * smooth_noise(key(kLightAmbient), t, 5.0));
+    const double tint = 0.04 * smooth_noise(key(kLightTint), t, 8.0);
     s.light.color = Eigen::Vector3f(static_cast<float>(1 + tint), 1.0f, static_cast<float>(1 - tint));
     keys.push_back(std::move(k));
   }

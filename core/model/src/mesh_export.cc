@@ -8,14 +8,10 @@
 
 #include "face_reenact/common/byte_io.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/srgb.h"
 
 namespace face_reenact {
 namespace {
-
-float linear_to_srgb(float c) {
-  c = std::clamp(c, 0.f, 1.f);
-  return c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.f / 2.4f) - 0.055f;
-}
 
 struct Selection {
   std::vector<int32_t> old_to_new;  // -1 for dropped vertices
@@ -51,8 +47,8 @@ std::vector<uint8_t> write_obj(const FaceModel& m, const MeshInstance& inst, con
   char line[160];
   for (int v : s.kept_vertices) {
     std::snprintf(line, sizeof line, "v %.6f %.6f %.6f %.4f %.4f %.4f\n", inst.positions[3 * v],
-                  inst.positions[3 * v + 1], inst.positions[3 * v + 2], linear_to_srgb(inst.colours[3 * v]),
-                  linear_to_srgb(inst.colours[3 * v + 1]), linear_to_srgb(inst.colours[3 * v + 2]));
+                  inst.positions[3 * v + 1], inst.positions[3 * v + 2], srgb_encode(inst.colours[3 * v]),
+                  srgb_encode(inst.colours[3 * v + 1]), srgb_encode(inst.colours[3 * v + 2]));
     o << line;
   }
   for (int t : s.kept_triangles)
@@ -83,7 +79,7 @@ std::vector<uint8_t> write_ply(const MeshInstance& inst, const FaceModel& m, con
   for (int v : s.kept_vertices) {
     for (int k = 0; k < 3; ++k) w.f32(inst.positions[3 * v + k]);
     for (int k = 0; k < 3; ++k)
-      w.u8(static_cast<uint8_t>(std::lround(255.f * linear_to_srgb(inst.colours[3 * v + k]))));
+      w.u8(static_cast<uint8_t>(std::lround(255.f * srgb_encode(inst.colours[3 * v + k]))));
   }
   for (int t : s.kept_triangles) {
     w.u8(3);

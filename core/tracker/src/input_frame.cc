@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/srgb.h"
 
 namespace face_reenact::tracker {
 namespace {
@@ -15,8 +16,6 @@ bool fail(std::string* why, const std::string& message) {
 }
 
 size_t pixel_count(const gpu::PinholeCamera& c) { return static_cast<size_t>(c.width) * static_cast<size_t>(c.height); }
-
-float srgb_to_linear(float s) { return s <= 0.04045f ? s / 12.92f : std::pow((s + 0.055f) / 1.055f, 2.4f); }
 
 // Taps of the [1 3 3 1] / 8 kernel around coarse sample k: fine indices 2k-1 .. 2k+2.
 constexpr float kTap[4] = {1.f / 8, 3.f / 8, 3.f / 8, 1.f / 8};
@@ -115,7 +114,7 @@ void InputFrame::SetColorFromSrgb8(const uint8_t* rgb, size_t size_bytes) {
   const size_t n = pixel_count(camera);
   if (size_bytes != 3 * n) throw Error("input frame: sRGB image has the wrong size for the camera");
   float table[256];
-  for (int v = 0; v < 256; ++v) table[v] = srgb_to_linear(v / 255.f);
+  for (int v = 0; v < 256; ++v) table[v] = srgb_decode(v / 255.f);
   color.resize(3 * n);
   for (size_t k = 0; k < 3 * n; ++k) color[k] = table[rgb[k]];
 }

@@ -86,5 +86,7 @@ class SensorModel {
 uint64_t hash_key(uint64_t a, uint64_t b = 0, uint64_t c = 0, uint64_t d = 0);
 double uniform01(uint64_t key);  // [0, 1)
 double gaussian(uint64_t key);   // standard normal (Box-Muller of two derived uniforms)
+// Smooth noise of unit variance over time t: cosine interpolation of Gaussian knots `period` apart.
+double smooth_noise(uint64_t key, double t, double period);
 
 }  // namespace face_reenact::capture

@@ -1,0 +1,21 @@
+#pragma once
+// The sRGB transfer function (IEC 61966-2-1): linear light in [0,1] <-> 8-bit-style encoded
+// values in [0,1]. The renderer, albedo and tracker work in linear RGB; images and meshes on
+// disk are sRGB-encoded.
+#include <algorithm>
+#include <cmath>
+
+namespace face_reenact {
+
+template <typename T>
+T srgb_encode(T linear) {
+  linear = std::clamp(linear, T(0), T(1));
+  return linear <= T(0.0031308) ? T(12.92) * linear : T(1.055) * std::pow(linear, T(1) / T(2.4)) - T(0.055);
+}
+
+template <typename T>
+T srgb_decode(T encoded) {
+  return encoded <= T(0.04045) ? encoded / T(12.92) : std::pow((encoded + T(0.055)) / T(1.055), T(2.4));
+}
+
+}  // namespace face_reenact
