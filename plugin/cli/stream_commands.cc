@@ -16,6 +16,10 @@
 
 #include "command_registry.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/paths.h"
+#include "face_reenact/live/input_spec.h"
+#include "face_reenact/live/tracked_expression_source.h"
+#include "face_reenact/model/model_file.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/stream/protocol.h"
 #include "face_reenact/stream/receiver.h"
@@ -46,7 +50,9 @@ void run_keygen(const KeygenArgs& a) {
 
 // ---------------------------------------------------------------------------------------------
 struct SendArgs {
-  std::string to, key, replay;
+  std::string to, key, replay, input, model;
+  int calibration_frames = -1;
+  bool no_pose = false;
   int livelink_port = -1;
   uint32_t stream_id = 1;
   double rate = 0;
@@ -65,20 +71,41 @@ void print_send_status(const fs::ExpressionSender& sender, const fs::ExpressionF
                static_cast<unsigned long long>(s.sent), rate, static_cast<unsigned long long>(s.send_errors),
                static_cast<unsigned long long>(source.input_errors()),
                s.last_error.empty() ? "" : ", last send error: ", s.last_error.c_str());
+  if (const auto* tracked = dynamic_cast<const live::TrackedExpressionSource*>(&source)) {
+    const auto& t = tracked->statistics();
+    std::fprintf(stderr, "send:   tracked %lld frames (%.0f ms each), %lld while calibrating, %lld without a fit; last: %s\n",
+                 static_cast<long long>(t.frames_tracked), t.tracking_ms_mean,
+                 static_cast<long long>(t.frames_calibrating), static_cast<long long>(t.frames_without_fit),
+                 t.last_status.c_str());
+  }
   std::fflush(stderr);
 }
 
+// `send --input`: the source actor tracked live (camera / OpenNI device / recording).
+std::unique_ptr<fs::ExpressionFrameSource> make_tracked_source(const SendArgs& a) {
+  live::TrackedSourceOptions o;
+  o.grabber.input = live::parse_target_spec(a.input, "--input");
+  o.grabber.loop = a.loop;
+  if (a.calibration_frames >= 0) o.tracker.calibration_frames = a.calibration_frames;
+  o.input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+  o.send_pose = !a.no_pose;
+  const FaceModel model = load_face_model(resolve_model_path(a.model));
+  return std::make_unique<live::TrackedExpressionSource>(model, o);
+}
+
 void run_send(const SendArgs& a) {
-  if (a.replay.empty() == (a.livelink_port < 0))
-    throw Error("send: give exactly one frame source, --replay PARAMS.jsonl or --livelink PORT "
-                "(tracking a camera or recording needs the tracker, which this build does not have)");
+  const int sources = int(!a.replay.empty()) + int(a.livelink_port >= 0) + int(!a.input.empty());
+  if (sources != 1)
+    throw Error("send: give exactly one frame source: --input CAMERA|RECORDING, --replay PARAMS.jsonl or --livelink PORT");
   if (a.livelink_port > 65535) throw Error("send: --livelink port must be 0-65535");
   if (!std::isfinite(a.rate) || a.rate < 0 || a.rate > 10000) throw Error("send: --rate must be between 0 (the file's timestamps) and 10000 Hz");
   const fs::StreamKey key = fs::load_key_file(a.key);
   const fs::UdpEndpoint to = fs::resolve_endpoint(a.to, "--to");
 
   std::unique_ptr<fs::ExpressionFrameSource> source;
-  if (!a.replay.empty()) {
+  if (!a.input.empty()) {
+    source = make_tracked_source(a);
+  } else if (!a.replay.empty()) {
     fs::ReplayFileSource::Options o;
     o.rate_hz = a.rate;
     o.loop = a.loop;
@@ -370,9 +397,16 @@ void add_stream_commands(CLI::App& app) {
     auto* replay = c->add_option("--replay", args->replay, "Parameter file to replay (JSON Lines, docs/stream-protocol.md)");
     auto* livelink = c->add_option("--livelink", args->livelink_port, "Relay Live Link Face (iPhone) packets received on this UDP port");
     replay->excludes(livelink);
+    auto* input = c->add_option("--input", args->input,
+                                "Track the source actor live: a camera (/dev/videoN), openni[:URI], or a recording/video");
+    input->excludes(replay)->excludes(livelink);
+    c->add_option("--model", args->model, "Face model file for --input (default: the built one)");
+    c->add_option("--calibration-frames", args->calibration_frames,
+                  "--input: frames to calibrate the actor over before sending (keep a neutral face)");
+    c->add_flag("--no-pose", args->no_pose, "--input: do not send the head pose");
     c->add_option("--stream", args->stream_id, "Stream id (u32) the receivers allow")->capture_default_str();
     c->add_option("--rate", args->rate, "Replay rate in Hz (default: the file's timestamps, else 30)");
-    c->add_flag("--loop", args->loop, "Replay the file in a loop");
+    c->add_flag("--loop", args->loop, "Replay the file (or the --input recording) in a loop");
     c->add_flag("--status", args->status, "Print a status line per second to stderr");
     c->add_option("--count", args->count, "Stop after sending this many datagrams");
     c->add_option("--ttl", args->ttl, "Multicast TTL (0: this host, 1: local network)")->capture_default_str();

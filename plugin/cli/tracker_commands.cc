@@ -1,9 +1,22 @@
+// `face-reenact track`: the tracking pipeline (calibration, tracking, recovery) on a recording
+// or a video, writing per-frame parameters (JSON Lines, replayable by `send --replay`), a JSON
+// report with per-stage times and, with ground truth, the accuracy, optionally the fitted meshes
+// and the paper's data-term ablation (Fig. 12). docs/tracker.md describes the outputs.
+//
 // `face-reenact bench track`: the cost of one tracked frame like the paper's Table 1, per
 // pyramid level (residuals, synthesis, analysis) and per frame, for the CPU reference solver
-// with both normal-equation operators (J then J^T applied per PCG step, and J^T J assembled).
+// with both normal-equation operators (J then J^T applied per PCG step, and J^T J assembled),
+// plus the cost of the multi-frame calibration.
 // Input: synthetic frames rendered by the CPU renderer from the real model, the face moving a
 // little between frames, each frame warm-started from the previous result.
+#include <unistd.h>
+
+#include <Eigen/Geometry>
+#include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -11,10 +24,18 @@
 #include <vector>
 
 #include "command_registry.h"
+#include "face_reenact/capture/recording.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/model/mesh_export.h"
 #include "face_reenact/model/model_file.h"
+#include "face_reenact/tracker/evaluation.h"
+#include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/rgbd_input.h"
 #include "face_reenact/tracker/solver.h"
+#include "face_reenact/tracker/solver_choice.h"
+#include "tracker_bench_vulkan.h"
 
 namespace face_reenact::cli {
 namespace {
@@ -27,7 +48,9 @@ struct TrackBenchArgs {
   int width = 640;
   int height = 480;
   float distance = 0.55f;
+  int calibration_frames = 5;  // frames of the timed calibration
   bool json = false;
+  VulkanTrackBenchArgs vulkan;  // the Vulkan columns (tracker_vulkan_bench_commands.cc)
 };
 
 struct LevelTotals {
@@ -109,23 +132,409 @@ void run_bench_track(const TrackBenchArgs& a) {
                             {"total_ms_per_frame", total_ms / a.frames},
                             {"mean_final_energy", final_energy / a.frames}};
   }
-  doc["vulkan"] = "no Vulkan tracker solver in this build (CPU reference only)";
+  {
+    // Calibration (Sec. 6.3) as FaceTracker runs it: identity and albedo shared over the first
+    // frames, expression, lighting and pose per frame, the tracker's calibration schedule,
+    // started from the mean face at the true poses.
+    const TrackerOptions tracker_defaults;
+    const int n = std::min(a.calibration_frames, static_cast<int>(frames.size()));
+    const std::vector<InputFrame> calib(frames.begin(), frames.begin() + n);
+    std::vector<gpu::FaceParameters> starts(truths.begin(), truths.begin() + n);
+    const ParameterLayout cl =
+        ParameterLayout::Calibration(model.num_identity(), model.num_albedo(), model.num_expression());
+    const SolverSummary s = solver.SolveFrames(calib, cl, tracker_defaults.calibration_solver, &starts);
+    double residuals = 0;
+    for (const auto& it : s.iterations) residuals += static_cast<double>(it.residuals);
+    const int shared = cl.num_identity + cl.num_albedo;
+    doc["calibration"] = {{"frames", n},
+                          {"unknowns", shared + n * (cl.num_parameters() - shared)},
+                          {"gauss_newton", s.iterations.size()},
+                          {"residuals", s.iterations.empty() ? 0.0 : residuals / s.iterations.size()},
+                          {"pyramid_ms", s.pyramid_ms},
+                          {"synthesis_ms", s.synthesis_ms},
+                          {"analysis_ms", s.analysis_ms},
+                          {"total_ms", s.total_ms},
+                          {"termination", termination_name(s.termination)}};
+  }
+  add_vulkan_track_bench(model, frames, truths[0], layout, a.frames, a.vulkan, &doc);
   if (a.json) {
     std::printf("%s\n", doc.dump(2).c_str());
     return;
   }
   std::printf("bench track: %dx%d synthetic frames, %d frames, %d unknowns, paper schedule (7x4 on level 2, 1x4 on level 1)\n",
               a.width, a.height, a.frames, layout.num_parameters());
-  std::printf("%-16s %5s %6s %10s %13s %13s\n", "solver", "level", "GN/fr", "residuals", "synthesis ms", "analysis ms");
+  std::printf("%-22s %5s %6s %10s %13s %13s\n", "solver", "level", "GN/fr", "residuals", "synthesis ms", "analysis ms");
   for (const auto& [name, s] : doc["solvers"].items()) {
     for (const auto& l : s["levels"]) {
-      std::printf("%-16s %5d %6.1f %10.0f %13.2f %13.2f\n", name.c_str(), int(l["level"]), double(l["gauss_newton_per_frame"]),
+      std::printf("%-22s %5d %6.1f %10.0f %13.2f %13.2f\n", name.c_str(), int(l["level"]), double(l["gauss_newton_per_frame"]),
                   double(l["residuals"]), double(l["synthesis_ms_per_frame"]), double(l["analysis_ms_per_frame"]));
     }
-    std::printf("%-16s total per frame %.2f ms (pyramid %.2f ms), mean final energy %.4g\n", name.c_str(),
+    std::printf("%-22s total per frame %.2f ms (pyramid %.2f ms), mean final energy %.4g\n", name.c_str(),
                 double(s["total_ms_per_frame"]), double(s["pyramid_ms_per_frame"]), double(s["mean_final_energy"]));
   }
-  std::printf("vulkan: %s\n", std::string(doc["vulkan"]).c_str());
+  const auto& c = doc["calibration"];
+  std::printf("calibration (CPU): %d frames, %d unknowns, %d GN iterations, %.0f residuals per iteration: %.0f ms "
+              "(synthesis %.0f, analysis %.0f)\n",
+              int(c["frames"]), int(c["unknowns"]), int(c["gauss_newton"]), double(c["residuals"]), double(c["total_ms"]),
+              double(c["synthesis_ms"]), double(c["analysis_ms"]));
+  print_vulkan_track_bench(doc);
+}
+
+// ------------------------------------------------------------------------------ track
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+struct TrackArgs {
+  std::string input;
+  std::string out;
+  std::string report;
+  std::string export_mesh;
+  std::string landmarks = "detector";
+  std::string model;
+  bool ablation = false;
+  int frames = 0;  // 0 = all
+  int calibration_frames = 5;
+  int min_face_width = 40;
+  double fov_deg = 60.0;
+  std::string solver = "auto";
+  std::string device;
+  bool quiet = false;
+};
+
+// One energy configuration of the ablation (Fig. 12); "all" is the tracker's default.
+struct EnergyConfig {
+  const char* name;
+  bool depth;   // E_point + E_plane
+  bool colour;  // E_col
+};
+constexpr EnergyConfig kAllTerms{"all", true, true};
+constexpr EnergyConfig kAblation[] = {
+    {"feature", false, false}, {"feature_color", false, true}, {"feature_depth", true, false}, {"all", true, true}};
+
+// The tracker options of `face-reenact track` for one energy configuration.
+TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, bool depth_available) {
+  TrackerOptions o;
+  o.calibration_frames = a.calibration_frames;
+  o.min_face_width_px = a.min_face_width;
+  o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
+  for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
+    s->energy.use_point = s->energy.use_plane = config.depth && depth_available;
+    s->energy.use_color = config.colour;
+  }
+  return o;
+}
+
+nlohmann::json vector_json(const Eigen::VectorXf& v, int size) {
+  nlohmann::json a = nlohmann::json::array();
+  for (int k = 0; k < size; ++k) a.push_back(k < v.size() ? static_cast<double>(v[k]) : 0.0);
+  return a;
+}
+
+nlohmann::json energy_json(const TermEnergies& e) {
+  nlohmann::json j;
+  for (int t = 0; t < kNumTerms; ++t) j[term_name(static_cast<Term>(t))] = e.value[t];
+  j["total"] = e.total();
+  return j;
+}
+
+// One parameter-file line (docs/tracker.md, "face-reenact track"); the keys `frame`,
+// `timestamp_us`, `expression`, `neutral` and `pose` are those `send --replay` reads.
+nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t timestamp_us, const FaceTracker& tracker,
+                          int num_expression) {
+  nlohmann::json j;
+  j["frame"] = frame_number;
+  j["timestamp_us"] = timestamp_us;
+  j["status"] = tracking_status_name(t.status);
+  j["message"] = t.message;
+  j["has_fit"] = t.has_parameters;
+  j["fit_is_current"] = tracking_status_has_fit(t.status);
+  // Frames never fitted carry the neutral expression (a replay shows a neutral face there).
+  const gpu::FaceParameters& p = t.has_parameters ? t.params : tracker.neutral();
+  j["expression"] = vector_json(p.delta, num_expression);
+  j["neutral"] = vector_json(tracker.neutral().delta, num_expression);
+  if (t.has_parameters) {
+    const Eigen::Vector3f rot = gpu::head_rotation_axis_angle(p.euler);
+    j["pose"] = {{"rotation", {rot.x(), rot.y(), rot.z()}},
+                 {"translation", {p.translation.x(), p.translation.y(), p.translation.z()}}};
+    j["euler"] = {p.euler.x(), p.euler.y(), p.euler.z()};
+    j["translation"] = {p.translation.x(), p.translation.y(), p.translation.z()};
+    j["gamma"] = std::vector<float>(p.gamma.begin(), p.gamma.end());
+  }
+  j["energy"] = energy_json(t.energy);
+  j["landmarks"] = t.landmarks_used;
+  j["landmark_error_px"] = t.landmark_error_px;
+  j["pose_reinitialized"] = t.pose_reinitialized;
+  j["times_ms"] = {{"landmarks", t.times.landmarks_ms}, {"pose_init", t.times.pose_init_ms},
+                   {"pyramid", t.times.pyramid_ms},     {"synthesis", t.times.synthesis_ms},
+                   {"analysis", t.times.analysis_ms},   {"calibration", t.times.calibration_ms},
+                   {"total", t.times.total_ms}};
+  return j;
+}
+
+MeshInstance mesh_of(const gpu::CpuRenderer& renderer, const gpu::FaceParameters& p, bool camera_frame) {
+  const gpu::VertexState st = renderer.evaluate(p);
+  MeshInstance m;
+  if (camera_frame) {
+    m.positions = st.camera_positions;
+    m.colours = st.colors;
+  } else {
+    m.positions = st.model_positions;
+    m.colours = st.albedo;
+  }
+  m.colours = m.colours.cwiseMax(0.f).cwiseMin(1.f);
+  return m;
+}
+
+struct RunTotals {
+  int frames = 0;
+  int tracked_frames = 0;  // frames whose tracking time counts in ms_per_frame
+  double read_ms = 0, convert_ms = 0, landmarks_ms = 0, pose_init_ms = 0, pyramid_ms = 0, synthesis_ms = 0,
+         analysis_ms = 0, total_ms = 0, calibration_ms = 0;
+  std::map<std::string, int> statuses;
+  int64_t calibration_frame = -1;
+  // Ground truth, over frames with a current fit after the calibration.
+  int evaluated = 0;
+  double geo_mean = 0, geo_max = 0, align = 0, rot = 0, trans = 0, expr = 0;
+  // Recovery: frames from the first frame with a face after a no-face/lost stretch to a fit.
+  int recoveries = 0;
+  int max_frames_to_recover = 0;
+};
+
+// Runs the tracker over the whole input with one energy configuration. Writes the parameter
+// file and meshes when their paths are given. Returns the report section of this run.
+nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const TrackerModel& model,
+                         const EnergyConfig& config, const std::string& params_path, const std::string& mesh_dir,
+                         const std::string& label) {
+  std::unique_ptr<capture::FrameSource> source;
+  std::error_code ec;
+  const bool is_recording = std::filesystem::is_directory(a.input, ec);
+  if (is_recording) {
+    source = std::make_unique<capture::RecordingReader>(a.input);
+  } else {
+    if (!std::filesystem::exists(a.input, ec)) throw Error("track: '" + a.input + "': no such file or folder");
+    capture::VideoReader::Options vo;
+    vo.horizontal_fov_deg = a.fov_deg;
+    source = std::make_unique<capture::VideoReader>(a.input, vo);
+  }
+  const capture::RecordingInfo info = source->info();
+  const bool depth = info.has_depth;
+  if (a.landmarks == "recording" && !is_recording) {
+    throw Error("track: --landmarks recording needs a recording folder; '" + a.input + "' is a video file");
+  }
+  RgbdInputOptions io;
+  io.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
+  io.use_depth = depth && config.depth;
+  RgbdInput input(io);
+  FaceTracker tracker(model, track_options(a, config, depth));
+  SolverBackend backend = SolverBackend::kAuto;
+  if (!parse_solver_backend(a.solver, &backend)) throw Error("track: --solver must be auto, cpu or vulkan");
+  const TrackingSolverChoice solver = ChooseTrackingSolver(backend, model, a.device);
+  tracker.SetTrackingSolver(solver.solve);
+  const gpu::CpuRenderer renderer(model.render);
+
+  std::ofstream params_file;
+  std::string params_partial;
+  if (!params_path.empty()) {
+    params_partial = params_path + ".partial";
+    params_file.open(params_partial, std::ios::binary | std::ios::trunc);
+    if (!params_file) throw Error("track: cannot write '" + params_partial + "'");
+  }
+  const std::vector<FacePart> skin = {FacePart::Face, FacePart::Scalp, FacePart::Ear, FacePart::Neck};
+  const bool tty = isatty(2) != 0;
+  const int total_frames = a.frames > 0 ? (info.frame_count > 0 ? std::min(a.frames, info.frame_count) : a.frames)
+                                        : info.frame_count;
+  RunTotals r;
+  int64_t last_timestamp_us = -1;
+  int no_face_run_start = -1;  // first frame of the current stretch without a fit, -1 when tracking
+  capture::RgbdFrame frame;
+  for (int f = 0; a.frames <= 0 || f < a.frames; ++f) {
+    const auto t_read = Clock::now();
+    if (!source->read_next(&frame)) break;
+    r.read_ms += ms_since(t_read);
+    RgbdInputInfo ii;
+    const InputFrame in = input.Convert(frame, &ii);
+    r.convert_ms += ii.conversion_ms;
+    const TrackedFrame t = tracker.Track(in, ii.landmarks_ms);
+    input.SetTrackedPose(t.params, tracking_status_has_fit(t.status));
+    ++r.frames;
+    ++r.statuses[tracking_status_name(t.status)];
+    r.landmarks_ms += t.times.landmarks_ms;
+    r.pose_init_ms += t.times.pose_init_ms;
+    r.pyramid_ms += t.times.pyramid_ms;
+    r.synthesis_ms += t.times.synthesis_ms;
+    r.analysis_ms += t.times.analysis_ms;
+    if (t.status == TrackingStatus::kCalibrated) {
+      r.calibration_ms += t.times.calibration_ms;
+      r.calibration_frame = frame.index;
+    }
+    r.total_ms += t.times.total_ms - t.times.calibration_ms;
+    ++r.tracked_frames;
+    const bool fit = tracking_status_has_fit(t.status);
+    if (!fit && no_face_run_start < 0 && f > 0) no_face_run_start = f;
+    if (fit && no_face_run_start >= 0) {
+      ++r.recoveries;
+      r.max_frames_to_recover = std::max(r.max_frames_to_recover, f - no_face_run_start);
+      no_face_run_start = -1;
+    }
+    if (fit && tracker.calibrated() && frame.ground_truth.params) {
+      const FitErrors e = CompareToGroundTruth(renderer, model, t.params, *frame.ground_truth.params, frame.camera);
+      ++r.evaluated;
+      r.geo_mean += e.geometric_mm_mean;
+      r.geo_max = std::max(r.geo_max, e.geometric_mm_max);
+      r.align += e.alignment_px_mean;
+      r.rot += e.rotation_deg;
+      r.trans += e.translation_mm;
+      r.expr += e.expression_mean_abs;
+    }
+    if (params_file.is_open()) {
+      int64_t ts = static_cast<int64_t>(std::llround(frame.timestamp_s * 1e6));
+      ts = std::max(ts, last_timestamp_us + 1);  // the replay format needs strictly increasing times
+      last_timestamp_us = ts;
+      params_file << frame_json(t, frame.index, ts, tracker, model.num_expression()).dump() << '\n';
+      if (!params_file) throw Error("track: writing '" + params_partial + "' failed (disk full?)");
+    }
+    if (!mesh_dir.empty() && t.has_parameters && fit) {
+      char name[64];
+      std::snprintf(name, sizeof(name), "frame_%06d.ply", frame.index);
+      export_mesh(face_model, mesh_of(renderer, t.params, true), skin, (std::filesystem::path(mesh_dir) / name).string());
+    }
+    if (!a.quiet && (tty || f % 10 == 0)) {
+      std::fprintf(stderr, "%strack%s: frame %d/%d %-11s %6.0f ms%s", tty ? "\r" : "", label.c_str(), f + 1,
+                   total_frames, tracking_status_name(t.status), t.times.total_ms, tty ? "   " : "\n");
+    }
+  }
+  if (!a.quiet && tty) std::fprintf(stderr, "\n");
+  if (r.frames == 0) throw Error("track: '" + a.input + "' has no frames");
+  if (params_file.is_open()) {
+    params_file.close();
+    if (!params_file) throw Error("track: writing '" + params_partial + "' failed");
+    std::filesystem::rename(params_partial, params_path, ec);
+    if (ec) throw Error("track: cannot move '" + params_partial + "' to '" + params_path + "': " + ec.message());
+  }
+  if (!mesh_dir.empty() && tracker.calibrated()) {
+    export_mesh(face_model, mesh_of(renderer, tracker.neutral(), false), skin,
+                (std::filesystem::path(mesh_dir) / "neutral.ply").string());
+  }
+
+  nlohmann::json j;
+  j["frames"] = r.frames;
+  j["ms_per_frame"] = r.total_ms / r.tracked_frames;
+  j["landmarks_ms"] = r.landmarks_ms / r.frames;
+  j["pose_init_ms"] = r.pose_init_ms / r.frames;
+  j["pyramid_ms"] = r.pyramid_ms / r.frames;
+  j["synthesis_ms"] = r.synthesis_ms / r.frames;
+  j["analysis_ms"] = r.analysis_ms / r.frames;
+  j["read_ms"] = r.read_ms / r.frames;
+  j["convert_ms"] = r.convert_ms / r.frames;
+  j["calibration_ms"] = r.calibration_ms;
+  j["calibrated"] = tracker.calibrated();
+  j["calibration_frame"] = r.calibration_frame;
+  j["statuses"] = r.statuses;
+  j["recoveries"] = r.recoveries;
+  j["max_frames_to_recover"] = r.max_frames_to_recover;
+  j["energy_terms"] = {{"landmark", true}, {"regularizer", true}, {"color", config.colour},
+                       {"point", config.depth && depth}, {"plane", config.depth && depth}};
+  j["depth_used"] = depth && config.depth;
+  j["min_face_width_px"] = a.min_face_width;
+  j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
+  j["solver"] = solver.description;
+  j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
+                                                     std::to_string(a.fov_deg) + " degrees horizontal field of view";
+  j["camera"] = {{"fx", info.camera.fx}, {"fy", info.camera.fy}, {"cx", info.camera.cx}, {"cy", info.camera.cy},
+                 {"width", info.camera.width}, {"height", info.camera.height}};
+  const bool truth = r.evaluated > 0;
+  j["ground_truth"] = truth;
+  j["frames_evaluated"] = r.evaluated;
+  auto metric = [&](double v) { return truth ? nlohmann::json(v) : nlohmann::json(nullptr); };
+  const double n = std::max(r.evaluated, 1);
+  j["geometric_error_mm_mean"] = metric(r.geo_mean / n);
+  j["geometric_error_mm_max"] = metric(r.geo_max);
+  j["alignment_error_px_mean"] = metric(r.align / n);
+  j["rotation_error_deg_mean"] = metric(r.rot / n);
+  j["translation_error_mm_mean"] = metric(r.trans / n);
+  j["expression_error_mean"] = metric(r.expr / n);
+  if (tracker.calibrated()) {
+    const gpu::FaceParameters& nu = tracker.neutral();
+    j["neutral"] = {{"alpha", vector_json(nu.alpha, model.num_identity())},
+                    {"beta", vector_json(nu.beta, model.num_albedo())},
+                    {"expression", vector_json(nu.delta, model.num_expression())}};
+  }
+  return j;
+}
+
+void run_track_command(const TrackArgs& a) {
+  if (a.landmarks != "detector" && a.landmarks != "recording") {
+    throw Error("track: --landmarks must be 'detector' or 'recording', not '" + a.landmarks + "'");
+  }
+  std::error_code ec;
+  if (!std::filesystem::exists(a.input, ec)) throw Error("track: '" + a.input + "': no such file or folder");
+  const auto out_parent = std::filesystem::absolute(a.out).parent_path();
+  if (!std::filesystem::is_directory(out_parent, ec)) throw Error("track: the folder of --out '" + a.out + "' does not exist");
+  if (!a.export_mesh.empty()) {
+    std::filesystem::create_directories(a.export_mesh, ec);
+    if (ec || !std::filesystem::is_directory(a.export_mesh)) {
+      throw Error("track: cannot create --export-mesh folder '" + a.export_mesh + "'");
+    }
+  }
+  const std::string model_path = resolve_model_path(a.model);
+  const FaceModel face_model = load_face_model(model_path);
+  const TrackerModel model = TrackerModel::FromFaceModel(face_model);
+  const auto start = Clock::now();
+  nlohmann::json report = run_track(a, face_model, model, kAllTerms, a.out, a.export_mesh, "");
+  report["input"] = a.input;
+  report["model"] = model_path;
+  if (a.ablation) {
+    nlohmann::json ab;
+    for (const EnergyConfig& c : kAblation) {
+      if (std::string(c.name) == "all") {
+        ab[c.name] = report;
+        ab[c.name].erase("neutral");
+        continue;
+      }
+      if (c.depth && !report["depth_used"].get<bool>()) {
+        ab[c.name] = "skipped: the input has no depth";
+        continue;
+      }
+      nlohmann::json r = run_track(a, face_model, model, c, "", "", std::string(" [") + c.name + "]");
+      r.erase("neutral");
+      ab[c.name] = r;
+    }
+    report["ablation"] = ab;
+  }
+  report["wall_s"] = ms_since(start) / 1000.0;
+  if (!a.report.empty()) {
+    std::ofstream rf(a.report, std::ios::binary | std::ios::trunc);
+    rf << report.dump(2) << '\n';
+    if (!rf) throw Error("track: cannot write --report '" + a.report + "'");
+  }
+  if (!a.quiet) {
+    auto num = [](const nlohmann::json& v) { return v.is_number() ? v.get<double>() : std::nan(""); };
+    std::printf("track: %d frames, %.1f ms/frame (calibration %.0f ms), landmarks: %s, depth: %s\n",
+                report["frames"].get<int>(), num(report["ms_per_frame"]), num(report["calibration_ms"]),
+                report["landmark_source"].get<std::string>().c_str(), report["depth_used"].get<bool>() ? "yes" : "no");
+    if (report["ground_truth"].get<bool>()) {
+      std::printf("  vs ground truth (%d frames after calibration): surface %.2f mm mean, %.2f mm max; 2D %.2f px; "
+                  "rotation %.2f deg; translation %.2f mm; expression %.3f\n",
+                  report["frames_evaluated"].get<int>(), num(report["geometric_error_mm_mean"]),
+                  num(report["geometric_error_mm_max"]), num(report["alignment_error_px_mean"]),
+                  num(report["rotation_error_deg_mean"]), num(report["translation_error_mm_mean"]),
+                  num(report["expression_error_mean"]));
+    }
+    if (a.ablation) {
+      for (const auto& [name, r] : report["ablation"].items()) {
+        if (!r.is_object()) {
+          std::printf("  ablation %-14s %s\n", name.c_str(), r.get<std::string>().c_str());
+        } else if (r["ground_truth"].get<bool>()) {
+          std::printf("  ablation %-14s surface %.2f mm mean, %.2f mm max; 2D %.2f px; rotation %.2f deg\n", name.c_str(),
+                      num(r["geometric_error_mm_mean"]), num(r["geometric_error_mm_max"]),
+                      num(r["alignment_error_px_mean"]), num(r["rotation_error_deg_mean"]));
+        } else {
+          std::printf("  ablation %-14s %.1f ms/frame (no ground truth)\n", name.c_str(), num(r["ms_per_frame"]));
+        }
+      }
+    }
+  }
 }
 
 void add_tracker_commands(CLI::App& app) {
@@ -137,8 +546,37 @@ void add_tracker_commands(CLI::App& app) {
   track->add_option("--width", args->width, "Input width in pixels")->check(CLI::Range(32, 4096));
   track->add_option("--height", args->height, "Input height in pixels")->check(CLI::Range(32, 4096));
   track->add_option("--distance", args->distance, "Face distance from the camera (m)")->check(CLI::Range(0.2, 5.0));
+  track->add_option("--calibration-frames", args->calibration_frames, "Frames of the timed calibration (default 5)")
+      ->check(CLI::Range(1, 64));
   track->add_flag("--json", args->json, "Machine-readable output");
+  track->add_option("--vulkan", args->vulkan.strategies,
+                    "Vulkan solver strategies to run: all (default), auto, matrix-free, assembled, none");
+  track->add_option("--device", args->vulkan.device, "Vulkan device: index or name part (see 'face-reenact devices')");
   track->callback([args] { run_bench_track(*args); });
+
+  auto targs = std::make_shared<TrackArgs>();
+  CLI::App* tc = app.add_subcommand("track", "Track a face in a recording or video: calibration, per-frame parameters, report");
+  tc->add_option("--input", targs->input, "Recording folder (face-reenact-rgbd) or video file (mp4, avi, wmv: RGB only)")->required();
+  tc->add_option("--out", targs->out, "Per-frame parameters, JSON Lines (replayable with 'send --replay')")->required();
+  tc->add_option("--report", targs->report, "JSON report: times per stage and, with ground truth, the errors");
+  tc->add_option("--export-mesh", targs->export_mesh, "Folder for the fitted mesh per frame (PLY, camera frame, metres) and neutral.ply");
+  tc->add_option("--landmarks", targs->landmarks, "Landmark source: 'detector' (default) or 'recording' (stored ground-truth landmarks)");
+  tc->add_flag("--ablation", targs->ablation, "Also track with feature only, feature+colour, feature+depth (paper Fig. 12) and report each");
+  tc->add_option("--frames", targs->frames, "Track at most this many frames (default: all)")->check(CLI::Range(1, 100000000));
+  tc->add_option("--calibration-frames", targs->calibration_frames, "Frames of the joint identity calibration (default 5)")
+      ->check(CLI::Range(1, 64));
+  tc->add_option("--min-face-width", targs->min_face_width,
+                 "Solve on pyramid levels where the face is at least this wide (px; default 40, 0 = the paper's levels 2 and 1)")
+      ->check(CLI::Range(0, 4096));
+  tc->add_option("--fov", targs->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
+      ->check(CLI::Range(10.0, 170.0));
+  tc->add_option("--model", targs->model, "Face model file (default: the installed/generated face-model.frm)");
+  tc->add_option("--solver", targs->solver,
+                 "Per-frame solver: auto (Vulkan on a GPU, the CPU reference when Vulkan is a CPU driver), cpu, vulkan")
+      ->check(CLI::IsMember({"auto", "cpu", "vulkan"}));
+  tc->add_option("--device", targs->device, "Vulkan device for --solver vulkan/auto (index or name; default FR_VULKAN_DEVICE or automatic)");
+  tc->add_flag("--quiet", targs->quiet, "No progress line or summary");
+  tc->callback([targs] { run_track_command(*targs); });
 }
 
 }  // namespace

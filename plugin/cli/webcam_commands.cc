@@ -1,9 +1,10 @@
 // `face-reenact webcam`: a virtual webcam on a v4l2loopback device that Zoom, Meet and Firefox
 // list as a camera (docs/virtual-webcam.md), and `face-reenact bench webcam` (conversion cost).
 //
-// Extension point: the reenactment pipeline becomes one more FrameSource (a live one) chosen
-// by an input option here; the writer, pacing and reconnect logic below stay as they are.
-// Until that pipeline exists the command sends a video, an image or a test pattern.
+// Pictures come from a FrameSource: the live reenactment session (--target, core/live), a
+// video or image (--input), or colour bars. The writer, pacing and reconnect logic are the same
+// for all of them.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -16,6 +17,7 @@
 
 #include "command_registry.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/live/live_session.h"
 #include "face_reenact/output/frame_source.h"
 #include "face_reenact/output/pixel_conversion.h"
 #include "face_reenact/output/v4l2_loopback_writer.h"
@@ -36,6 +38,13 @@ struct WebcamArgs {
   bool status = false;
   double seconds = 0;  // 0: until stopped
   double reconnect_s = 2;
+  // Live reenactment (--target): the session's inputs.
+  std::string target;
+  std::string source = "none";
+  std::string key_file;
+  std::string mode = "reenact";
+  std::string model;
+  std::string camera_size = "640x480";
 };
 
 void parse_size(const std::string& text, int* width, int* height) {
@@ -63,8 +72,25 @@ void run_webcam(const WebcamArgs& args) {
 
   // The source first: a bad input file is reported before the device is touched.
   std::unique_ptr<FrameSource> source;
+  live::LiveSession* session = nullptr;
   bool hold = false;
-  if (args.input.empty()) {
+  if (!args.target.empty()) {
+    if (!args.input.empty()) throw Error("--input and --target exclude each other (a clip, or the live session)");
+    live::LiveSession::Options live_options;
+    live_options.target = args.target;
+    live_options.source = args.source;
+    live_options.key_file = args.key_file;
+    live_options.model_path = args.model;
+    if (!live::parse_output_mode(args.mode, &live_options.mode))
+      throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, raw");
+    parse_size(args.camera_size, &live_options.camera_width, &live_options.camera_height);
+    live_options.camera_fps = rate->fps();
+    live::LiveSession::CheckInputs(live_options);  // a missing recording / key / model: exit 1 now
+    auto live_session = std::make_unique<live::LiveSession>(std::move(live_options));
+    session = live_session.get();
+    source = std::move(live_session);
+    hold = true;  // a camera unplugged or a stream lost keeps the last picture on the webcam
+  } else if (args.input.empty()) {
     source = make_test_pattern_source(writer_options.width, writer_options.height, rate->fps());
   } else {
     source = open_media_source({.path = args.input, .loop = args.loop});
@@ -87,9 +113,10 @@ void run_webcam(const WebcamArgs& args) {
   options.reconnect_interval = std::chrono::nanoseconds(static_cast<int64_t>(args.reconnect_s * 1e9));
   options.hold_last_frame = hold;
   if (args.status)
-    options.on_status = [](const StreamStatistics& s) {
-      std::fprintf(stderr, "webcam: status: source frames %lld, %s\n", static_cast<long long>(s.source_frames),
-                   s.BriefReport().c_str());
+    options.on_status = [session](const StreamStatistics& s) {
+      std::string live_line = session ? " | live: " + session->status().Headline() : "";
+      std::fprintf(stderr, "webcam: status: source frames %lld, %s%s\n", static_cast<long long>(s.source_frames),
+                   s.BriefReport().c_str(), live_line.c_str());
     };
 
   StopSignalGuard signals;
@@ -102,6 +129,8 @@ void run_webcam(const WebcamArgs& args) {
     while (!done.load()) {
       if (signals.flag().load() || (args.seconds > 0 && std::chrono::steady_clock::now() >= deadline)) {
         stop.store(true);
+        // The streamer's producer may be waiting in the live session's next(): end it.
+        if (session) session->stop();
         return;
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
@@ -114,10 +143,15 @@ void run_webcam(const WebcamArgs& args) {
   } catch (...) {
     done.store(true);
     watcher.join();
+    if (session) session->stop();
     throw;
   }
   done.store(true);
   watcher.join();
+  if (session) {
+    std::fprintf(stderr, "webcam: live session: %s\n", session->status().Headline().c_str());
+    session->stop();
+  }
   if (summary.stop_reason == "stop requested")
     summary.stop_reason = signals.signal_number() == SIGINT    ? "stopped by SIGINT"
                           : signals.signal_number() == SIGTERM ? "stopped by SIGTERM"
@@ -130,10 +164,21 @@ void add_webcam_command(CLI::App& app) {
   auto args = std::make_shared<WebcamArgs>();
   CLI::App* cmd = app.add_subcommand(
       "webcam",
-      "Send frames to a v4l2loopback virtual webcam (Zoom/Meet/Firefox see it as a camera): a video, an image, "
-      "or colour bars when no --input is given");
+      "Send frames to a v4l2loopback virtual webcam (Zoom/Meet/Firefox see it as a camera): the live reenactment "
+      "(--target), a video, an image, or colour bars when neither --target nor --input is given");
   cmd->add_option("--device", args->device, "v4l2loopback device node, e.g. /dev/video10")->required();
   cmd->add_option("--input", args->input, "video or image file to send (default: a colour-bar test pattern)");
+  cmd->add_option("--target", args->target,
+                  "live reenactment: the target actor, a camera (/dev/video0), 'openni[:URI]' or a recording/video (looped)");
+  cmd->add_option("--source", args->source,
+                  "with --target: the expression source, udp://PORT (needs --key), a camera/recording actor, or none")
+      ->capture_default_str();
+  cmd->add_option("--key", args->key_file, "with --source udp://PORT: the stream key file (face-reenact keygen)");
+  cmd->add_option("--mode", args->mode, "with --target: reenact, passthrough (target re-rendered) or raw (unchanged)")
+      ->capture_default_str();
+  cmd->add_option("--model", args->model, "with --target: face model file (default: the installed/generated one)");
+  cmd->add_option("--camera-size", args->camera_size, "with a camera --target: capture size WIDTHxHEIGHT")
+      ->capture_default_str();
   cmd->add_option("--size", args->size, "output size WIDTHxHEIGHT (input is letterboxed into it)")
       ->capture_default_str();
   cmd->add_option("--fps", args->fps, "output frame rate")->capture_default_str();
@@ -175,6 +220,58 @@ void add_webcam_command(CLI::App& app) {
       std::printf("%s %dx%d: convert %.3f ms/frame, letterbox 640x480 + convert %.3f ms/frame (%d frames)\n",
                   pixel_format_name(format), w, h, convert_ms, fit_convert_ms, *iterations);
     }
+  });
+
+  // bench live: the live session's throughput and capture-to-output latency on a target.
+  auto live_args = std::make_shared<WebcamArgs>();
+  auto live_seconds = std::make_shared<double>(5);
+  CLI::App* bench_live = bench->add_subcommand(
+      "live", "Run the live session (as OBS and the webcam do) on a target and report fps, pipeline time and latency");
+  bench_live->add_option("--target", live_args->target, "camera or recording/video (looped)")->required();
+  bench_live->add_option("--source", live_args->source, "expression source (none, udp://PORT, camera, recording)")
+      ->capture_default_str();
+  bench_live->add_option("--key", live_args->key_file, "stream key file for udp://");
+  bench_live->add_option("--mode", live_args->mode, "reenact, passthrough or raw")->capture_default_str();
+  bench_live->add_option("--model", live_args->model, "face model file");
+  bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame")->capture_default_str();
+  bench_live->callback([live_args, live_seconds] {
+    if (!(*live_seconds > 0) || *live_seconds > 3600) throw Error("--seconds must be in (0, 3600]");
+    live::LiveSession::Options o;
+    o.target = live_args->target;
+    o.source = live_args->source;
+    o.key_file = live_args->key_file;
+    o.model_path = live_args->model;
+    if (!live::parse_output_mode(live_args->mode, &o.mode))
+      throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, raw");
+    live::LiveSession::CheckInputs(o);
+    live::LiveSession session(o);
+    live::LiveFrame frame;
+    if (!session.wait_frame(0, std::chrono::seconds(60), &frame))
+      throw Error("bench live: no frame within 60 s: " + session.status().Headline());
+    std::vector<double> latency_ms;
+    const auto start = std::chrono::steady_clock::now();
+    const auto end = start + std::chrono::nanoseconds(static_cast<int64_t>(*live_seconds * 1e9));
+    uint64_t first = frame.sequence, last = frame.sequence;
+    while (std::chrono::steady_clock::now() < end) {
+      if (!session.wait_frame(last, std::chrono::milliseconds(200), &frame)) continue;
+      last = frame.sequence;
+      latency_ms.push_back(std::chrono::duration<double, std::milli>(frame.produced - frame.captured).count());
+    }
+    double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    live::LiveStatus status = session.status();
+    session.stop();
+    std::sort(latency_ms.begin(), latency_ms.end());
+    double mean = 0;
+    for (double v : latency_ms) mean += v;
+    mean = latency_ms.empty() ? 0 : mean / latency_ms.size();
+    double p95 = latency_ms.empty() ? 0 : latency_ms[std::min(latency_ms.size() - 1, latency_ms.size() * 95 / 100)];
+    std::printf("bench live: %s\n", session.describe().c_str());
+    std::printf("  target: %s\n", status.target.c_str());
+    std::printf("  %s\n", status.Headline().c_str());
+    std::printf("  output %.1f fps (%llu frames in %.1f s; target delivers %.1f fps), pipeline %.2f ms/frame, "
+                "capture-to-output latency mean %.2f ms, p95 %.2f ms\n",
+                double(last - first) / seconds, static_cast<unsigned long long>(last - first), seconds, status.target_fps,
+                status.process_ms, mean, p95);
   });
 }
 

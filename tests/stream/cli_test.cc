@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -354,6 +355,71 @@ TEST_F(CliTest, BadArgumentsExitNonZeroWithClearMessages) {
                 nullptr, &err),
             1);
   EXPECT_NE(err.find("timed out"), std::string::npos) << err;
+}
+
+// `send --input RECORDING`: the source actor is tracked (dlib landmarks, calibration, tracking)
+// and every trustworthy fit after calibration goes out as a datagram with the actor's neutral.
+TEST_F(CliTest, SendInputTracksARecordingAndStreamsItsExpressions) {
+  if (!std::getenv("FR_MODEL") || !fs::exists(std::getenv("FR_MODEL")))
+    GTEST_SKIP() << "FR_MODEL is not set to a built face model (run face-reenact model build)";
+  const std::string model = std::getenv("FR_MODEL");
+  std::string err;
+  ASSERT_EQ(run({"synth", "--seed", "31", "--frames", "6", "--out", path("rec"), "--model", model}, nullptr, &err), 0)
+      << err;
+  const std::string key = keygen();
+  const uint16_t port = free_port();
+  auto rx = start({"receive", "--listen", "127.0.0.1:" + std::to_string(port), "--key", key, "--json", "--timeout",
+                   "240"},
+                  "receive");
+  ASSERT_TRUE(wait_for_text(*rx, "listening")) << rx->err();
+  auto tx = start({"send", "--to", "127.0.0.1:" + std::to_string(port), "--key", key, "--input", path("rec"),
+                   "--calibration-frames", "2", "--model", model},
+                  "send");
+  ASSERT_EQ(tx->wait(240s), 0) << tx->err();
+  const std::string send_err = tx->err();
+  EXPECT_NE(send_err.find("tracked 6 frames"), std::string::npos) << send_err;
+  rx->signal(SIGINT);
+  ASSERT_EQ(rx->wait(), 0) << rx->err();
+  const auto lines = json_lines(rx->out());
+  ASSERT_GE(lines.size(), 4u) << "expected at least 3 frames after a 2-frame calibration\n" << send_err;
+  double spread = 0;
+  for (size_t i = 0; i + 1 < lines.size(); ++i) {
+    const auto& j = lines[i];
+    ASSERT_EQ(j["type"], "frame");
+    EXPECT_FALSE(j["neutral_subtracted"].get<bool>()) << "the sender's neutral travels with each frame";
+    ASSERT_EQ(j["expression"].size(), 52u);
+    ASSERT_EQ(j["neutral"].size(), 52u);
+    for (int k = 0; k < 52; ++k) {
+      const float e = j["expression"][k].get<float>();
+      EXPECT_GE(e, 0.f);
+      EXPECT_LE(e, 1.f);
+      spread += std::abs(e - j["neutral"][k].get<float>());
+    }
+    ASSERT_TRUE(j.contains("rotation") && j.contains("translation")) << j.dump();
+    // The synthetic actor sits 0.5-1 m in front of the camera, facing it within ~30 degrees.
+    const double z = j["translation"][2].get<double>();
+    EXPECT_GT(z, 0.3);
+    EXPECT_LT(z, 1.5);
+    const double angle = std::hypot(j["rotation"][0].get<double>(), j["rotation"][1].get<double>(),
+                                    j["rotation"][2].get<double>());
+    EXPECT_LT(angle, 0.8);
+  }
+  EXPECT_GT(spread, 0.0) << "a tracked performance differs from the neutral face somewhere";
+  EXPECT_EQ(lines.back()["rejected"], 0);
+}
+
+TEST_F(CliTest, SendInputRejectsMissingInputsAndConflictingSources) {
+  const std::string key = keygen();
+  std::string err;
+  EXPECT_EQ(run({"send", "--to", "127.0.0.1:9", "--key", key, "--input", path("no-such-recording")}, nullptr, &err), 1);
+  EXPECT_NE(err.find("no-such-recording"), std::string::npos) << err;
+  std::ofstream(path("p.jsonl")) << "";
+  EXPECT_NE(run({"send", "--to", "127.0.0.1:9", "--key", key, "--input", path("x"), "--replay", path("p.jsonl")},
+                nullptr, &err),
+            0);
+  EXPECT_NE(err.find("excludes"), std::string::npos) << err;
+  EXPECT_EQ(run({"send", "--to", "127.0.0.1:9", "--key", key, "--input", "udp://9000"}, nullptr, &err), 1);
+  EXPECT_NE(err.find("--input"), std::string::npos) << err;
 }
 
 }  // namespace

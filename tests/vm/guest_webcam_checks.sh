@@ -127,6 +127,27 @@ sleep 1
 kill -KILL "$reader_pid" 2>/dev/null
 wait "$reader_pid" 2>/dev/null
 
+# --- the live session as the webcam's source: a recording as the target ----------------------
+# (FR_VM_LIVE_RECORDING: a 160x120 synthetic recording made on the host; raw mode, so the
+# picture is the recording's own, scaled 2x into 320x240.)
+if [[ -n ${FR_VM_LIVE_RECORDING:-} && -d ${FR_VM_LIVE_RECORDING} ]]; then
+  step "live session writer (--target recording)"
+  if start_writer live --target "$FR_VM_LIVE_RECORDING" --mode raw --size 320x240 --fps 30 --format yuyv --status; then
+    echo started >live-started.txt
+  fi
+  v4l2-ctl -d "$device" --get-fmt-video >live-fmt.txt 2>&1
+  capture_mmap live 30
+  stop_writer live
+fi
+
+# --- the loopback device as a camera: the live session captures it through OpenCV's V4L2 ----
+step "live session reads a V4L2 camera"
+if start_writer camsrc --size 320x240 --fps 30; then
+  timeout 120 "$FR_CLI" bench live --target "$device" --mode raw --seconds 2 >camera-bench.log 2>&1
+  echo $? >camera-bench.rc
+  stop_writer camsrc
+fi
+
 # --- wrong devices (argument errors are covered by the host tests: every program start costs
 # seconds under emulation) ---------------------------------------------------------------------
 step "error cases"

@@ -11,6 +11,8 @@
 #include <fstream>
 #include <iostream>
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <regex>
 #include <sstream>
 
@@ -246,6 +248,69 @@ TEST_F(VmWebcamTest, TooManyOpenersIsReportedAsBusy) {
   ASSERT_FALSE(read_text("ebusy.rc").empty()) << "module reload failed: " << read_text("reload.log");
   EXPECT_EQ(read_rc("ebusy.rc"), 1) << read_text("ebusy.log");
   EXPECT_NE(read_text("ebusy.log").find("max_openers"), std::string::npos) << read_text("ebusy.log");
+}
+
+
+// `face-reenact webcam --target RECORDING --mode raw`: the live session's frames (the 160x120
+// recording scaled 2x) reach a real V4L2 reader as 320x240 YUYV at 30 fps.
+TEST_F(VmWebcamTest, LiveSessionTargetReachesAV4l2Reader) {
+  if (!fs::exists(FR_VM_LIVE_RECORDING_DIR "/recording.json"))
+    GTEST_SKIP() << "no live recording (the vm_live_recording fixture did not run)";
+  EXPECT_FALSE(read_text("live-started.txt").empty()) << read_text("live-writer.log");
+  std::string fmt = read_text("live-fmt.txt");
+  EXPECT_NE(fmt.find("320/240"), std::string::npos) << fmt;
+  EXPECT_NE(fmt.find("'YUYV'"), std::string::npos) << fmt;
+  EXPECT_EQ(read_rc("live-capture.rc"), 0) << read_text("live-capture.log");
+  const size_t frame = frame_bytes(PixelFormat::kYuyv, 320, 240);
+  std::vector<uint8_t> raw = read_bytes("live.raw");
+  ASSERT_EQ(raw.size(), 30 * frame) << read_text("live-capture.log");
+  expect_rate(read_text("live-capture.log"), read_text("live-writer.log"), 30);
+  // The recording's frames, as the reader should see them (luma: YUYV halves the chroma).
+  std::vector<cv::Mat> expected;
+  for (int i = 0; i < 12; ++i) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/color/%06d.png", i);
+    cv::Mat bgr = cv::imread(FR_VM_LIVE_RECORDING_DIR + std::string(name), cv::IMREAD_COLOR);
+    if (bgr.empty()) continue;
+    cv::Mat gray;
+    cv::cvtColor(bgr, gray, cv::COLOR_BGR2GRAY);
+    expected.push_back(gray);
+  }
+  ASSERT_EQ(expected.size(), 12u) << "recording frames not found under " << FR_VM_LIVE_RECORDING_DIR "/color";
+  for (int index : {5, 29}) {
+    cv::Mat img = convert_to_bgr(std::span(raw).subspan(index * frame, frame), PixelFormat::kYuyv, 320, 240);
+    cv::Mat gray, small;
+    cv::cvtColor(img, gray, cv::COLOR_BGR2GRAY);
+    cv::resize(gray, small, cv::Size(160, 120), 0, 0, cv::INTER_AREA);
+    double best = 1e9;
+    for (const cv::Mat& e : expected) {
+      cv::Mat d;
+      cv::absdiff(e, small, d);
+      best = std::min(best, cv::mean(d)[0]);
+    }
+    EXPECT_LT(best, 4.0) << "frame " << index << " does not match any recording frame";
+    std::cout << "live frame " << index << ": mean abs luma difference to the closest recording frame " << best << "\n";
+  }
+  std::string log = read_text("live-writer.log");
+  EXPECT_EQ(read_rc("live-writer.rc"), 0) << log;
+  EXPECT_NE(log.find("live session: target recording"), std::string::npos) << log;
+  EXPECT_NE(log.find("live: Raw input"), std::string::npos) << log;  // the --status line carries the session's status
+  EXPECT_NE(log.find("stopped by SIGTERM"), std::string::npos) << log;
+}
+
+
+// The live session's camera input (OpenCV's V4L2 backend) on a real V4L2 device: the loopback
+// device, fed colour bars by a writer, read as the target camera by `bench live`.
+TEST_F(VmWebcamTest, LiveSessionCapturesARealV4l2Camera) {
+  std::string log = read_text("camera-bench.log");
+  ASSERT_FALSE(read_text("camsrc-writer.rc").empty()) << "the colour-bar writer did not run: " << read_text("camsrc-writer.log");
+  EXPECT_EQ(read_rc("camera-bench.rc"), 0) << log;
+  EXPECT_NE(log.find("target: camera /dev/video0 320x240"), std::string::npos) << log;
+  EXPECT_NE(log.find("Raw input"), std::string::npos) << log;
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(log, m, std::regex("output ([0-9.]+) fps"))) << log;
+  // The session keeps up with the camera (30 fps) within what the emulated machine allows.
+  EXPECT_GT(std::stod(m[1].str()), 10) << log;
 }
 
 }  // namespace

@@ -1,5 +1,7 @@
 #include "face_reenact/gpu/image_formation.h"
 
+#include <Eigen/Geometry>
+
 #include <cmath>
 
 #include "face_reenact/common/error.h"
@@ -45,6 +47,15 @@ Eigen::Matrix3f rotation_from_euler(const Eigen::Vector3f& e) {
   ry << cy, 0, sy, 0, 1, 0, -sy, 0, cy;
   rz << cz, -sz, 0, sz, cz, 0, 0, 0, 1;
   return rz * ry * rx;
+}
+
+Eigen::Vector3f head_rotation_axis_angle(const Eigen::Vector3f& euler_xyz) {
+  const Eigen::Matrix3f r = rotation_from_euler(euler_xyz);
+  const Eigen::Matrix3f r0 = rotation_from_euler(Eigen::Vector3f(static_cast<float>(M_PI), 0.f, 0.f));
+  const Eigen::AngleAxisf aa(r0.transpose() * r);
+  Eigen::Vector3f v = aa.axis() * aa.angle();
+  if (!v.allFinite()) v.setZero();
+  return v;
 }
 
 bool FaceParameters::IsValid(std::string* why, int max_identity, int max_expression, int max_albedo) const {

@@ -47,6 +47,11 @@ std::array<float, kNumShParameters> ambient_sh(const Eigen::Vector3f& rgb);
 // R = Rz(rz) * Ry(ry) * Rx(rx).
 Eigen::Matrix3f rotation_from_euler(const Eigen::Vector3f& euler_xyz);
 
+// The head's rotation relative to facing the camera, about the model axes, as an axis-angle
+// vector in radians: R(euler) = Rx(pi) R_head. This is the pose the expression stream and the
+// parameter files carry (docs/stream-protocol.md); zero for a frontal face.
+Eigen::Vector3f head_rotation_axis_angle(const Eigen::Vector3f& euler_xyz);
+
 // P = (alpha, beta, delta, gamma, R, t), Eq. 4.
 struct FaceParameters {
   Eigen::VectorXf alpha;   // identity; may be shorter than the model's K_id (rest zero)

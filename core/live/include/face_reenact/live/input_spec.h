@@ -1,0 +1,41 @@
+#pragma once
+// What the user names as an input of a live session, parsed once into a plain struct. The same
+// text works in the OBS source's properties, the webcam command's --target/--source and tests:
+//
+//   /dev/video2, video2, 2        a V4L2 camera (OpenCV's V4L2 backend)
+//   openni, openni:URI            an OpenNI2 RGB-D device (the first one, or by URI; a .oni
+//                                 recording plays through OpenNI's file driver)
+//   udp://PORT, udp://ADDR:PORT   the expression stream (expression sources only; needs a key)
+//   none, (empty)                 no input (expression sources only)
+//   anything else                 a recording folder (docs/recording-format.md) or a video file
+#include <string>
+
+namespace face_reenact::live {
+
+enum class InputKind {
+  kNone,       // no expression source: the target keeps its own expression
+  kCamera,     // V4L2 camera
+  kOpenNi,     // OpenNI2 device or .oni file
+  kRecording,  // recording folder or video file (played in a loop at its own frame rate)
+  kUdp,        // expression stream over UDP (stream::ExpressionReceiver)
+};
+const char* input_kind_name(InputKind kind);
+
+struct InputSpec {
+  InputKind kind = InputKind::kNone;
+  std::string text;         // as the user wrote it (for messages)
+  std::string device_path;  // kCamera: /dev/videoN; kOpenNi: the URI ("" = any device)
+  std::string path;         // kRecording: folder or video file
+  std::string listen;       // kUdp: "PORT" or "ADDR:PORT" (stream::parse_listen_spec syntax)
+
+  // "camera /dev/video2", "recording 'talk.mp4'", "udp port 9000".
+  std::string describe() const;
+};
+
+// Parses a target (camera, OpenNI or recording). Throws face_reenact::Error for empty text, udp
+// or none (`what` names the option in the message).
+InputSpec parse_target_spec(const std::string& text, const std::string& what);
+// Parses an expression source: none/empty, udp://..., or a camera/OpenNI/recording actor.
+InputSpec parse_source_spec(const std::string& text, const std::string& what);
+
+}  // namespace face_reenact::live

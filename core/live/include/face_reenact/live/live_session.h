@@ -1,0 +1,165 @@
+#pragma once
+// The live session that the OBS source and the virtual webcam share (docs/obs-source.md): a
+// target input (camera, OpenNI device or looping recording), an expression source (the UDP
+// stream, a second camera/recording tracked by its own pipeline, or none), the face model and
+// an output mode. It owns three kinds of threads:
+//   - a capture thread per picture input (FrameGrabber): keeps only the newest frame;
+//   - the UDP receiver's thread (stream::ExpressionReceiver) when the source is a stream;
+//   - the worker ("fr-live"), which loads the model, runs the reenactment pipeline on the
+//     newest target frame and publishes the result.
+// Front-ends never wait on any of it: latest_frame() and status() copy under a short lock, and
+// Options::on_frame is called on the worker thread with each output frame (OBS hands it to
+// obs_source_output_video there). Inputs that fail (camera unplugged, recording missing,
+// stream silent, model missing) are statuses, retried in the background, never exceptions.
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include <opencv2/core.hpp>
+
+#include "face_reenact/live/input_spec.h"
+#include "face_reenact/output/frame_source.h"
+
+namespace face_reenact::live {
+
+enum class OutputMode {
+  kReenact,      // the source's expression on the target (Eq. 15)
+  kPassThrough,  // the target tracked and re-rendered with its own expression
+  kRaw,          // the target's frames unchanged (tracking off): checks the camera set-up
+};
+const char* output_mode_name(OutputMode mode);                          // "reenact", ...
+bool parse_output_mode(const std::string& text, OutputMode* mode);      // also "pass-through"
+
+enum class TrackingState {
+  kOff,          // no tracking (raw mode, or the pipeline is unavailable: see pipeline_message)
+  kCalibrating,  // calibrating the target's identity (output = input)
+  kTracking,     // face tracked; output reenacted / re-rendered
+  kLost,         // no face in the current frame (output = input)
+};
+const char* tracking_state_name(TrackingState state);
+
+enum class SourceState {
+  kNone,     // no expression source configured
+  kWaiting,  // configured, nothing received / tracked yet
+  kLive,     // delivering
+  kLost,     // was delivering, now silent (the target's own expression fades back in)
+  kError,    // cannot be set up (port in use, key file unreadable, input missing): see source_error
+};
+const char* source_state_name(SourceState state);
+
+struct LiveStatus {
+  bool running = false;           // the worker is running
+  // Target input.
+  bool target_open = false;       // delivering frames
+  std::string target;             // what it is ("camera /dev/video0 640x480")
+  std::string target_error;       // why not open (camera unplugged, recording missing), "" if open
+  double target_fps = 0;
+  // Pipeline.
+  OutputMode mode = OutputMode::kReenact;
+  TrackingState tracking = TrackingState::kOff;
+  bool pipeline_ready = false;    // the reenactment pipeline is loaded
+  std::string pipeline_message;   // why frames pass unchanged (model missing, no face), or ""
+  bool calibration_pending = false;
+  // Expression source.
+  SourceState source = SourceState::kNone;
+  std::string source_description;  // "udp port 9000", "recording 'actor'"
+  std::string source_error;
+  double packets_per_second = 0;   // UDP: applied datagrams per second; actor: tracked frames per second
+  double source_weight = 0;        // cross-fade weight of the remote expression in [0, 1]
+  // Output.
+  int64_t frames_out = 0;
+  double output_fps = 0;
+  double process_ms = 0;           // mean time of one pipeline call over the last second
+
+  // One line for status bars: "Tracking | stream live 60 pkt/s | 29.8 fps" or
+  // "No camera: camera /dev/video0: no such device (retrying)".
+  std::string Headline() const;
+};
+
+struct LiveFrame {
+  cv::Mat bgr;                    // CV_8UC3, the target's size
+  uint64_t sequence = 0;          // 1, 2, ... in output order
+  int source_index = 0;           // the target frame's index in its input
+  std::chrono::steady_clock::time_point captured;  // when the capture thread had the target frame
+  std::chrono::steady_clock::time_point produced;  // when the pipeline finished it
+};
+
+class LiveSession : public output::FrameSource {
+ public:
+  struct Options {
+    std::string target;              // camera / openni / recording (input_spec.h)
+    std::string source = "none";     // none / udp://PORT / camera / openni / recording
+    std::string key_file;            // the stream key (required for udp://)
+    std::string model_path;          // empty: resolve_model_path("") (FACE_REENACT_MODEL, next to the program, installed)
+    OutputMode mode = OutputMode::kReenact;
+    int camera_width = 640;          // requested from cameras
+    int camera_height = 480;
+    double camera_fps = 30;
+    bool loop = true;                // recordings loop (else the session output ends with them)
+    std::chrono::milliseconds reopen_interval{1000};  // retry period for inputs, port, model
+    bool use_vulkan = false;         // render with the Vulkan renderer instead of the CPU twin
+    // The worker's nice increment (0..19): the pipeline yields the CPU to the front-end's own
+    // threads (OBS's render thread, the webcam's pacing thread) when the machine is saturated.
+    int worker_nice = 5;
+    // Called on the worker thread for each output frame; must return quickly (no blocking).
+    std::function<void(const LiveFrame&)> on_frame;
+    std::string thread_name = "fr-live";
+
+    bool IsValid(std::string* why) const;
+  };
+
+  // Validates the options (throws face_reenact::Error when invalid) and starts the threads.
+  // Nothing else throws: inputs that fail are reported by status() and retried.
+  explicit LiveSession(Options options);
+  ~LiveSession() override;  // stop()
+  LiveSession(const LiveSession&) = delete;
+  LiveSession& operator=(const LiveSession&) = delete;
+
+  // For front-ends that want errors up front (the CLI): throws face_reenact::Error when a
+  // recording path does not exist, the key file cannot be read or the model cannot be found
+  // (reenact / pass-through). Cameras are not checked: they may be plugged in later.
+  static void CheckInputs(const Options& options);
+
+  // The newest output frame if its sequence is above `after` (never waits).
+  bool latest_frame(uint64_t after, LiveFrame* frame) const;
+  // Waits up to `timeout` for an output frame above `after`; false on timeout or stop.
+  bool wait_frame(uint64_t after, std::chrono::nanoseconds timeout, LiveFrame* frame) const;
+  LiveStatus status() const;
+  // The next pipeline call restarts the target's calibration. Any thread, never waits.
+  void RequestCalibration();
+  // Stops and joins every thread; idempotent. wait_frame/next() return at once afterwards.
+  void stop();
+  const Options& options() const { return options_; }
+
+  // output::FrameSource (the virtual webcam): next() waits for the next output frame; kEnd
+  // once stopped, or when a non-looping recording has ended.
+  output::SourceStatus next(output::SourceFrame* frame, std::string* error) override;
+  bool is_live() const override { return true; }
+  std::string describe() const override;
+
+ private:
+  struct Worker;
+  void run();
+
+  const Options options_;
+  InputSpec target_spec_, source_spec_;
+  std::mutex stop_mu_;  // stop() may be called from several threads at once
+  mutable std::mutex mu_;
+  mutable std::condition_variable frame_cv_;
+  bool stopping_ = false;
+  bool ended_ = false;
+  LiveFrame latest_;
+  LiveStatus status_;
+  std::atomic<bool> calibration_requested_{false};
+  uint64_t next_delivered_ = 0;  // FrameSource::next(): last sequence handed out
+  std::chrono::steady_clock::time_point start_time_;
+  std::thread worker_;
+};
+
+}  // namespace face_reenact::live

@@ -1,0 +1,45 @@
+#pragma once
+// Internal to fr_live: what the session's worker runs on each target frame. The reenactment
+// pipeline (core/reenact) is one implementation; the raw pass-through of the input (mode kRaw,
+// and the fallback while the pipeline cannot be loaded) is the other.
+#include <memory>
+#include <string>
+
+#include "face_reenact/capture/recording.h"
+#include "face_reenact/live/live_session.h"
+#include "face_reenact/stream/stream_state.h"
+
+namespace face_reenact::live {
+
+struct ExpressionInput {
+  const stream::RemoteExpression* remote = nullptr;  // the UDP stream's sample, if a stream is configured
+  const capture::RgbdFrame* actor_frame = nullptr;   // a NEW frame of the source actor, else nullptr
+};
+
+struct ProcessedFrame {
+  cv::Mat bgr;
+  TrackingState tracking = TrackingState::kOff;
+  std::string message;        // why the input passed unchanged, or ""
+  bool actor_tracked = false; // the actor frame given was tracked and now drives the expression
+  bool actor_lost = false;    // the actor frame given had no trackable face
+};
+
+class FrameProcessor {
+ public:
+  virtual ~FrameProcessor() = default;
+  // Never throws for bad frame content; may throw face_reenact::Error for internal failures
+  // (the worker then passes the frame through and reports the message).
+  virtual ProcessedFrame process(const capture::RgbdFrame& target, const ExpressionInput& input) = 0;
+  virtual void request_calibration() = 0;
+};
+
+// Output = input. Used for OutputMode::kRaw.
+std::unique_ptr<FrameProcessor> make_raw_processor();
+
+// The reenactment pipeline on the model at `model_path` (mode kReenact or kPassThrough), with a
+// second pipeline tracking the source actor when `with_actor`. Throws face_reenact::Error when
+// the model cannot be loaded or this build has no reenactment pipeline.
+std::unique_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
+                                                           bool use_vulkan, bool with_actor);
+
+}  // namespace face_reenact::live

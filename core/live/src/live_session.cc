@@ -1,0 +1,444 @@
+#include "face_reenact/live/live_session.h"
+
+#include <pthread.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/common/paths.h"
+#include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/stream/receiver.h"
+#include "face_reenact/stream/stream_key.h"
+#include "face_reenact/stream/udp.h"
+#include "frame_processor.h"
+
+namespace face_reenact::live {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+std::string fixed(double v, int digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*f", digits, v);
+  return buf;
+}
+
+bool is_picture_input(InputKind kind) {
+  return kind == InputKind::kCamera || kind == InputKind::kOpenNi || kind == InputKind::kRecording;
+}
+
+}  // namespace
+
+const char* output_mode_name(OutputMode mode) {
+  switch (mode) {
+    case OutputMode::kReenact: return "reenact";
+    case OutputMode::kPassThrough: return "passthrough";
+    case OutputMode::kRaw: return "raw";
+  }
+  return "?";
+}
+
+bool parse_output_mode(const std::string& text, OutputMode* mode) {
+  if (text == "reenact") *mode = OutputMode::kReenact;
+  else if (text == "passthrough" || text == "pass-through") *mode = OutputMode::kPassThrough;
+  else if (text == "raw" || text == "off") *mode = OutputMode::kRaw;
+  else return false;
+  return true;
+}
+
+const char* tracking_state_name(TrackingState state) {
+  switch (state) {
+    case TrackingState::kOff: return "off";
+    case TrackingState::kCalibrating: return "calibrating";
+    case TrackingState::kTracking: return "tracking";
+    case TrackingState::kLost: return "no face";
+  }
+  return "?";
+}
+
+const char* source_state_name(SourceState state) {
+  switch (state) {
+    case SourceState::kNone: return "none";
+    case SourceState::kWaiting: return "waiting";
+    case SourceState::kLive: return "live";
+    case SourceState::kLost: return "lost";
+    case SourceState::kError: return "error";
+  }
+  return "?";
+}
+
+std::string LiveStatus::Headline() const {
+  if (!target_open) {
+    bool camera = target.rfind("camera", 0) == 0 || target.rfind("OpenNI", 0) == 0;
+    if (target_error == "end of recording") return "Recording ended";
+    if (target_error.empty() || target_error == "opening") return "Starting: opening " + target;
+    return std::string(camera ? "No camera: " : "No input: ") + target_error + " (retrying)";
+  }
+  std::string line;
+  if (mode == OutputMode::kRaw) {
+    line = "Raw input (tracking off)";
+  } else if (!pipeline_ready) {
+    line = "Unchanged: " + (pipeline_message.empty() ? std::string("loading the face model") : pipeline_message);
+  } else {
+    switch (tracking) {
+      case TrackingState::kCalibrating: line = "Calibrating"; break;
+      case TrackingState::kTracking: line = "Tracking"; break;
+      case TrackingState::kLost: line = "No face"; break;
+      case TrackingState::kOff: line = "Starting"; break;
+    }
+    if (tracking != TrackingState::kTracking && !pipeline_message.empty()) line += " (" + pipeline_message + ")";
+  }
+  bool stream = source_description.rfind("udp", 0) == 0;
+  std::string what = stream ? "stream" : "source actor";
+  switch (source) {
+    case SourceState::kNone: break;
+    case SourceState::kWaiting: line += " | waiting for " + (stream ? "stream on " + source_description : source_description); break;
+    case SourceState::kLive: line += " | " + what + " live " + fixed(packets_per_second, 0) + (stream ? " pkt/s" : " fps"); break;
+    case SourceState::kLost: line += " | " + what + " lost" + (source_error.empty() ? "" : ": " + source_error); break;
+    case SourceState::kError: line += " | " + what + " error: " + source_error; break;
+  }
+  line += " | " + fixed(output_fps, 1) + " fps";
+  return line;
+}
+
+bool LiveSession::Options::IsValid(std::string* why) const {
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
+  InputSpec t, s;
+  try {
+    t = parse_target_spec(target, "target");
+    s = parse_source_spec(source, "source");
+  } catch (const Error& e) {
+    return fail(e.what());
+  }
+  if (s.kind == InputKind::kUdp) {
+    if (key_file.empty()) return fail("source " + s.text + ": a UDP stream needs its key file");
+    try {
+      (void)stream::parse_listen_spec(s.listen, "source");
+    } catch (const Error& e) {
+      return fail(e.what());
+    }
+  }
+  if (camera_width <= 0 || camera_height <= 0 || camera_width > 8192 || camera_height > 8192)
+    return fail("camera size must be within 1..8192");
+  if (!(camera_fps > 0 && camera_fps <= 240)) return fail("camera fps must be in (0, 240]");
+  if (reopen_interval.count() <= 0 || reopen_interval > std::chrono::minutes(10))
+    return fail("reopen interval must be in (0, 10 min]");
+  if (thread_name.empty() || thread_name.size() > 15) return fail("thread name must have 1..15 characters");
+  if (worker_nice < 0 || worker_nice > 19) return fail("worker nice increment must be in 0..19");
+  return true;
+}
+
+void LiveSession::CheckInputs(const Options& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error(why);
+  InputSpec t = parse_target_spec(options.target, "target");
+  InputSpec s = parse_source_spec(options.source, "source");
+  for (const InputSpec& spec : {t, s}) {
+    if (spec.kind != InputKind::kRecording) continue;
+    if (!std::filesystem::exists(spec.path)) throw Error("recording '" + spec.path + "': no such file or folder");
+    (void)capture::open_frame_source(spec.path);  // validates the recording / video
+  }
+  if (s.kind == InputKind::kUdp) (void)stream::load_key_file(options.key_file);
+  if (options.mode != OutputMode::kRaw) (void)resolve_model_path(options.model_path);
+}
+
+LiveSession::LiveSession(Options options) : options_(std::move(options)) {
+  std::string why;
+  if (!options_.IsValid(&why)) throw Error("live session: " + why);
+  target_spec_ = parse_target_spec(options_.target, "target");
+  source_spec_ = parse_source_spec(options_.source, "source");
+  status_.running = true;
+  status_.mode = options_.mode;
+  status_.target = target_spec_.describe();
+  status_.target_error = "opening";
+  status_.source = source_spec_.kind == InputKind::kNone ? SourceState::kNone : SourceState::kWaiting;
+  status_.source_description = source_spec_.describe();
+  start_time_ = Clock::now();
+  worker_ = std::thread([this] {
+    try {
+      run();
+    } catch (const std::exception& e) {
+      std::lock_guard lock(mu_);
+      status_.pipeline_message = std::string("live worker failed: ") + e.what();
+    }
+    {
+      std::lock_guard lock(mu_);
+      status_.running = false;
+      ended_ = true;
+    }
+    frame_cv_.notify_all();
+  });
+}
+
+LiveSession::~LiveSession() { stop(); }
+
+void LiveSession::stop() {
+  {
+    std::lock_guard lock(mu_);
+    stopping_ = true;
+  }
+  frame_cv_.notify_all();
+  std::lock_guard join_lock(stop_mu_);
+  if (worker_.joinable()) worker_.join();
+}
+
+void LiveSession::RequestCalibration() {
+  calibration_requested_.store(true);
+  std::lock_guard lock(mu_);
+  status_.calibration_pending = true;
+}
+
+bool LiveSession::latest_frame(uint64_t after, LiveFrame* frame) const {
+  std::lock_guard lock(mu_);
+  if (latest_.sequence <= after) return false;
+  *frame = latest_;
+  return true;
+}
+
+bool LiveSession::wait_frame(uint64_t after, std::chrono::nanoseconds timeout, LiveFrame* frame) const {
+  std::unique_lock lock(mu_);
+  frame_cv_.wait_for(lock, timeout, [&] { return stopping_ || ended_ || latest_.sequence > after; });
+  if (latest_.sequence <= after) return false;
+  *frame = latest_;
+  return true;
+}
+
+LiveStatus LiveSession::status() const {
+  std::lock_guard lock(mu_);
+  return status_;
+}
+
+std::string LiveSession::describe() const {
+  return std::string("live session: target ") + target_spec_.describe() + ", source " + source_spec_.describe() +
+         ", mode " + output_mode_name(options_.mode);
+}
+
+output::SourceStatus LiveSession::next(output::SourceFrame* frame, std::string* error) {
+  std::unique_lock lock(mu_);
+  frame_cv_.wait(lock, [&] { return stopping_ || ended_ || latest_.sequence > next_delivered_; });
+  if (stopping_ || latest_.sequence <= next_delivered_) {
+    if (!status_.running && !status_.pipeline_message.empty() && error) *error = status_.pipeline_message;
+    return output::SourceStatus::kEnd;
+  }
+  next_delivered_ = latest_.sequence;
+  frame->bgr = latest_.bgr;
+  frame->timestamp = std::chrono::duration_cast<std::chrono::nanoseconds>(latest_.produced - start_time_);
+  return output::SourceStatus::kFrame;
+}
+
+void LiveSession::run() {
+  pthread_setname_np(pthread_self(), options_.thread_name.c_str());
+  if (options_.worker_nice > 0) {
+    // On Linux the nice value is per thread; the capture and receiver threads the worker starts
+    // below inherit it, so the whole session yields to the front-end's threads.
+    const id_t tid = static_cast<id_t>(::syscall(SYS_gettid));
+    errno = 0;
+    int current = ::getpriority(PRIO_PROCESS, tid);
+    if (errno == 0) ::setpriority(PRIO_PROCESS, tid, std::min(19, current + options_.worker_nice));
+  }
+  auto stopping = [&] {
+    std::lock_guard lock(mu_);
+    return stopping_;
+  };
+
+  GrabberOptions target_options;
+  target_options.input = target_spec_;
+  target_options.camera_width = options_.camera_width;
+  target_options.camera_height = options_.camera_height;
+  target_options.camera_fps = options_.camera_fps;
+  target_options.loop = options_.loop;
+  target_options.reopen_interval = options_.reopen_interval;
+  target_options.thread_name = "fr-live-target";
+  FrameGrabber target(target_options);
+
+  std::unique_ptr<FrameGrabber> actor;
+  if (is_picture_input(source_spec_.kind)) {
+    GrabberOptions actor_options = target_options;
+    actor_options.input = source_spec_;
+    actor_options.loop = true;  // the source actor keeps playing whatever the target does
+    actor_options.thread_name = "fr-live-actor";
+    actor = std::make_unique<FrameGrabber>(actor_options);
+  }
+
+  // The pipeline: loaded here (seconds for a big model), never on a front-end's thread.
+  std::unique_ptr<FrameProcessor> processor = make_raw_processor();
+  bool pipeline_ready = false;
+  std::string pipeline_error;
+  Clock::time_point next_pipeline_try = Clock::now();
+  auto try_pipeline = [&] {
+    if (options_.mode == OutputMode::kRaw) return;
+    try {
+      std::string model = resolve_model_path(options_.model_path);
+      processor = make_reenactment_processor(model, options_.mode, options_.use_vulkan, actor != nullptr);
+      pipeline_ready = true;
+      pipeline_error.clear();
+    } catch (const std::exception& e) {
+      pipeline_error = e.what();
+      next_pipeline_try = Clock::now() + 5 * options_.reopen_interval;
+    }
+  };
+
+  std::unique_ptr<stream::ExpressionReceiver> receiver;
+  std::string receiver_error;
+  Clock::time_point next_receiver_try = Clock::now();
+  auto try_receiver = [&] {
+    try {
+      stream::StreamKey key = stream::load_key_file(options_.key_file);
+      stream::ExpressionReceiver::Options ro;
+      ro.listen = stream::parse_listen_spec(source_spec_.listen, "source");
+      ro.thread_name = "fr-live-udp";
+      receiver = std::make_unique<stream::ExpressionReceiver>(key, ro);
+      receiver_error.clear();
+    } catch (const std::exception& e) {
+      receiver_error = e.what();
+      next_receiver_try = Clock::now() + options_.reopen_interval;
+    }
+  };
+
+  uint64_t target_seq = 0, actor_seq = 0, out_seq = 0;
+  capture::RgbdFrame frame, actor_frame;
+  Clock::time_point window_start = Clock::now();
+  int64_t window_frames = 0, window_actor = 0;
+  double window_ms = 0;
+  bool actor_ever_tracked = false;
+  Clock::time_point actor_last_tracked{};
+  TrackingState tracking = TrackingState::kOff;
+  std::string frame_message;
+  double output_fps = 0, process_ms = 0, actor_rate = 0;
+
+  while (!stopping()) {
+    Clock::time_point now = Clock::now();
+    if (!pipeline_ready && options_.mode != OutputMode::kRaw && now >= next_pipeline_try) try_pipeline();
+    if (source_spec_.kind == InputKind::kUdp && !receiver && now >= next_receiver_try) try_receiver();
+    if (calibration_requested_.exchange(false)) processor->request_calibration();
+
+    Clock::time_point captured{};
+    bool got = target.wait_newer(target_seq, std::chrono::milliseconds(50), &frame, &target_seq, &captured);
+    stream::RemoteExpression remote;
+    if (receiver) remote = receiver->sample();
+    if (got) {
+      ExpressionInput input;
+      if (receiver) input.remote = &remote;
+      if (actor && actor->take_newer(actor_seq, &actor_frame, &actor_seq)) input.actor_frame = &actor_frame;
+      Clock::time_point t0 = Clock::now();
+      ProcessedFrame out;
+      try {
+        out = processor->process(frame, input);
+      } catch (const std::exception& e) {
+        out = ProcessedFrame();
+        out.message = e.what();
+      }
+      double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+      // Whatever went wrong, the front-end gets a picture of the right kind.
+      if (out.bgr.empty() || out.bgr.type() != CV_8UC3) out.bgr = frame.color;
+      tracking = out.tracking;
+      frame_message = out.message;
+      if (out.actor_tracked) {
+        actor_ever_tracked = true;
+        actor_last_tracked = Clock::now();
+        ++window_actor;
+      }
+      LiveFrame published;
+      published.bgr = out.bgr;
+      published.sequence = ++out_seq;
+      published.source_index = frame.index;
+      published.captured = captured;
+      published.produced = Clock::now();
+      ++window_frames;
+      window_ms += ms;
+      {
+        std::lock_guard lock(mu_);
+        latest_ = published;
+        status_.frames_out = static_cast<int64_t>(out_seq);
+        status_.calibration_pending = calibration_requested_.load();
+      }
+      frame_cv_.notify_all();
+      if (options_.on_frame) {
+        try {
+          options_.on_frame(published);
+        } catch (...) {
+          // A front-end's callback must not take the worker down; it sees the next frame.
+        }
+      }
+    }
+
+    // Status, refreshed every pass (a few copies of small strings).
+    now = Clock::now();
+    double window_s = std::chrono::duration<double>(now - window_start).count();
+    if (window_s >= 1.0) {
+      output_fps = window_frames / window_s;
+      process_ms = window_frames > 0 ? window_ms / window_frames : 0;
+      actor_rate = window_actor / window_s;
+      window_frames = window_actor = 0;
+      window_ms = 0;
+      window_start = now;
+    }
+    GrabberStatus ts = target.status();
+    LiveStatus s;
+    {
+      std::lock_guard lock(mu_);
+      s = status_;
+    }
+    s.running = true;
+    s.target_open = ts.open;
+    s.target = ts.description;
+    s.target_error = ts.error;
+    s.target_fps = ts.fps;
+    s.pipeline_ready = pipeline_ready;
+    s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
+    s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
+    s.output_fps = ts.open ? output_fps : 0;
+    s.process_ms = process_ms;
+    if (source_spec_.kind == InputKind::kUdp) {
+      if (!receiver) {
+        s.source = SourceState::kError;
+        s.source_error = receiver_error;
+        s.packets_per_second = 0;
+      } else {
+        stream::ReceiverStatistics rs = receiver->statistics();
+        std::string thread_error = receiver->thread_error();
+        s.packets_per_second = rs.rate_hz;
+        s.source_weight = remote.weight;
+        s.source_error = thread_error;
+        s.source = !thread_error.empty() ? SourceState::kError
+                   : !remote.has_frame   ? SourceState::kWaiting
+                   : remote.live         ? SourceState::kLive
+                                         : SourceState::kLost;
+        if (!remote.live) s.packets_per_second = 0;
+      }
+    } else if (actor) {
+      GrabberStatus as = actor->status();
+      bool recent = actor_ever_tracked && now - actor_last_tracked < std::chrono::milliseconds(500);
+      s.packets_per_second = recent ? actor_rate : 0;
+      s.source_weight = recent ? 1 : 0;
+      if (!as.open) {
+        s.source = actor_ever_tracked ? SourceState::kLost : (as.error == "opening" ? SourceState::kWaiting : SourceState::kError);
+        s.source_error = as.error;
+      } else {
+        s.source = recent ? SourceState::kLive : actor_ever_tracked ? SourceState::kLost : SourceState::kWaiting;
+        s.source_error = pipeline_ready ? (s.source == SourceState::kLost ? "no face" : "") : pipeline_error;
+      }
+    }
+    bool ended = ts.ended && !options_.loop;
+    {
+      std::lock_guard lock(mu_);
+      s.calibration_pending = status_.calibration_pending;
+      s.frames_out = status_.frames_out;
+      status_ = s;
+      if (ended) ended_ = true;
+    }
+    if (ended) frame_cv_.notify_all();
+  }
+}
+
+}  // namespace face_reenact::live

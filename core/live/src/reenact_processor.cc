@@ -1,0 +1,84 @@
+// The session's link to the reenactment pipeline (core/reenact/.../reenactment_pipeline.h).
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/model/model_file.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
+#include "frame_processor.h"
+
+namespace face_reenact::live {
+namespace {
+
+TrackingState tracking_from(reenact::TrackingStatus status) {
+  switch (status) {
+    case reenact::TrackingStatus::kCalibrating: return TrackingState::kCalibrating;
+    case reenact::TrackingStatus::kTracking: return TrackingState::kTracking;
+    case reenact::TrackingStatus::kLost: return TrackingState::kLost;
+  }
+  return TrackingState::kOff;
+}
+
+class ReenactProcessor : public FrameProcessor {
+ public:
+  ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, bool with_actor)
+      : model_(load_face_model(model_path)) {
+    reenact::ReenactmentOptions options;
+    options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough : reenact::ReenactMode::kReenact;
+    options.renderer = use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
+    target_ = std::make_unique<reenact::ReenactmentPipeline>(model_, options);
+    if (with_actor) {
+      // The source actor is only tracked (mode kOff renders nothing); its parameters and
+      // calibrated neutral give the expression to transfer.
+      reenact::ReenactmentOptions actor_options = options;
+      actor_options.mode = reenact::ReenactMode::kOff;
+      actor_ = std::make_unique<reenact::ReenactmentPipeline>(model_, actor_options);
+    }
+  }
+
+  ProcessedFrame process(const capture::RgbdFrame& target, const ExpressionInput& input) override {
+    ProcessedFrame out;
+    if (actor_ && input.actor_frame) {
+      reenact::ReenactedFrame actor = actor_->Process(*input.actor_frame, nullptr);
+      if (actor.status == reenact::TrackingStatus::kTracking) {
+        actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
+        have_actor_expression_ = true;
+        out.actor_tracked = true;
+      } else {
+        out.actor_lost = actor.status == reenact::TrackingStatus::kLost;
+      }
+    }
+    reenact::SourceExpression remote;
+    const reenact::SourceExpression* source = nullptr;
+    if (input.remote) {
+      remote = reenact::SourceFromRemote(*input.remote);
+      source = &remote;
+    } else if (have_actor_expression_) {
+      source = &actor_expression_;
+    }
+    reenact::ReenactedFrame result = target_->Process(target, source);
+    out.bgr = result.bgr;
+    out.tracking = tracking_from(result.status);
+    out.message = result.message;
+    return out;
+  }
+
+  void request_calibration() override {
+    target_->RequestCalibration();
+    if (actor_) actor_->RequestCalibration();
+  }
+
+ private:
+  FaceModel model_;  // outlives the pipelines (declared first)
+  std::unique_ptr<reenact::ReenactmentPipeline> target_;
+  std::unique_ptr<reenact::ReenactmentPipeline> actor_;
+  reenact::SourceExpression actor_expression_;
+  bool have_actor_expression_ = false;
+};
+
+}  // namespace
+
+std::unique_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
+                                                           bool use_vulkan, bool with_actor) {
+  return std::make_unique<ReenactProcessor>(model_path, mode, use_vulkan, with_actor);
+}
+
+}  // namespace face_reenact::live

@@ -1,0 +1,89 @@
+#pragma once
+// The stateless part of the reenactment: given the target frame and two parameter vectors (the
+// target's tracked P and the P to show), re-render the face (Sec. 7.4), draw the mouth interior
+// (Sec. 7.3: teeth and tongue from the model's helper geometry, which the jawOpen/tongueOut
+// blendshapes already move with the jaw, plus a dark cavity behind them), and composite with
+// the Laplacian blend (Sec. 7.4.2). ReenactmentPipeline puts the tracker in front of it; tests
+// drive it directly with ground-truth parameters.
+#include <memory>
+#include <string>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
+
+namespace face_reenact {
+struct FaceModel;
+}
+
+namespace face_reenact::reenact {
+
+// Per-vertex albedo of one actor, learned from its own frames (the paper's per-actor albedo:
+// the linear model cannot hold brows, lip colour, moles). Vertices never observed keep the
+// model's albedo M_alb(beta).
+struct AlbedoMap {
+  Eigen::VectorXf albedo;  // 3N linear RGB
+  Eigen::VectorXf weight;  // N, accumulated observation weight (0 = never seen)
+  // Per channel, the brightest irradiance any observed vertex received in the last observation:
+  // re-rendering never lights a vertex brighter than that (a lighting fit extrapolated to
+  // normals it never saw can be far too bright, e.g. on a forehead the fit misplaced).
+  Eigen::Vector3f max_irradiance = Eigen::Vector3f::Zero();
+  bool empty() const { return albedo.size() == 0; }
+};
+
+struct CompositeResult {
+  cv::Mat bgr;            // CV_8UC3
+  cv::Mat rendered_bgr;   // CV_8UC3: the rendered layers over the target (before blending)
+  cv::Mat face_mask;      // CV_8UC1, 255 = covered by the re-rendered face layers
+  cv::Mat mouth_mask;     // CV_8UC1, 255 = mouth interior drawn (cavity, teeth, tongue)
+  cv::Mat face_depth;     // CV_32FC1, metres: camera-space z of the rendered layers; 0 where
+                          // nothing was rendered and in the mouth opening (no surface measured)
+  bool drawn = false;     // false: nothing of the face is in the frame; bgr = target
+  bool mouth_drawn = false;
+  bool mouth_opened_wider = false;  // the output's jawOpen exceeds the target's (by the threshold)
+  double render_ms = 0, mouth_ms = 0, composite_ms = 0;
+};
+
+class FaceCompositor {
+ public:
+  // Throws face_reenact::Error on invalid options. `model` must outlive the compositor.
+  FaceCompositor(const FaceModel& model, const ReenactmentOptions& options);
+  ~FaceCompositor();
+  FaceCompositor(const FaceCompositor&) = delete;
+  FaceCompositor& operator=(const FaceCompositor&) = delete;
+
+  void SetOptions(const ReenactmentOptions& options);
+
+  // Renders `output` over `target_bgr` (CV_8UC3 of camera's size). `target` is the target's own
+  // tracked P (reported: whether the mouth opened wider than the target's). The mouth interior
+  // is drawn whenever the output's jawOpen exceeds options.mouth_open_threshold: the re-rendered
+  // face covers the target's mouth, so an open rendered mouth needs its interior whether or not
+  // the target's was open too. Throws
+  // face_reenact::Error on invalid parameters or a mismatched image.
+  // `target_depth` (optional, CV_32FC1 metres, 0/NaN = none): pixels where the input is far
+  // behind the rendered surface (the fit overshoots onto the background) or in front of it (an
+  // occluder) keep the target (ReenactmentOptions::depth_background_m / depth_occluder_m).
+  CompositeResult Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
+                          const gpu::FaceParameters& target, const gpu::FaceParameters& output,
+                          const AlbedoMap* albedo = nullptr, const cv::Mat* target_depth = nullptr) const;
+
+  // Adds the observation of `frame_bgr` at the tracked `params` to `map` (started from the model
+  // albedo of params.beta when empty): each visible, camera-facing vertex's colour divided by
+  // its SH irradiance, averaged with weight cos(view angle).
+  // With `frame_depth`, vertices whose pixel's depth disagrees with the vertex by more than
+  // 1.5 cm (the fit overshoots onto the background, an occluder) are not observed.
+  void ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
+                     AlbedoMap* map, const cv::Mat* frame_depth = nullptr) const;
+
+  const FaceModel& model() const;
+  // "cpu", "vulkan (<device>)", or "cpu (Vulkan unavailable: <why>)" after a failed open.
+  std::string renderer_description() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace face_reenact::reenact

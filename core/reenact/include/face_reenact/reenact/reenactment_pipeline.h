@@ -1,0 +1,206 @@
+#pragma once
+// The live reenactment pipeline (paper Sec. 7): one call per target frame tracks the target
+// actor, transfers the source actor's expression onto it (Eq. 15), re-renders the target's face
+// with the transferred expression under the target's own pose and lighting, fills an opened
+// mouth with teeth, tongue and a dark cavity, and composites the result into the target frame
+// with a Laplacian-pyramid blend (Sec. 7.4.2). docs/reenactment.md is the spec.
+//
+// This header is the contract for the live front-ends (OBS source, virtual webcam) and the
+// `face-reenact reenact` / `demo` commands. It only grows (new fields get defaults, new
+// functions are added); nothing here is removed or changes meaning.
+//
+// Threading: a ReenactmentPipeline is driven by ONE thread (Process, options, status).
+// RequestCalibration() alone may be called from any thread at any time (an atomic flag that the
+// next Process() call consumes).
+#include <array>
+#include <atomic>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "face_reenact/capture/recording.h"
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/rgbd_input.h"
+
+namespace face_reenact {
+struct FaceModel;
+namespace stream {
+struct RemoteExpression;
+}
+}  // namespace face_reenact
+
+namespace face_reenact::reenact {
+
+// The model's expression basis is the 52 ARKit blendshapes in ARKit order
+// (arkit_blendshape_names()); the UDP stream uses the same order.
+inline constexpr int kNumExpressionWeights = 52;
+
+// What the source side contributes to one target frame: the source actor's expression.
+//
+// Eq. 15 in blendshape space: delta_out = delta_T,neutral + blend_weight * (delta_S - delta_S,neutral),
+// clamped to [0, 1] per weight. With neutral_subtracted, `weights` already is
+// (delta_S - delta_S,neutral) (the UDP stream's RemoteExpression carries that) and `neutral` is
+// ignored. blend_weight is the stream's cross-fade weight (RemoteExpression::weight): 1 = the
+// source's expression, 0 = the target's own tracked expression; in between, the output is
+// blend_weight * transferred + (1 - blend_weight) * target's own expression.
+struct SourceExpression {
+  std::array<float, kNumExpressionWeights> weights{};  // ARKit weights (absolute, or relative)
+  std::array<float, kNumExpressionWeights> neutral{};  // the source actor's neutral expression
+  bool neutral_subtracted = false;
+  float blend_weight = 1.0f;  // in [0, 1]
+
+  // Values finite, blend_weight in [0, 1]; absolute weights within [-0.5, 1.5] and relative ones
+  // within [-1.5, 1.5] (trackers overshoot a little; the transfer clamps).
+  bool IsValid(std::string* why) const;
+  // delta_S - delta_S,neutral.
+  std::array<float, kNumExpressionWeights> relative() const;
+};
+
+// A source actor's tracked parameters and calibrated neutral (FaceTracker::neutral(): identity
+// and albedo of the actor with the neutral expression) as a SourceExpression (blend_weight 1).
+// Missing trailing coefficients of either delta count as 0.
+SourceExpression SourceFromParameters(const gpu::FaceParameters& tracked, const gpu::FaceParameters& neutral);
+// The same from a source FaceTracker's frame; blend_weight 0 (the target keeps its own
+// expression) when the frame has no trustworthy fit (tracking_status_has_fit false).
+SourceExpression SourceFromTrackedFrame(const tracker::TrackedFrame& tracked, const gpu::FaceParameters& neutral);
+// The receiver's sample (core/stream/.../stream_state.h): relative weights, its cross-fade weight.
+// A sample without a frame (has_frame == false) gives blend_weight 0.
+SourceExpression SourceFromRemote(const stream::RemoteExpression& remote);
+
+enum class ReenactMode {
+  kReenact,      // the source's expression on the target (Eq. 15)
+  kPassThrough,  // the target re-rendered with its own tracked expression (checks the pipeline)
+  kOff,          // the input frame unchanged (tracking still runs, for status)
+};
+const char* reenact_mode_name(ReenactMode mode);
+
+enum class RendererKind {
+  kCpu,     // gpu::CpuRenderer (measured faster than lavapipe at small sizes, no device needed)
+  kVulkan,  // gpu::Renderer on the default Vulkan device (falls back to kCpu if none opens)
+};
+
+struct ReenactmentOptions {
+  ReenactMode mode = ReenactMode::kReenact;
+  RendererKind renderer = RendererKind::kCpu;
+
+  // --- mouth (Sec. 7.3; teeth and tongue from the model's helper geometry) ---
+  bool render_mouth = true;
+  // The mouth interior (teeth, tongue, dark cavity) is drawn whenever the rendered jawOpen
+  // exceeds this: the re-rendered face covers the target's own mouth, so an opened mouth never
+  // shows the target's closed lips.
+  float mouth_open_threshold = 0.02f;
+
+  // --- compositing (Sec. 7.4.2) ---
+  int blend_levels = 5;              // Laplacian pyramid levels (>= 1; 1 = plain alpha blend)
+  float mask_erosion_px = 1.5f;      // the face mask is eroded by this (at full size) before
+                                     // blending, so the rendered silhouette's edge never shows
+  float mask_feather_px = 2.0f;      // Gaussian sigma (full size) softening the level-0 mask
+  // Only the face skin is re-rendered (not scalp, ears, neck): FacePart::Face triangles.
+  bool face_only = true;
+  // With target depth: rendered pixels whose input depth lies this much farther (the fit
+  // overshoots onto the background) or nearer (something in front of the face) keep the target.
+  // 0 turns the check off.
+  float depth_background_m = 0.08f;
+  float depth_occluder_m = 0.04f;
+
+  // --- tracking of the target (core/tracker/.../face_tracker.h, rgbd_input.h) ---
+  tracker::TrackerOptions tracker;
+  // Landmarks from the dlib tracker (default) or, for synthetic recordings, the stored ones.
+  tracker::RgbdInputOptions input;
+  // With ground truth in the target frame (synthetic recordings) use it instead of tracking
+  // (tests, the closed-loop demo's reference run). Off for every live use.
+  bool use_ground_truth_target = false;
+
+  bool IsValid(std::string* why) const;
+};
+
+// Where the target's tracker is, in three states a front-end can show (ReenactedFrame::tracked
+// has the tracker's finer status).
+enum class TrackingStatus {
+  kCalibrating,  // collecting / fitting the calibration frames: output = input
+  kTracking,     // the face is tracked (tracker: kCalibrated, kTracking, kRecovered): reenacted
+  kLost,         // no face, a failed fit or a bad frame (kLost, kNoFace, kBadInput): output = input
+};
+const char* tracking_status_name(TrackingStatus status);
+
+// Per-stage wall-clock times of one Process() call, milliseconds.
+struct StageTimes {
+  double track_ms = 0;      // landmarks + tracker fit (or calibration)
+  double transfer_ms = 0;   // Eq. 15
+  double render_ms = 0;     // face re-render (model evaluation + rasterisation + shading)
+  double mouth_ms = 0;      // teeth/tongue/cavity render
+  double composite_ms = 0;  // masks + Laplacian blend + 8-bit conversion
+  double total_ms = 0;
+};
+
+struct ReenactedFrame {
+  int frame_index = 0;        // the input frame's index
+  cv::Mat bgr;                // CV_8UC3, the target frame's size; equals the input where nothing was drawn
+  TrackingStatus status = TrackingStatus::kLost;
+  bool reenacted = false;     // a face was rendered and composited into `bgr`
+  bool mouth_drawn = false;   // the mouth interior was drawn
+  std::string message;        // why the input was passed through (empty when reenacted)
+  gpu::FaceParameters target_params;  // the target's tracked P (meaningful when tracking)
+  gpu::FaceParameters output_params;  // P that was rendered (target with the transferred expression)
+  cv::Mat face_mask;          // CV_8UC1, 255 where the blend took the rendered face (level-0 mask)
+  // The depth that goes with `bgr` (CV_32FC1, metres, 0 = none): the target's depth with the
+  // re-rendered face's depth where the face was drawn, no data in the open mouth. Empty when
+  // the target frame has no depth. Lets the output be written and re-tracked as an RGB-D frame.
+  cv::Mat depth;
+  // The re-rendered layers over the target before blending (CV_8UC3; debug views); empty when
+  // nothing was rendered.
+  cv::Mat rendered;
+  StageTimes times;
+  // The target tracker's own result for this frame (its finer status, message, energies).
+  // Default-constructed when use_ground_truth_target is set.
+  tracker::TrackedFrame tracked;
+};
+
+// Cumulative statistics since construction.
+struct PipelineSummary {
+  int frames = 0;
+  int reenacted_frames = 0;
+  int lost_frames = 0;
+  int calibrating_frames = 0;
+  StageTimes mean_times;  // mean over all processed frames
+  std::string renderer;   // which rasteriser ran: "cpu", "vulkan (<device>)", "cpu (Vulkan unavailable: ...)"
+  std::string BriefReport() const;
+};
+
+class ReenactmentPipeline {
+ public:
+  // Throws face_reenact::Error on invalid options or model. The model must outlive the pipeline.
+  ReenactmentPipeline(const FaceModel& model, const ReenactmentOptions& options);
+  ~ReenactmentPipeline();
+  ReenactmentPipeline(const ReenactmentPipeline&) = delete;
+  ReenactmentPipeline& operator=(const ReenactmentPipeline&) = delete;
+
+  // One target frame. `source` == nullptr (or mode kPassThrough): the target's own expression.
+  // Never throws for bad frame content (no face, empty or odd-sized image, NaN depth): the
+  // output is then the input (or a black frame for an empty input) with status and message set.
+  // Throws face_reenact::Error only on programmer errors (an invalid SourceExpression).
+  ReenactedFrame Process(const capture::RgbdFrame& target, const SourceExpression* source);
+
+  // Thread-safe: the next Process() restarts the target's calibration (e.g. a new person sat down).
+  void RequestCalibration();
+
+  // Changes options between frames (same thread as Process). A change of calibration_frames
+  // or use_ground_truth_target takes effect at the next calibration. Throws on invalid options.
+  void SetOptions(const ReenactmentOptions& options);
+  const ReenactmentOptions& options() const;
+
+  TrackingStatus status() const;
+  // The target's calibrated neutral (identity, albedo, neutral expression, last pose and
+  // lighting); valid once status() has been kTracking.
+  const gpu::FaceParameters& target_neutral() const;
+  PipelineSummary summary() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::atomic<bool> calibration_requested_{false};
+};
+
+}  // namespace face_reenact::reenact

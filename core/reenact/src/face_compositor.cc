@@ -1,0 +1,485 @@
+#include "face_reenact/reenact/face_compositor.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <vector>
+
+#include <opencv2/imgproc.hpp>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/common/srgb.h"
+#include "face_reenact/gpu/context.h"
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/gpu/renderer.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/reenact/laplacian_blend.h"
+#include "face_reenact/reenact/transfer.h"
+
+namespace face_reenact::reenact {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+constexpr gpu::PartMask part_bit(FacePart p) { return gpu::PartMask{1} << static_cast<int>(p); }
+constexpr gpu::PartMask kMouthParts =
+    part_bit(FacePart::UpperTeeth) | part_bit(FacePart::LowerTeeth) | part_bit(FacePart::Tongue);
+constexpr gpu::PartMask kEyeParts = part_bit(FacePart::LeftEye) | part_bit(FacePart::RightEye);
+
+// Linear-RGB albedo of the mouth cavity's back wall: dark red-brown, and it receives little of
+// the scene's light (most of the hemisphere above it is the inside of the mouth).
+const Eigen::Vector3f kCavityAlbedo(0.09f, 0.025f, 0.025f);
+constexpr float kCavityOcclusion = 0.35f;
+// Teeth and tongue are shaded by the lips and cheeks the deeper they sit behind the lip line:
+// the light reaching them falls linearly with depth over this distance, down to a floor. The
+// tongue sits lower and deeper in the cavity than the front teeth and gets less light overall.
+constexpr float kTeethOcclusionDepthM = 0.03f;
+constexpr float kMinTeethOcclusion = 0.5f;
+constexpr float kTongueOcclusionDepthM = 0.02f;
+constexpr float kMinTongueOcclusion = 0.15f;
+constexpr float kMaxTongueOcclusion = 0.55f;
+// A face-part surface this far behind the lip line (inside the lip opening) is the cavity wall.
+constexpr float kCavityDepthM = 0.003f;
+
+using Gamma = std::array<float, gpu::kNumShParameters>;
+
+// The lighting used to re-render and to learn the albedo map: the tracked SH lighting with one
+// directional shape for all three channels (the mean of the channels' shapes relative to their
+// DC terms), each channel keeping its own DC. The tracker fits 27 coefficients to the directions
+// it sees; a per-channel directional fit extrapolates to unseen normal directions (an opened
+// jaw's chin, a raised brow, the cheeks at a turned head) with strong colour casts. A single
+// directional shape keeps the light's colour the same from every direction, and whatever
+// per-channel differences the target shows in the directions seen end up in the albedo map.
+Gamma rendering_lighting(const Gamma& gamma) {
+  Gamma out = gamma;
+  float shape[gpu::kNumShCoefficients] = {};
+  int channels = 0;
+  for (int c = 0; c < 3; ++c) {
+    const float dc = gamma[static_cast<size_t>(c * 9)];
+    if (!(dc > 1e-4f)) continue;
+    for (int k = 1; k < gpu::kNumShCoefficients; ++k) shape[k] += gamma[static_cast<size_t>(c * 9 + k)] / dc;
+    ++channels;
+  }
+  if (channels == 0) return gamma;
+  for (int c = 0; c < 3; ++c) {
+    const float dc = gamma[static_cast<size_t>(c * 9)];
+    for (int k = 1; k < gpu::kNumShCoefficients; ++k) out[static_cast<size_t>(c * 9 + k)] = dc * shape[k] / channels;
+  }
+  return out;
+}
+
+// Irradiance of channel c, floored at a fraction of the ambient (DC) part: SH fits can go
+// negative in directions they were never fitted to, and real rooms are never that dark.
+float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
+  float e = 0.f;
+  for (int k = 0; k < gpu::kNumShCoefficients; ++k) e += gamma[static_cast<size_t>(c * 9 + k)] * basis[static_cast<size_t>(k)];
+  const float ambient = gamma[static_cast<size_t>(c * 9)] * basis[0];
+  return std::max(e, 0.15f * ambient);
+}
+
+}  // namespace
+
+struct FaceCompositor::Impl {
+  const FaceModel& model;
+  gpu::CpuRenderer renderer;
+  ReenactmentOptions options;
+  // The Vulkan rasteriser (RendererKind::kVulkan), made on first use; when no device opens the
+  // compositor says why once and stays on the CPU.
+  mutable std::unique_ptr<gpu::Context> vk_context;
+  mutable std::unique_ptr<gpu::Renderer> vk_renderer;
+  mutable std::string vk_failure;
+  std::vector<int32_t> inner_lip_vertices;  // iBUG 60-67 in order around the opening
+  std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
+
+  Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), renderer(gpu::RenderModel::FromFaceModel(m)), options(o) {
+    std::array<int32_t, 68> by_index;
+    by_index.fill(-1);
+    for (const auto& l : model.landmarks)
+      if (l.ibug_index >= 0 && l.ibug_index < 68) by_index[static_cast<size_t>(l.ibug_index)] = l.vertex;
+    for (int i = 60; i <= 67; ++i)
+      if (by_index[static_cast<size_t>(i)] >= 0) inner_lip_vertices.push_back(by_index[static_cast<size_t>(i)]);
+    neighbours.resize(static_cast<size_t>(model.num_vertices()));
+    for (const auto& t : model.triangles)
+      for (int k = 0; k < 3; ++k) {
+        auto& list = neighbours[static_cast<size_t>(t[static_cast<size_t>(k)])];
+        for (int o = 1; o <= 2; ++o) {
+          const int32_t nb = t[static_cast<size_t>((k + o) % 3)];
+          if (std::find(list.begin(), list.end(), nb) == list.end()) list.push_back(nb);
+        }
+      }
+  }
+
+  // Skin vertices never observed (turned away, hidden) take the model albedo scaled by the
+  // observed-to-model ratio of their surroundings: the ratio field is spread from the observed
+  // vertices over the mesh (Jacobi iterations of neighbour averages), so an unseen cheek gets the
+  // actor's skin tone, not the model's mean.
+  void FillUnobserved(const Eigen::VectorXf& model_albedo, AlbedoMap* map) const {
+    const int n = model.num_vertices();
+    std::vector<Eigen::Vector3f> ratio(static_cast<size_t>(n), Eigen::Vector3f::Ones());
+    std::vector<char> fixed(static_cast<size_t>(n), 0), skin(static_cast<size_t>(n), 0);
+    std::vector<float> per_channel[3];
+    for (int v = 0; v < n; ++v) {
+      const FacePart p = part_of(v);
+      skin[static_cast<size_t>(v)] = p == FacePart::Face || p == FacePart::Scalp || p == FacePart::Ear || p == FacePart::Neck;
+      if (!skin[static_cast<size_t>(v)] || !(map->weight[v] > 0.f)) continue;
+      for (int c = 0; c < 3; ++c) {
+        const float r = std::clamp(map->albedo[3 * v + c] / std::max(model_albedo[3 * v + c], 1e-3f), 0.2f, 5.0f);
+        ratio[static_cast<size_t>(v)][c] = r;
+        per_channel[c].push_back(r);
+      }
+      fixed[static_cast<size_t>(v)] = 1;
+    }
+    if (per_channel[0].empty()) return;
+    Eigen::Vector3f median;
+    for (int c = 0; c < 3; ++c) {
+      auto& pc = per_channel[c];
+      std::nth_element(pc.begin(), pc.begin() + static_cast<std::ptrdiff_t>(pc.size() / 2), pc.end());
+      median[c] = pc[pc.size() / 2];
+    }
+    for (int v = 0; v < n; ++v)
+      if (skin[static_cast<size_t>(v)] && !fixed[static_cast<size_t>(v)]) ratio[static_cast<size_t>(v)] = median;
+    constexpr int kIterations = 25;
+    for (int it = 0; it < kIterations; ++it) {
+      for (int v = 0; v < n; ++v) {
+        if (!skin[static_cast<size_t>(v)] || fixed[static_cast<size_t>(v)]) continue;
+        Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+        int count = 0;
+        for (int32_t nb : neighbours[static_cast<size_t>(v)]) {
+          if (!skin[static_cast<size_t>(nb)]) continue;
+          sum += ratio[static_cast<size_t>(nb)];
+          ++count;
+        }
+        if (count) ratio[static_cast<size_t>(v)] = sum / static_cast<float>(count);
+      }
+    }
+    for (int v = 0; v < n; ++v) {
+      if (!skin[static_cast<size_t>(v)] || fixed[static_cast<size_t>(v)]) continue;
+      for (int c = 0; c < 3; ++c)
+        map->albedo[3 * v + c] = std::clamp(model_albedo[3 * v + c] * ratio[static_cast<size_t>(v)][c], 0.0f, 1.0f);
+    }
+  }
+
+  gpu::Renderer* vulkan() const {
+    if (options.renderer != RendererKind::kVulkan || !vk_failure.empty()) return nullptr;
+    if (!vk_renderer) {
+      try {
+        gpu::Context::Options co;
+        vk_context = std::make_unique<gpu::Context>(co);
+        gpu::Renderer::Options ro;
+        ro.timestamps = false;
+        vk_renderer = std::make_unique<gpu::Renderer>(*vk_context, renderer.model(), ro);
+      } catch (const Error& e) {
+        vk_renderer.reset();
+        vk_context.reset();
+        vk_failure = e.what();
+        return nullptr;
+      }
+    }
+    return vk_renderer.get();
+  }
+
+  // The G-buffer of `state` (evaluated at `params`), rasterised by Vulkan or the CPU twin. The
+  // colour channel is always the Gouraud interpolation of state.colors (the compositor's own
+  // shading: albedo map, rendering lighting), whichever rasteriser ran.
+  gpu::GBuffer rasterize(const gpu::VertexState& state, const gpu::FaceParameters& params,
+                         const gpu::PinholeCamera& camera, const gpu::RenderOptions& ropt) const {
+    gpu::Renderer* vk = vulkan();
+    if (!vk) return renderer.rasterize(state, camera, ropt);
+    vk->render(params, camera, ropt);
+    gpu::GBuffer g = vk->read_gbuffer();
+    for (size_t p = 0; p < g.triangle.size(); ++p) {
+      if (g.triangle[p] < 0) continue;
+      for (int c = 0; c < 3; ++c) {
+        float v = 0.f;
+        for (int k = 0; k < 3; ++k)
+          v += g.barycentric[3 * p + static_cast<size_t>(k)] * state.colors[3 * g.vertices[3 * p + static_cast<size_t>(k)] + c];
+        g.color[3 * p + static_cast<size_t>(c)] = v;
+      }
+    }
+    return g;
+  }
+
+  gpu::PartMask drawn_parts() const {
+    gpu::PartMask parts = options.face_only ? part_bit(FacePart::Face) : gpu::kSkinParts;
+    parts |= kEyeParts;
+    if (options.render_mouth) parts |= kMouthParts;
+    return parts;
+  }
+  FacePart part_of(int32_t vertex) const { return model.vertex_part[static_cast<size_t>(vertex)]; }
+};
+
+FaceCompositor::FaceCompositor(const FaceModel& model, const ReenactmentOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error("reenactment options: " + why);
+  if (!model.IsValid(&why)) throw Error("face model: " + why);
+  impl_ = std::make_unique<Impl>(model, options);
+}
+
+FaceCompositor::~FaceCompositor() = default;
+
+void FaceCompositor::SetOptions(const ReenactmentOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error("reenactment options: " + why);
+  if (options.renderer != impl_->options.renderer) impl_->vk_failure.clear();
+  impl_->options = options;
+}
+
+const FaceModel& FaceCompositor::model() const { return impl_->model; }
+
+std::string FaceCompositor::renderer_description() const {
+  if (impl_->options.renderer == RendererKind::kCpu) return "cpu";
+  if (impl_->vk_renderer) return "vulkan (" + impl_->vk_context->device_info().name + ")";
+  if (!impl_->vk_failure.empty()) return "cpu (Vulkan unavailable: " + impl_->vk_failure + ")";
+  return "vulkan (not opened yet)";
+}
+
+CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
+                                        const gpu::FaceParameters& target, const gpu::FaceParameters& output,
+                                        const AlbedoMap* albedo, const cv::Mat* target_depth) const {
+  std::string why;
+  if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
+  if (target_bgr.type() != CV_8UC3 || target_bgr.cols != camera.width || target_bgr.rows != camera.height)
+    throw Error("reenactment: the target image must be 8-bit BGR of the camera's size (" + std::to_string(camera.width) +
+                "x" + std::to_string(camera.height) + ")");
+  const Impl& im = *impl_;
+  const ReenactmentOptions& opt = im.options;
+  CompositeResult result;
+  const int w = camera.width, h = camera.height;
+
+  // --- re-render (Sec. 7.4): the target's identity, pose and lighting with the output expression.
+  auto start = Clock::now();
+  gpu::VertexState state = im.renderer.evaluate(output);
+  const int n = im.model.num_vertices();
+  const Gamma light = rendering_lighting(output.gamma);
+  const bool use_map = albedo && albedo->albedo.size() == 3 * n;
+  const bool cap = use_map && albedo->max_irradiance.minCoeff() > 0.f;
+  for (int v = 0; v < n; ++v) {
+    const auto basis = gpu::sh_basis(state.camera_normals.segment<3>(3 * v));
+    for (int c = 0; c < 3; ++c) {
+      if (use_map) state.albedo[3 * v + c] = albedo->albedo[3 * v + c];
+      float e = irradiance(light, basis, c);
+      if (cap) e = std::min(e, 1.05f * albedo->max_irradiance[c]);
+      state.colors[3 * v + c] = state.albedo[3 * v + c] * e;
+    }
+  }
+  gpu::RenderOptions ropt;
+  ropt.parts = im.drawn_parts();
+  ropt.cull_back_faces = true;
+  const gpu::GBuffer g = im.rasterize(state, output, camera, ropt);
+
+  cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
+  target_bgr.convertTo(rendered, CV_32FC3);
+  result.face_mask = cv::Mat::zeros(h, w, CV_8UC1);
+  result.mouth_mask = cv::Mat::zeros(h, w, CV_8UC1);
+  result.face_depth = cv::Mat::zeros(h, w, CV_32FC1);
+  const bool check_depth = target_depth && target_depth->type() == CV_32FC1 && target_depth->size() == target_bgr.size() &&
+                           (opt.depth_background_m > 0.f || opt.depth_occluder_m > 0.f);
+  for (int j = 0; j < h; ++j) {
+    for (int i = 0; i < w; ++i) {
+      const size_t p = static_cast<size_t>(j) * w + i;
+      if (g.triangle[p] < 0) continue;
+      if (check_depth) {
+        const float d = target_depth->at<float>(j, i), z = g.position[3 * p + 2];
+        if (std::isfinite(d) && d > 0.f &&
+            ((opt.depth_background_m > 0.f && d - z > opt.depth_background_m) ||
+             (opt.depth_occluder_m > 0.f && z - d > opt.depth_occluder_m)))
+          continue;  // the fit overshoots onto the background, or something covers the face
+      }
+      cv::Vec3f& px = rendered.at<cv::Vec3f>(j, i);
+      for (int c = 0; c < 3; ++c) px[2 - c] = 255.0f * srgb_encode(g.color[3 * p + static_cast<size_t>(c)]);
+      result.face_mask.at<uchar>(j, i) = 255;
+      result.face_depth.at<float>(j, i) = g.position[3 * p + 2];
+    }
+  }
+  result.render_ms = ms_since(start);
+  if (cv::countNonZero(result.face_mask) == 0) {
+    result.bgr = target_bgr.clone();
+    result.rendered_bgr = target_bgr.clone();
+    return result;
+  }
+  result.drawn = true;
+
+  // --- mouth (Sec. 7.3): inside the lip opening, teeth and tongue (already placed by the
+  // jawOpen / tongueOut blendshapes) darkened with depth, and a dark cavity wherever the
+  // opening shows the inside of the head or nothing at all.
+  start = Clock::now();
+  const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
+  result.mouth_opened_wider = out_jaw > expression_weight(target.delta, kJawOpenIndex) + opt.mouth_open_threshold;
+  if (opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3) {
+    std::vector<cv::Point> polygon;
+    float lip_z = 0.f;
+    bool in_front = true;
+    for (int32_t v : im.inner_lip_vertices) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+      if (!(x.z() > camera.near_plane)) in_front = false;
+      lip_z += x.z();
+      polygon.emplace_back(static_cast<int>(std::lround(camera.fx * x.x() / x.z() + camera.cx)),
+                           static_cast<int>(std::lround(camera.fy * x.y() / x.z() + camera.cy)));
+    }
+    lip_z /= static_cast<float>(im.inner_lip_vertices.size());
+    if (in_front) {
+      cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
+      cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255));
+      // Light reaching the cavity: the ambient part of the target's lighting (camera-facing normal).
+      const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+      Eigen::Vector3f cavity_rgb;
+      for (int c = 0; c < 3; ++c)
+        cavity_rgb[c] = std::max(0.f, irradiance(light, facing, c)) * kCavityAlbedo[c] * kCavityOcclusion;
+      int drawn = 0;
+      for (int j = 0; j < h; ++j) {
+        const uchar* orow = opening.ptr<uchar>(j);
+        for (int i = 0; i < w; ++i) {
+          if (!orow[i]) continue;
+          const size_t p = static_cast<size_t>(j) * w + i;
+          const int32_t v0 = g.vertices[3 * p];
+          const bool covered = g.triangle[p] >= 0;
+          const FacePart part = covered ? im.part_of(v0) : FacePart::Face;
+          const bool mouth_part = covered && (part == FacePart::UpperTeeth || part == FacePart::LowerTeeth ||
+                                              part == FacePart::Tongue);
+          const float depth_behind = covered ? g.position[3 * p + 2] - lip_z : 1.0f;
+          cv::Vec3f& px = rendered.at<cv::Vec3f>(j, i);
+          if (mouth_part) {
+            const float occlusion =
+                part == FacePart::Tongue
+                    ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
+                                 kMaxTongueOcclusion)
+                    : std::clamp(1.0f - depth_behind / kTeethOcclusionDepthM, kMinTeethOcclusion, 1.0f);
+            for (int c = 0; c < 3; ++c)
+              px[2 - c] = 255.0f * srgb_encode(occlusion * g.color[3 * p + static_cast<size_t>(c)]);
+          } else if (!covered || depth_behind > kCavityDepthM) {
+            for (int c = 0; c < 3; ++c) px[2 - c] = 255.0f * srgb_encode(cavity_rgb[c]);
+          } else {
+            continue;  // the lips themselves
+          }
+          result.mouth_mask.at<uchar>(j, i) = 255;
+          result.face_mask.at<uchar>(j, i) = 255;
+          result.face_depth.at<float>(j, i) = 0.0f;
+          ++drawn;
+        }
+      }
+      result.mouth_drawn = drawn > 0;
+    }
+  }
+  result.mouth_ms = ms_since(start);
+
+  // --- composite (Sec. 7.4.2): the coverage mask, eroded so the rendered silhouette's
+  // anti-aliasing-free edge never shows, feathered, then the Laplacian blend.
+  start = Clock::now();
+  cv::Mat mask;
+  result.face_mask.convertTo(mask, CV_32FC1, 1.0 / 255.0);
+  if (opt.mask_erosion_px > 0.f) {
+    const int k = 2 * static_cast<int>(std::ceil(opt.mask_erosion_px)) + 1;
+    cv::erode(mask, mask, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k)));
+  }
+  if (opt.mask_feather_px > 0.f) cv::GaussianBlur(mask, mask, cv::Size(0, 0), opt.mask_feather_px);
+  // Pixels outside the rendered coverage carry the target in `rendered`, so the feathered
+  // mask may extend there without effect.
+  LaplacianBlendOptions bopt;
+  bopt.levels = opt.blend_levels;
+  result.bgr = LaplacianBlend(target_bgr, rendered, mask, bopt);
+  rendered.convertTo(result.rendered_bgr, CV_8UC3);
+  result.composite_ms = ms_since(start);
+  return result;
+}
+
+void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
+                                   const gpu::FaceParameters& params, AlbedoMap* map, const cv::Mat* frame_depth) const {
+  if (!map) return;
+  std::string why;
+  if (!camera.IsValid(&why)) throw Error("albedo observation: invalid camera: " + why);
+  if (frame_bgr.type() != CV_8UC3 || frame_bgr.cols != camera.width || frame_bgr.rows != camera.height)
+    throw Error("albedo observation: the frame must be 8-bit BGR of the camera's size");
+  const Impl& im = *impl_;
+  const int n = im.model.num_vertices();
+  const gpu::VertexState state = im.renderer.evaluate(params);
+  if (map->albedo.size() != 3 * n || map->weight.size() != n) {
+    map->albedo = state.albedo;
+    map->weight = Eigen::VectorXf::Zero(n);
+  }
+  gpu::RenderOptions ropt;
+  ropt.parts = im.drawn_parts();
+  const gpu::GBuffer g = im.rasterize(state, params, camera, ropt);
+  constexpr float kMaxWeight = 12.0f;      // later frames keep refining, never frozen
+  constexpr float kMinCos = 0.5f;          // grazing views are blurred, badly lit, near silhouettes
+  constexpr float kDepthToleranceM = 0.0025f;
+  // Skin, lips and brows differ from the model's albedo mostly in brightness; a large change of
+  // chromaticity is a wrong observation (a background pixel at a silhouette, noise, a highlight),
+  // so the observed chromaticity is pulled back to within this distance of the model's.
+  constexpr float kMaxChromaShift = 0.1f;
+  constexpr float kMinBrightnessRatio = 0.15f, kMaxBrightnessRatio = 1.8f;
+  const Eigen::VectorXf model_albedo = state.albedo;
+  const Gamma light = rendering_lighting(params.gamma);
+  Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
+  for (int v = 0; v < n; ++v) {
+    const FacePart part = im.part_of(v);
+    if (!(ropt.parts & part_bit(part))) continue;
+    const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+    if (!(x.z() > camera.near_plane)) continue;
+    const int i = static_cast<int>(std::lround(camera.fx * x.x() / x.z() + camera.cx));
+    const int j = static_cast<int>(std::lround(camera.fy * x.y() / x.z() + camera.cy));
+    if (i < 1 || j < 1 || i >= camera.width - 1 || j >= camera.height - 1) continue;
+    if (!g.covered(i, j) || std::abs(g.depth(i, j) - x.z()) > kDepthToleranceM) continue;  // hidden
+    if (frame_depth && frame_depth->type() == CV_32FC1 && frame_depth->size() == frame_bgr.size()) {
+      // With a depth map, only pixels whose measured depth confirms this surface: sensor holes
+      // sit at silhouettes, where a misfit model samples the background.
+      const float d = frame_depth->at<float>(j, i);
+      if (!std::isfinite(d) || !(d > 0.f) || std::abs(d - x.z()) > 0.015f) continue;
+    }
+    const Eigen::Vector3f nrm = state.camera_normals.segment<3>(3 * v);
+    const float cos_view = -nrm.dot(x.normalized());
+    if (cos_view < kMinCos) continue;
+    const auto basis = gpu::sh_basis(nrm);
+    // A 3x3 average (in linear light) of the pixels whose surface is this vertex's, against noise.
+    Eigen::Vector3f linear = Eigen::Vector3f::Zero();
+    int samples = 0;
+    for (int dj = -1; dj <= 1; ++dj)
+      for (int di = -1; di <= 1; ++di) {
+        if (!g.covered(i + di, j + dj) || std::abs(g.depth(i + di, j + dj) - x.z()) > 2.0f * kDepthToleranceM) continue;
+        const cv::Vec3b px = frame_bgr.at<cv::Vec3b>(j + dj, i + di);
+        for (int c = 0; c < 3; ++c) linear[c] += srgb_decode(px[2 - c] / 255.0f);
+        ++samples;
+      }
+    if (samples < 5) continue;
+    linear /= static_cast<float>(samples);
+    // Only well-lit vertices: where the fitted light is weak (below 40 % of its ambient part),
+    // dividing by it amplifies every error of the lighting fit.
+    bool ok = true;
+    Eigen::Vector3f observed;
+    for (int c = 0; c < 3; ++c) {
+      const float e = irradiance(light, basis, c);
+      const float ambient = light[static_cast<size_t>(c * 9)] * basis[0];
+      if (!(e > 0.05f) || !(e > 0.4f * ambient)) ok = false;
+      observed[c] = std::clamp(linear[c] / std::max(e, 0.05f), 0.0f, 1.0f);
+    }
+    if (!ok) continue;
+    for (int c = 0; c < 3; ++c) brightest[c] = std::max(brightest[c], irradiance(light, basis, c));
+    // Brightness may differ from the model's by the range real faces show against a skin mean
+    // (brows and lips darker, not much brighter).
+    {
+      const float prior_l = model_albedo.segment<3>(3 * v).sum(), obs_l = observed.sum();
+      if (prior_l > 1e-4f && obs_l > 1e-4f) {
+        const float ratio = std::clamp(obs_l / prior_l, kMinBrightnessRatio, kMaxBrightnessRatio);
+        observed *= ratio * prior_l / obs_l;
+        observed = observed.cwiseMin(1.0f);
+      }
+    }
+    const Eigen::Vector3f prior = model_albedo.segment<3>(3 * v);
+    const float obs_sum = observed.sum(), prior_sum = prior.sum();
+    if (obs_sum > 1e-4f && prior_sum > 1e-4f) {
+      const Eigen::Vector3f obs_chroma = observed / obs_sum, prior_chroma = prior / prior_sum;
+      const Eigen::Vector3f shift = obs_chroma - prior_chroma;
+      const float len = shift.norm();
+      if (len > kMaxChromaShift) observed = obs_sum * (prior_chroma + shift * (kMaxChromaShift / len));
+      observed = observed.cwiseMax(0.0f).cwiseMin(1.0f);
+    }
+    const float wv = cos_view * cos_view;
+    const float wold = std::min(map->weight[v], kMaxWeight);
+    map->albedo.segment<3>(3 * v) = (map->albedo.segment<3>(3 * v) * wold + observed * wv) / (wold + wv);
+    map->weight[v] = wold + wv;
+  }
+  if (brightest.minCoeff() > 0.f) map->max_irradiance = brightest;
+  im.FillUnobserved(model_albedo, map);
+}
+
+}  // namespace face_reenact::reenact

@@ -1,0 +1,155 @@
+#include "face_reenact/reenact/laplacian_blend.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include <opencv2/imgproc.hpp>
+
+#include "face_reenact/common/error.h"
+
+namespace face_reenact::reenact {
+
+bool LaplacianBlendOptions::IsValid(std::string* why) const {
+  if (levels < 1 || levels > 10) {
+    if (why) *why = "Laplacian blend: levels must be in [1, 10]";
+    return false;
+  }
+  return true;
+}
+
+int blend_support_radius(int levels) {
+  // pyrDown and pyrUp use a 5-tap kernel (radius 2 at the finer level's resolution): going
+  // from level l-1 to l widens the mask's footprint by 2^l full-size pixels, coming back up the
+  // blended band by as much again: 2 * (2^L - 2) in all, rounded up to 2^(L+1).
+  return levels <= 1 ? 0 : (1 << (levels + 1));
+}
+
+namespace {
+
+cv::Mat to_float3(const cv::Mat& m) {
+  cv::Mat f;
+  if (m.type() == CV_32FC3) return m;
+  m.convertTo(f, CV_32FC3);
+  return f;
+}
+
+cv::Mat to_float_mask(const cv::Mat& m) {
+  cv::Mat f;
+  if (m.type() == CV_32FC1) {
+    f = m.clone();
+  } else {
+    m.convertTo(f, CV_32FC1, 1.0 / 255.0);
+  }
+  cv::patchNaNs(f, 0.0);
+  cv::min(f, 1.0, f);
+  cv::max(f, 0.0, f);
+  return f;
+}
+
+}  // namespace
+
+cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv::Mat& mask,
+                       const LaplacianBlendOptions& options, LaplacianBlendSummary* summary) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error(why);
+  if (target.empty()) throw Error("Laplacian blend: empty target image");
+  if (target.type() != CV_8UC3 && target.type() != CV_32FC3)
+    throw Error("Laplacian blend: target must be CV_8UC3 or CV_32FC3");
+  if (rendered.size() != target.size() || (rendered.type() != CV_8UC3 && rendered.type() != CV_32FC3))
+    throw Error("Laplacian blend: rendered image must be CV_8UC3 or CV_32FC3 of the target's size");
+  if (mask.size() != target.size() || (mask.type() != CV_8UC1 && mask.type() != CV_32FC1))
+    throw Error("Laplacian blend: mask must be CV_8UC1 or CV_32FC1 of the target's size");
+
+  LaplacianBlendSummary local;
+  if (!summary) summary = &local;
+  *summary = LaplacianBlendSummary{};
+
+  const cv::Mat mask_f = to_float_mask(mask);
+  cv::Mat nonzero = mask_f > 0.0f;
+  const cv::Rect box = cv::boundingRect(nonzero);
+  if (box.empty()) return target.clone();
+
+  const int radius = blend_support_radius(options.levels);
+  const int pad = radius + (1 << options.levels);
+  const cv::Rect image_rect(0, 0, target.cols, target.rows);
+  const cv::Rect roi = cv::Rect(box.x - pad, box.y - pad, box.width + 2 * pad, box.height + 2 * pad) & image_rect;
+
+  const cv::Mat t = to_float3(target(roi));
+  const cv::Mat r = to_float3(rendered(roi));
+  cv::Mat diff = r - t;
+  cv::Mat m = mask_f(roi).clone();
+
+  int levels = 1;
+  while (levels < options.levels && std::min(roi.width, roi.height) >> levels >= 2) ++levels;
+  summary->levels_used = levels;
+
+  std::vector<cv::Mat> gd(static_cast<size_t>(levels)), gm(static_cast<size_t>(levels));
+  gd[0] = diff;
+  gm[0] = m;
+  for (int l = 1; l < levels; ++l) {
+    cv::pyrDown(gd[static_cast<size_t>(l - 1)], gd[static_cast<size_t>(l)]);
+    cv::pyrDown(gm[static_cast<size_t>(l - 1)], gm[static_cast<size_t>(l)]);
+  }
+  // Band-pass levels of the difference, each weighted by the mask at its scale, summed back.
+  cv::Mat blended;
+  for (int l = levels - 1; l >= 0; --l) {
+    const cv::Mat& g = gd[static_cast<size_t>(l)];
+    cv::Mat band;
+    if (l == levels - 1) {
+      band = g.clone();
+    } else {
+      cv::Mat up;
+      cv::pyrUp(gd[static_cast<size_t>(l + 1)], up, g.size());
+      band = g - up;
+    }
+    cv::Mat m3;
+    cv::cvtColor(gm[static_cast<size_t>(l)], m3, cv::COLOR_GRAY2BGR);
+    cv::Mat weighted = band.mul(m3);
+    if (blended.empty()) {
+      blended = weighted;
+    } else {
+      cv::Mat up;
+      cv::pyrUp(blended, up, g.size());
+      blended = up + weighted;
+    }
+  }
+
+  // The blend region: within `radius` of the mask, faded out over its outer half (weight 1 up
+  // to radius / 2, 0 beyond radius + 1).
+  cv::Mat outside = nonzero(roi) == 0;
+  cv::Mat dist;
+  cv::distanceTransform(outside, dist, cv::DIST_L2, cv::DIST_MASK_PRECISE);
+  const float inner = 0.5f * static_cast<float>(radius);
+  const float outer = static_cast<float>(radius) + 1.0f;
+  cv::Mat window = (outer - dist) / (outer - inner);
+  cv::min(window, 1.0, window);
+  cv::max(window, 0.0, window);
+
+  cv::Mat out = target.clone();
+  cv::Rect region_box;
+  bool any = false;
+  for (int y = 0; y < roi.height; ++y) {
+    const float* wrow = window.ptr<float>(y);
+    const cv::Vec3f* trow = t.ptr<cv::Vec3f>(y);
+    const cv::Vec3f* brow = blended.ptr<cv::Vec3f>(y);
+    for (int x = 0; x < roi.width; ++x) {
+      const float w = wrow[x];
+      if (w <= 0.0f) continue;
+      const cv::Vec3f v = trow[x] + w * brow[x];
+      if (out.type() == CV_8UC3) {
+        out.at<cv::Vec3b>(roi.y + y, roi.x + x) =
+            cv::Vec3b(cv::saturate_cast<uchar>(v[0]), cv::saturate_cast<uchar>(v[1]), cv::saturate_cast<uchar>(v[2]));
+      } else {
+        out.at<cv::Vec3f>(roi.y + y, roi.x + x) = v;
+      }
+      const cv::Rect px(roi.x + x, roi.y + y, 1, 1);
+      region_box = any ? (region_box | px) : px;
+      any = true;
+    }
+  }
+  summary->blend_region = region_box;
+  return out;
+}
+
+}  // namespace face_reenact::reenact

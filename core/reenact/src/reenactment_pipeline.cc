@@ -1,0 +1,304 @@
+#include "face_reenact/reenact/reenactment_pipeline.h"
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/reenact/face_compositor.h"
+#include "face_reenact/reenact/transfer.h"
+
+namespace face_reenact::reenact {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+// The albedo map learns from the first tracked frames densely, then keeps refining slowly (a
+// render per observation).
+constexpr int kDenseAlbedoFrames = 8;
+constexpr int kAlbedoRefreshInterval = 15;
+constexpr int kLandmarkResetFrames = 3;
+
+TrackingStatus coarse_status(tracker::TrackingStatus s) {
+  switch (s) {
+    case tracker::TrackingStatus::kCalibrating: return TrackingStatus::kCalibrating;
+    case tracker::TrackingStatus::kCalibrated:
+    case tracker::TrackingStatus::kTracking:
+    case tracker::TrackingStatus::kRecovered: return TrackingStatus::kTracking;
+    case tracker::TrackingStatus::kLost:
+    case tracker::TrackingStatus::kNoFace:
+    case tracker::TrackingStatus::kBadInput: return TrackingStatus::kLost;
+  }
+  return TrackingStatus::kLost;
+}
+
+void add_times(StageTimes* sum, const StageTimes& t) {
+  sum->track_ms += t.track_ms;
+  sum->transfer_ms += t.transfer_ms;
+  sum->render_ms += t.render_ms;
+  sum->mouth_ms += t.mouth_ms;
+  sum->composite_ms += t.composite_ms;
+  sum->total_ms += t.total_ms;
+}
+
+}  // namespace
+
+bool ReenactmentOptions::IsValid(std::string* why) const {
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
+  if (mode != ReenactMode::kReenact && mode != ReenactMode::kPassThrough && mode != ReenactMode::kOff)
+    return fail("unknown reenactment mode");
+  if (renderer != RendererKind::kCpu && renderer != RendererKind::kVulkan) return fail("unknown renderer kind");
+  if (!std::isfinite(mouth_open_threshold) || mouth_open_threshold < 0.f || mouth_open_threshold > 1.f)
+    return fail("mouth_open_threshold must be in [0, 1]");
+  if (blend_levels < 1 || blend_levels > 10) return fail("blend_levels must be in [1, 10]");
+  if (!std::isfinite(mask_erosion_px) || mask_erosion_px < 0.f || mask_erosion_px > 50.f)
+    return fail("mask_erosion_px must be in [0, 50]");
+  if (!std::isfinite(mask_feather_px) || mask_feather_px < 0.f || mask_feather_px > 50.f)
+    return fail("mask_feather_px must be in [0, 50]");
+  if (!std::isfinite(depth_background_m) || depth_background_m < 0.f || !std::isfinite(depth_occluder_m) ||
+      depth_occluder_m < 0.f)
+    return fail("depth_background_m and depth_occluder_m must be finite and >= 0");
+  std::string sub;
+  if (!use_ground_truth_target) {
+    if (!tracker.IsValid(&sub)) return fail("tracker: " + sub);
+    if (!input.IsValid(&sub)) return fail("input: " + sub);
+  }
+  return true;
+}
+
+std::string PipelineSummary::BriefReport() const {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  s.precision(1);
+  s << frames << " frames (" << reenacted_frames << " reenacted, " << calibrating_frames << " calibrating, "
+    << lost_frames << " lost); mean ms/frame: track " << mean_times.track_ms << ", transfer " << mean_times.transfer_ms
+    << ", render " << mean_times.render_ms << ", mouth " << mean_times.mouth_ms << ", composite "
+    << mean_times.composite_ms << ", total " << mean_times.total_ms;
+  if (!renderer.empty()) s << "; renderer " << renderer;
+  return s.str();
+}
+
+struct ReenactmentPipeline::Impl {
+  const FaceModel& model;
+  ReenactmentOptions options;
+  FaceCompositor compositor;
+  std::unique_ptr<tracker::FaceTracker> tracker;
+  std::unique_ptr<tracker::RgbdInput> input;
+  TrackingStatus status = TrackingStatus::kCalibrating;
+  gpu::FaceParameters neutral;
+  AlbedoMap albedo;
+  int albedo_observations = 0;
+  int tracked_frames = 0;
+  int frames_without_face = 0;
+  PipelineSummary summary;
+  StageTimes time_sums;
+
+  Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), options(o), compositor(m, o) {
+    neutral = gpu::frontal_pose(0.6f);
+    MakeTracker();
+  }
+
+  void MakeTracker() {
+    tracker.reset();
+    input.reset();
+    if (options.use_ground_truth_target) return;
+    tracker = std::make_unique<tracker::FaceTracker>(model, options.tracker);
+    input = std::make_unique<tracker::RgbdInput>(options.input);
+  }
+
+  void ForgetActor() {
+    albedo = AlbedoMap{};
+    albedo_observations = 0;
+    tracked_frames = 0;
+  }
+};
+
+ReenactmentPipeline::ReenactmentPipeline(const FaceModel& model, const ReenactmentOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error("reenactment options: " + why);
+  impl_ = std::make_unique<Impl>(model, options);
+}
+
+ReenactmentPipeline::~ReenactmentPipeline() = default;
+
+void ReenactmentPipeline::RequestCalibration() { calibration_requested_.store(true); }
+
+void ReenactmentPipeline::SetOptions(const ReenactmentOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error("reenactment options: " + why);
+  Impl& im = *impl_;
+  const bool tracker_changed = options.use_ground_truth_target != im.options.use_ground_truth_target ||
+                               options.input.landmark_source != im.options.input.landmark_source ||
+                               options.input.use_depth != im.options.input.use_depth ||
+                               options.tracker.calibration_frames != im.options.tracker.calibration_frames;
+  im.compositor.SetOptions(options);
+  im.options = options;
+  if (tracker_changed) {
+    im.MakeTracker();
+    im.ForgetActor();
+    im.status = TrackingStatus::kCalibrating;
+  }
+}
+
+const ReenactmentOptions& ReenactmentPipeline::options() const { return impl_->options; }
+TrackingStatus ReenactmentPipeline::status() const { return impl_->status; }
+const gpu::FaceParameters& ReenactmentPipeline::target_neutral() const { return impl_->neutral; }
+
+PipelineSummary ReenactmentPipeline::summary() const {
+  PipelineSummary s = impl_->summary;
+  s.renderer = impl_->compositor.renderer_description();
+  if (s.frames > 0) {
+    const double n = s.frames;
+    const StageTimes& t = impl_->time_sums;
+    s.mean_times = StageTimes{t.track_ms / n, t.transfer_ms / n, t.render_ms / n,
+                              t.mouth_ms / n, t.composite_ms / n, t.total_ms / n};
+  }
+  return s;
+}
+
+ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, const SourceExpression* source) {
+  Impl& im = *impl_;
+  const auto start = Clock::now();
+  std::string why;
+  if (source && !source->IsValid(&why)) throw Error(why);
+
+  ReenactedFrame out;
+  out.frame_index = target.index;
+  auto finish = [&](ReenactedFrame& f) -> ReenactedFrame {
+    f.times.total_ms = ms_since(start);
+    im.status = f.status;
+    ++im.summary.frames;
+    if (f.reenacted) ++im.summary.reenacted_frames;
+    if (f.status == TrackingStatus::kLost) ++im.summary.lost_frames;
+    if (f.status == TrackingStatus::kCalibrating) ++im.summary.calibrating_frames;
+    add_times(&im.time_sums, f.times);
+    return std::move(f);
+  };
+  auto pass_through = [&](TrackingStatus status, const std::string& message) -> ReenactedFrame {
+    out.status = status;
+    out.message = message;
+    out.reenacted = false;
+    return finish(out);
+  };
+
+  // The output always has the input's size and type CV_8UC3, whatever arrives.
+  const cv::Mat& color = target.color;
+  if (color.empty()) {
+    const int w = std::max(1, target.camera.width), h = std::max(1, target.camera.height);
+    out.bgr = cv::Mat::zeros(h, w, CV_8UC3);
+    return pass_through(TrackingStatus::kLost, "bad input: the target frame has no colour image");
+  }
+  if (color.type() == CV_8UC3) {
+    out.bgr = color.clone();
+  } else if (color.type() == CV_8UC1) {
+    cv::cvtColor(color, out.bgr, cv::COLOR_GRAY2BGR);
+  } else if (color.type() == CV_8UC4) {
+    cv::cvtColor(color, out.bgr, cv::COLOR_BGRA2BGR);
+  } else {
+    out.bgr = cv::Mat::zeros(color.rows, color.cols, CV_8UC3);
+    return pass_through(TrackingStatus::kLost, "bad input: the target colour image is not 8-bit");
+  }
+  if (color.type() != CV_8UC3)
+    return pass_through(TrackingStatus::kLost, "bad input: the target colour image is not 3-channel BGR");
+  if (color.cols != target.camera.width || color.rows != target.camera.height)
+    return pass_through(TrackingStatus::kLost, "bad input: the colour image does not match the camera size");
+  if (!target.depth.empty() && target.depth.type() == CV_32FC1 && target.depth.size() == color.size())
+    out.depth = target.depth.clone();
+
+  if (calibration_requested_.exchange(false)) {
+    if (im.tracker) im.tracker->RequestCalibration();
+    im.ForgetActor();
+  }
+
+  // --- track the target.
+  auto t0 = Clock::now();
+  gpu::FaceParameters target_params;
+  if (im.options.use_ground_truth_target) {
+    if (!target.ground_truth.params) {
+      out.times.track_ms = ms_since(t0);
+      return pass_through(TrackingStatus::kLost, "no ground-truth parameters in the target frame");
+    }
+    target_params = *target.ground_truth.params;
+    im.neutral = target_params;
+    im.neutral.delta = Eigen::VectorXf::Zero(im.model.num_expression());
+    out.status = TrackingStatus::kTracking;
+  } else {
+    tracker::RgbdInputInfo info;
+    tracker::InputFrame frame;
+    try {
+      frame = im.input->Convert(target, &info);
+    } catch (const Error& e) {
+      out.times.track_ms = ms_since(t0);
+      return pass_through(TrackingStatus::kLost, std::string("bad input: ") + e.what());
+    }
+    out.tracked = im.tracker->Track(frame, info.landmarks_ms);
+    const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
+    im.input->SetTrackedPose(out.tracked.params, has_fit);
+    // A landmark track that keeps finding nothing is restarted from a fresh detection (measured:
+    // once lost, the landmark tracker could stay empty on frames where a fresh one finds the face).
+    im.frames_without_face = out.tracked.status == tracker::TrackingStatus::kNoFace ? im.frames_without_face + 1 : 0;
+    if (im.frames_without_face >= kLandmarkResetFrames) {
+      im.input->Reset();
+      im.frames_without_face = 0;
+    }
+    out.status = coarse_status(out.tracked.status);
+    if (im.tracker->calibrated()) im.neutral = im.tracker->neutral();
+    if (out.status == TrackingStatus::kTracking && !has_fit) out.status = TrackingStatus::kLost;
+    target_params = out.tracked.params;
+  }
+  out.times.track_ms = ms_since(t0);
+  if (out.status != TrackingStatus::kTracking) {
+    return pass_through(out.status, out.tracked.message.empty() ? std::string(tracking_status_name(out.status))
+                                                                : out.tracked.message);
+  }
+  out.target_params = target_params;
+  if (im.options.mode == ReenactMode::kOff) return pass_through(out.status, "reenactment is off");
+
+  // --- the target's appearance: its own per-vertex albedo, learned from its frames.
+  ++im.tracked_frames;
+  try {
+    if (im.albedo_observations < kDenseAlbedoFrames || im.tracked_frames % kAlbedoRefreshInterval == 0) {
+      const auto ta = Clock::now();
+      im.compositor.ObserveAlbedo(out.bgr, target.camera, target_params, &im.albedo,
+                                  out.depth.empty() ? nullptr : &out.depth);
+      ++im.albedo_observations;
+      out.times.render_ms += ms_since(ta);
+    }
+
+    // --- transfer (Eq. 15).
+    t0 = Clock::now();
+    const bool transfer = im.options.mode == ReenactMode::kReenact && source != nullptr;
+    out.output_params = transfer ? TransferParameters(target_params, im.neutral, *source) : target_params;
+    out.times.transfer_ms = ms_since(t0);
+
+    // --- re-render, mouth, composite.
+    const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
+    CompositeResult c = im.compositor.Compose(out.bgr, target.camera, target_params, out.output_params, &im.albedo,
+                                              input_depth.empty() ? nullptr : &input_depth);
+    out.times.render_ms += c.render_ms;
+    out.times.mouth_ms = c.mouth_ms;
+    out.times.composite_ms = c.composite_ms;
+    if (!c.drawn) return pass_through(TrackingStatus::kTracking, "the tracked face is outside the frame");
+    out.bgr = c.bgr;
+    out.face_mask = c.face_mask;
+    out.rendered = c.rendered_bgr;
+    if (!out.depth.empty()) {
+      c.face_depth.copyTo(out.depth, c.face_mask);
+    }
+    out.mouth_drawn = c.mouth_drawn;
+    out.reenacted = true;
+  } catch (const Error& e) {
+    // Non-finite or out-of-range tracked parameters: show the input, say why.
+    return pass_through(TrackingStatus::kLost, std::string("reenactment failed: ") + e.what());
+  }
+  return finish(out);
+}
+
+}  // namespace face_reenact::reenact

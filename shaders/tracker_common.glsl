@@ -1,0 +1,72 @@
+// Shared declarations of the tracker's compute passes (docs/tracker.md, "Vulkan solver").
+// Everything here mirrors core/tracker/src/energy.cc and math_internal.cc in float.
+
+// Per-linearisation constants written by the host (vulkan_solver.cc: TrackParams mirrors it).
+struct TrackParams {
+  uint num_pixels;       // P pixel items (8 rows each: 3 point, 2 plane, 3 colour)
+  uint num_landmarks;    // L landmark items (2 rows each)
+  uint num_regularizer;  // R regulariser rows
+  uint n;                // unknowns (columns of J)
+  uint k_id, k_alb, k_exp;                   // solved coefficients per block
+  uint o_id, o_alb, o_exp, o_gam, o_rot, o_t;  // column offsets of the blocks
+  uint model_id, model_alb, model_exp;       // the model's full coefficient counts
+  uint num_vertices;
+  uint width;              // of the pyramid level (pixel index = j * width + i)
+  uint regularize_shared;  // identity/albedo prior rows present
+  uint rows;               // column stride of the column-major J: (8 P + 2 L + R) rounded up to 4
+  float s_point, s_plane, s_col, s_lan, s_reg;  // residual pre-scales (energy.cc)
+  float fx, fy, cx, cy;
+  float inv_sigma_exp;
+  float r0[9];  // rotation at the linearisation point, row-major (freezes model normals)
+  float pad1;
+};
+
+// A pixel that carries at least one term (written by tracker_classify.comp).
+const uint kPixelItemWords = 8;  // pixel, flags, v0, v1, v2, b0, b1, b2
+const uint kFlagPoint = 1u, kFlagPlane = 2u, kFlagColor = 4u;
+const uint kRowsPerPixel = 8u;
+
+// The largest number of unknowns the GPU passes support (one PCG element per invocation, and
+// tracker_jtj.comp needs n + 1 invocations).
+const uint kMaxUnknowns = 255u;
+
+mat3 rows3(vec3 a, vec3 b, vec3 c) { return transpose(mat3(a, b, c)); }
+
+// R = Rz(rz) Ry(ry) Rx(rx) and dR / d(rx, ry, rz) (math_internal.cc).
+void rotation_with_derivatives(vec3 e, out mat3 r, out mat3 d[3]) {
+  const float cx = cos(e.x), sx = sin(e.x), cy = cos(e.y), sy = sin(e.y), cz = cos(e.z), sz = sin(e.z);
+  const mat3 rx = rows3(vec3(1, 0, 0), vec3(0, cx, -sx), vec3(0, sx, cx));
+  const mat3 ry = rows3(vec3(cy, 0, sy), vec3(0, 1, 0), vec3(-sy, 0, cy));
+  const mat3 rz = rows3(vec3(cz, -sz, 0), vec3(sz, cz, 0), vec3(0, 0, 1));
+  const mat3 drx = rows3(vec3(0, 0, 0), vec3(0, -sx, -cx), vec3(0, cx, -sx));
+  const mat3 dry = rows3(vec3(-sy, 0, cy), vec3(0, 0, 0), vec3(-cy, 0, -sy));
+  const mat3 drz = rows3(vec3(-sz, -cz, 0), vec3(cz, -sz, 0), vec3(0, 0, 0));
+  r = rz * ry * rx;
+  d[0] = rz * ry * drx;
+  d[1] = rz * dry * rx;
+  d[2] = drz * ry * rx;
+}
+
+void sh_basis9(vec3 n, out float y[9]) {
+  y[0] = 0.282095;
+  y[1] = 0.488603 * n.y;
+  y[2] = 0.488603 * n.z;
+  y[3] = 0.488603 * n.x;
+  y[4] = 1.092548 * n.x * n.y;
+  y[5] = 1.092548 * n.y * n.z;
+  y[6] = 0.315392 * (3.0 * n.z * n.z - 1.0);
+  y[7] = 1.092548 * n.x * n.z;
+  y[8] = 0.546274 * (n.x * n.x - n.y * n.y);
+}
+
+void sh_gradient9(vec3 n, out vec3 g[9]) {
+  g[0] = vec3(0.0);
+  g[1] = vec3(0.0, 0.488603, 0.0);
+  g[2] = vec3(0.0, 0.0, 0.488603);
+  g[3] = vec3(0.488603, 0.0, 0.0);
+  g[4] = vec3(1.092548 * n.y, 1.092548 * n.x, 0.0);
+  g[5] = vec3(0.0, 1.092548 * n.z, 1.092548 * n.y);
+  g[6] = vec3(0.0, 0.0, 6.0 * 0.315392 * n.z);
+  g[7] = vec3(1.092548 * n.z, 0.0, 1.092548 * n.x);
+  g[8] = vec3(2.0 * 0.546274 * n.x, -2.0 * 0.546274 * n.y, 0.0);
+}

@@ -1,0 +1,550 @@
+// The live session behind the OBS source and the virtual webcam (core/live): inputs, statuses,
+// the UDP expression source, failure and recovery of inputs, and clean shutdown.
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/resource.h>
+#include <sys/socket.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+#include <thread>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/live/input_spec.h"
+#include "face_reenact/live/live_session.h"
+#include "face_reenact/stream/sender.h"
+#include "face_reenact/stream/stream_key.h"
+#include "face_reenact/stream/stream_state.h"
+#include "face_reenact/stream/udp.h"
+#include "live_test_support.h"
+
+namespace face_reenact::live {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using Clock = std::chrono::steady_clock;
+
+// Polls `predicate` on the session's status until true or `timeout`; returns the last status.
+template <typename Pred>
+LiveStatus wait_status(const LiveSession& session, std::chrono::milliseconds timeout, Pred predicate) {
+  Clock::time_point end = Clock::now() + timeout;
+  LiveStatus s = session.status();
+  while (!predicate(s) && Clock::now() < end) {
+    std::this_thread::sleep_for(20ms);
+    s = session.status();
+  }
+  return s;
+}
+
+#define REQUIRE_RECORDING(var)                                                  \
+  std::string var;                                                              \
+  {                                                                             \
+    std::string why_;                                                           \
+    var = test::test_recording(&why_);                                          \
+    if (var.empty()) GTEST_SKIP() << "no test recording: " << why_;             \
+  }
+
+uint16_t free_udp_port() {
+  int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  ::close(fd);
+  return ntohs(a.sin_port);
+}
+
+TEST(InputSpecTest, TargetsAreCamerasOpenNiOrRecordings) {
+  EXPECT_EQ(parse_target_spec("/dev/video2", "t").device_path, "/dev/video2");
+  EXPECT_EQ(parse_target_spec("video3", "t").device_path, "/dev/video3");
+  EXPECT_EQ(parse_target_spec(" 4 ", "t").device_path, "/dev/video4");
+  EXPECT_EQ(parse_target_spec("4", "t").kind, InputKind::kCamera);
+  EXPECT_EQ(parse_target_spec("openni", "t").kind, InputKind::kOpenNi);
+  InputSpec oni = parse_target_spec("openni:/data/room.oni", "t");
+  EXPECT_EQ(oni.kind, InputKind::kOpenNi);
+  EXPECT_EQ(oni.device_path, "/data/room.oni");
+  InputSpec rec = parse_target_spec("/data/actor", "t");
+  EXPECT_EQ(rec.kind, InputKind::kRecording);
+  EXPECT_EQ(rec.path, "/data/actor");
+  EXPECT_EQ(parse_target_spec("/dev/video2x", "t").kind, InputKind::kRecording);  // not a camera node name
+  EXPECT_THROW(parse_target_spec("", "--target"), Error);
+  EXPECT_THROW(parse_target_spec("none", "--target"), Error);
+  try {
+    parse_target_spec("udp://9000", "--target");
+    FAIL() << "udp target accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("cannot be the target"), std::string::npos) << e.what();
+  }
+}
+
+TEST(InputSpecTest, SourcesAddUdpAndNone) {
+  EXPECT_EQ(parse_source_spec("", "s").kind, InputKind::kNone);
+  EXPECT_EQ(parse_source_spec("none", "s").kind, InputKind::kNone);
+  InputSpec udp = parse_source_spec("udp://9000", "s");
+  EXPECT_EQ(udp.kind, InputKind::kUdp);
+  EXPECT_EQ(udp.listen, "9000");
+  EXPECT_EQ(parse_source_spec("udp://127.0.0.1:9000", "s").listen, "127.0.0.1:9000");
+  EXPECT_THROW(parse_source_spec("udp://", "--source"), Error);
+  EXPECT_EQ(parse_source_spec("/dev/video1", "s").kind, InputKind::kCamera);
+  EXPECT_EQ(parse_source_spec("actor.mp4", "s").kind, InputKind::kRecording);
+}
+
+TEST(LiveOptionsTest, ValidationNamesTheProblem) {
+  LiveSession::Options o;
+  std::string why;
+  EXPECT_FALSE(o.IsValid(&why));  // no target
+  o.target = "/data/rec";
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+  o.source = "udp://9000";
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("key file"), std::string::npos) << why;
+  o.key_file = "/k.key";
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+  o.source = "udp://notaport";
+  EXPECT_FALSE(o.IsValid(&why));
+  o.source = "none";
+  o.camera_width = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+  o.camera_width = 640;
+  o.thread_name = "a-thread-name-that-is-too-long";
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_THROW(LiveSession bad(o), Error);
+  OutputMode mode;
+  EXPECT_TRUE(parse_output_mode("pass-through", &mode));
+  EXPECT_EQ(mode, OutputMode::kPassThrough);
+  EXPECT_TRUE(parse_output_mode("raw", &mode));
+  EXPECT_EQ(mode, OutputMode::kRaw);
+  EXPECT_FALSE(parse_output_mode("Reenact!", &mode));
+}
+
+TEST(LiveOptionsTest, CheckInputsReportsMissingFilesUpFront) {
+  LiveSession::Options o;
+  o.target = "/nonexistent/recording";
+  o.mode = OutputMode::kRaw;
+  try {
+    LiveSession::CheckInputs(o);
+    FAIL() << "missing recording accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no such file"), std::string::npos) << e.what();
+  }
+  REQUIRE_RECORDING(dir);
+  o.target = dir;
+  EXPECT_NO_THROW(LiveSession::CheckInputs(o));
+  o.source = "udp://9000";
+  o.key_file = "/nonexistent/stream.key";
+  EXPECT_THROW(LiveSession::CheckInputs(o), Error);
+  o.source = "none";
+  o.mode = OutputMode::kReenact;
+  o.model_path = "/nonexistent/model.frm";
+  EXPECT_THROW(LiveSession::CheckInputs(o), Error);
+  o.target = "/dev/video63";  // cameras are not checked: they may be plugged in later
+  o.mode = OutputMode::kRaw;
+  EXPECT_NO_THROW(LiveSession::CheckInputs(o));
+}
+
+TEST(LiveSessionTest, RawModeDeliversTheRecordingFramesInALoop) {
+  REQUIRE_RECORDING(dir);
+  std::vector<cv::Mat> frames = test::recording_frames(dir);
+  ASSERT_EQ(frames.size(), size_t(test::kRecordingFrames));
+  LiveSession::Options o;
+  o.target = dir;
+  o.mode = OutputMode::kRaw;
+  std::atomic<int> callbacks{0};
+  o.on_frame = [&](const LiveFrame& f) {
+    EXPECT_EQ(f.bgr.type(), CV_8UC3);
+    ++callbacks;
+  };
+  LiveSession session(o);
+  LiveFrame frame;
+  ASSERT_TRUE(session.wait_frame(0, 10s, &frame)) << session.status().Headline();
+  EXPECT_EQ(frame.bgr.cols, test::kRecordingWidth);
+  EXPECT_EQ(frame.bgr.rows, test::kRecordingHeight);
+  int index = -1;
+  EXPECT_EQ(test::closest_frame_difference(frame.bgr, frames, &index), 0.0);  // raw: the recording's pixels
+  EXPECT_EQ(index, frame.source_index);
+  // 12 frames at 30 fps loop every 0.4 s: after ~1.5 s far more than 12 frames went out.
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return st.frames_out > 30 && st.output_fps > 0; });
+  EXPECT_GT(s.frames_out, 30) << s.Headline();
+  EXPECT_TRUE(s.target_open);
+  EXPECT_NEAR(s.target_fps, 30, 8);
+  EXPECT_EQ(s.tracking, TrackingState::kOff);
+  EXPECT_EQ(s.source, SourceState::kNone);
+  EXPECT_EQ(s.Headline().rfind("Raw input", 0), 0u) << s.Headline();
+  EXPECT_GT(callbacks.load(), 30);
+  // Non-blocking access: a newer frame than the one we hold, and none newer than the newest.
+  LiveFrame latest;
+  ASSERT_TRUE(session.latest_frame(frame.sequence, &latest));
+  EXPECT_GT(latest.sequence, frame.sequence);
+  EXPECT_FALSE(session.latest_frame(latest.sequence + 1000, &frame));
+  EXPECT_NE(session.describe().find(dir), std::string::npos);
+}
+
+TEST(LiveSessionTest, NonLoopingRecordingEndsTheFrameSource) {
+  REQUIRE_RECORDING(dir);
+  LiveSession::Options o;
+  o.target = dir;
+  o.mode = OutputMode::kRaw;
+  o.loop = false;
+  LiveSession session(o);
+  int frames = 0;
+  output::SourceFrame f;
+  std::string error;
+  Clock::time_point end = Clock::now() + 20s;
+  output::SourceStatus st;
+  while ((st = session.next(&f, &error)) == output::SourceStatus::kFrame && Clock::now() < end) {
+    ++frames;
+    EXPECT_EQ(f.bgr.cols, test::kRecordingWidth);
+  }
+  EXPECT_EQ(st, output::SourceStatus::kEnd);
+  EXPECT_GE(frames, test::kRecordingFrames - 2);  // the newest frame wins: a stall may skip one
+  EXPECT_LE(frames, test::kRecordingFrames);
+  EXPECT_EQ(session.status().Headline(), "Recording ended");
+}
+
+TEST(LiveSessionTest, MissingRecordingIsAStatusAndComesBackWhenItAppears) {
+  REQUIRE_RECORDING(dir);
+  std::string base = test::make_temp_dir("live-missing");
+  std::string path = base + "/later";
+  LiveSession::Options o;
+  o.target = path;
+  o.mode = OutputMode::kRaw;
+  o.reopen_interval = 100ms;
+  LiveSession session(o);  // no exception: a status
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return st.target_error.find("no such") != std::string::npos; });
+  EXPECT_FALSE(s.target_open);
+  EXPECT_NE(s.target_error.find("no such file"), std::string::npos) << s.target_error;
+  EXPECT_EQ(s.Headline().rfind("No input: ", 0), 0u) << s.Headline();
+  EXPECT_NE(s.Headline().find("retrying"), std::string::npos) << s.Headline();
+  LiveFrame frame;
+  EXPECT_FALSE(session.latest_frame(0, &frame));
+  fs::copy(dir, path, fs::copy_options::recursive);
+  ASSERT_TRUE(session.wait_frame(0, 10s, &frame)) << session.status().Headline();
+  EXPECT_EQ(frame.bgr.cols, test::kRecordingWidth);
+  s = wait_status(session, 3s, [](const LiveStatus& st) { return st.target_open; });
+  EXPECT_TRUE(s.target_open) << s.Headline();
+  EXPECT_TRUE(s.target_error.empty()) << s.target_error;
+  fs::remove_all(base);
+}
+
+TEST(LiveSessionTest, InputLostWhilePlayingIsReportedAndRecovers) {
+  REQUIRE_RECORDING(dir);
+  std::string base = test::make_temp_dir("live-lost");
+  std::string path = base + "/rec";
+  fs::copy(dir, path, fs::copy_options::recursive);
+  LiveSession::Options o;
+  o.target = path;
+  o.mode = OutputMode::kRaw;
+  o.reopen_interval = 100ms;
+  LiveSession session(o);
+  LiveFrame frame;
+  ASSERT_TRUE(session.wait_frame(0, 10s, &frame));
+  // The frames vanish under the running session (a camera unplugged, a disk gone).
+  fs::remove_all(path + "/color");
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return !st.target_open; });
+  EXPECT_FALSE(s.target_open) << s.Headline();
+  EXPECT_FALSE(s.target_error.empty());
+  EXPECT_EQ(s.Headline().rfind("No input: ", 0), 0u) << s.Headline();
+  EXPECT_EQ(s.output_fps, 0) << s.Headline();
+  uint64_t seen = session.status().frames_out;
+  // They come back: the session reopens the input and frames flow again.
+  fs::remove_all(path);
+  fs::copy(dir, path, fs::copy_options::recursive);
+  ASSERT_TRUE(session.wait_frame(static_cast<uint64_t>(seen), 10s, &frame)) << session.status().Headline();
+  s = wait_status(session, 3s, [](const LiveStatus& st) { return st.target_open; });
+  EXPECT_TRUE(s.target_open) << s.Headline();
+  session.stop();
+  fs::remove_all(base);
+}
+
+TEST(LiveSessionTest, MissingCameraSaysNoCameraAndKeepsRetrying) {
+  LiveSession::Options o;
+  o.target = "/dev/video63";
+  o.mode = OutputMode::kRaw;
+  o.reopen_interval = 50ms;
+  LiveSession session(o);
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return st.target_error.find("no such device") != std::string::npos; });
+  EXPECT_EQ(s.Headline().rfind("No camera: camera /dev/video63: no such device", 0), 0u) << s.Headline();
+  EXPECT_EQ(s.output_fps, 0);
+  // Stop is prompt even while the grabber is between retries.
+  Clock::time_point t0 = Clock::now();
+  session.stop();
+  EXPECT_LT(Clock::now() - t0, 2s);
+}
+
+TEST(LiveSessionTest, MissingModelPassesFramesUnchangedAndSaysWhy) {
+  REQUIRE_RECORDING(dir);
+  LiveSession::Options o;
+  o.target = dir;
+  o.mode = OutputMode::kPassThrough;
+  o.model_path = "/nonexistent/face-model.frm";
+  LiveSession session(o);
+  LiveFrame frame;
+  ASSERT_TRUE(session.wait_frame(0, 10s, &frame));
+  EXPECT_EQ(test::closest_frame_difference(frame.bgr, test::recording_frames(dir)), 0.0);
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return !st.pipeline_message.empty(); });
+  EXPECT_FALSE(s.pipeline_ready);
+  EXPECT_EQ(s.tracking, TrackingState::kOff);
+  EXPECT_NE(s.pipeline_message.find("nonexistent"), std::string::npos) << s.pipeline_message;
+  EXPECT_EQ(s.Headline().rfind("Unchanged: ", 0), 0u) << s.Headline();
+}
+
+TEST(LiveSessionTest, UdpStreamGoesLiveWithPacketRateThenLost) {
+  REQUIRE_RECORDING(dir);
+  std::string base = test::make_temp_dir("live-udp");
+  std::string key_path = base + "/stream.key";
+  stream::StreamKey key = stream::StreamKey::generate();
+  stream::write_key_file(key_path, key);
+  uint16_t port = free_udp_port();
+  LiveSession::Options o;
+  o.target = dir;
+  o.mode = OutputMode::kRaw;  // the stream's status does not depend on the pipeline
+  o.source = "udp://127.0.0.1:" + std::to_string(port);
+  o.key_file = key_path;
+  LiveSession session(o);
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return st.source == SourceState::kWaiting && st.target_open; });
+  EXPECT_EQ(s.source, SourceState::kWaiting) << s.Headline();
+  EXPECT_NE(s.Headline().find("waiting for stream on udp"), std::string::npos) << s.Headline();
+
+  stream::ExpressionSender sender(key, stream::resolve_endpoint("127.0.0.1:" + std::to_string(port), "test"), {});
+  stream::ExpressionFrame ef;
+  ef.expression[0] = 0.5f;
+  Clock::time_point end = Clock::now() + 1500ms;
+  while (Clock::now() < end) {
+    ef.capture_time_us = stream::realtime_now_us();
+    sender.send(ef);
+    std::this_thread::sleep_for(std::chrono::microseconds(1000000 / 60));
+  }
+  s = session.status();
+  EXPECT_EQ(s.source, SourceState::kLive) << s.Headline();
+  EXPECT_GT(s.packets_per_second, 30) << s.Headline();
+  EXPECT_GT(s.source_weight, 0.5) << s.Headline();
+  EXPECT_NE(s.Headline().find("stream live"), std::string::npos) << s.Headline();
+  EXPECT_NE(s.Headline().find("pkt/s"), std::string::npos) << s.Headline();
+  // The sender stops: after the receiver's timeout (500 ms) the stream is lost.
+  s = wait_status(session, 3s, [](const LiveStatus& st) { return st.source == SourceState::kLost; });
+  EXPECT_EQ(s.source, SourceState::kLost) << s.Headline();
+  EXPECT_EQ(s.packets_per_second, 0);
+  EXPECT_NE(s.Headline().find("stream lost"), std::string::npos) << s.Headline();
+  fs::remove_all(base);
+}
+
+TEST(LiveSessionTest, PortInUseIsASourceErrorAndTheTargetStillPlays) {
+  REQUIRE_RECORDING(dir);
+  std::string base = test::make_temp_dir("live-port");
+  std::string key_path = base + "/stream.key";
+  stream::write_key_file(key_path, stream::StreamKey::generate());
+  // Hold the port without SO_REUSEADDR.
+  int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_ANY);
+  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+  socklen_t len = sizeof a;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  LiveSession::Options o;
+  o.target = dir;
+  o.mode = OutputMode::kRaw;
+  o.source = "udp://" + std::to_string(ntohs(a.sin_port));
+  o.key_file = key_path;
+  o.reopen_interval = 100ms;
+  LiveSession session(o);
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return st.source == SourceState::kError && st.frames_out > 0; });
+  EXPECT_EQ(s.source, SourceState::kError) << s.Headline();
+  EXPECT_FALSE(s.source_error.empty());
+  EXPECT_GT(s.frames_out, 0);
+  EXPECT_NE(s.Headline().find("stream error"), std::string::npos) << s.Headline();
+  ::close(fd);  // the port frees up: the session takes it on its next try
+  s = wait_status(session, 5s, [](const LiveStatus& st) { return st.source == SourceState::kWaiting; });
+  EXPECT_EQ(s.source, SourceState::kWaiting) << s.Headline();
+  fs::remove_all(base);
+}
+
+TEST(LiveSessionTest, StopIsPromptIdempotentAndLeavesNoThreads) {
+  REQUIRE_RECORDING(dir);
+  int before = test::count_threads_with_prefix("fr-live");
+  {
+    LiveSession::Options o;
+    o.target = dir;
+    o.mode = OutputMode::kRaw;
+    LiveSession session(o);
+    LiveFrame frame;
+    ASSERT_TRUE(session.wait_frame(0, 10s, &frame));
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 2);  // worker + target grabber
+    // The session runs niced (Options::worker_nice, default 5) below this thread.
+    int mine = ::getpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)));
+    std::vector<int> nice_values = test::thread_nice_values("fr-live");
+    EXPECT_EQ(nice_values.size(), size_t(before + 2));
+    for (int nice_value : nice_values) EXPECT_EQ(nice_value, std::min(19, mine + 5));
+    std::thread other([&] { session.RequestCalibration(); });
+    other.join();
+    EXPECT_TRUE(session.status().calibration_pending || session.status().frames_out > 0);
+    std::thread stopper([&] { session.stop(); });  // two threads stopping at once
+    Clock::time_point t0 = Clock::now();
+    session.stop();
+    stopper.join();
+    EXPECT_LT(Clock::now() - t0, 2s);
+    output::SourceFrame f;
+    std::string error;
+    EXPECT_EQ(session.next(&f, &error), output::SourceStatus::kEnd);
+    EXPECT_FALSE(session.wait_frame(frame.sequence + 100, 1s, &frame));
+    EXPECT_FALSE(session.status().running);
+  }
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before);
+}
+
+TEST(LiveSessionTest, ReenactModeRunsThePipelineOnTheRecording) {
+  REQUIRE_RECORDING(dir);
+  const char* model = std::getenv("FR_MODEL");
+  LiveSession::Options o;
+  o.target = dir;
+  o.mode = OutputMode::kReenact;
+  o.model_path = model ? model : "";
+  LiveSession session(o);
+  LiveFrame frame;
+  ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
+  EXPECT_EQ(frame.bgr.cols, test::kRecordingWidth);
+  EXPECT_EQ(frame.bgr.rows, test::kRecordingHeight);
+  LiveStatus s = wait_status(session, 20s, [](const LiveStatus& st) {
+    return st.pipeline_ready && st.tracking != TrackingState::kOff && st.frames_out > 3;
+  });
+  std::cout << "reenact on the synthetic recording: " << s.Headline() << " (" << s.process_ms << " ms per frame)\n";
+  EXPECT_TRUE(s.pipeline_ready) << s.Headline();
+  EXPECT_NE(s.tracking, TrackingState::kOff) << s.Headline();
+}
+
+TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
+  REQUIRE_RECORDING(dir);
+  const char* model = std::getenv("FR_MODEL");
+  int before = test::count_threads_with_prefix("fr-live");
+  LiveSession::Options o;
+  o.target = dir;
+  o.source = dir;  // the same recording as the source actor
+  o.mode = OutputMode::kReenact;
+  o.model_path = model ? model : "";
+  {
+    LiveSession session(o);
+    LiveFrame frame;
+    ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);  // worker, target, actor
+    LiveStatus s = wait_status(session, 10s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
+    EXPECT_EQ(s.source_description, "recording '" + dir + "'");
+    // A 160x120 face is too small for the landmark detector: the actor is waiting (no face
+    // tracked yet) or, if it was tracked, live; never "none" or an error.
+    EXPECT_TRUE(s.source == SourceState::kWaiting || s.source == SourceState::kLive || s.source == SourceState::kLost)
+        << s.Headline();
+    if (s.source == SourceState::kWaiting)
+      EXPECT_NE(s.Headline().find("waiting for recording '" + dir + "'"), std::string::npos) << s.Headline();
+    else
+      EXPECT_NE(s.Headline().find("source actor"), std::string::npos) << s.Headline();
+  }
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before);
+}
+
+TEST(FrameGrabberTest, InvalidOptionsThrowAndStatusesDescribeTheInput) {
+  GrabberOptions o;
+  EXPECT_THROW(FrameGrabber bad(o), Error);  // kind none
+  o.input = parse_target_spec("/nonexistent.mp4", "t");
+  o.reopen_interval = std::chrono::milliseconds(0);
+  EXPECT_THROW(FrameGrabber bad(o), Error);
+  o.reopen_interval = 50ms;
+  FrameGrabber grabber(o);
+  Clock::time_point end = Clock::now() + 3s;
+  while (grabber.status().open_attempts < 3 && Clock::now() < end) std::this_thread::sleep_for(10ms);
+  GrabberStatus s = grabber.status();
+  EXPECT_GE(s.open_attempts, 3);  // retried
+  EXPECT_FALSE(s.open);
+  EXPECT_NE(s.error.find("/nonexistent.mp4"), std::string::npos) << s.error;
+}
+
+TEST(FrameGrabberTest, OpenNiFileDriverPlaysTheSharedRecording) {
+  const char* shared = std::getenv("FR_SHARED_DATA");
+  std::string oni = std::string(shared ? shared : "") + "/rgbd/openni1_room_test.oni";
+  if (!shared || !fs::exists(oni)) GTEST_SKIP() << "no " << oni << " (FR_SHARED_DATA)";
+  GrabberOptions o;
+  o.input = parse_target_spec("openni:" + oni, "t");
+  FrameGrabber grabber(o);
+  capture::RgbdFrame frame;
+  uint64_t seq = 0;
+  bool got = grabber.wait_newer(0, 15s, &frame, &seq);
+  GrabberStatus s = grabber.status();
+  if (!got && s.error.find("no OpenNI2 support") != std::string::npos) GTEST_SKIP() << s.error;
+  ASSERT_TRUE(got) << s.error;
+  EXPECT_EQ(frame.color.cols, 640);
+  EXPECT_EQ(frame.color.rows, 480);
+  EXPECT_EQ(frame.color.type(), CV_8UC3);
+  if (!frame.depth.empty()) {
+    EXPECT_EQ(frame.depth.type(), CV_32FC1);
+    EXPECT_EQ(frame.depth.size(), frame.color.size());
+    double mx = 0;
+    cv::minMaxLoc(frame.depth, nullptr, &mx);
+    EXPECT_GT(mx, 0.3);  // a room: metres, not millimetres
+    EXPECT_LT(mx, 20);
+  }
+  EXPECT_NE(s.description.find("OpenNI"), std::string::npos) << s.description;
+}
+
+}  // namespace
+}  // namespace face_reenact::live
+
+namespace face_reenact::live {
+namespace {
+
+// `face-reenact webcam --target ...`: argument and input errors are reported before any device
+// is touched (exit 1, one clear line); a bad device after a good target ends cleanly too.
+class WebcamLiveCliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const char* cli = std::getenv("FR_CLI");
+    if (!cli || !fs::exists(cli)) GTEST_SKIP() << "face-reenact is not built (FR_CLI)";
+    cli_ = cli;
+  }
+  int run(const std::string& args, std::string* out) { return test::run_command(test::quote(cli_) + " " + args, out); }
+  std::string cli_;
+};
+
+TEST_F(WebcamLiveCliTest, TargetAndInputExcludeEachOther) {
+  std::string out;
+  EXPECT_EQ(run("webcam --device /dev/null --target /tmp --input /tmp/x.mp4", &out), 1);
+  EXPECT_NE(out.find("--input and --target exclude each other"), std::string::npos) << out;
+}
+
+TEST_F(WebcamLiveCliTest, MissingRecordingKeyOrBadModeFailUpFront) {
+  std::string out;
+  EXPECT_EQ(run("webcam --device /dev/null --target /nonexistent/rec --mode raw", &out), 1);
+  EXPECT_NE(out.find("recording '/nonexistent/rec': no such file"), std::string::npos) << out;
+  EXPECT_EQ(run("webcam --device /dev/null --target /nonexistent/rec --mode sideways", &out), 1);
+  EXPECT_NE(out.find("--mode 'sideways'"), std::string::npos) << out;
+  EXPECT_EQ(run("webcam --device /dev/null --target /dev/video63 --source udp://9000", &out), 1);
+  EXPECT_NE(out.find("key file"), std::string::npos) << out;
+  EXPECT_EQ(run("webcam --device /dev/null --target /dev/video63 --source udp://9000 --key /nonexistent.key", &out), 1);
+  EXPECT_NE(out.find("/nonexistent.key"), std::string::npos) << out;
+}
+
+TEST_F(WebcamLiveCliTest, GoodTargetBadDeviceEndsCleanly) {
+  REQUIRE_RECORDING(dir);
+  std::string out;
+  Clock::time_point t0 = Clock::now();
+  EXPECT_EQ(run("webcam --device /dev/null --target " + test::quote(dir) + " --mode raw --seconds 1", &out), 1);
+  EXPECT_LT(Clock::now() - t0, 20s);  // the live session it started was stopped and joined
+  EXPECT_NE(out.find("not a V4L2 video device"), std::string::npos) << out;
+}
+
+TEST_F(WebcamLiveCliTest, BenchLiveReportsRateAndLatency) {
+  REQUIRE_RECORDING(dir);
+  std::string out;
+  ASSERT_EQ(run("bench live --target " + test::quote(dir) + " --mode raw --seconds 1", &out), 0) << out;
+  EXPECT_NE(out.find("Raw input"), std::string::npos) << out;
+  EXPECT_NE(out.find("capture-to-output latency mean"), std::string::npos) << out;
+  EXPECT_EQ(run("bench live --target /nonexistent/rec --mode raw --seconds 1", &out), 1);
+  EXPECT_NE(out.find("no such file"), std::string::npos) << out;
+}
+
+}  // namespace
+}  // namespace face_reenact::live

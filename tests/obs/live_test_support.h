@@ -1,0 +1,173 @@
+#pragma once
+// Shared by the live-session and OBS tests: a tiny synthetic RGB-D recording made once with
+// `face-reenact synth` (160x120, 12 frames: ~2 s) and shared by the test processes, and helpers.
+#include <gtest/gtest.h>
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <opencv2/core.hpp>
+#include <opencv2/core/mat.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "face_reenact/capture/recording.h"
+
+namespace face_reenact::test {
+
+inline constexpr int kRecordingWidth = 160;
+inline constexpr int kRecordingHeight = 120;
+inline constexpr int kRecordingFrames = 12;
+
+// Runs a shell command, returns its exit status and (stdout+stderr) in *output.
+inline int run_command(const std::string& command, std::string* output) {
+  std::string full = command + " 2>&1";
+  FILE* pipe = ::popen(full.c_str(), "r");
+  if (!pipe) return -1;
+  char buf[4096];
+  std::string text;
+  size_t n;
+  while ((n = std::fread(buf, 1, sizeof buf, pipe)) > 0) text.append(buf, n);
+  int status = ::pclose(pipe);
+  if (output) *output = text;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+inline std::string quote(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+// A fresh temporary folder, removed at process exit by the caller's TearDown (or left in /tmp).
+inline std::string make_temp_dir(const std::string& tag) {
+  std::string pattern = (std::filesystem::temp_directory_path() / ("fr-" + tag + "-XXXXXX")).string();
+  std::vector<char> buf(pattern.begin(), pattern.end());
+  buf.push_back('\0');
+  if (!::mkdtemp(buf.data())) return "";
+  return buf.data();
+}
+
+// The recording, made once and shared by every test process (CTest runs each test case in its
+// own process): FR_OBS_TEST_CACHE/recording, created under a file lock and reused while it
+// reads back as expected. Empty with *why when it cannot be made (no CLI, no model).
+inline const std::string& test_recording(std::string* why) {
+  static std::string dir, error;
+  static bool tried = false;
+  if (!tried) {
+    tried = true;
+    const char* cli = std::getenv("FR_CLI");
+    const char* model = std::getenv("FR_MODEL");
+    const std::string cache = FR_OBS_TEST_CACHE;
+    const std::string out = cache + "/recording";
+    std::error_code ec;
+    std::filesystem::create_directories(cache, ec);
+    int lock = ::open((cache + "/.lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (lock >= 0) ::flock(lock, LOCK_EX);
+    bool reusable = false;
+    try {
+      capture::RecordingReader reader(out);
+      reusable = reader.frame_count() == kRecordingFrames && reader.info().camera.width == kRecordingWidth &&
+                 reader.info().camera.height == kRecordingHeight;
+    } catch (const std::exception&) {
+    }
+    if (reusable) {
+      dir = out;
+    } else if (!cli || !std::filesystem::exists(cli)) {
+      error = "the face-reenact program (FR_CLI) is not built";
+    } else if (!model || !std::filesystem::exists(model)) {
+      error = std::string("no face model at FR_MODEL='") + (model ? model : "") + "' (run ./setup.sh to generate it)";
+    } else {
+      std::filesystem::remove_all(out, ec);
+      std::string log;
+      int rc = run_command(quote(cli) + " synth --size " + std::to_string(kRecordingWidth) + "x" +
+                               std::to_string(kRecordingHeight) + " --frames " + std::to_string(kRecordingFrames) +
+                               " --seed 7 --quiet --model " + quote(model) + " --out " + quote(out),
+                           &log);
+      if (rc != 0) error = "face-reenact synth failed (" + std::to_string(rc) + "): " + log;
+      else dir = out;
+    }
+    if (lock >= 0) ::close(lock);  // releases the lock
+  }
+  if (why) *why = error;
+  return dir;
+}
+
+// The recording's colour frames (BGR), in order.
+inline std::vector<cv::Mat> recording_frames(const std::string& dir) {
+  capture::RecordingReader reader(dir);
+  std::vector<cv::Mat> frames;
+  for (int i = 0; i < reader.frame_count(); ++i) frames.push_back(reader.read(i).color);
+  return frames;
+}
+
+// Mean absolute difference per channel value between `image` (BGR) and the closest frame.
+inline double closest_frame_difference(const cv::Mat& image, const std::vector<cv::Mat>& frames, int* index = nullptr) {
+  double best = 1e9;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (frames[i].size() != image.size() || frames[i].type() != image.type()) continue;
+    cv::Mat diff;
+    cv::absdiff(frames[i], image, diff);
+    cv::Scalar d = cv::mean(diff);
+    double mean = (d[0] + d[1] + d[2]) / 3;
+    if (mean < best) {
+      best = mean;
+      if (index) *index = static_cast<int>(i);
+    }
+  }
+  return best;
+}
+
+// Names of this process's threads (/proc/self/task/*/comm).
+inline std::vector<std::string> thread_names() {
+  std::vector<std::string> names;
+  std::error_code ec;
+  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task", ec)) {
+    FILE* f = std::fopen((task.path() / "comm").c_str(), "r");
+    if (!f) continue;
+    char buf[64] = {};
+    if (std::fgets(buf, sizeof buf, f)) {
+      std::string n = buf;
+      while (!n.empty() && (n.back() == '\n' || n.back() == '\r')) n.pop_back();
+      names.push_back(n);
+    }
+    std::fclose(f);
+  }
+  return names;
+}
+
+// Nice values (field 19 of /proc/self/task/*/stat) of the threads whose name starts with `prefix`.
+inline std::vector<int> thread_nice_values(const std::string& prefix) {
+  std::vector<int> values;
+  std::error_code ec;
+  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task", ec)) {
+    FILE* f = std::fopen((task.path() / "stat").c_str(), "r");
+    if (!f) continue;
+    char buf[1024] = {};
+    size_t n = std::fread(buf, 1, sizeof buf - 1, f);
+    std::fclose(f);
+    std::string stat(buf, n);
+    size_t open = stat.find('('), close = stat.rfind(')');
+    if (open == std::string::npos || close == std::string::npos) continue;
+    if (stat.substr(open + 1, close - open - 1).rfind(prefix, 0) != 0) continue;
+    // After ") ": state(3) ppid(4) ... nice is field 19, i.e. the 17th token after the name.
+    std::istringstream rest(stat.substr(close + 2));
+    std::string token;
+    for (int field = 3; field <= 19 && rest >> token; ++field)
+      if (field == 19) values.push_back(std::atoi(token.c_str()));
+  }
+  return values;
+}
+
+inline int count_threads_with_prefix(const std::string& prefix) {
+  int n = 0;
+  for (const auto& name : thread_names()) n += name.rfind(prefix, 0) == 0;
+  return n;
+}
+
+}  // namespace face_reenact::test

@@ -1,0 +1,196 @@
+// The per-frame pipeline: tracking the target (stored landmarks, CPU renderer frames with
+// ground truth), bad input, pass-through of frames without a face, temporal stability.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
+#include "face_reenact/reenact/transfer.h"
+#include "reenact_test_support.h"
+
+namespace face_reenact::reenact {
+namespace {
+
+using testing::render_target;
+using testing::test_camera;
+using testing::test_face;
+using testing::test_model;
+
+// A recording-like frame of `params`: colour, depth, ground truth P and landmarks.
+capture::RgbdFrame make_frame(const gpu::FaceParameters& params, const gpu::PinholeCamera& cam, int index) {
+  static const tracker::TrackerModel tmodel = tracker::TrackerModel::FromFaceModel(*test_model());
+  static const gpu::CpuRenderer renderer(tmodel.render);
+  const tracker::InputFrame f = tracker::RenderSyntheticFrame(renderer, tmodel, params, cam, {}, 0.25f);
+  capture::RgbdFrame out;
+  out.index = index;
+  out.timestamp_s = index / 30.0;
+  out.camera = cam;
+  out.color = render_target(params, cam);
+  out.depth = cv::Mat(cam.height, cam.width, CV_32FC1);
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) out.depth.at<float>(j, i) = f.depth[static_cast<size_t>(j) * cam.width + i];
+  out.ground_truth.params = params;
+  std::array<capture::LandmarkObservation, capture::kNumLandmarks> lm{};
+  for (const tracker::InputLandmark& l : f.landmarks) {
+    lm[static_cast<size_t>(l.ibug_index)].pixel = l.position;
+    lm[static_cast<size_t>(l.ibug_index)].visible = l.confidence > 0;
+  }
+  out.ground_truth.landmarks = lm;
+  return out;
+}
+
+ReenactmentOptions recording_landmarks() {
+  ReenactmentOptions o;
+  o.input.landmark_source = tracker::LandmarkSourceChoice::kRecording;
+  o.tracker.landmark_source = tracker::LandmarkSourceChoice::kRecording;
+  o.tracker.calibration_frames = 2;
+  return o;
+}
+
+TEST(ReenactPipelineTest, OptionsAreValidated) {
+  FR_REQUIRE_MODEL();
+  ReenactmentOptions o;
+  std::string why;
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+  o.blend_levels = 11;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_THROW(ReenactmentPipeline(*test_model(), o), Error);
+  o = ReenactmentOptions{};
+  o.tracker.calibration_frames = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+  o.use_ground_truth_target = true;  // the tracker's options do not matter then
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+}
+
+TEST(ReenactPipelineTest, BadFramesPassThroughWithAStatusAndNeverThrow) {
+  FR_REQUIRE_MODEL();
+  ReenactmentPipeline pipeline(*test_model(), recording_landmarks());
+  const gpu::PinholeCamera cam = test_camera(160, 120);
+  SourceExpression open;
+  open.weights[kJawOpenIndex] = 0.8f;
+
+  capture::RgbdFrame empty;
+  empty.camera = cam;
+  ReenactedFrame r = pipeline.Process(empty, &open);
+  EXPECT_EQ(r.status, TrackingStatus::kLost);
+  EXPECT_FALSE(r.reenacted);
+  EXPECT_EQ(r.bgr.size(), cv::Size(160, 120));
+  EXPECT_NE(r.message.find("no colour"), std::string::npos) << r.message;
+
+  capture::RgbdFrame wrong_type = empty;
+  wrong_type.color = cv::Mat::zeros(120, 160, CV_16UC3);
+  r = pipeline.Process(wrong_type, &open);
+  EXPECT_EQ(r.status, TrackingStatus::kLost);
+  EXPECT_EQ(r.bgr.type(), CV_8UC3);
+
+  capture::RgbdFrame wrong_size = empty;
+  wrong_size.color = cv::Mat(60, 80, CV_8UC3, cv::Scalar(1, 2, 3));
+  r = pipeline.Process(wrong_size, &open);
+  EXPECT_EQ(r.status, TrackingStatus::kLost);
+  EXPECT_EQ(cv::norm(r.bgr, wrong_size.color, cv::NORM_INF), 0.0);
+
+  // A frame without a face (no landmarks, an empty room, NaN depth): the input, unchanged.
+  capture::RgbdFrame no_face = empty;
+  no_face.color = cv::Mat(120, 160, CV_8UC3, cv::Scalar(90, 120, 150));
+  cv::circle(no_face.color, cv::Point(80, 60), 20, cv::Scalar(10, 200, 30), cv::FILLED);
+  no_face.depth = cv::Mat(120, 160, CV_32FC1, cv::Scalar(std::nanf("")));
+  r = pipeline.Process(no_face, &open);
+  EXPECT_NE(r.status, TrackingStatus::kTracking);
+  EXPECT_FALSE(r.reenacted);
+  EXPECT_EQ(cv::norm(r.bgr, no_face.color, cv::NORM_INF), 0.0);
+  EXPECT_FALSE(r.message.empty());
+
+  // An invalid source expression is a programming error: it throws.
+  SourceExpression bad;
+  bad.weights[0] = std::nanf("");
+  EXPECT_THROW(pipeline.Process(no_face, &bad), Error);
+  EXPECT_EQ(pipeline.summary().frames, 4);
+}
+
+TEST(ReenactPipelineTest, GroundTruthTargetWithoutGroundTruthIsLost) {
+  FR_REQUIRE_MODEL();
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  ReenactmentPipeline pipeline(*test_model(), o);
+  capture::RgbdFrame f;
+  f.camera = test_camera(160, 120);
+  f.color = cv::Mat(120, 160, CV_8UC3, cv::Scalar(5, 6, 7));
+  const ReenactedFrame r = pipeline.Process(f, nullptr);
+  EXPECT_EQ(r.status, TrackingStatus::kLost);
+  EXPECT_EQ(cv::norm(r.bgr, f.color, cv::NORM_INF), 0.0);
+}
+
+TEST(ReenactPipelineTest, GroundTruthTargetTransfersTheSourceMouth) {
+  FR_REQUIRE_MODEL();
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  ReenactmentPipeline pipeline(*test_model(), o);
+  const gpu::PinholeCamera cam = test_camera(160, 120);
+  const capture::RgbdFrame f = make_frame(test_face(0.4f), cam, 0);
+  SourceExpression open;
+  open.weights[kJawOpenIndex] = 0.7f;
+  const ReenactedFrame r = pipeline.Process(f, &open);
+  ASSERT_TRUE(r.reenacted) << r.message;
+  EXPECT_TRUE(r.mouth_drawn);
+  EXPECT_FLOAT_EQ(r.output_params.delta[kJawOpenIndex], 0.7f);
+  EXPECT_GT(cv::norm(r.bgr, f.color, cv::NORM_L1), 0.0);
+  ASSERT_FALSE(r.depth.empty());
+  // The output depth is the rendered face's where it was drawn, with a hole in the open mouth.
+  EXPECT_EQ(r.depth.size(), f.depth.size());
+  // Off: the input, exactly.
+  o.mode = ReenactMode::kOff;
+  pipeline.SetOptions(o);
+  const ReenactedFrame off = pipeline.Process(f, &open);
+  EXPECT_FALSE(off.reenacted);
+  EXPECT_EQ(cv::norm(off.bgr, f.color, cv::NORM_INF), 0.0);
+}
+
+// Tracking a static target: after calibration every frame is reenacted, and the output does not
+// flicker: consecutive outputs differ far less than the reenactment changes the frame.
+TEST(ReenactPipelineTest, TrackedStaticTargetIsStableFrameToFrame) {
+  FR_REQUIRE_MODEL();
+  ReenactmentPipeline pipeline(*test_model(), recording_landmarks());
+  const gpu::PinholeCamera cam = test_camera(160, 120);
+  gpu::FaceParameters p = test_face(0.4f);
+  const capture::RgbdFrame f = make_frame(p, cam, 0);
+  SourceExpression smile;
+  smile.weights[arkit_blendshape_index("mouthSmileLeft")] = 0.8f;
+  smile.weights[arkit_blendshape_index("mouthSmileRight")] = 0.8f;
+  smile.weights[kJawOpenIndex] = 0.4f;
+  std::vector<ReenactedFrame> outs;
+  for (int i = 0; i < 6; ++i) {
+    capture::RgbdFrame fi = f;
+    fi.index = i;
+    outs.push_back(pipeline.Process(fi, &smile));
+  }
+  EXPECT_EQ(outs[0].status, TrackingStatus::kCalibrating);
+  int reenacted = 0;
+  for (const auto& o : outs) reenacted += o.reenacted;
+  ASSERT_GE(reenacted, 3) << outs.back().message;
+  const ReenactedFrame& a = outs[outs.size() - 2];
+  const ReenactedFrame& b = outs.back();
+  ASSERT_TRUE(a.reenacted && b.reenacted);
+  cv::Mat d;
+  cv::absdiff(a.bgr, b.bgr, d);
+  const double flicker = cv::mean(d, a.face_mask)[2];
+  cv::absdiff(b.bgr, f.color, d);
+  const double change = cv::mean(d, a.face_mask)[2];
+  RecordProperty("flicker", std::to_string(flicker));
+  RecordProperty("change", std::to_string(change));
+  EXPECT_LT(flicker, 1.0);
+  EXPECT_GT(change, 2.0);
+  EXPECT_GT(pipeline.summary().reenacted_frames, 0);
+  // Recalibration on request.
+  pipeline.RequestCalibration();
+  capture::RgbdFrame again = f;
+  again.index = 6;
+  const ReenactedFrame c = pipeline.Process(again, &smile);
+  EXPECT_EQ(c.tracked.status, tracker::TrackingStatus::kCalibrating);
+  EXPECT_EQ(c.status, TrackingStatus::kCalibrating);
+}
+
+}  // namespace
+}  // namespace face_reenact::reenact

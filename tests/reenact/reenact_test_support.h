@@ -1,0 +1,79 @@
+#pragma once
+// Shared helpers of the reenactment tests: the face model and target frames rendered by the
+// CPU renderer (no Vulkan, no files besides the model).
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "face_reenact/common/srgb.h"
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/model/model_file.h"
+#include "face_reenact/tracker/solver.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact::reenact::testing {
+
+inline const FaceModel* test_model() {
+  static std::unique_ptr<FaceModel> model = []() -> std::unique_ptr<FaceModel> {
+    const char* path = std::getenv("FR_MODEL");
+    if (!path || !std::filesystem::exists(path)) return nullptr;
+    return std::make_unique<FaceModel>(load_face_model(path));
+  }();
+  return model.get();
+}
+
+#define FR_REQUIRE_MODEL()                                                                                   \
+  do {                                                                                                       \
+    const char* m_ = std::getenv("FR_MODEL");                                                                \
+    ASSERT_NE(::face_reenact::reenact::testing::test_model(), nullptr)                                       \
+        << "face model missing (FR_MODEL='" << (m_ ? m_ : "") << "'): build it with `face-reenact model build`"; \
+  } while (0)
+
+// Kinect-like intrinsics scaled to w x h.
+inline gpu::PinholeCamera test_camera(int w, int h) {
+  gpu::PinholeCamera c;
+  const float s = static_cast<float>(w) / 640.0f;
+  c.fx = c.fy = 525.0f * s;
+  c.cx = (static_cast<float>(w) - 1.0f) / 2.0f;
+  c.cy = (static_cast<float>(h) - 1.0f) / 2.0f;
+  c.width = w;
+  c.height = h;
+  return c;
+}
+
+// A lit face at `distance` m: ambient plus a light from the upper left, warm tint.
+inline gpu::FaceParameters test_face(float distance) {
+  gpu::FaceParameters p = gpu::frontal_pose(distance);
+  p.delta = Eigen::VectorXf::Zero(52);
+  for (int c = 0; c < 3; ++c) {
+    const float tint = c == 0 ? 1.05f : (c == 1 ? 1.0f : 0.92f);
+    p.gamma[static_cast<size_t>(c * 9 + 0)] = 2.6f * tint;
+    p.gamma[static_cast<size_t>(c * 9 + 1)] = -0.5f * tint;  // y: from above (y down)
+    p.gamma[static_cast<size_t>(c * 9 + 3)] = -0.4f * tint;  // x: from the left
+    p.gamma[static_cast<size_t>(c * 9 + 2)] = -0.6f * tint;  // z: from the camera side
+  }
+  return p;
+}
+
+// The CPU renderer's image of `params` (skin parts over a grey background) as 8-bit sRGB BGR.
+inline cv::Mat render_target(const gpu::FaceParameters& params, const gpu::PinholeCamera& camera) {
+  static const tracker::TrackerModel tmodel = tracker::TrackerModel::FromFaceModel(*test_model());
+  static const gpu::CpuRenderer renderer(tmodel.render);
+  const tracker::InputFrame f = tracker::RenderSyntheticFrame(renderer, tmodel, params, camera, {}, 0.25f);
+  cv::Mat bgr(camera.height, camera.width, CV_8UC3);
+  for (int j = 0; j < camera.height; ++j)
+    for (int i = 0; i < camera.width; ++i) {
+      const size_t p = (static_cast<size_t>(j) * camera.width + i) * 3;
+      cv::Vec3b& px = bgr.at<cv::Vec3b>(j, i);
+      for (int c = 0; c < 3; ++c) px[2 - c] = cv::saturate_cast<uchar>(255.0f * srgb_encode(f.color[p + static_cast<size_t>(c)]));
+    }
+  return bgr;
+}
+
+}  // namespace face_reenact::reenact::testing

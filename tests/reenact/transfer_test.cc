@@ -1,0 +1,155 @@
+// Expression transfer (Eq. 15 in blendshape space) and the SourceExpression helpers.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/reenact/transfer.h"
+#include "face_reenact/stream/stream_state.h"
+
+namespace face_reenact::reenact {
+namespace {
+
+Eigen::VectorXf constant(float v) { return Eigen::VectorXf::Constant(kNumExpressionWeights, v); }
+
+TEST(ReenactTransferTest, IndicesNameTheArkitShapes) {
+  EXPECT_EQ(arkit_blendshape_index("jawOpen"), kJawOpenIndex);
+  EXPECT_EQ(arkit_blendshape_index("tongueOut"), kTongueOutIndex);
+}
+
+TEST(ReenactTransferTest, AddsTheSourceDeltaToTheTargetNeutral) {
+  SourceExpression s;
+  s.weights[kJawOpenIndex] = 0.7f;
+  s.neutral[kJawOpenIndex] = 0.1f;  // the source rests with the mouth slightly open
+  s.weights[0] = 0.2f;
+  s.neutral[0] = 0.2f;              // blinks exactly as much as at rest: no change
+  Eigen::VectorXf target_neutral = constant(0.0f);
+  target_neutral[0] = 0.05f;
+  target_neutral[kJawOpenIndex] = 0.05f;
+  const Eigen::VectorXf own = constant(0.3f);  // ignored at blend weight 1
+  const Eigen::VectorXf out = TransferExpression(target_neutral, own, s);
+  ASSERT_EQ(out.size(), kNumExpressionWeights);
+  EXPECT_NEAR(out[kJawOpenIndex], 0.05f + 0.6f, 1e-6f);
+  EXPECT_NEAR(out[0], 0.05f, 1e-6f);
+  for (int i = 1; i < kNumExpressionWeights; ++i)
+    if (i != kJawOpenIndex) EXPECT_NEAR(out[i], 0.0f, 1e-6f) << i;
+}
+
+TEST(ReenactTransferTest, ClampsToTheBlendshapeRange) {
+  SourceExpression s;
+  s.weights[3] = 1.0f;
+  s.neutral[3] = 0.0f;
+  s.weights[4] = 0.0f;
+  s.neutral[4] = 0.6f;
+  const Eigen::VectorXf out = TransferExpression(constant(0.5f), constant(0.5f), s);
+  EXPECT_FLOAT_EQ(out[3], 1.0f);
+  EXPECT_FLOAT_EQ(out[4], 0.0f);
+  EXPECT_GE(out.minCoeff(), 0.0f);
+  EXPECT_LE(out.maxCoeff(), 1.0f);
+}
+
+TEST(ReenactTransferTest, BlendWeightCrossFadesToTheTargetsOwnExpression) {
+  SourceExpression s;
+  s.weights[kJawOpenIndex] = 0.8f;
+  Eigen::VectorXf own = constant(0.0f);
+  own[kJawOpenIndex] = 0.2f;
+  s.blend_weight = 0.0f;
+  EXPECT_FLOAT_EQ(TransferExpression(constant(0.f), own, s)[kJawOpenIndex], 0.2f);
+  s.blend_weight = 0.25f;
+  EXPECT_NEAR(TransferExpression(constant(0.f), own, s)[kJawOpenIndex], 0.25f * 0.8f + 0.75f * 0.2f, 1e-6f);
+}
+
+TEST(ReenactTransferTest, NeutralSubtractedWeightsAreUsedAsTheDelta) {
+  SourceExpression s;
+  s.neutral_subtracted = true;
+  s.weights[5] = -0.2f;
+  s.neutral[5] = 0.9f;  // ignored
+  Eigen::VectorXf target_neutral = constant(0.f);
+  target_neutral[5] = 0.5f;
+  EXPECT_NEAR(TransferExpression(target_neutral, constant(0.f), s)[5], 0.3f, 1e-6f);
+}
+
+TEST(ReenactTransferTest, ShortVectorsCountAsZeros) {
+  SourceExpression s;
+  s.weights[40] = 0.4f;
+  const Eigen::VectorXf out = TransferExpression(Eigen::VectorXf(), Eigen::VectorXf(), s);
+  EXPECT_FLOAT_EQ(out[40], 0.4f);
+}
+
+TEST(ReenactTransferTest, RejectsInvalidSources) {
+  SourceExpression s;
+  s.weights[2] = std::numeric_limits<float>::quiet_NaN();
+  std::string why;
+  EXPECT_FALSE(s.IsValid(&why));
+  EXPECT_NE(why.find("weight 2"), std::string::npos) << why;
+  EXPECT_THROW(TransferExpression(constant(0.f), constant(0.f), s), Error);
+  SourceExpression b;
+  b.blend_weight = 1.5f;
+  EXPECT_FALSE(b.IsValid(&why));
+  SourceExpression big;
+  big.weights[0] = 7.0f;
+  EXPECT_FALSE(big.IsValid(&why));
+  SourceExpression bad_neutral;
+  bad_neutral.neutral[1] = std::numeric_limits<float>::infinity();
+  EXPECT_FALSE(bad_neutral.IsValid(&why));
+  bad_neutral.neutral_subtracted = true;  // the neutral is then unused
+  EXPECT_TRUE(bad_neutral.IsValid(&why)) << why;
+}
+
+TEST(ReenactTransferTest, TransferParametersKeepsEverythingButTheExpression) {
+  gpu::FaceParameters target = gpu::frontal_pose(0.7f);
+  target.alpha = Eigen::VectorXf::Constant(4, 0.01f);
+  target.beta = Eigen::VectorXf::Constant(3, 0.2f);
+  target.delta = constant(0.1f);
+  target.gamma[4] = 0.3f;
+  target.euler.y() = 0.2f;
+  gpu::FaceParameters neutral = target;
+  neutral.delta = constant(0.0f);
+  SourceExpression s;
+  s.weights[kJawOpenIndex] = 0.9f;
+  const gpu::FaceParameters out = TransferParameters(target, neutral, s);
+  EXPECT_EQ(out.alpha, target.alpha);
+  EXPECT_EQ(out.beta, target.beta);
+  EXPECT_EQ(out.gamma, target.gamma);
+  EXPECT_EQ(out.euler, target.euler);
+  EXPECT_EQ(out.translation, target.translation);
+  EXPECT_FLOAT_EQ(out.delta[kJawOpenIndex], 0.9f);
+  EXPECT_FLOAT_EQ(out.delta[0], 0.0f);
+}
+
+TEST(ReenactTransferTest, SourceFromParametersAndRemote) {
+  gpu::FaceParameters tracked, neutral;
+  tracked.delta = constant(0.4f);
+  neutral.delta = Eigen::VectorXf::Constant(10, 0.1f);  // shorter: the rest are 0
+  const SourceExpression s = SourceFromParameters(tracked, neutral);
+  EXPECT_FALSE(s.neutral_subtracted);
+  EXPECT_NEAR(s.relative()[3], 0.3f, 1e-6f);
+  EXPECT_NEAR(s.relative()[30], 0.4f, 1e-6f);
+
+  tracker::TrackedFrame lost;
+  lost.status = tracker::TrackingStatus::kLost;
+  lost.has_parameters = true;
+  lost.params = tracked;
+  EXPECT_FLOAT_EQ(SourceFromTrackedFrame(lost, neutral).blend_weight, 0.0f);
+  lost.status = tracker::TrackingStatus::kTracking;
+  EXPECT_FLOAT_EQ(SourceFromTrackedFrame(lost, neutral).blend_weight, 1.0f);
+
+  stream::RemoteExpression remote;
+  EXPECT_FLOAT_EQ(SourceFromRemote(remote).blend_weight, 0.0f);  // no frame yet
+  remote.has_frame = true;
+  remote.weight = 0.5f;
+  remote.expression[kJawOpenIndex] = 0.6f;
+  remote.expression[1] = std::numeric_limits<float>::quiet_NaN();
+  const SourceExpression r = SourceFromRemote(remote);
+  std::string why;
+  EXPECT_TRUE(r.IsValid(&why)) << why;
+  EXPECT_TRUE(r.neutral_subtracted);
+  EXPECT_FLOAT_EQ(r.blend_weight, 0.5f);
+  EXPECT_FLOAT_EQ(r.weights[kJawOpenIndex], 0.6f);
+  EXPECT_FLOAT_EQ(r.weights[1], 0.0f);
+}
+
+}  // namespace
+}  // namespace face_reenact::reenact

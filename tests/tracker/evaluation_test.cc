@@ -1,0 +1,113 @@
+// Ground-truth error measures of `face-reenact track` (evaluation.h): closest points on
+// triangles and meshes against brute force, and CompareToGroundTruth on known offsets.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/tracker/evaluation.h"
+#include "tracker_test_support.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+TEST(ClosestPointOnTriangle, EveryVoronoiRegion) {
+  const Eigen::Vector3d a(0, 0, 0), b(1, 0, 0), c(0, 1, 0);
+  // Face interior: straight down.
+  EXPECT_TRUE(ClosestPointOnTriangle({0.2, 0.3, 5}, a, b, c).isApprox(Eigen::Vector3d(0.2, 0.3, 0)));
+  // Vertex regions.
+  EXPECT_TRUE(ClosestPointOnTriangle({-1, -1, 1}, a, b, c).isApprox(a));
+  EXPECT_TRUE(ClosestPointOnTriangle({3, -0.5, 0}, a, b, c).isApprox(b));
+  EXPECT_TRUE(ClosestPointOnTriangle({-0.5, 3, 0}, a, b, c).isApprox(c));
+  // Edge regions.
+  EXPECT_TRUE(ClosestPointOnTriangle({0.5, -2, 0}, a, b, c).isApprox(Eigen::Vector3d(0.5, 0, 0)));
+  EXPECT_TRUE(ClosestPointOnTriangle({-2, 0.5, 1}, a, b, c).isApprox(Eigen::Vector3d(0, 0.5, 0)));
+  EXPECT_TRUE(ClosestPointOnTriangle({1, 1, 0}, a, b, c).isApprox(Eigen::Vector3d(0.5, 0.5, 0)));
+  // Degenerate triangle: still a point of it, no NaN.
+  const Eigen::Vector3d p = ClosestPointOnTriangle({0.3, 1, 0}, a, a, a);
+  EXPECT_TRUE(p.allFinite());
+}
+
+TEST(TriangleSurface, MatchesBruteForce) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> u(-0.1f, 0.1f);
+  const int nv = 60;
+  Eigen::VectorXf pos(3 * nv);
+  for (int k = 0; k < 3 * nv; ++k) pos[k] = u(rng);
+  std::vector<std::array<int32_t, 3>> tris;
+  std::uniform_int_distribution<int> pick(0, nv - 1);
+  for (int k = 0; k < 80; ++k) tris.push_back({pick(rng), pick(rng), pick(rng)});
+  const TriangleSurface surface(pos, tris, 0.01f);
+  std::uniform_real_distribution<double> q(-0.3, 0.3);
+  for (int k = 0; k < 200; ++k) {
+    const Eigen::Vector3d p(q(rng), q(rng), q(rng));
+    double brute = std::numeric_limits<double>::infinity();
+    for (const auto& t : tris) {
+      const Eigen::Vector3d cp = ClosestPointOnTriangle(p, pos.segment<3>(3 * t[0]).cast<double>(),
+                                                        pos.segment<3>(3 * t[1]).cast<double>(),
+                                                        pos.segment<3>(3 * t[2]).cast<double>());
+      brute = std::min(brute, (cp - p).norm());
+    }
+    EXPECT_NEAR(surface.Distance(p), brute, 1e-6) << "query " << k;
+  }
+  // Far away: still the exact distance (the query clamps to the grid, then widens the search).
+  const Eigen::Vector3d far(1e12, -3e11, 5.0);
+  double brute = std::numeric_limits<double>::infinity();
+  for (const auto& t : tris) {
+    brute = std::min(brute, (ClosestPointOnTriangle(far, pos.segment<3>(3 * t[0]).cast<double>(),
+                                                    pos.segment<3>(3 * t[1]).cast<double>(),
+                                                    pos.segment<3>(3 * t[2]).cast<double>()) - far).norm());
+  }
+  EXPECT_NEAR(surface.Distance(far), brute, 1e-6 * brute);
+}
+
+TEST(TriangleSurface, EmptyAndBadInput) {
+  const Eigen::VectorXf pos = Eigen::VectorXf::Zero(9);
+  const TriangleSurface empty(pos, {}, 0.01f);
+  EXPECT_TRUE(std::isinf(empty.Distance({0, 0, 0})));
+  EXPECT_THROW(TriangleSurface(pos, {{0, 1, 7}}, 0.01f), Error);
+  EXPECT_THROW(TriangleSurface(pos, {{0, 1, 2}}, 0.0f), Error);
+  const TriangleSurface one(pos, {{0, 1, 2}}, 0.01f);
+  EXPECT_TRUE(std::isinf(one.Distance({std::nan(""), 0, 0})));
+}
+
+TEST(CompareToGroundTruth, KnownOffsets) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  const gpu::CpuRenderer renderer(model->render);
+  const gpu::PinholeCamera camera = testing::test_camera(320, 240);
+  const gpu::FaceParameters truth = testing::true_parameters(*model, 0.6f, 3);
+  const FitErrors same = CompareToGroundTruth(renderer, *model, truth, truth, camera);
+  EXPECT_GT(same.region_vertices, 200);
+  EXPECT_NEAR(same.geometric_mm_mean, 0.0, 1e-3);  // float surface
+  EXPECT_NEAR(same.geometric_mm_max, 0.0, 1e-3);
+  EXPECT_NEAR(same.alignment_px_mean, 0.0, 1e-6);
+  EXPECT_NEAR(same.rotation_deg, 0.0, 1e-3);
+  EXPECT_NEAR(same.expression_mean_abs, 0.0, 1e-9);
+
+  // 3 mm along the viewing axis: every surface point moves 3 mm; the closest-point distance
+  // to the fitted surface is at most that (less where the surface slants).
+  gpu::FaceParameters shifted = truth;
+  shifted.translation.z() += 0.003f;
+  const FitErrors s = CompareToGroundTruth(renderer, *model, shifted, truth, camera);
+  EXPECT_NEAR(s.translation_mm, 3.0, 1e-3);
+  EXPECT_GT(s.geometric_mm_mean, 0.5);
+  EXPECT_LE(s.geometric_mm_max, 3.0 + 1e-3);
+  EXPECT_NEAR(s.rotation_deg, 0.0, 1e-3);
+
+  // A 2 degree turn about y and a different expression.
+  gpu::FaceParameters turned = truth;
+  turned.euler.y() += static_cast<float>(2.0 * M_PI / 180.0);
+  turned.delta.setZero();
+  const FitErrors t = CompareToGroundTruth(renderer, *model, turned, truth, camera);
+  EXPECT_NEAR(t.rotation_deg, 2.0, 0.01);
+  EXPECT_GT(t.alignment_px_mean, 0.1);
+  double expected_expr = 0;
+  for (int k = 0; k < model->num_expression(); ++k) expected_expr += std::abs(truth.delta[k]);
+  EXPECT_NEAR(t.expression_mean_abs, expected_expr / model->num_expression(), 1e-6);
+}
+
+}  // namespace
+}  // namespace face_reenact::tracker

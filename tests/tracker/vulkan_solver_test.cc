@@ -1,0 +1,341 @@
+// The Vulkan tracker solver against its oracle, the double-precision CPU solver: the same
+// residuals and Jacobian rows on the same linearisation, the same normal equations from both
+// device strategies, the same fitted parameters from a full solve, and the same answers to bad
+// input. Runs on lavapipe with validation (including synchronization validation) on; any
+// validation message fails the test. Small images keep it fast.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/tracker/solver.h"
+#include "face_reenact/tracker/vulkan_solver.h"
+#include "gpu_test_support.h"
+#include "tracker_test_support.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+using gpu::testing::ValidatedGpuTest;
+using testing::real_model;
+using testing::sphere_model;
+using testing::test_camera;
+using testing::true_parameters;
+
+const TrackerModel& model_for_tests() {
+  static const TrackerModel sphere = sphere_model();
+  return real_model() ? *real_model() : sphere;
+}
+
+gpu::FaceParameters truth_for_tests() { return true_parameters(model_for_tests(), 0.55f, 7); }
+
+// About the motion between two frames: a few degrees, a centimetre, neutral expression, white light.
+gpu::FaceParameters start_for_tests(const gpu::FaceParameters& truth) {
+  gpu::FaceParameters s = truth;
+  s.euler += Eigen::Vector3f(0.03f, -0.025f, 0.02f);
+  s.translation += Eigen::Vector3f(0.005f, -0.004f, 0.006f);
+  s.delta.setZero();
+  s.gamma = gpu::ambient_sh(Eigen::Vector3f::Ones());
+  return s;
+}
+
+double rotation_error(const gpu::FaceParameters& a, const gpu::FaceParameters& b) {
+  const Eigen::Matrix3f d = gpu::rotation_from_euler(a.euler).transpose() * gpu::rotation_from_euler(b.euler);
+  return std::acos(std::clamp((d.trace() - 1.0f) / 2.0f, -1.0f, 1.0f));
+}
+
+double relative(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+  const double scale = std::max(b.norm(), 1e-12);
+  return (a - b).norm() / scale;
+}
+
+class VulkanSolverTest : public ValidatedGpuTest {
+ protected:
+  VulkanSolver& solver() {
+    static std::unique_ptr<VulkanSolver> s = std::make_unique<VulkanSolver>(context(), model_for_tests());
+    return *s;
+  }
+  const CpuSolver& cpu() {
+    static const CpuSolver s(model_for_tests());
+    return s;
+  }
+};
+
+TEST_F(VulkanSolverTest, ResidualsAndJacobianRowsMatchTheCpuOnTheSameLinearisation) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const gpu::PinholeCamera camera = test_camera(160, 120);
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, camera);
+  const ParameterLayout layout = ParameterLayout::Calibration(std::min(model.num_identity(), 10),
+                                                              std::min(model.num_albedo(), 5), model.num_expression());
+  const gpu::FaceParameters start = start_for_tests(truth);
+  EnergyOptions energy;
+  const Eigen::VectorXd v = Eigen::VectorXd::LinSpaced(layout.num_parameters(), -1.0, 1.0);
+  const VulkanLinearSystem gpu_system = solver().Inspect(frame, layout, energy, start, v);
+
+  // The CPU linearised on the render the device made (same pixels, same vertex normals).
+  const Linearization lin = Linearize(model, layout, start, gpu_system.vertex_state, gpu_system.gbuffer, frame, energy);
+  Eigen::VectorXd r;
+  JacobianMatrix j;
+  TermEnergies e;
+  EvaluateResiduals(model, lin, energy, layout.Pack(start), &r, &j, &e);
+  ASSERT_GT(lin.num_point, 100);
+  ASSERT_GT(lin.num_plane, 100);
+  ASSERT_GT(lin.landmarks.size(), 5u);
+  for (int t = 0; t <= kNumTerms; ++t) ASSERT_EQ(gpu_system.term_rows[t], lin.term_rows[t]) << "term boundary " << t;
+  for (int t = 0; t < kNumTerms; ++t) {
+    const Eigen::Index begin = lin.term_rows[t], rows = lin.term_rows[t + 1] - begin;
+    if (rows == 0) continue;
+    const double r_error = relative(gpu_system.residuals.segment(begin, rows), r.segment(begin, rows));
+    const double j_error = relative(gpu_system.jacobian.middleRows(begin, rows), j.middleRows(begin, rows));
+    std::cout << term_name(static_cast<Term>(t)) << ": " << rows << " rows, relative error r " << r_error << ", J "
+              << j_error << ", energy " << gpu_system.energy.value[t] << " vs " << e.value[t] << "\n";
+    EXPECT_LT(r_error, 1e-4) << term_name(static_cast<Term>(t));
+    EXPECT_LT(j_error, 1e-4) << term_name(static_cast<Term>(t));
+    EXPECT_NEAR(gpu_system.energy.value[t], e.value[t], 1e-4 * std::max(1.0, e.value[t])) << term_name(static_cast<Term>(t));
+  }
+
+  // Normal equations: the assembled path's J^T J, J^T r, and the matrix-free J^T (J v).
+  const Eigen::MatrixXd jtj = j.transpose() * j;
+  const Eigen::VectorXd jtr = j.transpose() * r;
+  const Eigen::VectorXd product = j.transpose() * (j * v);
+  const double jtj_error = relative(gpu_system.jtj, jtj), jtr_error = relative(gpu_system.jtr, jtr);
+  const double mf_jtr_error = relative(gpu_system.jtr_matrix_free, jtr);
+  const double product_error = relative(gpu_system.normal_product, product);
+  std::cout << "J^T J " << jtj_error << ", J^T r " << jtr_error << " (matrix-free " << mf_jtr_error << "), J^T J v "
+            << product_error << "\n";
+  EXPECT_LT(jtj_error, 1e-4);
+  EXPECT_LT(jtr_error, 1e-4);
+  EXPECT_LT(mf_jtr_error, 1e-4);
+  EXPECT_LT(product_error, 1e-4);
+}
+
+// Same for the tracking layout on a colour-only frame (no depth: colour and landmarks only).
+TEST_F(VulkanSolverTest, ColourOnlyFrameMatchesTheCpu) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  frame.depth.clear();
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  const gpu::FaceParameters start = start_for_tests(truth);
+  EnergyOptions energy;
+  const Eigen::VectorXd v = Eigen::VectorXd::Ones(layout.num_parameters());
+  const VulkanLinearSystem g = solver().Inspect(frame, layout, energy, start, v);
+  const Linearization lin = Linearize(model, layout, start, g.vertex_state, g.gbuffer, frame, energy);
+  Eigen::VectorXd r;
+  JacobianMatrix j;
+  EvaluateResiduals(model, lin, energy, layout.Pack(start), &r, &j);
+  EXPECT_EQ(lin.num_point, 0);
+  for (int t = 0; t <= kNumTerms; ++t) ASSERT_EQ(g.term_rows[t], lin.term_rows[t]) << "term boundary " << t;
+  EXPECT_LT(relative(g.residuals, r), 1e-4);
+  EXPECT_LT(relative(g.jacobian, j), 1e-4);
+  EXPECT_LT(relative(g.normal_product, j.transpose() * (j * v)), 1e-4);
+}
+
+// A full coarse-to-fine solve lands where the CPU solver lands, with either strategy.
+TEST_F(VulkanSolverTest, SolveReachesTheCpuResultWithBothStrategies) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(320, 240));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;  // paper schedule: 7 x 4 on level 2 (80x60), 1 x 4 on level 1 (160x120)
+  gpu::FaceParameters cpu_fit = start_for_tests(truth);
+  const SolverSummary cpu_summary = cpu().Solve(frame, layout, options, &cpu_fit);
+  ASSERT_EQ(cpu_summary.termination, Termination::kScheduleDone) << cpu_summary.FullReport();
+  for (VulkanStrategy strategy : {VulkanStrategy::kMatrixFree, VulkanStrategy::kAssembled}) {
+    solver().set_strategy(strategy);
+    gpu::FaceParameters fit = start_for_tests(truth);
+    const SolverSummary s = solver().Solve(frame, layout, options, &fit);
+    std::cout << vulkan_strategy_name(strategy) << ": " << s.BriefReport() << "\n  cpu: " << cpu_summary.BriefReport()
+              << "\n  rotation vs cpu " << rotation_error(fit, cpu_fit) * 180 / M_PI << " deg, translation vs cpu "
+              << (fit.translation - cpu_fit.translation).norm() * 1000 << " mm; vs truth "
+              << rotation_error(fit, truth) * 180 / M_PI << " deg / "
+              << (fit.translation - truth.translation).norm() * 1000 << " mm (cpu "
+              << rotation_error(cpu_fit, truth) * 180 / M_PI << " deg / "
+              << (cpu_fit.translation - truth.translation).norm() * 1000 << " mm), expression max diff "
+              << (fit.delta - cpu_fit.delta).cwiseAbs().maxCoeff() << "\n";
+    EXPECT_EQ(s.termination, Termination::kScheduleDone) << s.FullReport();
+    EXPECT_FALSE(s.iterations.empty());
+    EXPECT_LT(s.final_energy.total(), 0.5 * s.initial_energy.total()) << s.FullReport();
+    // float on the device against double on the CPU: observed 1e-5 mm and 1e-5 in the weights.
+    EXPECT_LT(rotation_error(fit, cpu_fit), 0.05 * M_PI / 180) << vulkan_strategy_name(strategy);
+    EXPECT_LT((fit.translation - cpu_fit.translation).norm(), 5e-5) << vulkan_strategy_name(strategy);
+    EXPECT_LT((fit.delta - cpu_fit.delta).cwiseAbs().maxCoeff(), 1e-3) << vulkan_strategy_name(strategy);
+    EXPECT_LT(rotation_error(fit, truth), 2.0 * rotation_error(start_for_tests(truth), truth) / 3);
+  }
+  solver().set_strategy(VulkanStrategy::kAuto);
+}
+
+TEST_F(VulkanSolverTest, AutoStrategyMeasuresBothAndKeepsTheFaster) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;
+  options.schedule = {{1, 2, 4}};
+  solver().set_strategy(VulkanStrategy::kAuto);
+  EXPECT_EQ(solver().strategy_choice().chosen, VulkanStrategy::kAuto);
+  gpu::FaceParameters fit = start_for_tests(truth);
+  const SolverSummary s = solver().Solve(frame, layout, options, &fit);
+  const VulkanStrategyChoice& c = solver().strategy_choice();
+  ASSERT_NE(c.chosen, VulkanStrategy::kAuto) << s.FullReport();
+  EXPECT_GT(c.matrix_free_ms, 0);
+  EXPECT_GT(c.assembled_ms, 0);
+  EXPECT_GT(c.residuals, 0);
+  EXPECT_EQ(c.chosen, c.matrix_free_ms <= c.assembled_ms ? VulkanStrategy::kMatrixFree : VulkanStrategy::kAssembled);
+  EXPECT_NE(s.message.find(vulkan_strategy_name(c.chosen)), std::string::npos) << s.message;
+  // The solver is also selectable through SolverOptions::linear_solver.
+  solver().set_strategy(VulkanStrategy::kFromSolverOptions);
+  options.linear_solver = LinearSolverType::kAssembled;
+  fit = start_for_tests(truth);
+  const SolverSummary a = solver().Solve(frame, layout, options, &fit);
+  EXPECT_NE(a.message.find("assembled"), std::string::npos) << a.message;
+  solver().set_strategy(VulkanStrategy::kAuto);
+}
+
+// Bad input: the same termination or error as the CPU solver, never a crash.
+TEST_F(VulkanSolverTest, NoFaceInTheInputStopsLikeTheCpu) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;
+  options.schedule = {{1, 2, 2}};
+  gpu::FaceParameters away = truth;
+  away.translation.z() = -0.5f;  // behind the camera: nothing rendered, no landmark visible
+  const gpu::FaceParameters start = away;
+  gpu::FaceParameters cpu_away = away;
+  const SolverSummary c = cpu().Solve(frame, layout, options, &cpu_away);
+  const SolverSummary g = solver().Solve(frame, layout, options, &away);
+  EXPECT_EQ(c.termination, Termination::kNoValidResiduals);
+  EXPECT_EQ(g.termination, c.termination) << g.FullReport();
+  EXPECT_EQ(away.translation, start.translation);  // left unchanged
+  EXPECT_EQ(away.euler, start.euler);
+
+  // A frame with no depth, no colour term and no landmarks has nothing to fit either.
+  InputFrame empty = frame;
+  empty.depth.assign(empty.depth.size(), 0.f);
+  empty.landmarks.clear();
+  options.energy.use_color = false;
+  gpu::FaceParameters p = truth;
+  const SolverSummary e = solver().Solve(empty, layout, options, &p);
+  EXPECT_EQ(e.termination, Termination::kNoValidResiduals) << e.FullReport();
+}
+
+TEST_F(VulkanSolverTest, InvalidStartParametersAndOptionsAreErrorsLikeTheCpu) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;
+  gpu::FaceParameters nan_start = truth;
+  nan_start.euler.x() = std::nanf("");
+  gpu::FaceParameters cpu_nan = nan_start;
+  EXPECT_THROW(cpu().Solve(frame, layout, options, &cpu_nan), Error);
+  EXPECT_THROW(solver().Solve(frame, layout, options, &nan_start), Error);
+
+  SolverOptions bad = options;
+  bad.schedule.clear();
+  gpu::FaceParameters p = truth;
+  EXPECT_THROW(cpu().Solve(frame, layout, bad, &p), Error);
+  EXPECT_THROW(solver().Solve(frame, layout, bad, &p), Error);
+  bad = options;
+  bad.damping = -1;
+  EXPECT_THROW(solver().Solve(frame, layout, bad, &p), Error);
+  bad = options;
+  bad.schedule = {{5, 1, 1}};  // beyond the pyramid
+  EXPECT_THROW(solver().Solve(frame, layout, bad, &p), Error);
+
+  InputFrame broken = frame;
+  broken.color.resize(3);
+  EXPECT_THROW(solver().Solve(broken, layout, options, &p), Error);
+  ParameterLayout too_big = ParameterLayout::Calibration(model.num_identity(), model.num_albedo(), model.num_expression());
+  too_big.num_identity += 1000;  // more than the model has
+  EXPECT_THROW(solver().Solve(frame, too_big, options, &p), Error);
+  EXPECT_THROW(solver().Solve(frame, layout, options, nullptr), Error);
+  EXPECT_EQ(p.translation, truth.translation);  // nothing was changed by the failed calls
+
+  VulkanSolverOptions vo;
+  vo.strategy = static_cast<VulkanStrategy>(42);
+  std::string why;
+  EXPECT_FALSE(vo.IsValid(&why));
+  EXPECT_THROW(VulkanSolver(context(), model, vo), Error);
+}
+
+// Landmarks alone (no depth, colour term off): no pixel carries a term, the solve runs on the
+// landmark and regulariser rows only and lands where the CPU lands.
+TEST_F(VulkanSolverTest, LandmarksAloneMatchTheCpu) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  frame.depth.clear();
+  ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;
+  options.energy.use_color = false;
+  options.schedule = {{1, 5, 4}};
+  gpu::FaceParameters start = truth;  // expression known: landmarks alone cannot separate it from pose
+  start.euler += Eigen::Vector3f(0.03f, -0.02f, 0.02f);
+  start.translation += Eigen::Vector3f(0.004f, -0.003f, 0.0f);
+  gpu::FaceParameters cpu_fit = start, fit = start;
+  const SolverSummary c = cpu().Solve(frame, layout, options, &cpu_fit);
+  solver().set_strategy(VulkanStrategy::kMatrixFree);
+  const SolverSummary g = solver().Solve(frame, layout, options, &fit);
+  solver().set_strategy(VulkanStrategy::kAuto);
+  ASSERT_EQ(g.termination, c.termination) << g.FullReport() << "\n" << c.FullReport();
+  ASSERT_FALSE(g.iterations.empty());
+  EXPECT_EQ(g.iterations[0].residuals, c.iterations[0].residuals);
+  EXPECT_NEAR(g.initial_energy[Term::kLandmark], c.initial_energy[Term::kLandmark], 1e-4 * c.initial_energy.total());
+  EXPECT_LT(g.final_energy.total(), 0.1 * g.initial_energy.total()) << g.FullReport();
+  EXPECT_LT(rotation_error(fit, cpu_fit), 0.05 * M_PI / 180);
+  EXPECT_LT((fit.translation - cpu_fit.translation).norm(), 5e-5);
+}
+
+std::string run_command(const std::string& command, int* status) {
+  std::string out;
+  FILE* pipe = popen(command.c_str(), "r");
+  if (!pipe) return out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) out.append(buf, n);
+  *status = pclose(pipe);
+  return out;
+}
+
+// `face-reenact bench track` reports the Vulkan strategies next to the CPU reference.
+TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
+  const std::string model = testing::real_model_path();
+  if (model.empty()) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  const char* cli = std::getenv("FR_CLI");
+  ASSERT_NE(cli, nullptr);
+  int status = -1;
+  const std::string out = run_command(std::string("FR_VULKAN_DEVICE=llvmpipe ") + cli + " bench track --model " + model +
+                                          " --frames 1 --width 160 --height 120 --json 2>/dev/null",
+                                      &status);
+  ASSERT_EQ(status, 0) << out;
+  const auto doc = nlohmann::json::parse(out);
+  ASSERT_FALSE(doc["vulkan"].contains("error")) << doc["vulkan"].dump();
+  EXPECT_NE(std::string(doc["vulkan"]["device"]).find("llvmpipe"), std::string::npos);
+  const double cpu_energy = doc["solvers"]["cpu_matrix_free"]["mean_final_energy"];
+  for (const char* name : {"vulkan_matrix_free", "vulkan_assembled", "vulkan_auto"}) {
+    const auto& s = doc["solvers"][name];
+    ASSERT_EQ(s["levels"].size(), 2u) << name << ": " << out;
+    EXPECT_EQ(s["levels"][0]["level"], 2);
+    EXPECT_GT(double(s["levels"][0]["residuals"]), 50.0);
+    EXPECT_GT(double(s["levels"][0]["analysis_ms_per_frame"]), 0.0);
+    EXPECT_GT(double(s["total_ms_per_frame"]), 0.0);
+    EXPECT_NEAR(double(s["mean_final_energy"]), cpu_energy, 1e-3 * std::max(1.0, cpu_energy)) << name;
+    EXPECT_GT(double(doc["vulkan"]["ratio_to_cpu_matrix_free"][name]), 0.0);
+  }
+  const std::string chosen = doc["vulkan"]["auto_choice"]["chosen"];
+  EXPECT_TRUE(chosen == "matrix-free" || chosen == "assembled") << chosen;
+
+  run_command(std::string(cli) + " bench track --model " + model + " --frames 1 --vulkan sideways 2>&1", &status);
+  EXPECT_NE(status, 0);
+}
+
+}  // namespace
+}  // namespace face_reenact::tracker
