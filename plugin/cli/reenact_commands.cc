@@ -23,6 +23,7 @@
 #include "face_reenact/capture/synth.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
+#include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/context.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
@@ -42,7 +43,6 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 tracker::LandmarkSourceChoice parse_landmarks(const std::string& s) {
   if (s == "detector") return tracker::LandmarkSourceChoice::kDetector;

@@ -15,11 +15,6 @@ namespace {
 
 using namespace face_reenact::tracker;
 
-struct Totals {
-  double residuals = 0, synthesis_ms = 0, analysis_ms = 0;
-  int iterations = 0;
-};
-
 std::vector<std::pair<std::string, VulkanStrategy>> strategies_of(const std::string& which) {
   const std::pair<std::string, VulkanStrategy> mf{"matrix-free", VulkanStrategy::kMatrixFree};
   const std::pair<std::string, VulkanStrategy> as{"assembled", VulkanStrategy::kAssembled};
@@ -43,7 +38,7 @@ std::string json_name(const std::string& strategy) {
 }  // namespace
 
 void add_vulkan_track_bench(const TrackerModel& model, const std::vector<InputFrame>& frames,
-                            const gpu::FaceParameters& start, const ParameterLayout& layout, int timed_frames,
+                            const gpu::FaceParameters& start, const ParameterLayout& layout,
                             const VulkanTrackBenchArgs& args, nlohmann::json* doc) {
   const auto strategies = strategies_of(args.strategies);
   nlohmann::json& v = (*doc)["vulkan"];
@@ -68,36 +63,9 @@ void add_vulkan_track_bench(const TrackerModel& model, const std::vector<InputFr
   for (const auto& [name, strategy] : strategies) {
     solver.set_strategy(strategy);
     SolverOptions options;
-    gpu::FaceParameters current = start;
-    std::map<int, Totals> levels;
-    double pyramid_ms = 0, total_ms = 0, final_energy = 0;
-    for (size_t f = 0; f < frames.size(); ++f) {
-      const SolverSummary s = solver.Solve(frames[f], layout, options, &current);
-      if (f == 0) continue;  // warm-up (and, for auto, the strategy measurement)
-      pyramid_ms += s.pyramid_ms;
-      total_ms += s.total_ms;
-      final_energy += s.final_energy.total();
-      for (const auto& it : s.iterations) {
-        Totals& l = levels[it.level];
-        l.residuals += static_cast<double>(it.residuals);
-        l.synthesis_ms += it.synthesis_ms;
-        l.analysis_ms += it.analysis_ms;
-        ++l.iterations;
-      }
-    }
-    nlohmann::json levels_doc = nlohmann::json::array();
-    for (auto it = levels.rbegin(); it != levels.rend(); ++it) {
-      const Totals& l = it->second;
-      levels_doc.push_back({{"level", it->first},
-                            {"gauss_newton_per_frame", static_cast<double>(l.iterations) / timed_frames},
-                            {"residuals", l.iterations ? l.residuals / l.iterations : 0.0},
-                            {"synthesis_ms_per_frame", l.synthesis_ms / timed_frames},
-                            {"analysis_ms_per_frame", l.analysis_ms / timed_frames}});
-    }
-    (*doc)["solvers"][json_name(name)] = {{"levels", levels_doc},
-                                          {"pyramid_ms_per_frame", pyramid_ms / timed_frames},
-                                          {"total_ms_per_frame", total_ms / timed_frames},
-                                          {"mean_final_energy", final_energy / timed_frames}};
+    (*doc)["solvers"][json_name(name)] = time_track_solver(
+        [&](const InputFrame& frame, gpu::FaceParameters* p) { return solver.Solve(frame, layout, options, p); },
+        frames, start);
     if (strategy == VulkanStrategy::kAuto) {
       const VulkanStrategyChoice& c = solver.strategy_choice();
       v["auto_choice"] = {{"chosen", vulkan_strategy_name(c.chosen)},

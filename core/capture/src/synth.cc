@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/context.h"
 #include "face_reenact/gpu/renderer.h"
 #include "face_reenact/model/face_model.h"
@@ -19,7 +20,6 @@ namespace face_reenact::capture {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 bool fail_why(std::string* why, const std::string& m) {
   if (why) *why = m;

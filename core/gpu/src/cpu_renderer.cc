@@ -6,15 +6,12 @@
 #include <limits>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/timing.h"
 
 namespace face_reenact::gpu {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 // Sub-pixel snapping of the rasteriser (1/256 pixel).
 constexpr double kSubpixel = 256.0;

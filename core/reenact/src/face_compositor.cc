@@ -15,12 +15,12 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/reenact/laplacian_blend.h"
 #include "face_reenact/reenact/transfer.h"
+#include "face_reenact/common/timing.h"
 
 namespace face_reenact::reenact {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 constexpr gpu::PartMask part_bit(FacePart p) { return gpu::PartMask{1} << static_cast<int>(p); }
 constexpr gpu::PartMask kMouthParts =

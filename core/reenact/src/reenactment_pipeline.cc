@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/timing.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/reenact/face_compositor.h"
 #include "face_reenact/reenact/transfer.h"
@@ -15,7 +16,6 @@ namespace face_reenact::reenact {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 // The albedo map learns from the first tracked frames densely, then keeps refining slowly (a
 // render per observation).

@@ -6,15 +6,11 @@
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 #include "math_internal.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::fail;
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 bool weight_ok(double w) { return std::isfinite(w) && w >= 0; }
 
 // The full coefficient vectors (double) of the current x: solved blocks from x, the rest from

@@ -9,18 +9,12 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::fail;
+using internal::Clock;
 namespace {
-
-using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 std::string format(const char* fmt, double a, double b = 0, double c = 0) {
   char buf[256];
   std::snprintf(buf, sizeof(buf), fmt, a, b, c);

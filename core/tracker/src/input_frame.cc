@@ -6,15 +6,11 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/srgb.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::fail;
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 size_t pixel_count(const gpu::PinholeCamera& c) { return static_cast<size_t>(c.width) * static_cast<size_t>(c.height); }
 
 // Taps of the [1 3 3 1] / 8 kernel around coarse sample k: fine indices 2k-1 .. 2k+2.

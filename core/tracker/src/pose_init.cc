@@ -11,15 +11,11 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "math_internal.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::fail;
 namespace {
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 constexpr double kPi = 3.14159265358979323846;
 
 // Model-frame positions of the given vertices at `shape`'s identity and expression.

@@ -6,18 +6,12 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/srgb.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::fail;
+using internal::Clock;
 namespace {
-
-using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 constexpr double kRadToDeg = 57.29577951308232;
 
 }  // namespace

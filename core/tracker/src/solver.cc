@@ -6,18 +6,12 @@
 #include <cstdio>
 
 #include "face_reenact/common/error.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::fail;
+using internal::Clock;
 namespace {
-
-using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 std::string energy_line(const TermEnergies& e) {
   char buf[256];
   std::snprintf(buf, sizeof(buf), "E=%.6g (point %.4g, plane %.4g, color %.4g, landmark %.4g, reg %.4g)", e.total(),

@@ -17,12 +17,12 @@
 #include "face_reenact/gpu/pipeline.h"
 #include "face_reenact/gpu/renderer.h"
 #include "face_reenact/model/face_model.h"
+#include "face_reenact/common/timing.h"
 
 namespace face_reenact::tracker {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 // Mirrors TrackParams in shaders/tracker_common.glsl (std430: only 4-byte scalars).
 struct TrackParams {
