@@ -1,6 +1,8 @@
 // `face-reenact reenact` (source expressions onto a target recording, written as a video) and
 // `face-reenact demo` (the whole pipeline on two synthetic actors, checked in a closed loop).
 // docs/reenactment.md describes both.
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -100,10 +102,18 @@ void check_output_file(const std::string& path, const char* what) {
 
 class ProgressBar {
  public:
-  ProgressBar(int total, bool enabled) : total_(total), enabled_(enabled) {}
+  ProgressBar(int total, bool enabled) : total_(total), enabled_(enabled), terminal_(::isatty(2) == 1) {}
   void update(int done, const std::string& status) {
     if (!enabled_) return;
     const auto now = Clock::now();
+    if (!terminal_) {
+      // A log file or pipe (CI, the set-up script): a plain line every 10 frames and at the end
+      // instead of a bar redrawn in place.
+      if (done < total_ && done % 10 != 0) return;
+      std::fprintf(stderr, "%d/%d %s\n", done, total_, status.c_str());
+      std::fflush(stderr);
+      return;
+    }
     if (done < total_ && now - last_ < std::chrono::milliseconds(200)) return;
     last_ = now;
     constexpr int kWidth = 30;
@@ -117,6 +127,7 @@ class ProgressBar {
  private:
   int total_;
   bool enabled_;
+  bool terminal_;
   Clock::time_point last_{};
 };
 
