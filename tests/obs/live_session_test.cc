@@ -247,7 +247,10 @@ TEST(LiveSessionTest, InputLostWhilePlayingIsReportedAndRecovers) {
   ASSERT_TRUE(session.wait_frame(0, 10s, &frame));
   // The frames vanish under the running session (a camera unplugged, a disk gone).
   fs::remove_all(path + "/color");
-  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) { return !st.target_open; });
+  // Between reopen attempts (every 100 ms) the headline says why the input is gone.
+  LiveStatus s = wait_status(session, 5s, [](const LiveStatus& st) {
+    return !st.target_open && st.Headline().rfind("No input: ", 0) == 0;
+  });
   EXPECT_FALSE(s.target_open) << s.Headline();
   EXPECT_FALSE(s.target_error.empty());
   EXPECT_EQ(s.Headline().rfind("No input: ", 0), 0u) << s.Headline();
@@ -467,6 +470,13 @@ TEST(FrameGrabberTest, OpenNiFileDriverPlaysTheSharedRecording) {
   const char* shared = std::getenv("FR_SHARED_DATA");
   std::string oni = std::string(shared ? shared : "") + "/rgbd/openni1_room_test.oni";
   if (!shared || !fs::exists(oni)) GTEST_SKIP() << "no " << oni << " (FR_SHARED_DATA)";
+#if defined(__has_feature)
+#if __has_feature(address_sanitizer)
+  // OpenNI2 unloads its drivers at shutdown; LeakSanitizer then sees their allocations with
+  // "<unknown module>" frames that no suppression can name. The release build runs this test.
+  GTEST_SKIP() << "OpenNI2's unloaded drivers defeat LeakSanitizer's attribution (run in the release build)";
+#endif
+#endif
   GrabberOptions o;
   o.input = parse_target_spec("openni:" + oni, "t");
   FrameGrabber grabber(o);
