@@ -136,7 +136,7 @@ void evaluate_pixel(uint item, inout float e[5]) {
   vec3 albedo[3], irradiance[3];
   vec3 color = vec3(0.0);
   for (int k = 0; k < 3; ++k) {
-    sh_basis9(r * n_model[k], y[k]);
+    sh_basis(r * n_model[k], y[k]);
     albedo[k] = vertex_albedo(vert[k]);
     for (uint ch = 0u; ch < 3u; ++ch) {
       float irr = 0.0;
@@ -203,7 +203,7 @@ void evaluate_pixel(uint item, inout float e[5]) {
     vec3 dcolor = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
       vec3 grad[9];
-      sh_gradient9(r * n_model[k], grad);
+      sh_basis_gradient(r * n_model[k], grad);
       const vec3 dn = dr[a] * n_model[k];
       for (uint ch = 0u; ch < 3u; ++ch) {
         float d_irr = 0.0;

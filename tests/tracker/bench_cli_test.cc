@@ -10,16 +10,7 @@
 
 namespace {
 
-std::string run(const std::string& command, int* status) {
-  std::string out;
-  FILE* pipe = popen(command.c_str(), "r");
-  if (!pipe) return out;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) out.append(buf, n);
-  *status = pclose(pipe);
-  return out;
-}
+using face_reenact::tracker::testing::run_shell_command;
 
 TEST(TrackerBenchCli, BenchTrackReportsBothCpuOperators) {
   const std::string model = face_reenact::tracker::testing::real_model_path();
@@ -27,7 +18,7 @@ TEST(TrackerBenchCli, BenchTrackReportsBothCpuOperators) {
   const char* cli = std::getenv("FR_CLI");
   ASSERT_NE(cli, nullptr);
   int status = -1;
-  const std::string out = run(std::string(cli) + " bench track --model " + model +
+  const std::string out = run_shell_command(std::string(cli) + " bench track --model " + model +
                                   " --frames 1 --width 320 --height 240 --json 2>&1",
                               &status);
   ASSERT_EQ(status, 0) << out;
@@ -48,9 +39,9 @@ TEST(TrackerBenchCli, BadArgumentsFailCleanly) {
   const char* cli = std::getenv("FR_CLI");
   ASSERT_NE(cli, nullptr);
   int status = -1;
-  run(std::string(cli) + " bench track --model /nonexistent/model.frm --frames 1 2>&1", &status);
+  run_shell_command(std::string(cli) + " bench track --model /nonexistent/model.frm --frames 1 2>&1", &status);
   EXPECT_NE(status, 0);
-  run(std::string(cli) + " bench track --frames 0 2>&1", &status);
+  run_shell_command(std::string(cli) + " bench track --frames 0 2>&1", &status);
   EXPECT_NE(status, 0);
 }
 

@@ -1,6 +1,7 @@
 #pragma once
 // Shared fixtures of the tracker tests: the real face model when one is built (FR_MODEL, else
 // /tmp/face-model.frm), a deformable test sphere otherwise, and synthetic ground truth.
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
@@ -80,6 +81,19 @@ inline gpu::FaceParameters true_parameters(const TrackerModel& m, float distance
     p.gamma[c * 9 + 2] = -0.2f;   // and from the camera side
   }
   return p;
+}
+
+// Runs a shell command (the CLI tests use redirections such as 2>&1) and returns its stdout;
+// *status receives pclose's wait status.
+inline std::string run_shell_command(const std::string& command, int* status) {
+  std::string out;
+  FILE* pipe = popen(command.c_str(), "r");
+  if (!pipe) return out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) out.append(buf, n);
+  *status = pclose(pipe);
+  return out;
 }
 
 }  // namespace face_reenact::tracker::testing

@@ -294,17 +294,6 @@ TEST_F(VulkanSolverTest, LandmarksAloneMatchTheCpu) {
   EXPECT_LT((fit.translation - cpu_fit.translation).norm(), 5e-5);
 }
 
-std::string run_command(const std::string& command, int* status) {
-  std::string out;
-  FILE* pipe = popen(command.c_str(), "r");
-  if (!pipe) return out;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) out.append(buf, n);
-  *status = pclose(pipe);
-  return out;
-}
-
 // `face-reenact bench track` reports the Vulkan strategies next to the CPU reference.
 TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
   const std::string model = testing::real_model_path();
@@ -312,7 +301,7 @@ TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
   const char* cli = std::getenv("FR_CLI");
   ASSERT_NE(cli, nullptr);
   int status = -1;
-  const std::string out = run_command(std::string("FR_VULKAN_DEVICE=llvmpipe ") + cli + " bench track --model " + model +
+  const std::string out = testing::run_shell_command(std::string("FR_VULKAN_DEVICE=llvmpipe ") + cli + " bench track --model " + model +
                                           " --frames 1 --width 160 --height 120 --json 2>/dev/null",
                                       &status);
   ASSERT_EQ(status, 0) << out;
@@ -333,7 +322,7 @@ TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
   const std::string chosen = doc["vulkan"]["auto_choice"]["chosen"];
   EXPECT_TRUE(chosen == "matrix-free" || chosen == "assembled") << chosen;
 
-  run_command(std::string(cli) + " bench track --model " + model + " --frames 1 --vulkan sideways 2>&1", &status);
+  testing::run_shell_command(std::string(cli) + " bench track --model " + model + " --frames 1 --vulkan sideways 2>&1", &status);
   EXPECT_NE(status, 0);
 }
 

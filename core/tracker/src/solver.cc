@@ -102,17 +102,24 @@ TermEnergies CpuSolver::Energy(const InputFrame& frame, const ParameterLayout& l
   return e;
 }
 
-SolverSummary CpuSolver::Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
-                               gpu::FaceParameters* params) const {
+SolverSummary SolveOnPyramidOf(const InputFrame& frame, const SolverOptions& options,
+                               const std::function<SolverSummary(const std::vector<InputFrame>& pyramid)>& solve) {
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   const auto start = Clock::now();
   const std::vector<InputFrame> pyramid = BuildPyramid(frame, options.pyramid);
   const double pyramid_ms = ms_since(start);
-  SolverSummary s = Solve(pyramid, layout, options, params);
+  SolverSummary s = solve(pyramid);
   s.pyramid_ms = pyramid_ms;
   s.total_ms += pyramid_ms;
   return s;
+}
+
+SolverSummary CpuSolver::Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                               gpu::FaceParameters* params) const {
+  return SolveOnPyramidOf(frame, options, [&](const std::vector<InputFrame>& pyramid) {
+    return Solve(pyramid, layout, options, params);
+  });
 }
 
 SolverSummary CpuSolver::Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,

@@ -718,15 +718,9 @@ void VulkanSolver::set_strategy(VulkanStrategy strategy) {
 
 SolverSummary VulkanSolver::Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
                                   gpu::FaceParameters* params) {
-  std::string why;
-  if (!options.IsValid(&why)) throw Error(why);
-  const auto start = Clock::now();
-  const std::vector<InputFrame> pyramid = BuildPyramid(frame, options.pyramid);
-  const double pyramid_ms = ms_since(start);
-  SolverSummary s = Solve(pyramid, layout, options, params);
-  s.pyramid_ms = pyramid_ms;
-  s.total_ms += pyramid_ms;
-  return s;
+  return SolveOnPyramidOf(frame, options, [&](const std::vector<InputFrame>& pyramid) {
+    return Solve(pyramid, layout, options, params);
+  });
 }
 
 SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,

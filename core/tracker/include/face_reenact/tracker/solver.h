@@ -4,6 +4,7 @@
 // CPU renderer, linearises the energy at the new G-buffer and solves the normal equations with
 // Jacobi-preconditioned CG (analysis). It is the oracle a GPU path is compared against.
 #include <Eigen/Core>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -119,6 +120,11 @@ class CpuSolver {
   TrackerModel model_;
   gpu::CpuRenderer renderer_;
 };
+
+// The single-frame entry point every solver shares: validates `options`, builds the frame's
+// pyramid (timed into the summary's pyramid_ms and total_ms) and solves on it with `solve`.
+SolverSummary SolveOnPyramidOf(const InputFrame& frame, const SolverOptions& options,
+                               const std::function<SolverSummary(const std::vector<InputFrame>& pyramid)>& solve);
 
 // A synthetic input frame rendered by the CPU renderer at `params` (the test oracle and the
 // benchmark input): colour and depth from the G-buffer (background: grey `background`, no
