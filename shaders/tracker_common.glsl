@@ -16,9 +16,11 @@ struct TrackParams {
   uint rows;               // column stride of the column-major J: (8 P + 2 L + R) rounded up to 4
   float s_point, s_plane, s_col, s_lan, s_reg;  // residual pre-scales (energy.cc)
   float fx, fy, cx, cy;
-  float inv_sigma_exp;
+  float s_reg_exp;  // expression prior rows: sqrt(w_reg_expression) / sigma_exp
   float r0[9];  // rotation at the linearisation point, row-major (freezes model normals)
-  float pad1;
+  float w_sparse_exp;    // EnergyOptions::w_expression_sparsity (0 = off)
+  float sparse_eps_exp;  // EnergyOptions::expression_sparsity_epsilon
+  float pad1, pad2;
 };
 
 // A pixel that carries at least one term (written by tracker_classify.comp).

@@ -289,7 +289,10 @@ void evaluate_regularizer(uint q, inout float e[5]) {
   } else {
     rest -= shared_id + shared_alb;
     col = params.o_exp + rest;
-    inv = params.s_reg * params.inv_sigma_exp;
+    // Eq. 11 plus the reweighted L1 prior, its weight frozen at the linearisation point's delta
+    // (energy.cc).
+    const float delta0 = abs(base[params.model_id + params.model_alb + rest]);
+    inv = sqrt(params.s_reg_exp * params.s_reg_exp + params.w_sparse_exp / (delta0 + params.sparse_eps_exp));
   }
   const float value = inv * xs[x_slot * params.n + col];
   if (write_residuals) residuals[row] = value;

@@ -8,25 +8,11 @@
 #include <sstream>
 #include <string>
 
+#include "support/temp_dir.h"
+
 namespace face_reenact::capture::testing {
 
-class TempDir {
- public:
-  TempDir() {
-    std::string pattern = (std::filesystem::temp_directory_path() / "fr-capture-test-XXXXXX").string();
-    if (!mkdtemp(pattern.data())) throw std::runtime_error("mkdtemp failed");
-    path_ = pattern;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    std::filesystem::remove_all(path_, ec);
-  }
-  std::string operator/(const std::string& name) const { return (std::filesystem::path(path_) / name).string(); }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
+using ::face_reenact::testing::TempDir;  // support/temp_dir.h
 
 inline std::string slurp(const std::string& path) {
   std::ifstream in(path, std::ios::binary);

@@ -6,6 +6,8 @@
 #include <fstream>
 #include <string>
 
+#include "support/temp_dir.h"
+
 namespace face_reenact {
 namespace {
 
@@ -25,12 +27,12 @@ TEST(Checksum, Sha256KnownVectors) {
 }
 
 TEST(Checksum, Sha256OfFileMatchesInMemory) {
-  auto path = (std::filesystem::temp_directory_path() / "fr_sha_test.bin").string();
+  const ::face_reenact::testing::TempDir dir("fr-checksum-test");
+  const std::string path = dir / "content.bin";
   std::string content(3 << 20, 'x');  // spans several read chunks
   content[12345] = 'y';
   std::ofstream(path, std::ios::binary) << content;
   EXPECT_EQ(sha256_file_hex(path), sha256_hex(as_bytes(content)));
-  std::filesystem::remove(path);
 }
 
 }  // namespace

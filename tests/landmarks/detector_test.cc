@@ -291,7 +291,8 @@ TEST(DetectorModelTest, MissingOrCorruptModelIsAClearError) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("/nonexistent/sp.dat"), std::string::npos);
   }
-  const std::string corrupt = (std::filesystem::temp_directory_path() / "fr_corrupt_sp.dat").string();
+  const ::face_reenact::testing::TempDir dir("fr-landmarks-detector-test");
+  const std::string corrupt = dir / "corrupt_sp.dat";
   {
     std::ofstream f(corrupt, std::ios::binary);
     f << "this is not a dlib model, just some bytes";

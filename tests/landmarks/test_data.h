@@ -7,11 +7,14 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <memory>
 #include <string>
+#include <vector>
 #include <unistd.h>
 
 #include "face_reenact/landmarks/frame_source.h"
 #include "face_reenact/landmarks/landmark_detector.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::landmarks::test {
 
@@ -40,11 +43,11 @@ inline std::string read_text(const std::string& path) {
   return s.str();
 }
 
-// A fresh temporary folder per test process.
+// A fresh temporary folder, removed with its contents when the test process exits.
 inline std::filesystem::path temp_dir(const std::string& name) {
-  const auto dir = std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
-  return dir;
+  static std::vector<std::unique_ptr<::face_reenact::testing::TempDir>> dirs;
+  dirs.push_back(std::make_unique<::face_reenact::testing::TempDir>(name));
+  return dirs.back()->path();
 }
 
 inline bool model_available() {

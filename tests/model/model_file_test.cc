@@ -6,6 +6,7 @@
 
 #include "face_reenact/common/error.h"
 #include "small_test_model.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact {
 namespace {
@@ -55,10 +56,10 @@ TEST(ModelFile, RoundTripInMemoryAndOnDisk) {
   auto bytes = serialize_face_model(m);
   expect_same(m, parse_face_model(bytes));
 
-  auto path = (std::filesystem::temp_directory_path() / "fr_model_file_test.frm").string();
+  const ::face_reenact::testing::TempDir dir("fr-model-file-test");
+  const std::string path = dir / "model.frm";
   save_face_model(m, path);
   expect_same(m, load_face_model(path));
-  std::filesystem::remove(path);
 }
 
 TEST(ModelFile, HeaderIsDocumentedLayout) {

@@ -13,15 +13,16 @@
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/output/frame_source.h"
 #include "face_reenact/output/v4l2_loopback_writer.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::output {
 namespace {
 
 namespace fs = std::filesystem;
 
-fs::path temp_dir() {
-  fs::path dir = fs::temp_directory_path() / ("fr_output_test_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
+// One folder per test process, removed when the process exits.
+const ::face_reenact::testing::TempDir& temp_dir() {
+  static const ::face_reenact::testing::TempDir dir("fr-output-test");
   return dir;
 }
 
@@ -51,7 +52,7 @@ TEST(V4l2LoopbackWriter, RegularFileAndDirectoryAreNotVideoDevices) {
   EXPECT_NE(e.find("is not a video device"), std::string::npos) << e;
   EXPECT_NE(e.find("regular file"), std::string::npos) << e;
   EXPECT_EQ(fs::file_size(file), 5u);  // never written to
-  e = open_error(temp_dir().string());
+  e = open_error(temp_dir().path());
   EXPECT_NE(e.find("directory"), std::string::npos) << e;
 }
 
@@ -167,7 +168,7 @@ TEST(MediaSource, BadInputsThrowClearErrors) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos);
   }
-  EXPECT_THROW(open_media_source({.path = temp_dir().string()}), Error);
+  EXPECT_THROW(open_media_source({.path = temp_dir().path()}), Error);
   fs::path junk = temp_dir() / "junk.mp4";
   std::ofstream(junk) << "this is not a video at all";
   try {

@@ -163,6 +163,13 @@ TEST(TrackerEnergy, OptionsValidation) {
   o.geometry_unit_m = 0;
   EXPECT_FALSE(o.IsValid(&why));
   o = EnergyOptions{};
+  o.w_expression_sparsity = -0.1;
+  EXPECT_FALSE(o.IsValid(&why));
+  o = EnergyOptions{};
+  o.expression_sparsity_epsilon = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("epsilon"), std::string::npos);
+  o = EnergyOptions{};
   o.use_point = o.use_plane = o.use_color = o.use_landmarks = o.use_regularizer = false;
   EXPECT_FALSE(o.IsValid(&why));
   EXPECT_NE(why.find("off"), std::string::npos);
@@ -290,6 +297,45 @@ TEST(TrackerEnergy, DataTermsVanishAtTheTruthAndGrowAwayFromIt) {
   double reg = 0;
   for (int k = 0; k < truth.delta.size(); ++k) reg += truth.delta[k] * truth.delta[k];
   EXPECT_NEAR(at_truth[Term::kRegularizer], eo.w_reg * reg, 1e-6);
+}
+
+// The expression rows of E_reg: Eq. 11 with w_reg_expression, plus the reweighted L1 prior whose
+// weight is frozen at the linearisation point, so that E_reg there is
+// sum w_reg_expression delta^2 + w_sparsity delta^2 / (|delta| + epsilon) (-> w_sparsity |delta|).
+TEST(TrackerEnergy, ExpressionPriorRowsAreEq11PlusReweightedL1) {
+  const TrackerModel model = sphere_model();
+  const CpuSolver solver(model);
+  gpu::FaceParameters truth = true_parameters(model, 0.5f, 4);
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, truth, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  EnergyOptions eo;
+  eo.w_reg_expression = 0.3;
+  eo.w_expression_sparsity = 0.2;
+  eo.expression_sparsity_epsilon = 0.01;
+  const Linearization lin = solver.LinearizeAt(frame, layout, eo, truth);
+  Eigen::VectorXd r;
+  JacobianMatrix j;
+  TermEnergies e;
+  const Eigen::VectorXd x = layout.Pack(truth);
+  EvaluateResiduals(model, lin, eo, x, &r, &j, &e);
+  double expected = 0, l1 = 0;
+  for (int k = 0; k < truth.delta.size(); ++k) {
+    const double d = truth.delta[k];
+    expected += eo.w_reg_expression * d * d + eo.w_expression_sparsity * d * d / (std::abs(d) + eo.expression_sparsity_epsilon);
+    l1 += eo.w_reg_expression * d * d + eo.w_expression_sparsity * std::abs(d);
+  }
+  ASSERT_GT(l1, 0);
+  EXPECT_NEAR(e[Term::kRegularizer], expected, 1e-9);
+  EXPECT_NEAR(e[Term::kRegularizer], l1, 0.05 * l1);  // close to the L1 value with a small epsilon
+  // Each row is linear in its weight: the Jacobian is the row's scale, the same at any x.
+  const Eigen::Index row0 = lin.term_rows[static_cast<int>(Term::kRegularizer)];
+  const int o_exp = layout.offset(Block::kExpression);
+  for (int k = 0; k < truth.delta.size(); ++k) {
+    const double d = truth.delta[k];
+    const double scale = std::sqrt(eo.w_reg_expression + eo.w_expression_sparsity / (std::abs(d) + eo.expression_sparsity_epsilon));
+    EXPECT_NEAR(j(row0 + k, o_exp + k), scale, 1e-12);
+    EXPECT_NEAR(r[row0 + k], scale * d, 1e-12);
+  }
 }
 
 TEST(TrackerEnergy, LinearizeRejectsMismatchedInputs) {

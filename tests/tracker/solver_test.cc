@@ -191,6 +191,36 @@ TEST_F(TrackerSolverTest, LandmarkTermAloneRecoversPose) {
   EXPECT_LT(e.translation, 0.003);
 }
 
+// The sparsity prior (EnergyOptions::w_expression_sparsity) on the case it is for: 38 landmarks
+// cannot tell 52 blendshapes apart, and the quadratic prior of Eq. 11 spreads an expression over
+// many small weights. Reweighted L1 keeps the blendshapes the truth does not use near zero
+// without giving up the ones it uses (some shrinkage of those is the price).
+TEST_F(TrackerSolverTest, ExpressionSparsityKeepsUnusedBlendshapesAtZero) {
+  struct Result {
+    double unused_mass = 0, mean_abs_error = 0;
+  };
+  auto run = [&](double sparsity) {
+    SolverOptions o = single_term(Term::kLandmark);
+    o.energy.w_expression_sparsity = sparsity;
+    gpu::FaceParameters p = truth_;
+    p.delta.setZero();
+    SolverSummary summary = solver_->Solve(frame_, tracking(), o, &p);
+    EXPECT_EQ(summary.termination, Termination::kScheduleDone) << summary.message;
+    Result r;
+    for (int k = 0; k < p.delta.size(); ++k) {
+      if (truth_.delta[k] == 0.f) r.unused_mass += p.delta[k];
+      r.mean_abs_error += std::abs(p.delta[k] - truth_.delta[k]) / p.delta.size();
+    }
+    std::cout << "sparsity " << sparsity << ": unused blendshapes sum " << r.unused_mass << ", mean abs error "
+              << r.mean_abs_error << "\n";
+    return r;
+  };
+  const Result quadratic = run(0.0);
+  const Result sparse = run(0.1);
+  EXPECT_LT(sparse.unused_mass, 0.5 * quadratic.unused_mass);
+  EXPECT_LT(sparse.mean_abs_error, quadratic.mean_abs_error + 0.02);
+}
+
 // With the geometry fixed by the correspondences, the colour term determines the lighting
 // (its derivative reaches pose only through the shading, nearly degenerate with rotating the
 // light), so it starts from the true shape and is judged on appearance.

@@ -121,8 +121,11 @@ TEST_F(VulkanSolverTest, ColourOnlyFrameMatchesTheCpu) {
   InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
   frame.depth.clear();
   const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
-  const gpu::FaceParameters start = start_for_tests(truth);
+  gpu::FaceParameters start = start_for_tests(truth);
+  for (int k = 0; k < start.delta.size(); ++k) start.delta[k] = 0.03f * static_cast<float>(k % 7);
   EnergyOptions energy;
+  energy.w_reg_expression = 0.5;       // the expression prior rows with both of their weights
+  energy.w_expression_sparsity = 0.1;  // (the reweighted L1 reads the base expression)
   const Eigen::VectorXd v = Eigen::VectorXd::Ones(layout.num_parameters());
   const VulkanLinearSystem g = solver().Inspect(frame, layout, energy, start, v);
   const Linearization lin = Linearize(model, layout, start, g.vertex_state, g.gbuffer, frame, energy);

@@ -102,8 +102,12 @@ double TermEnergies::total() const {
 }
 
 bool EnergyOptions::IsValid(std::string* why) const {
-  if (!weight_ok(w_point) || !weight_ok(w_plane) || !weight_ok(w_col) || !weight_ok(w_lan) || !weight_ok(w_reg)) {
+  if (!weight_ok(w_point) || !weight_ok(w_plane) || !weight_ok(w_col) || !weight_ok(w_lan) || !weight_ok(w_reg) ||
+      !weight_ok(w_reg_expression) || !weight_ok(w_expression_sparsity)) {
     return fail(why, "energy: term weights must be finite and non-negative");
+  }
+  if (!(expression_sparsity_epsilon > 0) || !std::isfinite(expression_sparsity_epsilon)) {
+    return fail(why, "energy: expression_sparsity_epsilon must be positive");
   }
   if (!(geometry_unit_m > 0) || !std::isfinite(geometry_unit_m)) return fail(why, "energy: geometry_unit_m must be positive");
   if (!(landmark_reference_width > 0) || !std::isfinite(landmark_reference_width)) {
@@ -356,8 +360,8 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
 
   // Regulariser (Eq. 11).
   if (lin.num_regularizer > 0) {
-    const double s_reg = std::sqrt(options.w_reg);
-    auto prior = [&](int offset, int count, auto sigma_of) {
+    auto prior = [&](int offset, int count, double weight, auto sigma_of) {
+      const double s_reg = std::sqrt(weight);
       for (int q = 0; q < count; ++q) {
         const double inv = s_reg / sigma_of(q);
         r[row] = inv * x[offset + q];
@@ -366,10 +370,18 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       }
     };
     if (lin.regularize_shared) {
-      prior(o_id, k_id, [&](int q) { return static_cast<double>(model.identity_sigma[q]); });
-      prior(o_alb, k_alb, [&](int q) { return static_cast<double>(model.albedo_sigma[q]); });
+      prior(o_id, k_id, options.w_reg, [&](int q) { return static_cast<double>(model.identity_sigma[q]); });
+      prior(o_alb, k_alb, options.w_reg, [&](int q) { return static_cast<double>(model.albedo_sigma[q]); });
     }
-    prior(o_exp, k_exp, [&](int) { return static_cast<double>(model.expression_sigma); });
+    // Eq. 11 plus the reweighted L1 prior (EnergyOptions::w_expression_sparsity).
+    const double l2 = options.w_reg_expression / (static_cast<double>(model.expression_sigma) * model.expression_sigma);
+    for (int q = 0; q < k_exp; ++q) {
+      const double delta0 = std::abs(static_cast<double>(lin.base.delta[q]));
+      const double inv = std::sqrt(l2 + options.w_expression_sparsity / (delta0 + options.expression_sparsity_epsilon));
+      r[row] = inv * x[o_exp + q];
+      if (jacobian) (*jacobian)(row, o_exp + q) = inv;
+      ++row;
+    }
   }
 
   if (energies) {

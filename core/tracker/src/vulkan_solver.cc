@@ -33,11 +33,12 @@ struct TrackParams {
   uint32_t num_vertices, width, regularize_shared, rows;
   float s_point, s_plane, s_col, s_lan, s_reg;
   float fx, fy, cx, cy;
-  float inv_sigma_exp;
+  float s_reg_exp;
   float r0[9];
-  float pad1;
+  float w_sparse_exp, sparse_eps_exp;
+  float pad1, pad2;
 };
-static_assert(sizeof(TrackParams) == 160, "TrackParams must match tracker_common.glsl");
+static_assert(sizeof(TrackParams) == 172, "TrackParams must match tracker_common.glsl");
 
 // Mirrors the Counters block of tracker_classify.comp / tracker_landmarks.comp.
 struct Counters {
@@ -443,7 +444,9 @@ struct VulkanSolver::Impl {
     t.fy = cam.fy;
     t.cx = cam.cx;
     t.cy = cam.cy;
-    t.inv_sigma_exp = 1.f / model.expression_sigma;
+    t.s_reg_exp = static_cast<float>(std::sqrt(e.w_reg_expression)) / model.expression_sigma;
+    t.w_sparse_exp = static_cast<float>(e.w_expression_sparsity);
+    t.sparse_eps_exp = static_cast<float>(e.expression_sparsity_epsilon);
     const Eigen::Matrix3f r0 = gpu::rotation_from_euler(p.euler);
     for (int i = 0; i < 3; ++i) {
       for (int j = 0; j < 3; ++j) t.r0[3 * i + j] = r0(i, j);

@@ -52,7 +52,16 @@ struct EnergyOptions {
   double w_plane = 10.0;
   double w_col = 20.0;
   double w_lan = 0.125;
-  double w_reg = 0.025;
+  double w_reg = 0.025;             // identity and albedo rows of E_reg (Eq. 11: alpha, beta)
+  double w_reg_expression = 0.025;  // expression rows of E_reg (Eq. 11: delta)
+  // A sparsity (L1) prior on the blendshape weights, added to the expression rows of E_reg:
+  // w_expression_sparsity * sum_i |delta_i|, minimised as iteratively reweighted least squares
+  // (each row's weight is frozen at the linearisation point: w / (|delta_i| + epsilon)). The 52
+  // ARKit blendshapes hold near-cancelling combinations (jawOpen + mouthClose is a closed mouth),
+  // which a quadratic prior leaves spread over many small weights; L1 prefers the fewest.
+  // 0 = off (the paper's Eq. 11 only). docs/tracker.md, "Expression prior".
+  double w_expression_sparsity = 0.0;
+  double expression_sparsity_epsilon = 0.05;
 
   double geometry_unit_m = 0.01;            // E_point/E_plane distances are in these units
   double landmark_reference_width = 640.0;  // landmark offsets in pixels of an image this wide
