@@ -36,7 +36,10 @@
 #include "face_reenact/stream/receiver.h"
 #include "face_reenact/stream/stream_key.h"
 #include "face_reenact/stream/udp.h"
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/tracker/evaluation.h"
 #include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/tracker_model.h"
 #include "face_reenact/tracker/rgbd_input.h"
 
 namespace face_reenact::cli {
@@ -300,13 +303,20 @@ void set(capture::PerformanceState* s, const char* name, float w) {
   if (i >= 0) s->expression[i] = w;
 }
 
+// Distance of both demo actors (model origin, between the eyes) from the camera, and the depth
+// sensor's near limit. The faces must be close enough for dlib at 320x240 (its HOG detector
+// needs ~80 px faces) and inside the depth sensor's range: a Kinect-class sensor in its near
+// mode (0.4 m). Nearer than that the whole head has no depth and tracking is RGB-only.
+constexpr float kDemoDistanceM = 0.55f;
+constexpr double kDemoSensorNearRangeM = 0.4;
+
 // The source actor: a calm start (calibration), then speech-like jaw and lip motion, a smile, a
 // brow raise and blinks, with the head turning and nodding.
 capture::Timeline source_timeline(int frames, double fps) {
   std::vector<capture::Keyframe> keys;
   const double T = frames / fps;
   auto at = [&](double f) { return std::min(T, f * T); };
-  capture::PerformanceState s = state_at(0, 0, 0, {0.0f, -0.01f, 0.45f});
+  capture::PerformanceState s = state_at(0, 0, 0, {0.0f, -0.01f, kDemoDistanceM});
   s.light.direction = Eigen::Vector3f(-0.3f, -0.45f, -0.85f);
   keys.push_back({0.0, s});
   keys.push_back({at(0.12), s});
@@ -331,7 +341,7 @@ capture::Timeline source_timeline(int frames, double fps) {
 capture::Timeline target_timeline(int frames, double fps) {
   std::vector<capture::Keyframe> keys;
   const double T = frames / fps;
-  capture::PerformanceState s = state_at(0, 0, 0, {0.01f, -0.005f, 0.46f});
+  capture::PerformanceState s = state_at(0, 0, 0, {0.01f, -0.005f, kDemoDistanceM + 0.01f});
   s.light.direction = Eigen::Vector3f(0.4f, -0.3f, -0.85f);
   s.light.color = Eigen::Vector3f(1.0f, 0.93f, 0.85f);
   s.light.intensity = 0.7f;
@@ -357,24 +367,32 @@ void parse_size(const std::string& text, int* w, int* h) {
   *h = b;
 }
 
-// Mean distance (mm) between two identities' neutral faces over the Face-part vertices, after
-// the rigid alignment (Kabsch) that minimises it: the usual geometric error of a face
-// reconstruction, since where the model's origin sits inside the head is not observable.
-double identity_error_mm(const FaceModel& model, const Eigen::VectorXf& alpha, const Eigen::VectorXf& truth) {
-  const Eigen::VectorXf a = model.shape(alpha, Eigen::VectorXf()), b = model.shape(truth, Eigen::VectorXf());
-  std::vector<int> face;
-  for (int v = 0; v < model.num_vertices(); ++v)
-    if (model.vertex_part[static_cast<size_t>(v)] == FacePart::Face) face.push_back(v);
-  if (face.empty()) return 0.0;
-  Eigen::Matrix3Xd p(3, face.size()), q(3, face.size());
-  for (size_t k = 0; k < face.size(); ++k) {
-    p.col(static_cast<Eigen::Index>(k)) = a.segment<3>(3 * face[k]).cast<double>();
-    q.col(static_cast<Eigen::Index>(k)) = b.segment<3>(3 * face[k]).cast<double>();
+// Distance of a fitted identity from the true one (tracker::CompareIdentities: neutral faces
+// from the front, rigidly aligned; closest-point surface error as `track` reports it, plus the
+// vertex-to-vertex figure). Recomputed only when the fitted identity changes (calibration).
+class IdentityMeter {
+ public:
+  IdentityMeter(const FaceModel& model, const gpu::PinholeCamera& camera)
+      : model_(tracker::TrackerModel::FromFaceModel(model)), renderer_(model_.render), camera_(camera) {}
+  const tracker::IdentityErrors& Compare(const Eigen::VectorXf& fit, const Eigen::VectorXf& truth) {
+    if (!has_ || fit.size() != fit_.size() || fit != fit_ || truth.size() != truth_.size() || truth != truth_) {
+      last_ = tracker::CompareIdentities(renderer_, model_, fit, truth, camera_, kDistanceM);
+      fit_ = fit;
+      truth_ = truth;
+      has_ = true;
+    }
+    return last_;
   }
-  const Eigen::Matrix4d t = Eigen::umeyama(p, q, /*with_scaling=*/false);
-  const Eigen::Matrix3Xd aligned = (t.topLeftCorner<3, 3>() * p).colwise() + t.topRightCorner<3, 1>();
-  return 1000.0 * (aligned - q).colwise().norm().mean();
-}
+
+ private:
+  static constexpr float kDistanceM = 0.6f;
+  tracker::TrackerModel model_;
+  gpu::CpuRenderer renderer_;
+  gpu::PinholeCamera camera_;
+  bool has_ = false;
+  Eigen::VectorXf fit_, truth_;
+  tracker::IdentityErrors last_;
+};
 
 double expression_error(const Eigen::VectorXf& got, const Eigen::VectorXf& truth) {
   double sum = 0;
@@ -407,6 +425,7 @@ void run_demo(const DemoArgs& a) {
   parse_size(a.size, &so.width, &so.height);
   so.frames = a.frames;
   so.fps = 30;
+  so.sensor.min_range_m = kDemoSensorNearRangeM;
   std::string why;
   if (!so.IsValid(&why)) throw Error("demo: " + why);
   const fs::path out = fs::path(a.out);
@@ -462,7 +481,8 @@ void run_demo(const DemoArgs& a) {
   Mp4Writer writer(video_path, so.fps, cv::Size(so.width, so.height));
   ProgressBar bar(so.frames, !a.quiet);
   log("tracking, reenacting and re-tracking the output");
-  Mean expr_err, id_err, jaw_err, src_expr_err, tgt_id_err, rendered_expr_err;
+  Mean expr_err, id_err, id_vertex_err, jaw_err, src_expr_err, tgt_id_err, tgt_id_vertex_err, rendered_expr_err;
+  IdentityMeter target_identity(model, target_rec.info().camera), loop_identity(model, target_rec.info().camera);
   int best_frame = -1;
   float best_jaw = -1;
   cv::Mat best_sheet;
@@ -495,14 +515,19 @@ void run_demo(const DemoArgs& a) {
     const bool transferred = r.reenacted && expr.blend_weight > 0.99f;
     if (st.has_parameters && tracker::tracking_status_has_fit(st.status) && source.tracker->calibrated())
       src_expr_err.add(expression_error(st.params.delta, truth_src));
-    if (pipeline.status() == reenact::TrackingStatus::kTracking && tf.ground_truth.params)
-      tgt_id_err.add(identity_error_mm(model, pipeline.target_neutral().alpha, tf.ground_truth.params->alpha));
+    if (pipeline.status() == reenact::TrackingStatus::kTracking && tf.ground_truth.params) {
+      const tracker::IdentityErrors& e = target_identity.Compare(pipeline.target_neutral().alpha, tf.ground_truth.params->alpha);
+      tgt_id_err.add(e.surface_mm_mean);
+      tgt_id_vertex_err.add(e.vertex_mm_mean);
+    }
     if (transferred && loop.tracker->calibrated() && lt.has_parameters && tracker::tracking_status_has_fit(lt.status)) {
       expr_err.add(expression_error(lt.params.delta, truth_src));
       rendered_expr_err.add(expression_error(lt.params.delta, r.output_params.delta));
       jaw_err.add(std::abs(reenact::expression_weight(lt.params.delta, reenact::kJawOpenIndex) -
                            reenact::expression_weight(truth_src, reenact::kJawOpenIndex)));
-      id_err.add(identity_error_mm(model, loop.tracker->neutral().alpha, tf.ground_truth.params->alpha));
+      const tracker::IdentityErrors& e = loop_identity.Compare(loop.tracker->neutral().alpha, tf.ground_truth.params->alpha);
+      id_err.add(e.surface_mm_mean);
+      id_vertex_err.add(e.vertex_mm_mean);
     }
     per_frame << nlohmann::json{{"frame", i},
                                 {"target", reenact::tracking_status_name(r.status)},
@@ -558,9 +583,11 @@ void run_demo(const DemoArgs& a) {
       {"closed_loop_expression_error_mean", json_number(expr_err.value())},
       {"closed_loop_jaw_open_error_mean", json_number(jaw_err.value())},
       {"closed_loop_identity_error_mm_mean", json_number(id_err.value())},
+      {"closed_loop_identity_vertex_error_mm_mean", json_number(id_vertex_err.value())},
       {"closed_loop_expression_error_vs_rendered_mean", json_number(rendered_expr_err.value())},
       {"source_tracking_expression_error_mean", json_number(src_expr_err.value())},
       {"target_calibration_identity_error_mm_mean", json_number(tgt_id_err.value())},
+      {"target_calibration_identity_vertex_error_mm_mean", json_number(tgt_id_vertex_err.value())},
       {"side_by_side_frame", best_frame},
       {"video_codec", writer.codec()},
       {"synthesis_seconds", synth_s},

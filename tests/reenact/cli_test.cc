@@ -96,8 +96,11 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   const double id = rep.at("closed_loop_identity_error_mm_mean").get<double>();
   RecordProperty("closed_loop_expression_error_mean", std::to_string(expr));
   RecordProperty("closed_loop_identity_error_mm_mean", std::to_string(id));
-  EXPECT_LT(expr, 0.2) << rep.dump(2);
-  EXPECT_LT(id, 12.0) << rep.dump(2);
+  // The expression target (<= 0.1; measured 0.05 on these 20 frames) and the identity
+  // bound this pipeline reaches with margin (measured 2.2 mm; the target is 2 mm).
+  EXPECT_LT(expr, 0.1) << rep.dump(2);
+  EXPECT_LT(id, 3.5) << rep.dump(2);
+  EXPECT_EQ(rep.at("lost_frames").get<int>(), 0) << rep.dump(2);
 
   cv::VideoCapture video((demo / "reenactment.mp4").string(), cv::CAP_FFMPEG);
   ASSERT_TRUE(video.isOpened());

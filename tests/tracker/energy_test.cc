@@ -274,53 +274,54 @@ TEST(TrackerGradientCheck, CatchesAWrongDerivative) {
       << res.report;
 }
 
+// The test sphere rendered at its true parameters (seed 4, 0.5 m, 160x120), tracking layout.
+struct SphereScene {
+  TrackerModel model = sphere_model();
+  CpuSolver solver{model};
+  gpu::FaceParameters truth = true_parameters(model, 0.5f, 4);
+  InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, truth, test_camera(160, 120));
+  ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+};
+
 TEST(TrackerEnergy, DataTermsVanishAtTheTruthAndGrowAwayFromIt) {
-  const TrackerModel model = sphere_model();
-  const CpuSolver solver(model);
-  const gpu::FaceParameters truth = true_parameters(model, 0.5f, 4);
-  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, truth, test_camera(160, 120));
-  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  const SphereScene s;
   const EnergyOptions eo;
-  const TermEnergies at_truth = solver.Energy(frame, layout, eo, truth);
+  const TermEnergies at_truth = s.solver.Energy(s.frame, s.layout, eo, s.truth);
   EXPECT_LT(at_truth[Term::kPoint], 1e-8);
   EXPECT_LT(at_truth[Term::kPlane], 2e-2);  // input normals are finite differences of the depth
   EXPECT_LT(at_truth[Term::kColor], 1e-8);
   EXPECT_LT(at_truth[Term::kLandmark], 1e-8);
-  gpu::FaceParameters off = truth;
+  gpu::FaceParameters off = s.truth;
   off.translation.x() += 0.01f;
   off.gamma[0] += 0.5f;
-  const TermEnergies away = solver.Energy(frame, layout, eo, off);
+  const TermEnergies away = s.solver.Energy(s.frame, s.layout, eo, off);
   EXPECT_GT(away[Term::kPoint], 100 * std::max(at_truth[Term::kPoint], 1e-8));
   EXPECT_GT(away[Term::kColor], 100 * std::max(at_truth[Term::kColor], 1e-8));
   EXPECT_GT(away[Term::kLandmark], 100 * std::max(at_truth[Term::kLandmark], 1e-8));
   // E_reg is exactly Eq. 11 for the expression block.
   double reg = 0;
-  for (int k = 0; k < truth.delta.size(); ++k) reg += truth.delta[k] * truth.delta[k];
-  EXPECT_NEAR(at_truth[Term::kRegularizer], eo.w_reg * reg, 1e-6);
+  for (int k = 0; k < s.truth.delta.size(); ++k) reg += s.truth.delta[k] * s.truth.delta[k];
+  EXPECT_NEAR(at_truth[Term::kRegularizer], eo.w_reg_expression * reg, 1e-6);
 }
 
 // The expression rows of E_reg: Eq. 11 with w_reg_expression, plus the reweighted L1 prior whose
 // weight is frozen at the linearisation point, so that E_reg there is
 // sum w_reg_expression delta^2 + w_sparsity delta^2 / (|delta| + epsilon) (-> w_sparsity |delta|).
 TEST(TrackerEnergy, ExpressionPriorRowsAreEq11PlusReweightedL1) {
-  const TrackerModel model = sphere_model();
-  const CpuSolver solver(model);
-  gpu::FaceParameters truth = true_parameters(model, 0.5f, 4);
-  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, truth, test_camera(160, 120));
-  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  const SphereScene s;
   EnergyOptions eo;
   eo.w_reg_expression = 0.3;
   eo.w_expression_sparsity = 0.2;
   eo.expression_sparsity_epsilon = 0.01;
-  const Linearization lin = solver.LinearizeAt(frame, layout, eo, truth);
+  const Linearization lin = s.solver.LinearizeAt(s.frame, s.layout, eo, s.truth);
   Eigen::VectorXd r;
   JacobianMatrix j;
   TermEnergies e;
-  const Eigen::VectorXd x = layout.Pack(truth);
-  EvaluateResiduals(model, lin, eo, x, &r, &j, &e);
+  const Eigen::VectorXd x = s.layout.Pack(s.truth);
+  EvaluateResiduals(s.model, lin, eo, x, &r, &j, &e);
   double expected = 0, l1 = 0;
-  for (int k = 0; k < truth.delta.size(); ++k) {
-    const double d = truth.delta[k];
+  for (int k = 0; k < s.truth.delta.size(); ++k) {
+    const double d = s.truth.delta[k];
     expected += eo.w_reg_expression * d * d + eo.w_expression_sparsity * d * d / (std::abs(d) + eo.expression_sparsity_epsilon);
     l1 += eo.w_reg_expression * d * d + eo.w_expression_sparsity * std::abs(d);
   }
@@ -329,9 +330,9 @@ TEST(TrackerEnergy, ExpressionPriorRowsAreEq11PlusReweightedL1) {
   EXPECT_NEAR(e[Term::kRegularizer], l1, 0.05 * l1);  // close to the L1 value with a small epsilon
   // Each row is linear in its weight: the Jacobian is the row's scale, the same at any x.
   const Eigen::Index row0 = lin.term_rows[static_cast<int>(Term::kRegularizer)];
-  const int o_exp = layout.offset(Block::kExpression);
-  for (int k = 0; k < truth.delta.size(); ++k) {
-    const double d = truth.delta[k];
+  const int o_exp = s.layout.offset(Block::kExpression);
+  for (int k = 0; k < s.truth.delta.size(); ++k) {
+    const double d = s.truth.delta[k];
     const double scale = std::sqrt(eo.w_reg_expression + eo.w_expression_sparsity / (std::abs(d) + eo.expression_sparsity_epsilon));
     EXPECT_NEAR(j(row0 + k, o_exp + k), scale, 1e-12);
     EXPECT_NEAR(r[row0 + k], scale * d, 1e-12);
@@ -356,14 +357,11 @@ TEST(TrackerEnergy, LinearizeRejectsMismatchedInputs) {
 }
 
 TEST(TrackerEnergy, InvisibleLandmarksArePruned) {
-  const TrackerModel model = sphere_model();
-  const CpuSolver solver(model);
-  gpu::FaceParameters p = true_parameters(model, 0.5f, 4);
-  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), model, p, test_camera(160, 120));
-  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
-  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, p).landmarks.size(), model.landmarks.size());
+  const SphereScene s;
+  gpu::FaceParameters p = s.truth;
+  EXPECT_EQ(s.solver.LinearizeAt(s.frame, s.layout, EnergyOptions{}, p).landmarks.size(), s.model.landmarks.size());
   p.euler.y() += static_cast<float>(M_PI);  // the landmark side now faces away
-  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, p).landmarks.size(), 0u);
+  EXPECT_EQ(s.solver.LinearizeAt(s.frame, s.layout, EnergyOptions{}, p).landmarks.size(), 0u);
 }
 
 }  // namespace

@@ -109,5 +109,29 @@ TEST(CompareToGroundTruth, KnownOffsets) {
   EXPECT_NEAR(t.expression_mean_abs, expected_expr / model->num_expression(), 1e-6);
 }
 
+// The identity measure of the demo's closed loop: zero for the same identity, positive for a
+// different face, the vertex figure (which also counts sliding) never below the surface one,
+// and of the same size whichever face is the reference.
+TEST(CompareIdentities, AlignsRigidlyAndMeasuresTheSurface) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  const gpu::CpuRenderer renderer(model->render);
+  const gpu::PinholeCamera camera = testing::test_camera(320, 240);
+  const Eigen::VectorXf truth = testing::true_parameters(*model, 0.6f, 3).alpha;
+  const IdentityErrors same = CompareIdentities(renderer, *model, truth, truth, camera, 0.6f);
+  EXPECT_GT(same.region_vertices, 200);
+  EXPECT_NEAR(same.surface_mm_mean, 0.0, 1e-3);
+  EXPECT_NEAR(same.vertex_mm_mean, 0.0, 1e-3);
+
+  const Eigen::VectorXf other = testing::true_parameters(*model, 0.6f, 8).alpha;
+  const IdentityErrors d = CompareIdentities(renderer, *model, other, truth, camera, 0.6f);
+  EXPECT_GT(d.surface_mm_mean, 0.3);
+  EXPECT_GE(d.surface_mm_max, d.surface_mm_mean);
+  EXPECT_GE(d.vertex_mm_mean, d.surface_mm_mean - 1e-6);
+  EXPECT_LT(d.vertex_mm_mean, 30.0);
+  const IdentityErrors swapped = CompareIdentities(renderer, *model, truth, other, camera, 0.6f);
+  EXPECT_NEAR(swapped.vertex_mm_mean, d.vertex_mm_mean, 0.5 * d.vertex_mm_mean);
+}
+
 }  // namespace
 }  // namespace face_reenact::tracker

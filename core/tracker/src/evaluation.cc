@@ -124,37 +124,55 @@ double TriangleSurface::Distance(const Eigen::Vector3d& p) const {
   return best;
 }
 
-FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerModel& model,
-                               const gpu::FaceParameters& fit, const gpu::FaceParameters& truth,
-                               const gpu::PinholeCamera& camera) {
+namespace {
+
+// The face-part triangles, and the face region of `truth`: vertices of those triangles that
+// the camera sees on the true face (every part drawn, so eyes, teeth and ears occlude). The part
+// also holds surfaces no camera sees (inside the mouth and nose), which no tracker can fit and
+// the paper does not count.
+struct FaceRegion {
+  std::vector<std::array<int32_t, 3>> triangles;
+  std::vector<bool> visible;  // per vertex
+};
+
+FaceRegion VisibleFaceRegion(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                             const gpu::FaceParameters& truth, const gpu::PinholeCamera& camera) {
   const auto face = static_cast<uint8_t>(FacePart::Face);
   const auto& r = model.render;
   if (renderer.model().num_vertices() != model.num_vertices()) {
     throw Error("evaluation: the renderer and the tracker model differ");
   }
-  const Eigen::VectorXd xf = camera_positions(model, fit);
-  const Eigen::VectorXd xt = camera_positions(model, truth);
-  std::vector<std::array<int32_t, 3>> face_triangles;
+  FaceRegion region;
   std::vector<bool> is_face_triangle(r.triangles.size(), false);
   for (size_t k = 0; k < r.triangles.size(); ++k) {
     const auto& t = r.triangles[k];
     if (r.vertex_part[t[0]] == face && r.vertex_part[t[1]] == face && r.vertex_part[t[2]] == face) {
-      face_triangles.push_back(t);
+      region.triangles.push_back(t);
       is_face_triangle[k] = true;
     }
   }
-  if (face_triangles.empty()) throw Error("evaluation: the model has no face-region triangles");
-  // The face region: vertices of the face-part triangles that the camera sees on the true face
-  // (every part drawn, so eyes, teeth and ears occlude). The part also holds surfaces no camera
-  // sees (inside the mouth and nose), which no tracker can fit and the paper does not count.
+  if (region.triangles.empty()) throw Error("evaluation: the model has no face-region triangles");
   gpu::RenderOptions all;
   all.parts = gpu::kAllParts;
   const gpu::GBuffer g = renderer.render(truth, camera, all);
-  std::vector<bool> in_region(model.num_vertices(), false);
+  region.visible.assign(static_cast<size_t>(model.num_vertices()), false);
   for (const int32_t tri : g.triangle) {
     if (tri < 0 || !is_face_triangle[tri]) continue;
-    for (int k = 0; k < 3; ++k) in_region[r.triangles[tri][k]] = true;
+    for (int k = 0; k < 3; ++k) region.visible[static_cast<size_t>(r.triangles[tri][k])] = true;
   }
+  return region;
+}
+
+}  // namespace
+
+FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                               const gpu::FaceParameters& fit, const gpu::FaceParameters& truth,
+                               const gpu::PinholeCamera& camera) {
+  const FaceRegion region = VisibleFaceRegion(renderer, model, truth, camera);
+  const std::vector<bool>& in_region = region.visible;
+  const auto& face_triangles = region.triangles;
+  const Eigen::VectorXd xf = camera_positions(model, fit);
+  const Eigen::VectorXd xt = camera_positions(model, truth);
   const TriangleSurface surface(xf.cast<float>(), face_triangles, 0.01f);
   FitErrors e;
   int n = 0, n_2d = 0;
@@ -187,6 +205,49 @@ FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerMo
     sum += std::abs(a - b);
   }
   e.expression_mean_abs = k_exp > 0 ? sum / k_exp : 0.0;
+  return e;
+}
+
+IdentityErrors CompareIdentities(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                                 const Eigen::VectorXf& alpha_fit, const Eigen::VectorXf& alpha_truth,
+                                 const gpu::PinholeCamera& camera, float distance_m) {
+  gpu::FaceParameters truth = gpu::frontal_pose(distance_m);
+  truth.alpha = alpha_truth;
+  truth.beta = Eigen::VectorXf::Zero(model.num_albedo());
+  truth.delta = Eigen::VectorXf::Zero(model.num_expression());
+  gpu::FaceParameters fit = truth;
+  fit.alpha = alpha_fit;
+  const FaceRegion region = VisibleFaceRegion(renderer, model, truth, camera);
+  const Eigen::VectorXd xf = camera_positions(model, fit);
+  const Eigen::VectorXd xt = camera_positions(model, truth);
+  std::vector<int> vertices;
+  for (int v = 0; v < model.num_vertices(); ++v)
+    if (region.visible[static_cast<size_t>(v)]) vertices.push_back(v);
+  IdentityErrors e;
+  e.region_vertices = static_cast<int>(vertices.size());
+  if (vertices.size() < 3) return e;
+  // The rigid motion that best maps the fitted region onto the true one (corresponding
+  // vertices): where the model origin sits inside the head is not observable.
+  Eigen::Matrix3Xd p(3, vertices.size()), q(3, vertices.size());
+  for (size_t k = 0; k < vertices.size(); ++k) {
+    p.col(static_cast<Eigen::Index>(k)) = xf.segment<3>(3 * vertices[k]);
+    q.col(static_cast<Eigen::Index>(k)) = xt.segment<3>(3 * vertices[k]);
+  }
+  const Eigen::Matrix4d m = Eigen::umeyama(p, q, /*with_scaling=*/false);
+  Eigen::VectorXf aligned(xf.size());
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    aligned.segment<3>(3 * v) = (m.topLeftCorner<3, 3>() * xf.segment<3>(3 * v) + m.topRightCorner<3, 1>()).cast<float>();
+  }
+  const TriangleSurface surface(aligned, region.triangles, 0.01f);
+  for (size_t k = 0; k < vertices.size(); ++k) {
+    const Eigen::Vector3d pt = q.col(static_cast<Eigen::Index>(k));
+    const double d = surface.Distance(pt) * 1000.0;
+    e.surface_mm_mean += d;
+    e.surface_mm_max = std::max(e.surface_mm_max, d);
+    e.vertex_mm_mean += (aligned.segment<3>(3 * vertices[k]).cast<double>() - pt).norm() * 1000.0;
+  }
+  e.surface_mm_mean /= static_cast<double>(vertices.size());
+  e.vertex_mm_mean /= static_cast<double>(vertices.size());
   return e;
 }
 

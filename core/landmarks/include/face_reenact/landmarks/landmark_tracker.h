@@ -15,7 +15,12 @@ struct TrackerOptions {
   DetectorOptions detector = [] {
     DetectorOptions d;
     d.confidence_samples = 3;  // per-frame budget: 3 predictor runs of ~1.2 ms
-    d.max_upsample = 0;        // never upsample a whole video frame
+    // A full search that finds nothing at the frame's resolution retries upsampled 2x, but only
+    // while the upsampled frame stays within 640x480: small frames (320x240 webcams and
+    // recordings, whose faces are near the HOG detector's ~80 px minimum) get the retry, a
+    // 640x480 or larger frame is never upsampled (a 1280x960 search costs ~4x).
+    d.max_upsample = 1;
+    d.max_search_pixels = 640 * 480;
     return d;
   }();
   // Search the whole frame every frame (no tracking): the reference mode.

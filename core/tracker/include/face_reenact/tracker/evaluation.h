@@ -58,4 +58,20 @@ FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerMo
                                const gpu::FaceParameters& fit, const gpu::FaceParameters& truth,
                                const gpu::PinholeCamera& camera);
 
+// How far a fitted identity is from the true one, independent of pose and expression: both
+// neutral faces (delta = 0) seen from the front at `distance_m` on `camera`, the fitted one
+// rigidly aligned to the true one (corresponding face-region vertices, Kabsch), then the same
+// surface measure as FitErrors::geometric_mm_* over the true face region visible from the front.
+struct IdentityErrors {
+  double surface_mm_mean = 0;  // closest-point distance, true region -> aligned fitted surface
+  double surface_mm_max = 0;
+  double vertex_mm_mean = 0;   // distance between corresponding vertices (also counts sliding
+                               // along the surface, which no depth or image term observes)
+  int region_vertices = 0;
+};
+
+IdentityErrors CompareIdentities(const gpu::CpuRenderer& renderer, const TrackerModel& model,
+                                 const Eigen::VectorXf& alpha_fit, const Eigen::VectorXf& alpha_truth,
+                                 const gpu::PinholeCamera& camera, float distance_m);
+
 }  // namespace face_reenact::tracker
