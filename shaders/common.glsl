@@ -1,5 +1,5 @@
-// Shared declarations of the image-formation shaders (docs/renderer.md). Included by
-// model_eval.comp, vertex_shade.comp and gbuffer.vert.
+// Shared declarations of the image-formation shaders (docs/renderer.md): the per-frame block
+// of pose and lighting, and (through sh_basis.glsl) the SH basis. Included by vertex_shade.comp.
 
 // Per-frame pose and lighting, written by the host (renderer.cc: FrameBlock mirrors it).
 struct FrameBlock {
