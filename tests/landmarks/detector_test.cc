@@ -11,6 +11,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/landmarks/evaluation.h"
+#include "face_reenact/landmarks/landmark_tracker.h"
 #include "test_data.h"
 
 namespace face_reenact::landmarks {
@@ -309,6 +310,39 @@ TEST(BoxTest, OverlapAndOutsideFraction) {
   EXPECT_EQ(a.fraction_outside(100, 100), 0.f);
   EXPECT_NEAR(Box({-5, 0, 10, 10}).fraction_outside(100, 100), 0.5f, 1e-6f);
   EXPECT_EQ(empty.fraction_outside(100, 100), 1.f);
+}
+
+// Video frames of 320x240 hold faces near the HOG detector's 80 px window (the demo's are that size):
+// the tracker's full search retries 2x upsampled while the result stays within 640x480, and
+// only then finds them. Options that forbid the retry do not, which shows the frame needs it.
+TEST(TrackerSmallFrameTest, SmallFacesInSmallFramesAreFoundUpsampled) {
+  FR_REQUIRE_MODEL();
+  FR_REQUIRE_SHARED(path, "faces-68/lfpw/image_0001.png");
+  const cv::Mat photo = as_mat(load_image(path));
+  const LandmarkResult full = shared_detector().Detect(view_of(photo, PixelFormat::kBGR8));
+  ASSERT_TRUE(full.ok()) << full.reason;
+  // The face scaled to a 45 px detector box (below the 80 px window) in a grey 320x240 frame.
+  const double scale = 45.0 / full.face_box.width;
+  cv::Mat small;
+  cv::resize(photo, small, cv::Size(), scale, scale, cv::INTER_AREA);
+  const cv::Point centre(int((full.face_box.x + 0.5f * full.face_box.width) * scale),
+                         int((full.face_box.y + 0.5f * full.face_box.height) * scale));
+  cv::Mat frame(240, 320, CV_8UC3, cv::Scalar(128, 128, 128));
+  const cv::Rect from = cv::Rect(centre.x - 80, centre.y - 60, 160, 120) & cv::Rect(0, 0, small.cols, small.rows);
+  small(from).copyTo(frame(cv::Rect(160 - (centre.x - from.x), 120 - (centre.y - from.y), from.width, from.height)));
+
+  const TrackerOptions defaults;
+  EXPECT_EQ(defaults.detector.max_upsample, 1);
+  EXPECT_LE(defaults.detector.max_search_pixels, 640 * 480);  // a 640x480 frame is never upsampled
+  LandmarkTracker tracker(defaults);
+  const LandmarkResult found = tracker.Track(view_of(frame, PixelFormat::kBGR8), 0.0);
+  EXPECT_TRUE(found.ok()) << found.reason;
+  EXPECT_NEAR(found.face_box.width, 45.f, 20.f);
+
+  TrackerOptions no_retry = defaults;
+  no_retry.detector.max_upsample = 0;
+  LandmarkTracker without(no_retry);
+  EXPECT_FALSE(without.Track(view_of(frame, PixelFormat::kBGR8), 0.0).ok());
 }
 
 }  // namespace
