@@ -1,6 +1,7 @@
 #!/bin/busybox sh
 # /init of the test VM (see run_v4l2_vm_test.sh): load v4l2loopback the way users do
-# (exclusive_caps=1), mount the host's root read-only and the exchange folder over its /tmp,
+# (exclusive_caps=1), mount the host's root read-only and the exchange folder over its /tmp (the
+# host's /tmp stays reachable as /tmp/.host-tmp),
 # run /tmp/guest.sh in a chroot of the host, then power off.
 /bin/busybox --install -s /bin
 mount -t proc proc /proc
@@ -15,7 +16,11 @@ insmod /modules/v4l2loopback.ko exclusive_caps=1 video_nr=0 card_label="face-ree
   || echo "init: insmod v4l2loopback failed"
 
 mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=524288 host /host || echo "init: mounting host root failed"
+# The exchange folder hides the host's own /tmp; keep that reachable as /tmp/.host-tmp inside the
+# chroot, so a checkout or build under /tmp still works (run_v4l2_vm_test.sh maps the paths).
+mkdir -p /host-tmp && mount -o bind /host/tmp /host-tmp || echo "init: keeping the host's /tmp failed"
 mount -t 9p -o trans=virtio,version=9p2000.L,rw,msize=524288 exchange /host/tmp || echo "init: mounting exchange failed"
+mkdir -p /host/tmp/.host-tmp && mount -o bind /host-tmp /host/tmp/.host-tmp || echo "init: binding the host's /tmp failed"
 mount -t devtmpfs devtmpfs /host/dev
 mount -t proc proc /host/proc
 mount -t sysfs sysfs /host/sys
@@ -24,5 +29,6 @@ mount -t tmpfs tmpfs /host/run 2>/dev/null
 chroot /host /bin/bash /tmp/guest.sh >/host/tmp/guest.log 2>&1
 echo $? >/host/tmp/guest.status
 sync
+umount /host/tmp/.host-tmp
 umount /host/tmp
 poweroff -f

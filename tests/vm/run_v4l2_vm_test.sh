@@ -123,9 +123,11 @@ fi
 # --- boot ------------------------------------------------------------------------------------
 cp "$guest_script" "$exchange/guest.sh"
 cp "$module" "$exchange/v4l2loopback.ko"   # the guest may reload it with other options
-printf "FR_CLI='%s'\n" "$cli" >"$exchange/env.sh"
+# Inside the guest the exchange folder is /tmp and the host's /tmp is /tmp/.host-tmp (guest_init.sh).
+guest_path() { case $1 in /tmp/*) printf '/tmp/.host-tmp/%s' "${1#/tmp/}";; *) printf '%s' "$1";; esac; }
+printf "FR_CLI='%s'\n" "$(guest_path "$cli")" >"$exchange/env.sh"
 # Optional: a recording for the live-session webcam check (made by the CTest fixture vm_live_recording).
-printf "FR_VM_LIVE_RECORDING='%s'\n" "${FR_VM_LIVE_RECORDING:-}" >>"$exchange/env.sh"
+printf "FR_VM_LIVE_RECORDING='%s'\n" "$(guest_path "${FR_VM_LIVE_RECORDING:-}")" >>"$exchange/env.sh"
 # Software emulation (TCG) by default: on the build machines /dev/kvm exists but nested KVM
 # hangs in the firmware or aborts on MSRs, and TCG boots in seconds. FR_VM_KVM=1 opts in.
 accels=("tcg")
