@@ -360,8 +360,8 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
 
   // Regulariser (Eq. 11).
   if (lin.num_regularizer > 0) {
-    auto prior = [&](int offset, int count, double weight, auto sigma_of) {
-      const double s_reg = std::sqrt(weight);
+    const double s_reg = std::sqrt(options.w_reg);
+    auto prior = [&](int offset, int count, auto sigma_of) {
       for (int q = 0; q < count; ++q) {
         const double inv = s_reg / sigma_of(q);
         r[row] = inv * x[offset + q];
@@ -370,8 +370,8 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       }
     };
     if (lin.regularize_shared) {
-      prior(o_id, k_id, options.w_reg, [&](int q) { return static_cast<double>(model.identity_sigma[q]); });
-      prior(o_alb, k_alb, options.w_reg, [&](int q) { return static_cast<double>(model.albedo_sigma[q]); });
+      prior(o_id, k_id, [&](int q) { return static_cast<double>(model.identity_sigma[q]); });
+      prior(o_alb, k_alb, [&](int q) { return static_cast<double>(model.albedo_sigma[q]); });
     }
     // Eq. 11 plus the reweighted L1 prior (EnergyOptions::w_expression_sparsity).
     const double l2 = options.w_reg_expression / (static_cast<double>(model.expression_sigma) * model.expression_sigma);
