@@ -136,7 +136,7 @@ if [[ -n ${FR_VM_LIVE_RECORDING:-} && -d ${FR_VM_LIVE_RECORDING} ]]; then
     echo started >live-started.txt
   fi
   v4l2-ctl -d "$device" --get-fmt-video >live-fmt.txt 2>&1
-  capture_mmap live 30
+  capture_mmap live 90
   stop_writer live
 fi
 
