@@ -5,6 +5,7 @@
 #include <Eigen/Cholesky>
 #include <random>
 
+#include "face_reenact/common/error.h"
 #include "face_reenact/tracker/pcg.h"
 
 namespace face_reenact::tracker {
@@ -34,6 +35,49 @@ TEST(TrackerPcg, OperatorsAgree) {
   Eigen::VectorXd direct = expect * x;
   direct.array() += 0.01 * expect.diagonal().array() * x.array();
   EXPECT_LT((direct - b).norm(), 1e-9 * b.norm());
+}
+
+// Calibration's joint system: frame blocks over (shared, own) columns behave exactly like the
+// dense stacked matrix with zeros outside each frame's columns.
+TEST(TrackerPcg, StackedJacobianEqualsTheDenseStack) {
+  const int shared = 7, own = 5, frames = 3;
+  std::vector<JacobianMatrix> blocks;
+  for (int f = 0; f < frames; ++f) blocks.push_back(random_jacobian(40 + 10 * f, shared + own, 10 + f));
+  StackedJacobian stacked(shared, own);
+  JacobianMatrix dense = JacobianMatrix::Zero(40 + 50 + 60, shared + frames * own);
+  Eigen::Index row = 0;
+  for (int f = 0; f < frames; ++f) {
+    stacked.AddFrame(blocks[f]);
+    dense.block(row, 0, blocks[f].rows(), shared) = blocks[f].leftCols(shared);
+    dense.block(row, shared + f * own, blocks[f].rows(), own) = blocks[f].rightCols(own);
+    row += blocks[f].rows();
+  }
+  ASSERT_EQ(stacked.rows(), dense.rows());
+  ASSERT_EQ(stacked.cols(), dense.cols());
+  const Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(dense.cols(), -1, 2);
+  const Eigen::VectorXd v = Eigen::VectorXd::LinSpaced(dense.rows(), 3, -1);
+  Eigen::VectorXd jx, jtv;
+  stacked.Multiply(x, &jx);
+  stacked.MultiplyTransposed(v, &jtv);
+  EXPECT_LT((jx - dense * x).norm(), 1e-12 * jx.norm());
+  EXPECT_LT((jtv - dense.transpose() * v).norm(), 1e-12 * jtv.norm());
+  const Eigen::MatrixXd gram = dense.transpose() * dense;
+  EXPECT_LT((stacked.Gram() - gram).norm(), 1e-12 * gram.norm());
+  EXPECT_LT((stacked.ColumnSquaredNorms() - gram.diagonal()).norm(), 1e-12 * gram.diagonal().norm());
+  // Both operators over the blocks match the dense ones.
+  Eigen::VectorXd a, b, c(dense.cols()), d(dense.cols());
+  const MatrixFreeNormalOperator mf(stacked, 0.1), mf_dense(dense, 0.1);
+  const AssembledNormalOperator as(stacked, 0.1);
+  a.resize(dense.cols());
+  b.resize(dense.cols());
+  mf.Apply(x, &a);
+  as.Apply(x, &b);
+  mf_dense.Apply(x, &c);
+  EXPECT_LT((a - c).norm(), 1e-12 * c.norm());
+  EXPECT_LT((b - c).norm(), 1e-9 * c.norm());
+  EXPECT_LT((mf.Diagonal() - mf_dense.Diagonal()).norm(), 1e-12 * c.norm());
+  // A block with the wrong width is an error, not a silent misread.
+  EXPECT_THROW(stacked.AddFrame(random_jacobian(4, shared + own + 1, 3)), Error);
 }
 
 TEST(TrackerPcg, ConvergesToTheDirectSolution) {

@@ -1,26 +1,106 @@
 #include "face_reenact/tracker/pcg.h"
 
 #include <cmath>
+#include <string>
+
+#include "face_reenact/common/error.h"
 
 namespace face_reenact::tracker {
 
-MatrixFreeNormalOperator::MatrixFreeNormalOperator(const JacobianMatrix& jacobian, double damping)
+StackedJacobian::StackedJacobian(int shared, int own) : shared_(shared), own_(own) {
+  if (shared < 0 || own < 0) throw Error("stacked Jacobian: negative column count");
+}
+
+StackedJacobian::StackedJacobian(const JacobianMatrix& single) : shared_(static_cast<int>(single.cols())), own_(0) {
+  AddFrame(single);
+}
+
+void StackedJacobian::AddFrame(const JacobianMatrix& block) {
+  if (block.cols() != shared_ + own_) {
+    throw Error("stacked Jacobian: a frame block has " + std::to_string(block.cols()) + " columns, expected " +
+                std::to_string(shared_ + own_));
+  }
+  blocks_.push_back(&block);
+  rows_ += block.rows();
+}
+
+const Eigen::VectorXd& StackedJacobian::gather(const Eigen::VectorXd& x, int frame) const {
+  if (own_ == 0) return x;  // every column is shared: the frame's x is x
+  local_x_.resize(shared_ + own_);
+  local_x_.head(shared_) = x.head(shared_);
+  local_x_.tail(own_) = x.segment(shared_ + static_cast<Eigen::Index>(frame) * own_, own_);
+  return local_x_;
+}
+
+void StackedJacobian::scatter_add(const Eigen::VectorXd& local, int frame, Eigen::VectorXd* y) const {
+  y->head(shared_) += local.head(shared_);
+  if (own_ > 0) y->segment(shared_ + static_cast<Eigen::Index>(frame) * own_, own_) += local.tail(own_);
+}
+
+void StackedJacobian::Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
+  y->resize(rows_);
+  Eigen::Index row = 0;
+  for (int f = 0; f < num_frames(); ++f) {
+    const JacobianMatrix& j = *blocks_[f];
+    y->segment(row, j.rows()).noalias() = j * gather(x, f);
+    row += j.rows();
+  }
+}
+
+void StackedJacobian::MultiplyTransposed(const Eigen::VectorXd& v, Eigen::VectorXd* y) const {
+  if (num_frames() == 1 && own_ == 0) {
+    y->noalias() = blocks_[0]->transpose() * v;
+    return;
+  }
+  y->setZero(cols());
+  Eigen::Index row = 0;
+  for (int f = 0; f < num_frames(); ++f) {
+    const JacobianMatrix& j = *blocks_[f];
+    local_y_.noalias() = j.transpose() * v.segment(row, j.rows());
+    scatter_add(local_y_, f, y);
+    row += j.rows();
+  }
+}
+
+Eigen::VectorXd StackedJacobian::ColumnSquaredNorms() const {
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(cols());
+  for (int f = 0; f < num_frames(); ++f) scatter_add(blocks_[f]->colwise().squaredNorm().transpose(), f, &out);
+  return out;
+}
+
+Eigen::MatrixXd StackedJacobian::Gram() const {
+  const Eigen::Index n = cols(), local = shared_ + own_;
+  Eigen::MatrixXd out = Eigen::MatrixXd::Zero(n, n);
+  Eigen::MatrixXd g(local, local);
+  for (int f = 0; f < num_frames(); ++f) {
+    g.setZero();
+    g.selfadjointView<Eigen::Lower>().rankUpdate(blocks_[f]->transpose());
+    g.triangularView<Eigen::StrictlyUpper>() = g.transpose();
+    const Eigen::Index o = shared_ + static_cast<Eigen::Index>(f) * own_;
+    out.topLeftCorner(shared_, shared_) += g.topLeftCorner(shared_, shared_);
+    if (own_ > 0) {
+      out.block(0, o, shared_, own_) += g.topRightCorner(shared_, own_);
+      out.block(o, 0, own_, shared_) += g.bottomLeftCorner(own_, shared_);
+      out.block(o, o, own_, own_) += g.bottomRightCorner(own_, own_);
+    }
+  }
+  return out;
+}
+
+MatrixFreeNormalOperator::MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping)
     : jacobian_(jacobian), damping_(damping), jx_(jacobian.rows()) {
-  diagonal_ = jacobian.colwise().squaredNorm().transpose();
+  diagonal_ = jacobian_.ColumnSquaredNorms();
   diagonal_ *= (1.0 + damping_);
 }
 
 void MatrixFreeNormalOperator::Apply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
-  jx_.noalias() = jacobian_ * x;
-  y->noalias() = jacobian_.transpose() * jx_;
+  jacobian_.Multiply(x, &jx_);
+  jacobian_.MultiplyTransposed(jx_, y);
   if (damping_ > 0) y->array() += (damping_ / (1.0 + damping_)) * diagonal_.array() * x.array();
 }
 
-AssembledNormalOperator::AssembledNormalOperator(const JacobianMatrix& jacobian, double damping) {
-  const Eigen::Index n = jacobian.cols();
-  matrix_ = Eigen::MatrixXd::Zero(n, n);
-  matrix_.selfadjointView<Eigen::Lower>().rankUpdate(jacobian.transpose());
-  matrix_.triangularView<Eigen::StrictlyUpper>() = matrix_.transpose();
+AssembledNormalOperator::AssembledNormalOperator(const StackedJacobian& jacobian, double damping)
+    : matrix_(jacobian.Gram()) {
   diagonal_ = matrix_.diagonal() * (1.0 + damping);
   matrix_.diagonal() = diagonal_;
 }

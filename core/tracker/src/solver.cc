@@ -191,7 +191,6 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
   PcgScratch scratch;
   scratch.Resize(n);
   Eigen::VectorXd b(n), dx(n), rg;
-  JacobianMatrix jg;
   const PcgOptions pcg_base{1, options.pcg_relative_tolerance};
   auto sum = [](const std::vector<State>& states) {
     TermEnergies e;
@@ -227,28 +226,25 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
       st.has_jacobian = true;
     }
   };
-  // The stacked system (no copy with one frame).
-  auto system = [&](const std::vector<State>& states, const JacobianMatrix** j, const Eigen::VectorXd** r) {
+  // The joint system: the frames' Jacobian blocks as they are (no zeros stored), their residuals
+  // stacked in the same row order (no copy with one frame).
+  auto system = [&](const std::vector<State>& states, const Eigen::VectorXd** r) {
+    StackedJacobian j = num_frames == 1 ? StackedJacobian(states[0].j) : StackedJacobian(shared, own);
     if (num_frames == 1) {
-      *j = &states[0].j;
       *r = &states[0].r;
-      return;
+      return j;
     }
     Eigen::Index rows = 0;
     for (const State& st : states) rows += st.r.size();
-    jg.setZero(rows, n);
     rg.resize(rows);
     Eigen::Index row = 0;
-    for (int f = 0; f < num_frames; ++f) {
-      const State& st = states[f];
-      const Eigen::Index m = st.r.size();
-      jg.block(row, 0, m, shared) = st.j.leftCols(shared);
-      jg.block(row, shared + f * own, m, own) = st.j.rightCols(own);
-      rg.segment(row, m) = st.r;
-      row += m;
+    for (const State& st : states) {
+      j.AddFrame(st.j);
+      rg.segment(row, st.r.size()) = st.r;
+      row += st.r.size();
     }
-    *j = &jg;
     *r = &rg;
+    return j;
   };
 
   int accepted_steps = 0, attempted_steps = 0;
@@ -285,18 +281,18 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
       rec.energy_before = energy;
       const auto t_solve = Clock::now();
       ensure_jacobians(x, &cur);
-      const JacobianMatrix* j = nullptr;
       const Eigen::VectorXd* r = nullptr;
-      system(cur, &j, &r);
+      const StackedJacobian j = system(cur, &r);
       rec.residuals = r->size();
-      b.noalias() = -(j->transpose() * *r);
+      j.MultiplyTransposed(*r, &b);
+      b = -b;
       dx.setZero();
       PcgSummary ps;
       if (options.linear_solver == LinearSolverType::kAssembled) {
-        AssembledNormalOperator op(*j, options.damping);
+        AssembledNormalOperator op(j, options.damping);
         ps = Pcg(op, b, pcg, &scratch, &dx);
       } else {
-        MatrixFreeNormalOperator op(*j, options.damping);
+        MatrixFreeNormalOperator op(j, options.damping);
         ps = Pcg(op, b, pcg, &scratch, &dx);
       }
       rec.analysis_ms += ms_since(t_solve);
