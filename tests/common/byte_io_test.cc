@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "face_reenact/common/error.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact {
 namespace {
@@ -73,8 +74,8 @@ TEST(ByteIo, SeekAndSkipAreBounded) {
 }
 
 TEST(ByteIo, AtomicWriteReplacesAndReadsBack) {
-  auto dir = std::filesystem::temp_directory_path() / "fr_byte_io_test";
-  std::filesystem::create_directories(dir);
+  const face_reenact::testing::TempDir tmp("fr-byte-io");
+  const std::filesystem::path dir = tmp.path();
   auto path = (dir / "sub" / "file.bin").string();
   std::vector<uint8_t> a{1, 2, 3}, b{4, 5};
   write_file_atomic(path, a);
@@ -84,7 +85,6 @@ TEST(ByteIo, AtomicWriteReplacesAndReadsBack) {
   EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
   EXPECT_THROW(read_file_bytes((dir / "missing").string()), Error);
   EXPECT_THROW(write_file_atomic("/proc/definitely/not/writable", a), Error);
-  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

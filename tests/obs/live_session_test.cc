@@ -21,6 +21,7 @@
 #include "face_reenact/stream/stream_state.h"
 #include "face_reenact/stream/udp.h"
 #include "live_test_support.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::live {
 namespace {
@@ -210,7 +211,8 @@ TEST(LiveSessionTest, NonLoopingRecordingEndsTheFrameSource) {
 
 TEST(LiveSessionTest, MissingRecordingIsAStatusAndComesBackWhenItAppears) {
   REQUIRE_RECORDING(dir);
-  std::string base = test::make_temp_dir("live-missing");
+  const face_reenact::testing::TempDir tmp("fr-live-missing");
+  const std::string& base = tmp.path();
   std::string path = base + "/later";
   LiveSession::Options o;
   o.target = path;
@@ -230,12 +232,12 @@ TEST(LiveSessionTest, MissingRecordingIsAStatusAndComesBackWhenItAppears) {
   s = wait_status(session, 3s, [](const LiveStatus& st) { return st.target_open; });
   EXPECT_TRUE(s.target_open) << s.Headline();
   EXPECT_TRUE(s.target_error.empty()) << s.target_error;
-  fs::remove_all(base);
 }
 
 TEST(LiveSessionTest, InputLostWhilePlayingIsReportedAndRecovers) {
   REQUIRE_RECORDING(dir);
-  std::string base = test::make_temp_dir("live-lost");
+  const face_reenact::testing::TempDir tmp("fr-live-lost");
+  const std::string& base = tmp.path();
   std::string path = base + "/rec";
   fs::copy(dir, path, fs::copy_options::recursive);
   LiveSession::Options o;
@@ -263,7 +265,6 @@ TEST(LiveSessionTest, InputLostWhilePlayingIsReportedAndRecovers) {
   s = wait_status(session, 3s, [](const LiveStatus& st) { return st.target_open; });
   EXPECT_TRUE(s.target_open) << s.Headline();
   session.stop();
-  fs::remove_all(base);
 }
 
 TEST(LiveSessionTest, MissingCameraSaysNoCameraAndKeepsRetrying) {
@@ -300,7 +301,8 @@ TEST(LiveSessionTest, MissingModelPassesFramesUnchangedAndSaysWhy) {
 
 TEST(LiveSessionTest, UdpStreamGoesLiveWithPacketRateThenLost) {
   REQUIRE_RECORDING(dir);
-  std::string base = test::make_temp_dir("live-udp");
+  const face_reenact::testing::TempDir tmp("fr-live-udp");
+  const std::string& base = tmp.path();
   std::string key_path = base + "/stream.key";
   stream::StreamKey key = stream::StreamKey::generate();
   stream::write_key_file(key_path, key);
@@ -335,12 +337,12 @@ TEST(LiveSessionTest, UdpStreamGoesLiveWithPacketRateThenLost) {
   EXPECT_EQ(s.source, SourceState::kLost) << s.Headline();
   EXPECT_EQ(s.packets_per_second, 0);
   EXPECT_NE(s.Headline().find("stream lost"), std::string::npos) << s.Headline();
-  fs::remove_all(base);
 }
 
 TEST(LiveSessionTest, PortInUseIsASourceErrorAndTheTargetStillPlays) {
   REQUIRE_RECORDING(dir);
-  std::string base = test::make_temp_dir("live-port");
+  const face_reenact::testing::TempDir tmp("fr-live-port");
+  const std::string& base = tmp.path();
   std::string key_path = base + "/stream.key";
   stream::write_key_file(key_path, stream::StreamKey::generate());
   // Hold the port without SO_REUSEADDR.
@@ -366,7 +368,6 @@ TEST(LiveSessionTest, PortInUseIsASourceErrorAndTheTargetStillPlays) {
   ::close(fd);  // the port frees up: the session takes it on its next try
   s = wait_status(session, 5s, [](const LiveStatus& st) { return st.source == SourceState::kWaiting; });
   EXPECT_EQ(s.source, SourceState::kWaiting) << s.Headline();
-  fs::remove_all(base);
 }
 
 TEST(LiveSessionTest, StopIsPromptIdempotentAndLeavesNoThreads) {

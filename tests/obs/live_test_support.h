@@ -44,15 +44,6 @@ inline std::string quote(const std::string& s) {
   return out + "'";
 }
 
-// A fresh temporary folder, removed at process exit by the caller's TearDown (or left in /tmp).
-inline std::string make_temp_dir(const std::string& tag) {
-  std::string pattern = (std::filesystem::temp_directory_path() / ("fr-" + tag + "-XXXXXX")).string();
-  std::vector<char> buf(pattern.begin(), pattern.end());
-  buf.push_back('\0');
-  if (!::mkdtemp(buf.data())) return "";
-  return buf.data();
-}
-
 // The recording, made once and shared by every test process (CTest runs each test case in its
 // own process): FR_OBS_TEST_CACHE/recording, created under a file lock and reused while it
 // reads back as expected. Empty with *why when it cannot be made (no CLI, no model).

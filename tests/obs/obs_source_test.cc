@@ -18,6 +18,7 @@
 
 #include "live_test_support.h"
 #include "obs_test_support.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::test {
 namespace {
@@ -355,7 +356,8 @@ TEST_F(ObsSourceTest, IncompleteSettingsSayWhatIsMissing) {
 
 TEST_F(ObsSourceTest, UdpSourceWithoutSenderSaysWaiting) {
   REQUIRE_RECORDING(dir);
-  std::string base = make_temp_dir("obs-key");
+  const face_reenact::testing::TempDir tmp("fr-obs-key");
+  const std::string& base = tmp.path();
   std::string key = base + "/stream.key";
   std::string log;
   const char* cli = std::getenv("FR_CLI");
@@ -372,7 +374,6 @@ TEST_F(ObsSourceTest, UdpSourceWithoutSenderSaysWaiting) {
   obs_data_release(settings);
   Status st = wait_status(source, 5s, [](const Status& s) { return s.line.find("waiting for stream") != std::string::npos; });
   EXPECT_NE(st.line.find("waiting for stream on udp 39017"), std::string::npos) << st.line;
-  std::filesystem::remove_all(base);
 }
 
 TEST_F(ObsSourceTest, RemovalWhileRunningShutsDownCleanly) {

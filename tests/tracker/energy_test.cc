@@ -223,7 +223,7 @@ TEST(TrackerGradientCheck, SphereJacobianMatchesFiniteDifferences) {
 
 TEST(TrackerGradientCheck, FaceModelJacobianMatchesFiniteDifferences) {
   const TrackerModel* model = real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm); the sphere test covers the math";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL); the sphere test covers the math";
   const ParameterLayout layout = ParameterLayout::Calibration(model->num_identity(), model->num_albedo(), model->num_expression());
   // 160x120 keeps the pixel count (and the 2 x 175 evaluations) small.
   const Linearised s = linearised(*model, layout, EnergyOptions{}, test_camera(160, 120), 0.5f, 21);

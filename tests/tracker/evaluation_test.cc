@@ -75,7 +75,7 @@ TEST(TriangleSurface, EmptyAndBadInput) {
 
 TEST(CompareToGroundTruth, KnownOffsets) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   const gpu::CpuRenderer renderer(model->render);
   const gpu::PinholeCamera camera = testing::test_camera(320, 240);
   const gpu::FaceParameters truth = testing::true_parameters(*model, 0.6f, 3);
@@ -114,7 +114,7 @@ TEST(CompareToGroundTruth, KnownOffsets) {
 // and of the same size whichever face is the reference.
 TEST(CompareIdentities, AlignsRigidlyAndMeasuresTheSurface) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   const gpu::CpuRenderer renderer(model->render);
   const gpu::PinholeCamera camera = testing::test_camera(320, 240);
   const Eigen::VectorXf truth = testing::true_parameters(*model, 0.6f, 3).alpha;

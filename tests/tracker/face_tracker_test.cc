@@ -135,7 +135,7 @@ TEST(FaceTrackerOptions, ScheduleFollowsTheFaceSize) {
 
 TEST(PoseFromLandmarks, RecoversATurnedHeadWithAndWithoutDepth) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   const CpuSolver solver(*model);
   gpu::FaceParameters truth = testing::true_parameters(*model, 0.5f, 5);
   truth.euler += Eigen::Vector3f(0.1f, 0.45f, -0.15f);  // ~26 degrees of yaw
@@ -165,7 +165,7 @@ TEST(PoseFromLandmarks, RecoversATurnedHeadWithAndWithoutDepth) {
 
 TEST(FaceTracker, CalibratesThenTracksASequence) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   FaceTracker tracker(*model, fast_options(3));
   EXPECT_FALSE(tracker.calibrated());
   EXPECT_EQ(tracker.neutral().alpha.norm(), 0.f);
@@ -221,7 +221,7 @@ TEST(FaceTracker, CalibratesThenTracksASequence) {
 
 TEST(FaceTracker, SurvivesBadFramesAndRecovers) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   FaceTracker tracker(*model, fast_options(1));
   const CpuSolver& solver = tracker.cpu_solver();
   const gpu::CpuRenderer& renderer = solver.renderer();
@@ -331,7 +331,7 @@ TEST(FaceTracker, SurvivesBadFramesAndRecovers) {
 
 TEST(FaceTracker, RecalibratesOnRequestFromAnotherThreadAndResets) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   FaceTracker tracker(*model, fast_options(1));
   const CpuSolver& solver = tracker.cpu_solver();
   ASSERT_EQ(tracker.Track(render_frame(solver, sequence_parameters(*model, 0))).status, TrackingStatus::kCalibrated);
@@ -354,7 +354,7 @@ TEST(FaceTracker, RecalibratesOnRequestFromAnotherThreadAndResets) {
 
 TEST(FaceTracker, CalibratesFromLandmarkPosesWithoutTrackingFirst) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   TrackerOptions o = fast_options(2);
   o.track_while_calibrating = false;
   FaceTracker tracker(*model, o);
@@ -375,7 +375,7 @@ TEST(FaceTracker, CalibratesFromLandmarkPosesWithoutTrackingFirst) {
 
 TEST(FaceTracker, UsesAReplacementSolver) {
   const TrackerModel* model = testing::real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   FaceTracker tracker(*model, fast_options(1));
   std::atomic<int> calls{0};
   const CpuSolver& cpu = tracker.cpu_solver();

@@ -87,7 +87,7 @@ class TrackerSolverTest : public ::testing::Test {
  protected:
   void SetUp() override {
     model_ = real_model();
-    if (!model_) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+    if (!model_) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
     solver_ = std::make_unique<CpuSolver>(*model_);
     camera_ = test_camera(640, 480);
     truth_ = true_parameters(*model_, 0.55f, 99);
@@ -414,7 +414,7 @@ TEST(TrackerCalibration, SphereTwoViewsShareIdentity) {
 // expression and lighting per frame.
 TEST(TrackerCalibration, SharedIdentityFromThreeViews) {
   const TrackerModel* model = real_model();
-  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   const CpuSolver solver(*model);
   const gpu::PinholeCamera camera = test_camera(640, 480);
   const gpu::FaceParameters truth = true_parameters(*model, 0.55f, 99);

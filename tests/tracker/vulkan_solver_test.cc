@@ -300,7 +300,7 @@ TEST_F(VulkanSolverTest, LandmarksAloneMatchTheCpu) {
 // `face-reenact bench track` reports the Vulkan strategies next to the CPU reference.
 TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
   const std::string model = testing::real_model_path();
-  if (model.empty()) GTEST_SKIP() << "no face model built yet (FR_MODEL / /tmp/face-model.frm)";
+  if (model.empty()) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   const char* cli = std::getenv("FR_CLI");
   ASSERT_NE(cli, nullptr);
   int status = -1;
