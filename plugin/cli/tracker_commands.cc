@@ -94,10 +94,23 @@ void run_bench_track(const TrackBenchArgs& a) {
   doc["camera"] = {{"width", a.width}, {"height", a.height}};
   doc["frames"] = a.frames;
   doc["unknowns"] = layout.num_parameters();
-  for (const auto& [name, type] : {std::pair{"cpu_matrix_free", LinearSolverType::kMatrixFree},
-                                   std::pair{"cpu_assembled", LinearSolverType::kAssembled}}) {
+  // The CPU solvers with their default thread count, and matrix-free on one thread: the same
+  // steps, so the ratio of the two matrix-free rows is what the threads bring.
+  const int threads = SolverOptions{}.ResolvedThreads();
+  doc["cpu_threads"] = threads;
+  struct CpuRow {
+    const char* name;
+    LinearSolverType type;
+    int threads;
+  };
+  for (const CpuRow& row : {CpuRow{"cpu_matrix_free", LinearSolverType::kMatrixFree, threads},
+                            CpuRow{"cpu_assembled", LinearSolverType::kAssembled, threads},
+                            CpuRow{"cpu_matrix_free_1_thread", LinearSolverType::kMatrixFree, 1}}) {
+    if (row.threads == threads && std::string(row.name) == "cpu_matrix_free_1_thread") continue;  // one core: the same row
+    const char* name = row.name;
     SolverOptions options;
-    options.linear_solver = type;
+    options.linear_solver = row.type;
+    options.threads = row.threads;
     // Frame 0 is the warm-up from the truth.
     doc["solvers"][name] = time_track_solver(
         [&](const InputFrame& frame, gpu::FaceParameters* p) { return solver.Solve(frame, layout, options, p); },
@@ -132,16 +145,22 @@ void run_bench_track(const TrackBenchArgs& a) {
     std::printf("%s\n", doc.dump(2).c_str());
     return;
   }
-  std::printf("bench track: %dx%d synthetic frames, %d frames, %d unknowns, paper schedule (7x4 on level 2, 1x4 on level 1)\n",
-              a.width, a.height, a.frames, layout.num_parameters());
-  std::printf("%-22s %5s %6s %10s %13s %13s\n", "solver", "level", "GN/fr", "residuals", "synthesis ms", "analysis ms");
+  std::printf("bench track: %dx%d synthetic frames, %d frames, %d unknowns, paper schedule (7x4 on level 2, 1x4 on level 1), "
+              "%d CPU threads\n",
+              a.width, a.height, a.frames, layout.num_parameters(), int(doc["cpu_threads"]));
+  std::printf("%-24s %5s %6s %10s %13s %13s\n", "solver", "level", "GN/fr", "residuals", "synthesis ms", "analysis ms");
   for (const auto& [name, s] : doc["solvers"].items()) {
     for (const auto& l : s["levels"]) {
-      std::printf("%-22s %5d %6.1f %10.0f %13.2f %13.2f\n", name.c_str(), int(l["level"]), double(l["gauss_newton_per_frame"]),
+      std::printf("%-24s %5d %6.1f %10.0f %13.2f %13.2f\n", name.c_str(), int(l["level"]), double(l["gauss_newton_per_frame"]),
                   double(l["residuals"]), double(l["synthesis_ms_per_frame"]), double(l["analysis_ms_per_frame"]));
     }
-    std::printf("%-22s total per frame %.2f ms (pyramid %.2f ms), mean final energy %.4g\n", name.c_str(),
+    std::printf("%-24s total per frame %.2f ms (pyramid %.2f ms), mean final energy %.4g\n", name.c_str(),
                 double(s["total_ms_per_frame"]), double(s["pyramid_ms_per_frame"]), double(s["mean_final_energy"]));
+  }
+  if (doc["solvers"].contains("cpu_matrix_free_1_thread")) {
+    std::printf("cpu_matrix_free on %d threads: %.2fx faster than on one (same steps)\n", int(doc["cpu_threads"]),
+                double(doc["solvers"]["cpu_matrix_free_1_thread"]["total_ms_per_frame"]) /
+                    double(doc["solvers"]["cpu_matrix_free"]["total_ms_per_frame"]));
   }
   const auto& c = doc["calibration"];
   std::printf("calibration (CPU): %d frames, %d unknowns, %d GN iterations, %.0f residuals per iteration: %.0f ms "

@@ -33,6 +33,13 @@ TEST(TrackerBenchCli, BenchTrackReportsBothCpuOperators) {
     EXPECT_GT(double(s["total_ms_per_frame"]), 0.0);
     EXPECT_LT(double(s["mean_final_energy"]), 1.0);
   }
+  // With more than one CPU thread, matrix-free also runs on one thread: the same steps exactly.
+  EXPECT_GE(int(doc["cpu_threads"]), 1);
+  if (int(doc["cpu_threads"]) > 1) {
+    ASSERT_TRUE(doc["solvers"].contains("cpu_matrix_free_1_thread")) << out;
+    EXPECT_EQ(double(doc["solvers"]["cpu_matrix_free_1_thread"]["mean_final_energy"]),
+              double(doc["solvers"]["cpu_matrix_free"]["mean_final_energy"]));
+  }
 }
 
 TEST(TrackerBenchCli, BadArgumentsFailCleanly) {

@@ -339,6 +339,34 @@ TEST(TrackerEnergy, ExpressionPriorRowsAreEq11PlusReweightedL1) {
   }
 }
 
+// The pixel rows split over threads: r, J and the energies are bit-identical to one thread
+// (each pixel writes only its own rows), for thread counts that do and do not divide the pixels.
+TEST(TrackerEnergy, ThreadedEvaluationIsBitIdentical) {
+  const TrackerModel* real = real_model();
+  const TrackerModel model = real ? *real : sphere_model();
+  const ParameterLayout layout = real ? ParameterLayout::Calibration(20, 5, model.num_expression())
+                                      : ParameterLayout::Calibration(6, 4, 5);
+  const Linearised s = linearised(model, layout, EnergyOptions{}, test_camera(640, 480), 0.5f, 31);
+  ASSERT_GT(s.lin.pixels.size(), 4u * 1024u) << "too few pixels to split into threads";
+  Eigen::VectorXd r1;
+  JacobianMatrix j1;
+  TermEnergies e1;
+  EvaluateResiduals(model, s.lin, EnergyOptions{}, s.x, &r1, &j1, &e1, 1);
+  for (int threads : {2, 3, 4}) {
+    Eigen::VectorXd r;
+    JacobianMatrix j;
+    TermEnergies e;
+    EvaluateResiduals(model, s.lin, EnergyOptions{}, s.x, &r, &j, &e, threads);
+    ASSERT_EQ(r.size(), r1.size());
+    EXPECT_TRUE((r.array() == r1.array()).all()) << threads << " threads";
+    EXPECT_TRUE((j.array() == j1.array()).all()) << threads << " threads";
+    for (int t = 0; t < kNumTerms; ++t) EXPECT_EQ(e.value[t], e1.value[t]) << threads << " threads";
+    Eigen::VectorXd r_only;
+    EvaluateResiduals(model, s.lin, EnergyOptions{}, s.x, &r_only, nullptr, nullptr, threads);
+    EXPECT_TRUE((r_only.array() == r1.array()).all()) << threads << " threads, residuals only";
+  }
+}
+
 TEST(TrackerEnergy, LinearizeRejectsMismatchedInputs) {
   const TrackerModel model = sphere_model();
   const CpuSolver solver(model);

@@ -164,6 +164,21 @@ SolverOptions single_term(Term t) {
 // residual of a pixel lies along its ray, so it pins depth but resists sliding sideways (the
 // paper adds the plane term for this reason; docs/tracker.md). It recovers offsets along the
 // view direction, which is what this checks.
+// Threads change how fast, never what: the same solve with 1 and 3 threads ends bit-identical.
+TEST_F(TrackerSolverTest, ThreadCountDoesNotChangeTheResult) {
+  gpu::FaceParameters one = perturbed_start(truth_), three = one;
+  SolverOptions o;
+  o.threads = 1;
+  const SolverSummary s1 = solver_->Solve(frame_, tracking(), o, &one);
+  o.threads = 3;
+  const SolverSummary s3 = solver_->Solve(frame_, tracking(), o, &three);
+  EXPECT_EQ(s1.final_energy.total(), s3.final_energy.total());
+  EXPECT_EQ(one.euler, three.euler);
+  EXPECT_EQ(one.translation, three.translation);
+  EXPECT_EQ(one.delta, three.delta);
+  EXPECT_EQ(s1.iterations.size(), s3.iterations.size());
+}
+
 TEST_F(TrackerSolverTest, PointTermAloneRecoversDepthOffsets) {
   gpu::FaceParameters start = truth_;
   start.translation.z() += 0.015f;
@@ -341,6 +356,9 @@ TEST_F(TrackerSolverTest, InvalidRequestsThrowClearErrors) {
   }
   o = SolverOptions{};
   o.damping = -1;
+  EXPECT_THROW(solver_->Solve(frame_, tracking(), o, &start), Error);
+  o = SolverOptions{};
+  o.threads = -1;
   EXPECT_THROW(solver_->Solve(frame_, tracking(), o, &start), Error);
   EXPECT_THROW(solver_->Solve(frame_, ParameterLayout::Tracking(200), SolverOptions{}, &start), Error);
   InputFrame broken = frame_;

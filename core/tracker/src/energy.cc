@@ -1,7 +1,12 @@
 #include "face_reenact/tracker/energy.h"
 
+#include <algorithm>
 #include <cmath>
+#include <functional>
+#include <memory>
+#include <thread>
 #include <unordered_map>
+#include <vector>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
@@ -12,6 +17,9 @@ namespace face_reenact::tracker {
 using internal::fail;
 namespace {
 bool weight_ok(double w) { return std::isfinite(w) && w >= 0; }
+
+// Below this many pixels per thread, starting a thread costs more than it saves.
+constexpr size_t kMinPixelsPerThread = 1024;
 
 // The full coefficient vectors (double) of the current x: solved blocks from x, the rest from
 // the linearisation's base parameters, zero-padded to the model's sizes.
@@ -218,7 +226,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
 
 void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, const EnergyOptions& options,
                        const Eigen::VectorXd& x, Eigen::VectorXd* residuals, JacobianMatrix* jacobian,
-                       TermEnergies* energies) {
+                       TermEnergies* energies, int threads) {
   const ParameterLayout& layout = lin.layout;
   if (x.size() != layout.num_parameters()) throw Error("evaluate residuals: parameter vector has the wrong size");
   const Eigen::Index m = lin.num_residuals();
@@ -243,91 +251,124 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   const double s_plane = lin.num_plane ? std::sqrt(options.w_plane / lin.num_plane) / unit : 0;
   const double s_col = lin.num_color ? std::sqrt(options.w_col / lin.num_color) : 0;
 
-  Eigen::Index row_point = lin.term_rows[0], row_plane = lin.term_rows[1], row_col = lin.term_rows[2];
-  // Scratch for the pixel-level derivatives of X_S (3 x np) - only the shape/pose columns are used.
-  Eigen::Matrix<double, 3, Eigen::Dynamic> dx(3, np);
-  Eigen::MatrixXd e_id(3, k_id), e_exp(3, k_exp);
-
-  for (const PixelSample& s : lin.pixels) {
-    Eigen::Vector3d v_bar = Eigen::Vector3d::Zero(), n_bar = Eigen::Vector3d::Zero();
-    for (int k = 0; k < 3; ++k) {
-      v_bar += s.bary[k] * cache.position(s.vertex[k]);
-      n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
-    }
-    const Eigen::Vector3d xs = R * v_bar + c.translation;
-    if (s.point || s.plane) {
-      const Eigen::Vector3d diff = xs - s.input_point;
-      if (jacobian) {
-        dx.setZero();
-        if (k_id > 0) {
-          e_id.setZero();
-          for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
-          dx.middleCols(o_id, k_id) = R * e_id;
-        }
-        if (k_exp > 0) {
-          e_exp.setZero();
-          for (int k = 0; k < 3; ++k) e_exp += s.bary[k] * rm.expression_basis.block(3 * s.vertex[k], 0, 3, k_exp).cast<double>();
-          dx.middleCols(o_exp, k_exp) = R * e_exp;
-        }
-        for (int a = 0; a < 3; ++a) dx.col(o_rot + a) = rot.d[a] * v_bar;
-        dx.middleCols<3>(o_t).setIdentity();
-      }
-      if (s.point) {
-        r.segment<3>(row_point) = s_point * diff;
-        if (jacobian) jacobian->middleRows(row_point, 3) = s_point * dx;
-        row_point += 3;
-      }
-      if (s.plane) {
-        const double n_len = n_bar.norm();
-        const Eigen::Vector3d n_model = n_len > 0 ? Eigen::Vector3d(n_bar / n_len) : Eigen::Vector3d::Zero();
-        const Eigen::Vector3d n_s = R * n_model;
-        r[row_plane] = s_plane * s.input_normal.dot(diff);
-        r[row_plane + 1] = s_plane * n_s.dot(diff);
-        if (jacobian) {
-          jacobian->row(row_plane) = s_plane * (s.input_normal.transpose() * dx);
-          jacobian->row(row_plane + 1) = s_plane * (n_s.transpose() * dx);
-          for (int a = 0; a < 3; ++a) (*jacobian)(row_plane + 1, o_rot + a) += s_plane * (rot.d[a] * n_model).dot(diff);
-        }
-        row_plane += 2;
-      }
-    }
-    if (s.color) {
-      // C_c = sum_k b_k a_kc sum_j gamma_cj y_j(R n_k)
-      Eigen::Vector3d color = Eigen::Vector3d::Zero();
+  // The dense terms, pixel by pixel. Every pixel writes only its own rows, so contiguous chunks
+  // of pixels run on separate threads (each with its own vertex cache and scratch) and give
+  // bit-identical r and J for any thread count; a chunk's first rows come from counting the
+  // terms of the pixels before it.
+  auto dense_rows = [&](size_t begin, size_t end, Eigen::Index row_point, Eigen::Index row_plane, Eigen::Index row_col,
+                        VertexCache& vertices) {
+    // Scratch for the pixel-level derivatives of X_S (3 x np) - only the shape/pose columns are used.
+    Eigen::Matrix<double, 3, Eigen::Dynamic> dx(3, np);
+    Eigen::MatrixXd e_id(3, k_id), e_exp(3, k_exp);
+    for (size_t p = begin; p < end; ++p) {
+      const PixelSample& s = lin.pixels[p];
+      Eigen::Vector3d v_bar = Eigen::Vector3d::Zero(), n_bar = Eigen::Vector3d::Zero();
       for (int k = 0; k < 3; ++k) {
-        const int v = s.vertex[k];
-        const Eigen::Vector3d n_model = lin.model_normals.segment<3>(3 * v);
-        const Eigen::Vector3d n_cam = R * n_model;
-        const auto y = internal::sh_basis(n_cam);
-        const Eigen::Vector3d& albedo = cache.albedo(v);
-        std::array<Eigen::Vector3d, 9> grad;
-        std::array<Eigen::Vector3d, 3> dn;  // d n_cam / d euler_a
+        v_bar += s.bary[k] * vertices.position(s.vertex[k]);
+        n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
+      }
+      const Eigen::Vector3d xs = R * v_bar + c.translation;
+      if (s.point || s.plane) {
+        const Eigen::Vector3d diff = xs - s.input_point;
         if (jacobian) {
-          grad = internal::sh_basis_gradient(n_cam);
-          for (int a = 0; a < 3; ++a) dn[a] = rot.d[a] * n_model;
+          dx.setZero();
+          if (k_id > 0) {
+            e_id.setZero();
+            for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
+            dx.middleCols(o_id, k_id) = R * e_id;
+          }
+          if (k_exp > 0) {
+            e_exp.setZero();
+            for (int k = 0; k < 3; ++k) e_exp += s.bary[k] * rm.expression_basis.block(3 * s.vertex[k], 0, 3, k_exp).cast<double>();
+            dx.middleCols(o_exp, k_exp) = R * e_exp;
+          }
+          for (int a = 0; a < 3; ++a) dx.col(o_rot + a) = rot.d[a] * v_bar;
+          dx.middleCols<3>(o_t).setIdentity();
         }
-        for (int ch = 0; ch < 3; ++ch) {
-          double irradiance = 0;
-          for (int q = 0; q < 9; ++q) irradiance += c.gamma[ch * 9 + q] * y[q];
-          color[ch] += s.bary[k] * albedo[ch] * irradiance;
-          if (!jacobian) continue;
-          auto jrow = jacobian->row(row_col + ch);
-          const double ba = s_col * s.bary[k] * albedo[ch];
-          for (int q = 0; q < 9; ++q) jrow[o_gam + ch * 9 + q] += ba * y[q];
-          if (k_alb > 0) {
-            jrow.segment(o_alb, k_alb) +=
-                (s_col * s.bary[k] * irradiance) * rm.albedo_basis.row(3 * v + ch).head(k_alb).cast<double>();
+        if (s.point) {
+          r.segment<3>(row_point) = s_point * diff;
+          if (jacobian) jacobian->middleRows(row_point, 3) = s_point * dx;
+          row_point += 3;
+        }
+        if (s.plane) {
+          const double n_len = n_bar.norm();
+          const Eigen::Vector3d n_model = n_len > 0 ? Eigen::Vector3d(n_bar / n_len) : Eigen::Vector3d::Zero();
+          const Eigen::Vector3d n_s = R * n_model;
+          r[row_plane] = s_plane * s.input_normal.dot(diff);
+          r[row_plane + 1] = s_plane * n_s.dot(diff);
+          if (jacobian) {
+            jacobian->row(row_plane) = s_plane * (s.input_normal.transpose() * dx);
+            jacobian->row(row_plane + 1) = s_plane * (n_s.transpose() * dx);
+            for (int a = 0; a < 3; ++a) (*jacobian)(row_plane + 1, o_rot + a) += s_plane * (rot.d[a] * n_model).dot(diff);
           }
-          for (int a = 0; a < 3; ++a) {
-            double d_irr = 0;
-            for (int q = 1; q < 9; ++q) d_irr += c.gamma[ch * 9 + q] * grad[q].dot(dn[a]);
-            jrow[o_rot + a] += ba * d_irr;
-          }
+          row_plane += 2;
         }
       }
-      r.segment<3>(row_col) = s_col * (color - s.input_color);
-      row_col += 3;
+      if (s.color) {
+        // C_c = sum_k b_k a_kc sum_j gamma_cj y_j(R n_k)
+        Eigen::Vector3d color = Eigen::Vector3d::Zero();
+        for (int k = 0; k < 3; ++k) {
+          const int v = s.vertex[k];
+          const Eigen::Vector3d n_model = lin.model_normals.segment<3>(3 * v);
+          const Eigen::Vector3d n_cam = R * n_model;
+          const auto y = internal::sh_basis(n_cam);
+          const Eigen::Vector3d& albedo = vertices.albedo(v);
+          std::array<Eigen::Vector3d, 9> grad;
+          std::array<Eigen::Vector3d, 3> dn;  // d n_cam / d euler_a
+          if (jacobian) {
+            grad = internal::sh_basis_gradient(n_cam);
+            for (int a = 0; a < 3; ++a) dn[a] = rot.d[a] * n_model;
+          }
+          for (int ch = 0; ch < 3; ++ch) {
+            double irradiance = 0;
+            for (int q = 0; q < 9; ++q) irradiance += c.gamma[ch * 9 + q] * y[q];
+            color[ch] += s.bary[k] * albedo[ch] * irradiance;
+            if (!jacobian) continue;
+            auto jrow = jacobian->row(row_col + ch);
+            const double ba = s_col * s.bary[k] * albedo[ch];
+            for (int q = 0; q < 9; ++q) jrow[o_gam + ch * 9 + q] += ba * y[q];
+            if (k_alb > 0) {
+              jrow.segment(o_alb, k_alb) +=
+                  (s_col * s.bary[k] * irradiance) * rm.albedo_basis.row(3 * v + ch).head(k_alb).cast<double>();
+            }
+            for (int a = 0; a < 3; ++a) {
+              double d_irr = 0;
+              for (int q = 1; q < 9; ++q) d_irr += c.gamma[ch * 9 + q] * grad[q].dot(dn[a]);
+              jrow[o_rot + a] += ba * d_irr;
+            }
+          }
+        }
+        r.segment<3>(row_col) = s_col * (color - s.input_color);
+        row_col += 3;
+      }
     }
+  };
+  const size_t num_pixels = lin.pixels.size();
+  const int chunks = static_cast<int>(std::clamp<size_t>(num_pixels / kMinPixelsPerThread, 1, std::max(threads, 1)));
+  if (chunks == 1) {
+    dense_rows(0, num_pixels, lin.term_rows[0], lin.term_rows[1], lin.term_rows[2], cache);
+  } else {
+    std::vector<std::thread> workers;
+    std::vector<std::unique_ptr<VertexCache>> caches;
+    Eigen::Index row_point = lin.term_rows[0], row_plane = lin.term_rows[1], row_col = lin.term_rows[2];
+    size_t begin = 0;
+    for (int k = 0; k < chunks; ++k) {
+      const size_t end = num_pixels * static_cast<size_t>(k + 1) / static_cast<size_t>(chunks);
+      if (k + 1 < chunks) {
+        caches.push_back(std::make_unique<VertexCache>(model, c));
+        workers.emplace_back(dense_rows, begin, end, row_point, row_plane, row_col, std::ref(*caches.back()));
+      } else {
+        dense_rows(begin, end, row_point, row_plane, row_col, cache);  // the last chunk on this thread
+      }
+      for (size_t q = begin; q < end; ++q) {
+        const PixelSample& s = lin.pixels[q];
+        row_point += s.point ? 3 : 0;
+        row_plane += s.plane ? 2 : 0;
+        row_col += s.color ? 3 : 0;
+      }
+      begin = end;
+    }
+    for (auto& w : workers) w.join();
   }
 
   // Landmarks (Eq. 10): projections of the landmark vertices against the detected points.

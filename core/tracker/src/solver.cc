@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <thread>
 
 #include "face_reenact/common/error.h"
 #include "tracker_internal.h"
@@ -55,7 +56,13 @@ bool SolverOptions::IsValid(std::string* why) const {
   if (max_step_halvings < 0 || max_step_halvings > 30) return fail(why, "solver: max_step_halvings must be 0..30");
   if (!(function_tolerance >= 0)) return fail(why, "solver: function_tolerance must be non-negative");
   if (!(pcg_relative_tolerance >= 0)) return fail(why, "solver: pcg_relative_tolerance must be non-negative");
+  if (threads < 0 || threads > 64) return fail(why, "solver: threads must be 0..64 (0 = one per hardware thread)");
   return true;
+}
+
+int SolverOptions::ResolvedThreads() const {
+  if (threads > 0) return threads;
+  return static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 8u));
 }
 
 std::string SolverSummary::BriefReport() const {
@@ -188,6 +195,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
     return out;
   };
   const int o_exp_own = layout.offset(Block::kExpression) - shared;
+  const int threads = options.ResolvedThreads();
   PcgScratch scratch;
   scratch.Resize(n);
   Eigen::VectorXd b(n), dx(n), rg;
@@ -213,7 +221,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
       const auto t1 = Clock::now();
       State& st = (*states)[f];
       st.lin = Linearize(model_, layout, p, vs, g, frame, options.energy, /*regularize_shared=*/f == 0);
-      EvaluateResiduals(model_, st.lin, options.energy, xf, &st.r, nullptr, &st.energy);
+      EvaluateResiduals(model_, st.lin, options.energy, xf, &st.r, nullptr, &st.energy, threads);
       st.has_jacobian = false;
       *analysis_ms += ms_since(t1);
     }
@@ -222,7 +230,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
     for (int f = 0; f < num_frames; ++f) {
       State& st = (*states)[f];
       if (st.has_jacobian) continue;
-      EvaluateResiduals(model_, st.lin, options.energy, frame_x(at, f), &st.r, &st.j, &st.energy);
+      EvaluateResiduals(model_, st.lin, options.energy, frame_x(at, f), &st.r, &st.j, &st.energy, threads);
       st.has_jacobian = true;
     }
   };
@@ -327,7 +335,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
         linear_energy = 0;
         for (int f = 0; f < num_frames; ++f) {
           TermEnergies e;
-          EvaluateResiduals(model_, cur[f].lin, options.energy, frame_x(x_try, f), &trial_r, nullptr, &e);
+          EvaluateResiduals(model_, cur[f].lin, options.energy, frame_x(x_try, f), &trial_r, nullptr, &e, threads);
           linear_energy += e.total();
         }
         rec.step_halvings = h;

@@ -125,9 +125,10 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
 using JacobianMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
 // r(x) and, when `jacobian` is not null, J = dr/dx (num_residuals x layout.num_parameters()).
-// `energies` (optional) receives the weighted value of each term.
+// `energies` (optional) receives the weighted value of each term. The pixel rows are split over
+// up to `threads` threads (large linearisations only); r and J are bit-identical for any count.
 void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, const EnergyOptions& options,
                        const Eigen::VectorXd& x, Eigen::VectorXd* residuals, JacobianMatrix* jacobian,
-                       TermEnergies* energies = nullptr);
+                       TermEnergies* energies = nullptr, int threads = 1);
 
 }  // namespace face_reenact::tracker

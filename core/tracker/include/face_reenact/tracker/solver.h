@@ -42,8 +42,13 @@ struct SolverOptions {
   bool clamp_expression = true;
   double pcg_relative_tolerance = 1e-10;
   gpu::RenderOptions render;  // which parts are drawn (skin)
+  // Threads for the per-pixel residual and Jacobian rows (0 = one per hardware thread, at most
+  // 8). The result does not depend on it.
+  int threads = 0;
 
   bool IsValid(std::string* why) const;
+  // `threads` with 0 resolved.
+  int ResolvedThreads() const;
 };
 
 enum class Termination {
