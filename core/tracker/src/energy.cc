@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <exception>
 #include <functional>
 #include <memory>
+#include <system_error>
 #include <thread>
 #include <unordered_map>
 #include <vector>
@@ -349,16 +351,33 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
     dense_rows(0, num_pixels, lin.term_rows[0], lin.term_rows[1], lin.term_rows[2], cache);
   } else {
     std::vector<std::thread> workers;
+    // Everything that may throw on this thread is made before the first worker starts.
     std::vector<std::unique_ptr<VertexCache>> caches;
+    for (int k = 0; k + 1 < chunks; ++k) caches.push_back(std::make_unique<VertexCache>(model, c));
+    std::vector<std::exception_ptr> failures(static_cast<size_t>(chunks));
+    workers.reserve(static_cast<size_t>(chunks));
     Eigen::Index row_point = lin.term_rows[0], row_plane = lin.term_rows[1], row_col = lin.term_rows[2];
     size_t begin = 0;
+    // Runs one chunk, keeping its exception for the caller's thread (a worker must not throw).
+    auto run_chunk = [&dense_rows, &failures](int k, size_t first, size_t last, Eigen::Index rp, Eigen::Index rl,
+                                              Eigen::Index rc, VertexCache* vc) {
+      try {
+        dense_rows(first, last, rp, rl, rc, *vc);
+      } catch (...) {
+        failures[static_cast<size_t>(k)] = std::current_exception();
+      }
+    };
     for (int k = 0; k < chunks; ++k) {
       const size_t end = num_pixels * static_cast<size_t>(k + 1) / static_cast<size_t>(chunks);
       if (k + 1 < chunks) {
-        caches.push_back(std::make_unique<VertexCache>(model, c));
-        workers.emplace_back(dense_rows, begin, end, row_point, row_plane, row_col, std::ref(*caches.back()));
+        VertexCache* vc = caches[static_cast<size_t>(k)].get();
+        try {
+          workers.emplace_back(run_chunk, k, begin, end, row_point, row_plane, row_col, vc);
+        } catch (const std::system_error&) {
+          run_chunk(k, begin, end, row_point, row_plane, row_col, vc);  // no thread to be had: run it here
+        }
       } else {
-        dense_rows(begin, end, row_point, row_plane, row_col, cache);  // the last chunk on this thread
+        run_chunk(k, begin, end, row_point, row_plane, row_col, &cache);  // the last chunk on this thread
       }
       for (size_t q = begin; q < end; ++q) {
         const PixelSample& s = lin.pixels[q];
@@ -369,6 +388,8 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       begin = end;
     }
     for (auto& w : workers) w.join();
+    for (const auto& f : failures)
+      if (f) std::rethrow_exception(f);
   }
 
   // Landmarks (Eq. 10): projections of the landmark vertices against the detected points.
