@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <unistd.h>
@@ -17,6 +18,7 @@
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/landmarks/evaluation.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::landmarks {
 namespace {
@@ -49,15 +51,10 @@ std::string wheel_path() {
 class RecordingLandmarksTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = (fs::temp_directory_path() / ("fr_lm_rec_" + std::to_string(::getpid()))).string();
-    std::error_code ec;
-    fs::remove_all(root_, ec);
-    fs::create_directories(root_);
+    scratch_ = std::make_unique<face_reenact::testing::TempDir>("fr-lm-rec");
+    root_ = scratch_->path();
   }
-  static void TearDownTestSuite() {
-    std::error_code ec;
-    fs::remove_all(root_, ec);
-  }
+  static void TearDownTestSuite() { scratch_.reset(); }
 
   void SetUp() override {
     cli_ = env("FR_CLI");
@@ -100,10 +97,12 @@ class RecordingLandmarksTest : public ::testing::Test {
     return dst;
   }
 
+  static std::unique_ptr<face_reenact::testing::TempDir> scratch_;
   static std::string root_;
   std::string cli_, recording_;
 };
 
+std::unique_ptr<face_reenact::testing::TempDir> RecordingLandmarksTest::scratch_;
 std::string RecordingLandmarksTest::root_;
 
 TEST_F(RecordingLandmarksTest, EvalScoresTrackedFramesAgainstGroundTruth) {

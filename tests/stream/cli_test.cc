@@ -20,6 +20,7 @@
 #include "face_reenact/stream/sender.h"
 #include "face_reenact/stream/udp.h"
 #include "stream_test_util.h"
+#include "support/temp_dir.h"
 
 extern char** environ;
 
@@ -88,13 +89,6 @@ class CliTest : public ::testing::Test {
     const char* cli = std::getenv("FR_CLI");
     if (!cli || !fs::exists(cli)) GTEST_SKIP() << "FR_CLI is not set to the face-reenact executable";
     cli_ = cli;
-    dir_ = fs::temp_directory_path() / ("fr-cli-" + std::to_string(::getpid()) + "-" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    if (!dir_.empty()) fs::remove_all(dir_);
   }
   std::string path(const std::string& n) const { return (dir_ / n).string(); }
   std::unique_ptr<Process> start(std::vector<std::string> args, const std::string& name) {
@@ -123,7 +117,8 @@ class CliTest : public ::testing::Test {
     return testing::wait_for([&] { return p.err().find(text) != std::string::npos; }, limit);
   }
   std::string cli_;
-  fs::path dir_;
+  const face_reenact::testing::TempDir tmp_{"fr-cli"};
+  const fs::path dir_ = tmp_.path();
   int runs_ = 0;
 };
 

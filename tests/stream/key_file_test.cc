@@ -7,6 +7,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/stream/stream_key.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::stream {
 namespace {
@@ -15,13 +16,6 @@ namespace fs = std::filesystem;
 
 class KeyFileTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("fr-key-test-" + std::to_string(::getpid()) + "-" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
   std::string path(const std::string& name) const { return (dir_ / name).string(); }
   void write_text(const std::string& p, const std::string& text, mode_t mode) {
     { std::ofstream(p, std::ios::binary) << text; }
@@ -35,7 +29,8 @@ class KeyFileTest : public ::testing::Test {
     }
     return "";
   }
-  fs::path dir_;
+  const face_reenact::testing::TempDir tmp_{"fr-key-test"};
+  const fs::path dir_ = tmp_.path();
 };
 
 TEST_F(KeyFileTest, WritesAPrivateFileThatLoadsBack) {

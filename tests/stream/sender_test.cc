@@ -9,6 +9,7 @@
 #include "face_reenact/common/error.h"
 #include "face_reenact/stream/stream_state.h"
 #include "stream_test_util.h"
+#include "support/temp_dir.h"
 
 namespace face_reenact::stream {
 namespace {
@@ -18,13 +19,6 @@ using testing::make_frame;
 
 class ParameterFileTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("fr-params-" + std::to_string(::getpid()) + "-" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::create_directories(dir_);
-  }
-  void TearDown() override { std::filesystem::remove_all(dir_); }
   std::string write(const std::string& text) {
     const std::string p = (dir_ / ("f" + std::to_string(n_++) + ".jsonl")).string();
     std::ofstream(p, std::ios::binary) << text;
@@ -43,7 +37,8 @@ class ParameterFileTest : public ::testing::Test {
     for (int i = 0; i < n; ++i) s += (i ? "," : "") + std::string(v);
     return s + "]";
   }
-  std::filesystem::path dir_;
+  const face_reenact::testing::TempDir tmp_{"fr-params"};
+  const std::filesystem::path dir_ = tmp_.path();
   int n_ = 0;
 };
 
