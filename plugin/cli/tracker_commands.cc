@@ -103,16 +103,15 @@ void run_bench_track(const TrackBenchArgs& a) {
     LinearSolverType type;
     int threads;
   };
-  for (const CpuRow& row : {CpuRow{"cpu_matrix_free", LinearSolverType::kMatrixFree, threads},
-                            CpuRow{"cpu_assembled", LinearSolverType::kAssembled, threads},
-                            CpuRow{"cpu_matrix_free_1_thread", LinearSolverType::kMatrixFree, 1}}) {
-    if (row.threads == threads && std::string(row.name) == "cpu_matrix_free_1_thread") continue;  // one core: the same row
-    const char* name = row.name;
+  std::vector<CpuRow> rows = {{"cpu_matrix_free", LinearSolverType::kMatrixFree, threads},
+                              {"cpu_assembled", LinearSolverType::kAssembled, threads}};
+  if (threads > 1) rows.push_back({"cpu_matrix_free_1_thread", LinearSolverType::kMatrixFree, 1});  // else the same row
+  for (const CpuRow& row : rows) {
     SolverOptions options;
     options.linear_solver = row.type;
     options.threads = row.threads;
     // Frame 0 is the warm-up from the truth.
-    doc["solvers"][name] = time_track_solver(
+    doc["solvers"][row.name] = time_track_solver(
         [&](const InputFrame& frame, gpu::FaceParameters* p) { return solver.Solve(frame, layout, options, p); },
         frames, truths[0]);
   }

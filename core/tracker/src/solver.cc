@@ -237,11 +237,11 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
   // The joint system: the frames' Jacobian blocks as they are (no zeros stored), their residuals
   // stacked in the same row order (no copy with one frame).
   auto system = [&](const std::vector<State>& states, const Eigen::VectorXd** r) {
-    StackedJacobian j = num_frames == 1 ? StackedJacobian(states[0].j) : StackedJacobian(shared, own);
     if (num_frames == 1) {
       *r = &states[0].r;
-      return j;
+      return StackedJacobian(states[0].j);
     }
+    StackedJacobian j(shared, own);
     Eigen::Index rows = 0;
     for (const State& st : states) rows += st.r.size();
     rg.resize(rows);
