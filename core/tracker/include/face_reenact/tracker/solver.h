@@ -41,7 +41,7 @@ struct SolverOptions {
   // Blendshape weights are projected onto [0, 1] after each step (the model's valid range).
   bool clamp_expression = true;
   double pcg_relative_tolerance = 1e-10;
-  gpu::RenderOptions render;  // which parts are drawn (skin)
+  gpu::RenderOptions render = kTrackedParts;  // which parts are drawn (energy.h)
   // Threads for the per-pixel residual and Jacobian rows (0 = one per hardware thread, at most
   // 8). The result does not depend on it.
   int threads = 0;
@@ -113,10 +113,10 @@ class CpuSolver {
 
   // Renders `params` for `level_frame` and linearises the energy there.
   Linearization LinearizeAt(const InputFrame& level_frame, const ParameterLayout& layout, const EnergyOptions& options,
-                            const gpu::FaceParameters& params, const gpu::RenderOptions& render = {}) const;
+                            const gpu::FaceParameters& params, const gpu::RenderOptions& render = kTrackedParts) const;
   // Energy of `params` on one pyramid level frame.
   TermEnergies Energy(const InputFrame& level_frame, const ParameterLayout& layout, const EnergyOptions& options,
-                      const gpu::FaceParameters& params, const gpu::RenderOptions& render = {}) const;
+                      const gpu::FaceParameters& params, const gpu::RenderOptions& render = kTrackedParts) const;
 
  private:
   SolverSummary SolvePyramids(const std::vector<const std::vector<InputFrame>*>& pyramids, const ParameterLayout& layout,
@@ -136,6 +136,6 @@ SolverSummary SolveOnPyramidOf(const InputFrame& frame, const SolverOptions& opt
 // depth), landmarks by projecting the model's landmark vertices (confidence 1).
 InputFrame RenderSyntheticFrame(const gpu::CpuRenderer& renderer, const TrackerModel& model,
                                 const gpu::FaceParameters& params, const gpu::PinholeCamera& camera,
-                                const gpu::RenderOptions& render = {}, float background = 0.2f);
+                                const gpu::RenderOptions& render = kTrackedParts, float background = 0.2f);
 
 }  // namespace face_reenact::tracker

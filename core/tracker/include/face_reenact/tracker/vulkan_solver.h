@@ -98,7 +98,7 @@ class VulkanSolver {
   // everything back (slow; for tests and tools). `v` must have layout.num_parameters() entries.
   VulkanLinearSystem Inspect(const InputFrame& level_frame, const ParameterLayout& layout,
                              const EnergyOptions& energy, const gpu::FaceParameters& params,
-                             const Eigen::VectorXd& v, const gpu::RenderOptions& render = {});
+                             const Eigen::VectorXd& v, const gpu::RenderOptions& render = kTrackedParts);
 
  private:
   struct Impl;
