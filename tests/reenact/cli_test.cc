@@ -91,10 +91,10 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   const double id = rep.at("closed_loop_identity_error_mm_mean").get<double>();
   RecordProperty("closed_loop_expression_error_mean", std::to_string(expr));
   RecordProperty("closed_loop_identity_error_mm_mean", std::to_string(id));
-  // The expression target (<= 0.1; measured 0.05 on these 20 frames) and the identity
-  // bound this pipeline reaches with margin (measured 2.2 mm; the target is 2 mm).
+  // The targets: expression <= 0.1 (measured 0.06 on these 20 frames) and identity
+  // <= 2 mm (measured 1.41 mm since the tracker draws the eyeballs; 2.2 mm before).
   EXPECT_LT(expr, 0.1) << rep.dump(2);
-  EXPECT_LT(id, 3.5) << rep.dump(2);
+  EXPECT_LT(id, 2.0) << rep.dump(2);
   EXPECT_EQ(rep.at("lost_frames").get<int>(), 0) << rep.dump(2);
 
   cv::VideoCapture video((demo / "reenactment.mp4").string(), cv::CAP_FFMPEG);
