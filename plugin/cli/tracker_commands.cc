@@ -157,7 +157,7 @@ void run_bench_track(const TrackBenchArgs& a) {
                 double(s["total_ms_per_frame"]), double(s["pyramid_ms_per_frame"]), double(s["mean_final_energy"]));
   }
   if (doc["solvers"].contains("cpu_matrix_free_1_thread")) {
-    std::printf("cpu_matrix_free on %d threads: %.2fx faster than on one (same steps)\n", int(doc["cpu_threads"]),
+    std::printf("cpu_matrix_free on %d threads: speed-up %.2fx over one thread (same steps; below 1 = slower)\n", int(doc["cpu_threads"]),
                 double(doc["solvers"]["cpu_matrix_free_1_thread"]["total_ms_per_frame"]) /
                     double(doc["solvers"]["cpu_matrix_free"]["total_ms_per_frame"]));
   }

@@ -181,8 +181,8 @@ TEST_F(TrackerSolverTest, ThreadCountDoesNotChangeTheResult) {
 
 // A camera sees the eyeballs (and teeth in an open mouth), so the tracker must draw them: with
 // the skin alone, the eye pixels match the eye sockets ~2 cm behind the measured eyes, and the
-// truth is no longer the minimum of the geometric terms (the calibration then settled 4-13 mm
-// nearer and a few degrees pitched on the demo's actors).
+// truth is no longer the minimum of the geometric terms (a calibration of the demo's target
+// started at the truth slid 4 mm nearer).
 TEST_F(TrackerSolverTest, TheTruthIsTheGeometricMinimumOfWhatACameraSees) {
   const InputFrame seen = RenderSyntheticFrame(solver_->renderer(), *model_, truth_, camera_, {gpu::kAllParts, true});
   const SolverOptions defaults;

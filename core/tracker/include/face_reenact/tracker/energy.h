@@ -34,8 +34,8 @@ namespace face_reenact::tracker {
 // What the tracker draws of the model: every part a camera sees (skin, eyeballs, teeth and
 // tongue), z-buffered. Skin alone leaves holes where the eyeballs are: there the rendered
 // surface is the eye socket about 2 cm behind the eye the camera measures, close enough to be
-// kept as a correspondence, and those few pixels outweighed all the others - they pulled the
-// calibrated head 4-13 mm nearer and 2-7 degrees pitched (docs/tracker.md, "What is drawn").
+// kept as a correspondence, and those few pixels outweighed all the others: a calibration
+// started at the true parameters slid 4 mm nearer (docs/tracker.md, "What is drawn").
 inline constexpr gpu::RenderOptions kTrackedParts{gpu::kAllParts, true};
 
 enum class Term { kPoint = 0, kPlane, kColor, kLandmark, kRegularizer };

@@ -95,7 +95,7 @@ struct TrackerOptions {
   // The expression rows keep the paper's w_reg_expression 0.025 (a weaker expression prior
   // let the per-frame expressions absorb identity: expression error 0.089 against 0.074).
   // 20 GN x 4 PCG: measured on the demo's targets, shorter inner solves damp the steps along the
-  // weakly determined identity/distance valley, and 20 x 4 reaches a lower energy than 10 x 8
+  // weakly determined identity/distance valley; 20 x 4 fitted the identity better than 10 x 8
   // or 20 x 40 (docs/tracking-pipeline.md, "Calibration").
   SolverOptions calibration_solver = [] {
     SolverOptions s;
