@@ -412,13 +412,21 @@ TEST(LiveSessionTest, ReenactModeRunsThePipelineOnTheRecording) {
   o.model_path = model ? model : "";
   LiveSession session(o);
   LiveFrame frame;
-  ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
-  EXPECT_EQ(frame.bgr.cols, test::kRecordingWidth);
-  EXPECT_EQ(frame.bgr.rows, test::kRecordingHeight);
-  LiveStatus s = wait_status(session, 20s, [](const LiveStatus& st) {
+  // The camera shows at once: frames pass unchanged while the pipeline loads on its own thread
+  // (the face model and dlib's 100 MB shape predictor take about a second, the first frame
+  // tens of milliseconds).
+  ASSERT_TRUE(session.wait_frame(0, 5s, &frame)) << session.status().Headline();
+  LiveStatus first = session.status();
+  EXPECT_FALSE(first.pipeline_ready) << first.Headline();
+  if (!first.pipeline_ready && first.target_open)
+    EXPECT_EQ(first.Headline().rfind("Unchanged: loading the face model", 0), 0u) << first.Headline();
+  EXPECT_EQ(test::closest_frame_difference(frame.bgr, test::recording_frames(dir)), 0.0);
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live-load"), 1);
+  LiveStatus s = wait_status(session, 30s, [](const LiveStatus& st) {
     return st.pipeline_ready && st.tracking != TrackingState::kOff && st.frames_out > 3;
   });
   std::cout << "reenact on the synthetic recording: " << s.Headline() << " (" << s.process_ms << " ms per frame)\n";
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live-load"), 0);
   EXPECT_TRUE(s.pipeline_ready) << s.Headline();
   EXPECT_NE(s.tracking, TrackingState::kOff) << s.Headline();
 }
@@ -436,8 +444,9 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
     LiveSession session(o);
     LiveFrame frame;
     ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);  // worker, target, actor
-    LiveStatus s = wait_status(session, 10s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
+    LiveStatus s = wait_status(session, 30s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
+    // Worker, target, actor (the pipeline's loading thread has ended).
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);
     EXPECT_EQ(s.source_description, "recording '" + dir + "'");
     // A 160x120 face is too small for the landmark detector: the actor is waiting (no face
     // tracked yet) or, if it was tracked, live; never "none" or an error.

@@ -90,9 +90,13 @@ class ObsSourceTest : public ::testing::Test {
       obs_source_remove(s);
       obs_source_release(s);
     }
-    // Every source's threads end when libobs destroys it (on its own thread, shortly after).
+    // Every source's threads end when libobs destroys it (on its own thread, shortly after). A
+    // worker ends after the step it is in: a tracker solve stops within one Gauss-Newton
+    // iteration, but loading the pipeline is one step, mostly dlib's 100 MB shape predictor
+    // (1 s in the release build, 5 s under ASan on an idle machine; a test that switched modes
+    // has several retired workers waiting on that load).
     if (!sources_.empty()) {
-      Clock::time_point end = Clock::now() + 10s;
+      Clock::time_point end = Clock::now() + 40s;
       while (count_threads_with_prefix("fr-live") > 0 && Clock::now() < end) std::this_thread::sleep_for(10ms);
       EXPECT_EQ(count_threads_with_prefix("fr-live"), 0) << "a removed source left threads running";
     }
@@ -384,6 +388,10 @@ TEST_F(ObsSourceTest, RemovalWhileRunningShutsDownCleanly) {
   obs_data_release(settings);
   ASSERT_FALSE(next_async_frame(source, 20s).empty()) << status(source).line;
   EXPECT_GE(count_threads_with_prefix("fr-live"), threads_before + 2);
+  // Removed with the pipeline loaded and running (removal during the load is in
+  // SettingsChangesNeverBlockTheCaller).
+  Status loaded = wait_status(source, 60s, [](const Status& st) { return st.tracking != "off"; });
+  ASSERT_NE(loaded.tracking, "off") << loaded.line;
   // The calibrate button works while running (a request, never a wait).
   obs_properties_t* props = obs_source_properties(source);
   obs_property_t* button = obs_properties_get(props, "calibrate");

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cmath>
 #include <limits>
+#include <stop_token>
 #include <thread>
 
 #include "face_reenact/common/error.h"
@@ -400,6 +401,42 @@ TEST(FaceTracker, UsesAReplacementSolver) {
   EXPECT_EQ(failed.status, TrackingStatus::kBadInput);
   EXPECT_NE(failed.message.find("device lost"), std::string::npos) << failed.message;
   EXPECT_TRUE(failed.has_parameters);
+}
+
+// A live session shutting down requests its stop while a Track() call is under way (here: from
+// inside the per-frame solve, just before the calibration solve of the same call): the
+// calibration ends before its first iteration and is not applied, and the frames stay collected.
+TEST(FaceTracker, AStopDuringTrackEndsTheCalibrationWithoutApplyingIt) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  std::stop_source stop;
+  TrackerOptions o = fast_options(2);
+  o.stop = stop.get_token();
+  FaceTracker tracker(*model, o);
+  const CpuSolver& cpu = tracker.cpu_solver();
+  int solves = 0;
+  tracker.SetTrackingSolver([&](const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                                const SolverOptions& options, gpu::FaceParameters* params) {
+    EXPECT_TRUE(options.stop.stop_possible());  // the tracker's stop reaches every solve
+    SolverSummary s = cpu.Solve(pyramid, layout, options, params);
+    if (++solves == 2) stop.request_stop();
+    return s;
+  });
+  TrackedFrame t = tracker.Track(render_frame(cpu, sequence_parameters(*model, 0)));
+  ASSERT_EQ(t.status, TrackingStatus::kCalibrating) << t.message;
+  t = tracker.Track(render_frame(cpu, sequence_parameters(*model, 1)));
+  EXPECT_EQ(t.status, TrackingStatus::kCalibrating) << t.message;
+  EXPECT_NE(t.message.find("stopped before it finished"), std::string::npos) << t.message;
+  EXPECT_FALSE(tracker.calibrated());
+  EXPECT_EQ(tracker.neutral().alpha.norm(), 0.f);  // still the mean face
+  EXPECT_EQ(tracker.calibration_summary().termination, Termination::kStopped);
+  EXPECT_TRUE(tracker.calibration_summary().iterations.empty());
+  EXPECT_EQ(tracker.calibration_frames_collected(), 2);
+  // Later calls (a front-end's last frames) keep the set at its size and stay uncalibrated.
+  t = tracker.Track(render_frame(cpu, sequence_parameters(*model, 2)));
+  EXPECT_EQ(tracker.calibration_frames_collected(), 2);
+  EXPECT_FALSE(tracker.calibrated());
+  EXPECT_NE(t.message.find("stopped"), std::string::npos) << t.message;
 }
 
 }  // namespace

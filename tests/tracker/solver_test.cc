@@ -6,6 +6,7 @@
 #include <cmath>
 #include <iostream>
 #include <random>
+#include <stop_token>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/tracker/solver.h"
@@ -391,6 +392,36 @@ TEST_F(TrackerSolverTest, InvalidRequestsThrowClearErrors) {
 }
 
 // The same solve on the test sphere, so the solver is exercised even without a face model.
+// A stop requested before the solve (or between its iterations) ends it before the next
+// Gauss-Newton iteration, leaving the parameters of the last accepted step.
+TEST_F(TrackerSolverTest, ARequestedStopEndsTheSolveBeforeItsNextIteration) {
+  std::stop_source stop;
+  SolverOptions o;
+  o.stop = stop.get_token();
+  const gpu::FaceParameters start = perturbed_start(truth_, 0.3f);
+  gpu::FaceParameters p = start;
+  const SolverSummary running = solver_->Solve(frame_, tracking(), o, &p);
+  EXPECT_NE(running.termination, Termination::kStopped);  // a stop that can come but did not
+  EXPECT_FALSE(running.iterations.empty());
+  stop.request_stop();
+  p = start;
+  const SolverSummary s = solver_->Solve(frame_, tracking(), o, &p);
+  EXPECT_EQ(s.termination, Termination::kStopped) << s.FullReport();
+  EXPECT_STREQ(termination_name(s.termination), "stopped");
+  EXPECT_NE(s.message.find("stop requested"), std::string::npos) << s.message;
+  EXPECT_TRUE(s.iterations.empty());
+  EXPECT_EQ(p.euler, start.euler);
+  EXPECT_EQ(p.translation, start.translation);
+  EXPECT_EQ(s.final_energy.total(), s.initial_energy.total());
+  // The multi-frame (calibration) solve too.
+  std::vector<gpu::FaceParameters> frames_params = {start, start};
+  const SolverSummary c = solver_->SolveFrames(
+      {frame_, frame_}, ParameterLayout::Calibration(model_->num_identity(), model_->num_albedo(), model_->num_expression()),
+      o, &frames_params);
+  EXPECT_EQ(c.termination, Termination::kStopped) << c.FullReport();
+  EXPECT_EQ(frames_params[1].alpha, start.alpha);
+}
+
 TEST(TrackerSolverSphere, RecoversPoseOnTestGeometry) {
   const TrackerModel model = sphere_model();
   const CpuSolver solver(model);

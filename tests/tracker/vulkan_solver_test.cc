@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <stop_token>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/tracker/solver.h"
@@ -227,6 +228,27 @@ TEST_F(VulkanSolverTest, NoFaceInTheInputStopsLikeTheCpu) {
   gpu::FaceParameters p = truth;
   const SolverSummary e = solver().Solve(empty, layout, options, &p);
   EXPECT_EQ(e.termination, Termination::kNoValidResiduals) << e.FullReport();
+}
+
+TEST_F(VulkanSolverTest, ARequestedStopEndsTheSolveLikeTheCpu) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  std::stop_source stop;
+  stop.request_stop();
+  SolverOptions options;
+  options.schedule = {{1, 2, 2}};
+  options.stop = stop.get_token();
+  gpu::FaceParameters start = truth;
+  start.translation.x() += 0.01f;
+  gpu::FaceParameters c_params = start, g_params = start;
+  const SolverSummary c = cpu().Solve(frame, layout, options, &c_params);
+  const SolverSummary g = solver().Solve(frame, layout, options, &g_params);
+  EXPECT_EQ(c.termination, Termination::kStopped) << c.FullReport();
+  EXPECT_EQ(g.termination, Termination::kStopped) << g.FullReport();
+  EXPECT_TRUE(g.iterations.empty());
+  EXPECT_EQ(g_params.translation, start.translation);
 }
 
 TEST_F(VulkanSolverTest, InvalidStartParametersAndOptionsAreErrorsLikeTheCpu) {

@@ -3,6 +3,7 @@
 // pipeline (core/reenact) is one implementation; the raw pass-through of the input (mode kRaw,
 // and the fallback while the pipeline cannot be loaded) is the other.
 #include <memory>
+#include <stop_token>
 #include <string>
 
 #include "face_reenact/capture/recording.h"
@@ -38,8 +39,9 @@ std::unique_ptr<FrameProcessor> make_raw_processor();
 
 // The reenactment pipeline on the model at `model_path` (mode kReenact or kPassThrough), with a
 // second pipeline tracking the source actor when `with_actor`. Throws face_reenact::Error when
-// the model cannot be loaded or this build has no reenactment pipeline.
+// the model cannot be loaded or this build has no reenactment pipeline. A requested `stop` ends a
+// process() call in progress within one Gauss-Newton iteration (the session is shutting down).
 std::unique_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
-                                                           bool use_vulkan, bool with_actor);
+                                                           bool use_vulkan, bool with_actor, std::stop_token stop);
 
 }  // namespace face_reenact::live

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <future>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
@@ -187,6 +188,7 @@ void LiveSession::stop() {
     std::lock_guard lock(mu_);
     stopping_ = true;
   }
+  stop_source_.request_stop();
   frame_cv_.notify_all();
   std::lock_guard join_lock(stop_mu_);
   if (worker_.joinable()) worker_.join();
@@ -270,16 +272,31 @@ void LiveSession::run() {
     actor = std::make_unique<FrameGrabber>(actor_options);
   }
 
-  // The pipeline: loaded here (seconds for a big model), never on a front-end's thread.
+  // The pipeline loads on a thread of its own (seconds: the face model and dlib's 100 MB shape
+  // predictor), never on a front-end's thread; meanwhile the target's frames pass unchanged, so
+  // a front-end shows the camera at once ("Unchanged: loading the face model").
   std::unique_ptr<FrameProcessor> processor = make_raw_processor();
   bool pipeline_ready = false;
   std::string pipeline_error;
   Clock::time_point next_pipeline_try = Clock::now();
-  auto try_pipeline = [&] {
-    if (options_.mode == OutputMode::kRaw) return;
+  std::future<std::unique_ptr<FrameProcessor>> loading;  // its destructor waits for a load under way
+  auto start_loading = [&] {
     try {
-      std::string model = resolve_model_path(options_.model_path);
-      processor = make_reenactment_processor(model, options_.mode, options_.use_vulkan, actor != nullptr);
+      loading = std::async(std::launch::async, [model_path = options_.model_path, mode = options_.mode,
+                                                use_vulkan = options_.use_vulkan, with_actor = actor != nullptr,
+                                                stop = stop_source_.get_token()] {
+        pthread_setname_np(pthread_self(), "fr-live-load");  // niced like the worker that starts it
+        return make_reenactment_processor(resolve_model_path(model_path), mode, use_vulkan, with_actor, stop);
+      });
+    } catch (const std::exception& e) {  // no thread could be started
+      pipeline_error = e.what();
+      next_pipeline_try = Clock::now() + 5 * options_.reopen_interval;
+    }
+  };
+  auto poll_loading = [&] {
+    if (!loading.valid() || loading.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+    try {
+      processor = loading.get();
       pipeline_ready = true;
       pipeline_error.clear();
     } catch (const std::exception& e) {
@@ -318,7 +335,10 @@ void LiveSession::run() {
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
-    if (!pipeline_ready && options_.mode != OutputMode::kRaw && now >= next_pipeline_try) try_pipeline();
+    if (!pipeline_ready && options_.mode != OutputMode::kRaw) {
+      poll_loading();
+      if (!pipeline_ready && !loading.valid() && now >= next_pipeline_try) start_loading();
+    }
     if (source_spec_.kind == InputKind::kUdp && !receiver && now >= next_receiver_try) try_receiver();
     if (calibration_requested_.exchange(false)) processor->request_calibration();
 

@@ -19,13 +19,20 @@ TrackingState tracking_from(reenact::TrackingStatus status) {
 
 class ReenactProcessor : public FrameProcessor {
  public:
-  ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, bool with_actor)
+  ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, bool with_actor, std::stop_token stop)
       : model_(load_face_model(model_path)) {
+    // Loading is a few long steps; a session stopped meanwhile skips the ones left.
+    auto check_stop = [&] {
+      if (stop.stop_requested()) throw Error("the session stopped while the pipeline was loading");
+    };
+    check_stop();
     reenact::ReenactmentOptions options;
+    options.tracker.stop = stop;
     options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough : reenact::ReenactMode::kReenact;
     options.renderer = use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
     target_ = std::make_unique<reenact::ReenactmentPipeline>(model_, options);
     if (with_actor) {
+      check_stop();
       // The source actor is only tracked (mode kOff renders nothing); its parameters and
       // calibrated neutral give the expression to transfer.
       reenact::ReenactmentOptions actor_options = options;
@@ -77,8 +84,8 @@ class ReenactProcessor : public FrameProcessor {
 }  // namespace
 
 std::unique_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
-                                                           bool use_vulkan, bool with_actor) {
-  return std::make_unique<ReenactProcessor>(model_path, mode, use_vulkan, with_actor);
+                                                           bool use_vulkan, bool with_actor, std::stop_token stop) {
+  return std::make_unique<ReenactProcessor>(model_path, mode, use_vulkan, with_actor, std::move(stop));
 }
 
 }  // namespace face_reenact::live

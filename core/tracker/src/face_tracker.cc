@@ -306,9 +306,9 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
     start.euler = pose.euler;
     start.translation = pose.translation;
   }
-  const SolverOptions so =
+  const SolverOptions so = WithStop(
       AdaptScheduleToFaceSize(reinit ? options_.recovery_solver : options_.tracking_solver,
-                              LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px);
+                              LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px));
   const auto t_pyr = Clock::now();
   const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid);
   times->pyramid_ms += ms_since(t_pyr);
@@ -397,7 +397,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     start.translation = pose.translation;
     out.status = TrackingStatus::kCalibrating;
     out.pose_reinitialized = true;
-    if (out.frame_index - last_calibration_pick_ >= options_.calibration_frame_stride) {
+    if (CalibrationWantsFrame(out.frame_index)) {
       calibration_inputs_.push_back(*input);
       calibration_starts_.push_back(start);
       last_calibration_pick_ = out.frame_index;
@@ -487,7 +487,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   if (collecting_) {
     const std::string fit_message = out.message;
     out.status = TrackingStatus::kCalibrating;
-    if (out.frame_index - last_calibration_pick_ >= options_.calibration_frame_stride) {
+    if (CalibrationWantsFrame(out.frame_index)) {
       calibration_inputs_.push_back(*input);
       calibration_starts_.push_back(out.params);
       last_calibration_pick_ = out.frame_index;
@@ -501,6 +501,17 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   return out;
 }
 
+bool FaceTracker::CalibrationWantsFrame(int64_t frame_index) const {
+  // A full set (kept after a stopped calibration) takes no more frames.
+  return static_cast<int>(calibration_inputs_.size()) < options_.calibration_frames &&
+         frame_index - last_calibration_pick_ >= options_.calibration_frame_stride;
+}
+
+SolverOptions FaceTracker::WithStop(SolverOptions options) const {
+  if (options_.stop.stop_possible()) options.stop = options_.stop;
+  return options;
+}
+
 void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   const TrackerModel& m = solver_.model();
   const int n_id = options_.calibration_identity_components < 0 ? m.num_identity() : options_.calibration_identity_components;
@@ -508,18 +519,27 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   const ParameterLayout layout = ParameterLayout::Calibration(n_id, n_alb, m.num_expression());
   // Take the collected frames out first, so that a solve that throws (caught in Track) starts a
   // fresh collection instead of retrying the same set on every frame.
-  const std::vector<InputFrame> inputs = std::move(calibration_inputs_);
+  std::vector<InputFrame> inputs = std::move(calibration_inputs_);
   std::vector<gpu::FaceParameters> params = std::move(calibration_starts_);
   calibration_inputs_.clear();
   calibration_starts_.clear();
   last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
-  const SolverOptions so = AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.min_face_width_px);
+  const SolverOptions so = WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.min_face_width_px));
+  const std::vector<gpu::FaceParameters> starts = params;
   const auto t0 = Clock::now();
   SolverSummary summary = solver_.SolveFrames(inputs, layout, so, &params);
   out->times.calibration_ms = ms_since(t0);
   const int frames = static_cast<int>(inputs.size());
+  if (summary.termination == Termination::kStopped) {
+    // Half a calibration is not an identity: keep the old one and the collected frames.
+    out->message = "calibration over " + std::to_string(frames) + " frames stopped before it finished (" + summary.message + ")";
+    calibration_inputs_ = std::move(inputs);
+    calibration_starts_ = starts;
+    calibration_summary_ = std::move(summary);
+    return;
+  }
   if (summary.termination == Termination::kNoValidResiduals || summary.termination == Termination::kNonFinite) {
     // Keep the previous identity and collect a fresh set of frames.
     out->message = "calibration over " + std::to_string(frames) + " frames failed (" + summary.message +

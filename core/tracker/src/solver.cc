@@ -37,6 +37,7 @@ const char* termination_name(Termination t) {
     case Termination::kNoValidResiduals: return "no valid residuals";
     case Termination::kNoProgress: return "no progress";
     case Termination::kNonFinite: return "non-finite step";
+    case Termination::kStopped: return "stopped";
   }
   return "?";
 }
@@ -282,6 +283,13 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
     PcgOptions pcg = pcg_base;
     pcg.max_iterations = level.pcg_iterations;
     for (int it = 0; it < level.gauss_newton_iterations; ++it) {
+      if (options.stop.stop_requested()) {
+        summary.termination = Termination::kStopped;
+        summary.message += "level " + std::to_string(level.level) + ": stopped before iteration " + std::to_string(it) +
+                           " (stop requested); parameters of the last accepted step";
+        stop_all = true;
+        break;
+      }
       ++attempted_steps;
       IterationRecord rec;
       rec.level = level.level;

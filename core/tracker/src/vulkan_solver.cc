@@ -782,6 +782,13 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
       break;
     }
     for (int it = 0; it < level.gauss_newton_iterations; ++it) {
+      if (options.stop.stop_requested()) {
+        summary.termination = Termination::kStopped;
+        summary.message += "level " + std::to_string(level.level) + ": stopped before iteration " + std::to_string(it) +
+                           " (stop requested); parameters of the last accepted step";
+        stop_all = true;
+        break;
+      }
       ++attempted_steps;
       IterationRecord rec;
       rec.level = level.level;

@@ -18,6 +18,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <stop_token>
 #include <string>
 #include <thread>
 
@@ -153,6 +154,9 @@ class LiveSession : public output::FrameSource {
   mutable std::mutex mu_;
   mutable std::condition_variable frame_cv_;
   bool stopping_ = false;
+  // Requested by stop(): reaches the tracker's solves, so a worker inside a calibration returns
+  // within one Gauss-Newton iteration instead of finishing it.
+  std::stop_source stop_source_;
   bool ended_ = false;
   LiveFrame latest_;
   LiveStatus status_;

@@ -26,6 +26,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <stop_token>
 #include <string>
 #include <vector>
 
@@ -138,6 +139,11 @@ struct TrackerOptions {
   // landmarks; refined by the perspective-n-point fit (only its ratio to the face size matters
   // as a start).
   float default_face_distance_m = 0.6f;
+  // The owner's stop (e.g. a live session shutting down): when it can be requested it is given to
+  // every solve (calibration, tracking, recovery), so a Track() call in progress returns within
+  // one Gauss-Newton iteration of the request. A stopped calibration is not applied; its frames
+  // are kept for the next Track() call.
+  std::stop_token stop;
 
   bool IsValid(std::string* why) const;
 };
@@ -249,6 +255,8 @@ class FaceTracker {
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
   Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times) const;
   void Calibrate(const InputFrame& current, TrackedFrame* out);
+  bool CalibrationWantsFrame(int64_t frame_index) const;
+  SolverOptions WithStop(SolverOptions options) const;  // options_.stop given to a solve
 
   TrackerOptions options_;
   CpuSolver solver_;

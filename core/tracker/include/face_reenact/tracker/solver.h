@@ -5,6 +5,7 @@
 // Jacobi-preconditioned CG (analysis). It is the oracle a GPU path is compared against.
 #include <Eigen/Core>
 #include <functional>
+#include <stop_token>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,10 @@ struct SolverOptions {
   // Threads for the per-pixel residual and Jacobian rows (0 = one per hardware thread, at most
   // 8). The result does not depend on it.
   int threads = 0;
+  // A requested stop ends the solve before its next Gauss-Newton iteration (Termination::kStopped,
+  // parameters: the last accepted step). The owner shutting down (a live session switching modes,
+  // an OBS source removed) then waits one iteration, not a multi-second calibration.
+  std::stop_token stop;
 
   bool IsValid(std::string* why) const;
   // `threads` with 0 resolved.
@@ -56,6 +61,7 @@ enum class Termination {
   kNoValidResiduals,  // nothing to fit: the face is not visible in the input
   kNoProgress,        // no step lowered the energy (after halvings); result = best parameters
   kNonFinite,         // the linear solve produced NaN/Inf; parameters left at the last good
+  kStopped,           // options.stop was requested; parameters: the last accepted step
 };
 const char* termination_name(Termination t);
 
