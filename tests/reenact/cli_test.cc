@@ -1,16 +1,23 @@
 // The `reenact` and `demo` commands end to end on tiny configurations, and their errors.
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/subprocess.h"
+#include "face_reenact/model/face_model.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "support/child_process.h"
 #include "support/temp_dir.h"
 
 namespace face_reenact {
@@ -118,6 +125,106 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   int pngs = 0;
   for (const auto& e : fs::directory_iterator(frames_dir)) pngs += e.path().extension() == ".png";
   EXPECT_EQ(pngs, 8);
+}
+
+// A UDP port on 127.0.0.1 that nothing listens on (the kernel's pick, released again).
+int free_udp_port() {
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t len = sizeof(a);
+  int port = 0;
+  if (fd >= 0 && ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof(a)) == 0 &&
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) == 0)
+    port = ntohs(a.sin_port);
+  if (fd >= 0) ::close(fd);
+  return port;
+}
+
+// The puppeteer path end to end on real sockets: `send --replay` streams one expression in a
+// loop, `reenact --source udp://PORT` applies it to a synthetic target. Two runs that differ
+// only in the streamed jawOpen (0 and 0.8) must give the same output while the target is being
+// calibrated (output = input) and different mouths once it is reenacted: the stream, not the
+// target's own expression, drives the result.
+TEST(ReenactCliTest, ExpressionStreamDrivesTheReenactment) {
+  ASSERT_TRUE(fs::exists(cli())) << "FR_CLI='" << cli() << "'";
+  const char* model = std::getenv("FR_MODEL");
+  if (!model || !fs::exists(model)) GTEST_SKIP() << "FR_MODEL is not set to a built face model";
+  const face_reenact::testing::TempDir scratch("fr-reenact-udp");
+  const fs::path dir = scratch.path();
+  const std::string target = (dir / "target").string(), key = (dir / "key").string();
+  // The tracker calibrates over its first 5 frames (TrackerOptions::calibration_frames): 4 pass
+  // unchanged, the 5th completes the calibration and is the first reenacted one.
+  constexpr int kFrames = 8, kUnchanged = 4;
+  SubprocessResult r = run_cli({"synth", "--seed", "5", "--frames", std::to_string(kFrames), "--size", "320x240",
+                                "--out", target, "--model", model});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = run_cli({"keygen", "--out", key});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+
+  const int jaw = arkit_blendshape_index("jawOpen");
+  ASSERT_GE(jaw, 0);
+  auto run_with_jaw = [&](float jaw_open, const std::string& name) {
+    const fs::path params = dir / (name + ".jsonl");
+    nlohmann::json line;
+    std::vector<float> expression(52, 0.f);
+    expression[static_cast<size_t>(jaw)] = jaw_open;
+    line["expression"] = expression;
+    std::ofstream(params) << line.dump() << "\n";
+    const int port = free_udp_port();
+    EXPECT_GT(port, 0);
+    face_reenact::testing::ChildProcess reenact(
+        {cli(), "reenact", "--source", "udp://127.0.0.1:" + std::to_string(port), "--key", key, "--target", target,
+         "--out", (dir / (name + ".mp4")).string(), "--frames-dir", (dir / name).string(), "--landmarks", "recording",
+         "--model", model},
+        dir, name + "-reenact");
+    // The sender loops until stopped; datagrams sent before the receiver listens are lost,
+    // as on a network, and the first frames are the target's calibration anyway.
+    face_reenact::testing::ChildProcess send({cli(), "send", "--to", "127.0.0.1:" + std::to_string(port), "--key", key,
+                                              "--replay", params.string(), "--loop", "--rate", "60"},
+                                             dir, name + "-send");
+    const int rc = reenact.wait(std::chrono::seconds(300));
+    send.signal(SIGINT);
+    EXPECT_EQ(send.wait(), 0) << send.err();
+    EXPECT_EQ(rc, 0) << reenact.out() << reenact.err();
+    return reenact.out();
+  };
+  const std::string closed = run_with_jaw(0.0f, "closed");
+  const std::string open = run_with_jaw(0.8f, "open");
+  for (const std::string* out : {&closed, &open}) {
+    EXPECT_NE(out->find(std::to_string(kFrames) + " frames"), std::string::npos) << *out;
+    // Datagrams reached the pipeline, and every frame after the calibration was reenacted.
+    const size_t at = out->find("stream: ");
+    ASSERT_NE(at, std::string::npos) << *out;
+    EXPECT_GT(std::stoll(out->substr(at + 8)), 0) << *out;
+    EXPECT_NE(out->find("(" + std::to_string(kFrames - kUnchanged) + " reenacted"), std::string::npos) << *out;
+  }
+  for (int k = 0; k < kFrames; ++k) {
+    char png[32];
+    std::snprintf(png, sizeof(png), "frame_%06d.png", k);
+    const cv::Mat a = cv::imread((dir / "closed" / png).string()), b = cv::imread((dir / "open" / png).string());
+    ASSERT_FALSE(a.empty() || b.empty()) << png;
+    cv::Mat diff;
+    cv::absdiff(a, b, diff);
+    cv::Mat gray;
+    cv::extractChannel(diff, gray, 1);
+    const cv::Mat changed_mask = gray > 40;
+    const int changed = cv::countNonZero(changed_mask);
+    std::cout << png << ": " << changed << " pixels differ by more than 40\n";
+    if (k < kUnchanged) {
+      EXPECT_EQ(changed, 0) << png << ": the calibration frames are the target's own";
+    } else {
+      // The face is ~45 px wide here and its open mouth ~10 x 8 px (measured 62-69 pixels
+      // changed); nothing else changes: the changes lie within a mouth-sized box.
+      EXPECT_GT(changed, 30) << png << ": an open jaw streamed, the same mouth shown";
+      std::vector<cv::Point> where;
+      cv::findNonZero(changed_mask, where);
+      const cv::Rect box = where.empty() ? cv::Rect() : cv::boundingRect(where);
+      EXPECT_LT(box.width, 30) << png;
+      EXPECT_LT(box.height, 30) << png;
+    }
+  }
 }
 
 }  // namespace
