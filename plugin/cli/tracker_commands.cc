@@ -184,6 +184,7 @@ struct TrackArgs {
   int frames = 0;  // 0 = all
   int calibration_frames = 5;
   int min_face_width = 40;
+  int calibration_min_face_width = -1;  // -1: --min-face-width
   double fov_deg = 60.0;
   std::string solver = "auto";
   std::string device;
@@ -205,6 +206,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   TrackerOptions o;
   o.calibration_frames = a.calibration_frames;
   o.min_face_width_px = a.min_face_width;
+  o.calibration_min_face_width_px = a.calibration_min_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
     s->energy.use_point = s->energy.use_plane = config.depth && depth_available;
@@ -425,6 +427,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
                        {"point", config.depth && depth}, {"plane", config.depth && depth}};
   j["depth_used"] = depth && config.depth;
   j["min_face_width_px"] = a.min_face_width;
+  j["calibration_min_face_width_px"] = a.calibration_min_face_width < 0 ? a.min_face_width : a.calibration_min_face_width;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
   j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
@@ -556,6 +559,9 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--min-face-width", targs->min_face_width,
                  "Solve on pyramid levels where the face is at least this wide (px; default 40, 0 = the paper's levels 2 and 1)")
       ->check(CLI::Range(0, 4096));
+  tc->add_option("--calibration-min-face-width", targs->calibration_min_face_width,
+                 "The same for the calibration solve (px; default: --min-face-width; 0 = its schedule's level 2)")
+      ->check(CLI::Range(-1, 4096));
   tc->add_option("--fov", targs->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
       ->check(CLI::Range(10.0, 170.0));
   tc->add_option("--model", targs->model, "Face model file (default: the installed/generated face-model.frm)");

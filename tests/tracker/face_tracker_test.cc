@@ -90,6 +90,9 @@ TEST(FaceTrackerOptions, DefaultsValidAndBadValuesRejected) {
   bad.default_face_distance_m = 0;
   expect_invalid(bad, "default_face_distance_m");
   bad = o;
+  bad.calibration_min_face_width_px = -2;
+  expect_invalid(bad, "calibration_min_face_width_px");
+  bad = o;
   bad.calibration_identity_components = -2;
   expect_invalid(bad, "component");
   // More components than the model has is a model/options mismatch.

@@ -209,6 +209,8 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (!recovery_solver.IsValid(&inner)) return fail(why, "tracker: recovery_solver: " + inner);
   if (!loss.IsValid(why)) return false;
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
+  if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
+    return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
   if (!(default_face_distance_m > 0.1f && default_face_distance_m < 20.f)) {
     return fail(why, "tracker: default_face_distance_m must be in (0.1, 20) m");
   }
@@ -526,7 +528,10 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
-  const SolverOptions so = WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.min_face_width_px));
+  const SolverOptions so =
+      WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width,
+                                        options_.calibration_min_face_width_px < 0 ? options_.min_face_width_px
+                                                                                   : options_.calibration_min_face_width_px));
   const std::vector<gpu::FaceParameters> starts = params;
   const auto t0 = Clock::now();
   SolverSummary summary = solver_.SolveFrames(inputs, layout, so, &params);

@@ -127,6 +127,14 @@ struct TrackerOptions {
   // schedule is moved to finer levels until the face is at least this many pixels wide on the
   // coarsest solved level (level 0 at most); 0 keeps the schedules as given.
   int min_face_width_px = 40;
+  // The same rule for the calibration solve; -1 takes min_face_width_px. Calibrating one level
+  // coarser than tracking (20 against 40 on 640x480 recordings) lowered the tracked rotation error
+  // on three synthetic recordings (mean 1.12 -> 0.61 deg) and made the calibration 4x faster, but
+  // raised the surface error (0.55 -> 0.82 mm) and, on seed 202, the translation error (4.0 ->
+  // 6.3 mm); on the demo's 320x240 targets the identity error rose 0.25-0.4 mm. So by default it
+  // follows the tracking rule; docs/tracking-pipeline.md, "Accuracy and speed", has the tables
+  // (`track --calibration-min-face-width` reproduces them).
+  int calibration_min_face_width_px = -1;
   LossDetectionOptions loss;
   // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
   // itself takes whatever landmarks the InputFrame carries).
