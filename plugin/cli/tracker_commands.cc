@@ -426,8 +426,8 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["energy_terms"] = {{"landmark", true}, {"regularizer", true}, {"color", config.colour},
                        {"point", config.depth && depth}, {"plane", config.depth && depth}};
   j["depth_used"] = depth && config.depth;
-  j["min_face_width_px"] = a.min_face_width;
-  j["calibration_min_face_width_px"] = a.calibration_min_face_width < 0 ? a.min_face_width : a.calibration_min_face_width;
+  j["min_face_width_px"] = tracker.options().min_face_width_px;
+  j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
   j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +

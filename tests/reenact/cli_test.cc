@@ -1,7 +1,5 @@
 // The `reenact` and `demo` commands end to end on tiny configurations, and their errors.
 #include <gtest/gtest.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -17,6 +15,7 @@
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "face_reenact/stream/udp.h"
 #include "support/child_process.h"
 #include "support/temp_dir.h"
 
@@ -127,19 +126,12 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   EXPECT_EQ(pngs, 8);
 }
 
-// A UDP port on 127.0.0.1 that nothing listens on (the kernel's pick, released again).
+// A UDP port on 127.0.0.1 that nothing listens on (the kernel's pick, released again), as the
+// stream CLI tests take one.
 int free_udp_port() {
-  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t len = sizeof(a);
-  int port = 0;
-  if (fd >= 0 && ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof(a)) == 0 &&
-      ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) == 0)
-    port = ntohs(a.sin_port);
-  if (fd >= 0) ::close(fd);
-  return port;
+  stream::ListenSpec any;
+  any.address = "127.0.0.1";
+  return stream::UdpSocket::open_receiver(any, "", 0).local_port();
 }
 
 // The puppeteer path end to end on real sockets: `send --replay` streams one expression in a

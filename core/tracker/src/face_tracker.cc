@@ -529,9 +529,7 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
   const SolverOptions so =
-      WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width,
-                                        options_.calibration_min_face_width_px < 0 ? options_.min_face_width_px
-                                                                                   : options_.calibration_min_face_width_px));
+      WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()));
   const std::vector<gpu::FaceParameters> starts = params;
   const auto t0 = Clock::now();
   SolverSummary summary = solver_.SolveFrames(inputs, layout, so, &params);

@@ -61,6 +61,14 @@ bool SolverOptions::IsValid(std::string* why) const {
   return true;
 }
 
+bool internal::EndIfStopRequested(const SolverOptions& options, int level, int iteration, SolverSummary* summary) {
+  if (!options.stop.stop_requested()) return false;
+  summary->termination = Termination::kStopped;
+  summary->message += "level " + std::to_string(level) + ": stopped before iteration " + std::to_string(iteration) +
+                      " (stop requested); parameters of the last accepted step";
+  return true;
+}
+
 int SolverOptions::ResolvedThreads() const {
   if (threads > 0) return threads;
   return static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 8u));
@@ -283,10 +291,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
     PcgOptions pcg = pcg_base;
     pcg.max_iterations = level.pcg_iterations;
     for (int it = 0; it < level.gauss_newton_iterations; ++it) {
-      if (options.stop.stop_requested()) {
-        summary.termination = Termination::kStopped;
-        summary.message += "level " + std::to_string(level.level) + ": stopped before iteration " + std::to_string(it) +
-                           " (stop requested); parameters of the last accepted step";
+      if (internal::EndIfStopRequested(options, level.level, it, &summary)) {
         stop_all = true;
         break;
       }

@@ -18,6 +18,7 @@
 #include "face_reenact/gpu/renderer.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/common/timing.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
 namespace {
@@ -782,10 +783,7 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
       break;
     }
     for (int it = 0; it < level.gauss_newton_iterations; ++it) {
-      if (options.stop.stop_requested()) {
-        summary.termination = Termination::kStopped;
-        summary.message += "level " + std::to_string(level.level) + ": stopped before iteration " + std::to_string(it) +
-                           " (stop requested); parameters of the last accepted step";
+      if (internal::EndIfStopRequested(options, level.level, it, &summary)) {
         stop_all = true;
         break;
       }

@@ -154,6 +154,10 @@ struct TrackerOptions {
   std::stop_token stop;
 
   bool IsValid(std::string* why) const;
+  // calibration_min_face_width_px with -1 resolved.
+  int ResolvedCalibrationMinFaceWidth() const {
+    return calibration_min_face_width_px < 0 ? min_face_width_px : calibration_min_face_width_px;
+  }
 };
 
 // While calibration frames are being collected every frame with a fit is kCalibrating (even when
