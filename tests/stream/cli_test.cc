@@ -311,7 +311,7 @@ TEST_F(CliTest, SendInputTracksARecordingAndStreamsItsExpressions) {
     GTEST_SKIP() << "FR_MODEL is not set to a built face model (run face-reenact model build)";
   const std::string model = std::getenv("FR_MODEL");
   std::string err;
-  ASSERT_EQ(run({"synth", "--seed", "31", "--frames", "6", "--out", path("rec"), "--model", model}, nullptr, &err), 0)
+  ASSERT_EQ(run({"synth", "--seed", "31", "--frames", "6", "--size", "320x240", "--out", path("rec"), "--model", model}, nullptr, &err), 0)
       << err;
   const std::string key = keygen();
   const uint16_t port = free_port();
