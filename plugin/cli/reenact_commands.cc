@@ -186,8 +186,15 @@ reenact::RendererKind parse_renderer(const std::string& s) {
   throw Error("--renderer '" + s + "': expected 'cpu' or 'vulkan'");
 }
 
+reenact::Appearance parse_appearance(const std::string& s) {
+  for (const reenact::Appearance a : {reenact::Appearance::kFrameTexture, reenact::Appearance::kAlbedoMap})
+    if (s == reenact::appearance_name(a)) return a;
+  throw Error("--appearance '" + s + "': expected 'frame-texture' or 'albedo-map'");
+}
+
 struct ReenactArgs {
-  std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu";
+  std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu",
+                                 appearance = "frame-texture";
   int frames = 0;
   bool quiet = false;
 };
@@ -206,6 +213,7 @@ void run_reenact(const ReenactArgs& a) {
   const reenact::ReenactMode mode = parse_mode(a.mode);
   const tracker::LandmarkSourceChoice landmarks = parse_landmarks(a.landmarks);
   const reenact::RendererKind renderer = parse_renderer(a.renderer);
+  const reenact::Appearance appearance = parse_appearance(a.appearance);
 
   std::unique_ptr<capture::FrameSource> target = capture::open_frame_source(a.target);
   std::unique_ptr<capture::FrameSource> source_rec;
@@ -222,6 +230,7 @@ void run_reenact(const ReenactArgs& a) {
   reenact::ReenactmentOptions ro;
   ro.mode = mode;
   ro.renderer = renderer;
+  ro.appearance = appearance;
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
   reenact::ReenactmentPipeline pipeline(model, ro);
@@ -625,35 +634,65 @@ void run_bench(const BenchArgs& a) {
   cam.cy = (h - 1) / 2.0f;
   const cv::Mat background(h, w, CV_8UC3, cv::Scalar(90, 110, 130));
   nlohmann::json out = nlohmann::json::object();
-  for (const reenact::RendererKind kind : {reenact::RendererKind::kCpu, reenact::RendererKind::kVulkan}) {
-    reenact::ReenactmentOptions o;
-    o.renderer = kind;
-    reenact::FaceCompositor fc(model, o);
-    gpu::FaceParameters target = gpu::frontal_pose(0.45f);
-    target.delta = Eigen::VectorXf::Zero(model.num_expression());
+  struct Config {
+    std::string name;
+    reenact::RendererKind renderer;
+    reenact::Appearance appearance;
+  };
+  // The default (frame texture) with each rasteriser, and the albedo-map appearance on the CPU:
+  // the frame texture's extra cost is one more rasterisation (the tracked geometry, for
+  // visibility) and a texture lookup per drawn pixel.
+  const std::vector<Config> configs = {
+      {"cpu", reenact::RendererKind::kCpu, reenact::Appearance::kFrameTexture},
+      {"vulkan", reenact::RendererKind::kVulkan, reenact::Appearance::kFrameTexture},
+      {"cpu_albedo_map", reenact::RendererKind::kCpu, reenact::Appearance::kAlbedoMap},
+  };
+  struct Run {
+    std::unique_ptr<reenact::FaceCompositor> compositor;
     reenact::AlbedoMap albedo;
-    fc.ObserveAlbedo(background, cam, target, &albedo);
     Mean render, mouth, composite, total;
-    for (int i = -2; i < a.frames; ++i) {  // two warm-up frames
-      gpu::FaceParameters p = target;
-      p.euler.y() = 0.3f * std::sin(0.2f * i);
-      p.delta[reenact::kJawOpenIndex] = 0.5f + 0.4f * std::sin(0.5f * i);
+  };
+  gpu::FaceParameters target = gpu::frontal_pose(0.45f);
+  target.delta = Eigen::VectorXf::Zero(model.num_expression());
+  std::vector<Run> runs(configs.size());
+  for (size_t k = 0; k < configs.size(); ++k) {
+    reenact::ReenactmentOptions o;
+    o.renderer = configs[k].renderer;
+    o.appearance = configs[k].appearance;
+    runs[k].compositor = std::make_unique<reenact::FaceCompositor>(model, o);
+    runs[k].compositor->ObserveAlbedo(background, cam, target, &runs[k].albedo);
+  }
+  // The configurations take turns frame by frame, so a slower stretch of this shared machine
+  // (or the allocator settling) falls on all of them alike.
+  for (int i = -2; i < a.frames; ++i) {  // two warm-up frames
+    gpu::FaceParameters p = target;
+    p.euler.y() = 0.3f * std::sin(0.2f * i);
+    p.delta[reenact::kJawOpenIndex] = 0.5f + 0.4f * std::sin(0.5f * i);
+    for (Run& run : runs) {
       const auto t0 = Clock::now();
-      const reenact::CompositeResult c = fc.Compose(background, cam, target, p, &albedo);
+      const reenact::CompositeResult c = run.compositor->Compose(background, cam, target, p, &run.albedo);
       const double ms = ms_since(t0);
       if (i < 0) continue;
-      render.add(c.render_ms);
-      mouth.add(c.mouth_ms);
-      composite.add(c.composite_ms);
-      total.add(ms);
+      run.render.add(c.render_ms);
+      run.mouth.add(c.mouth_ms);
+      run.composite.add(c.composite_ms);
+      run.total.add(ms);
     }
-    const std::string name = kind == reenact::RendererKind::kCpu ? "cpu" : "vulkan";
-    out[name] = {{"renderer", fc.renderer_description()}, {"render_ms", render.value()}, {"mouth_ms", mouth.value()},
-                 {"composite_ms", composite.value()}, {"total_ms", total.value()}};
+  }
+  for (size_t k = 0; k < configs.size(); ++k) {
+    const Run& run = runs[k];
+    const std::string& name = configs[k].name;
+    const std::string renderer = run.compositor->renderer_description();
+    out[name] = {{"renderer", renderer},
+                 {"appearance", reenact::appearance_name(configs[k].appearance)},
+                 {"render_ms", run.render.value()},
+                 {"mouth_ms", run.mouth.value()},
+                 {"composite_ms", run.composite.value()},
+                 {"total_ms", run.total.value()}};
     if (!a.json)
-      std::printf("%-7s %-40s render %6.2f ms  mouth %5.2f ms  composite %5.2f ms  total %6.2f ms  (%dx%d, %d frames)\n",
-                  name.c_str(), fc.renderer_description().c_str(), render.value(), mouth.value(), composite.value(),
-                  total.value(), w, h, a.frames);
+      std::printf("%-14s %-40s render %6.2f ms  mouth %5.2f ms  composite %5.2f ms  total %6.2f ms  (%dx%d, %d frames)\n",
+                  name.c_str(), renderer.c_str(), run.render.value(), run.mouth.value(), run.composite.value(),
+                  run.total.value(), w, h, a.frames);
   }
   if (a.json) std::printf("%s\n", out.dump(2).c_str());
 }
@@ -662,9 +701,9 @@ void add_reenact_commands(CLI::App& app) {
   {
     auto args = std::make_shared<BenchArgs>();
     CLI::App* bench = get_or_add_subcommand(app, "bench", "Benchmarks of the pipeline stages");
-    CLI::App* c = bench->add_subcommand("reenact", "Re-render + mouth + composite per frame, CPU and Vulkan rasterisers");
+    CLI::App* c = bench->add_subcommand("reenact", "Re-render + mouth + composite per frame: CPU and Vulkan rasterisers, frame texture and albedo map");
     c->add_option("--size", args->size, "Frame size (default 320x240)");
-    c->add_option("--frames", args->frames, "Frames per rasteriser (default 30)")->check(CLI::Range(1, 100000));
+    c->add_option("--frames", args->frames, "Frames per configuration (default 30)")->check(CLI::Range(1, 100000));
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_flag("--json", args->json, "Print JSON");
     c->callback([args] { run_bench(*args); });
@@ -681,6 +720,9 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--mode", args->mode, "reenact (default), pass-through (the target's own expression), off");
     c->add_option("--landmarks", args->landmarks, "detector (default: dlib on every frame) or recording (stored landmarks)");
     c->add_option("--renderer", args->renderer, "cpu (default) or vulkan: the rasteriser of the re-rendered face");
+    c->add_option("--appearance", args->appearance,
+                  "frame-texture (default: the target frame's own colours, re-shaded) or albedo-map (the learned "
+                  "per-vertex albedo only)");
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_flag("--quiet", args->quiet, "No progress bar");
     c->callback([args] { run_reenact(*args); });

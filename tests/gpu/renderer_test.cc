@@ -347,6 +347,43 @@ TEST_F(RendererTest, OffScreenAndBehindCameraGiveAnEmptyMask) {
   }
 }
 
+// The reusing overload (per-frame callers keep one G-buffer) gives exactly what a fresh buffer
+// gets: nothing of the previous image survives, whatever the sizes.
+TEST(CpuRendererTest, RasterizingIntoAReusedBufferLeavesNothingOfThePreviousImage) {
+  const RenderModel model = testing::make_icosphere(kRadius, 3);
+  const CpuRenderer cpu(model);
+  const RenderOptions options;
+  FaceParameters near = frontal_pose(0.3f);
+  near.translation.x() = 0.05f;
+  FaceParameters far = frontal_pose(kDistance);
+  far.translation.y() = -0.08f;
+  PinholeCamera small = PinholeCamera{};
+  small.width = 160;
+  small.height = 120;
+  small.fx = small.fy = 131.25f;
+  small.cx = 79.5f;
+  small.cy = 59.5f;
+  GBuffer reused;
+  for (const PinholeCamera& first : {PinholeCamera{}, small}) {
+    cpu.rasterize(cpu.evaluate(near), first, options, &reused);
+    ASSERT_GT(reused.covered_count(), 0u);
+    for (const PinholeCamera& second : {PinholeCamera{}, small}) {
+      GBuffer buffer = reused;
+      cpu.rasterize(cpu.evaluate(far), second, options, &buffer);
+      const GBuffer fresh = cpu.rasterize(cpu.evaluate(far), second, options);
+      ASSERT_GT(fresh.covered_count(), 0u);
+      EXPECT_EQ(buffer.width, fresh.width);
+      EXPECT_EQ(buffer.height, fresh.height);
+      EXPECT_EQ(buffer.color, fresh.color);
+      EXPECT_EQ(buffer.position, fresh.position);
+      EXPECT_EQ(buffer.normal, fresh.normal);
+      EXPECT_EQ(buffer.barycentric, fresh.barycentric);
+      EXPECT_EQ(buffer.triangle, fresh.triangle);
+      EXPECT_EQ(buffer.vertices, fresh.vertices);
+    }
+  }
+}
+
 TEST_F(RendererTest, ReadbackBeforeRenderIsAnError) {
   Renderer renderer(context(), testing::make_icosphere(kRadius, 1));
   EXPECT_THROW(renderer.read_gbuffer(), Error);

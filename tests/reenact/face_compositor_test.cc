@@ -69,6 +69,76 @@ TEST(ReenactCompositorTest, PassThroughReproducesTheTargetAndLeavesTheRestExact)
   EXPECT_GT(cv::countNonZero(far), 320 * 240 / 4);
 }
 
+// Appearance::kFrameTexture keeps what no per-vertex albedo can hold: a target whose face
+// carries a fine pattern (a stand-in for pores and the camera's grain) is reproduced by the
+// pass-through within a level, while the albedo map smooths it away.
+TEST(ReenactCompositorTest, FrameTextureKeepsDetailTheAlbedoMapCannotHold) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters p = test_face(0.5f);
+  ReenactmentOptions o;
+  ASSERT_EQ(o.appearance, Appearance::kFrameTexture);
+  const FaceCompositor textured(*test_model(), o);
+  o.appearance = Appearance::kAlbedoMap;
+  const FaceCompositor smooth(*test_model(), o);
+  cv::Mat target = render_target(p, cam);
+  cv::Mat pattern(target.size(), CV_16SC3);
+  cv::RNG rng(7);
+  rng.fill(pattern, cv::RNG::UNIFORM, cv::Scalar::all(-18), cv::Scalar::all(19));
+  cv::Mat detailed;
+  cv::add(target, pattern, detailed, cv::noArray(), CV_8UC3);
+  AlbedoMap albedo;
+  textured.ObserveAlbedo(detailed, cam, p, &albedo);
+  const CompositeResult a = textured.Compose(detailed, cam, p, p, &albedo);
+  const CompositeResult b = smooth.Compose(detailed, cam, p, p, &albedo);
+  ASSERT_TRUE(a.drawn);
+  ASSERT_TRUE(b.drawn);
+  const double kept = mean_abs_diff(a.bgr, detailed, a.face_mask), lost = mean_abs_diff(b.bgr, detailed, b.face_mask);
+  RecordProperty("frame_texture_mean_abs_diff", std::to_string(kept));
+  RecordProperty("albedo_map_mean_abs_diff", std::to_string(lost));
+  EXPECT_LT(kept, 1.0);
+  EXPECT_GT(lost, 5.0) << "the albedo map cannot hold a per-pixel pattern; the test would not show the difference";
+}
+
+// The frame's texture moves with the surface: a dark mark on the target's lower lip shows where
+// the opened jaw moves that lip, and is gone from where it was.
+TEST(ReenactCompositorTest, FrameTextureMovesWithTheExpression) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.45f);
+  gpu::FaceParameters open = target;
+  open.delta[kJawOpenIndex] = 0.5f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  int32_t lip = -1;
+  for (const auto& l : model.landmarks)
+    if (l.ibug_index == 57) lip = l.vertex;  // the lower lip's outer edge, middle
+  ASSERT_GE(lip, 0);
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  auto project = [&](const gpu::FaceParameters& p) {
+    const Eigen::Vector3f x = renderer.evaluate(p).camera_positions.segment<3>(3 * lip);
+    return cv::Point(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
+                     static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
+  };
+  const cv::Point before = project(target), after = project(open);
+  ASSERT_GT(after.y - before.y, 4) << "the opened jaw should move the lower lip down by several pixels";
+  cv::Mat marked = render_target(target, cam);
+  const cv::Mat clean = marked.clone();
+  cv::circle(marked, before, 2, cv::Scalar(20, 120, 20), cv::FILLED);  // a green mark, nothing like a lip
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(clean, cam, target, &albedo);
+  const CompositeResult c = fc.Compose(marked, cam, target, open, &albedo);
+  ASSERT_TRUE(c.drawn);
+  auto green_excess = [](const cv::Mat& img, cv::Point at) {
+    const cv::Scalar m = cv::mean(img(cv::Rect(at.x - 1, at.y - 1, 3, 3)));
+    return m[1] - 0.5 * (m[0] + m[2]);
+  };
+  RecordProperty("green_at_new_place", std::to_string(green_excess(c.bgr, after)));
+  RecordProperty("green_at_old_place", std::to_string(green_excess(c.bgr, before)));
+  EXPECT_GT(green_excess(c.bgr, after), 40.0) << "the mark should move with the lip";
+  EXPECT_LT(green_excess(c.bgr, before), 15.0) << "the mark should not stay where the lip was";
+}
+
 TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
@@ -172,6 +242,10 @@ TEST(ReenactCompositorTest, RejectsBadInputsWithErrors) {
   bad.mask_feather_px = std::nanf("");
   std::string why;
   EXPECT_FALSE(bad.IsValid(&why));
+  bad = ReenactmentOptions{};
+  bad.appearance = static_cast<Appearance>(7);
+  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_NE(why.find("appearance"), std::string::npos) << why;
 }
 
 // The Vulkan rasteriser (lavapipe here) and the CPU twin give the same composite up to edge

@@ -102,11 +102,20 @@ GBuffer CpuRenderer::render(const FaceParameters& params, const PinholeCamera& c
 }
 
 GBuffer CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options) const {
+  GBuffer g;
+  rasterize(state, camera, options, &g);
+  return g;
+}
+
+void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options,
+                            GBuffer* out) const {
   std::string why;
   if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
-  GBuffer g;
+  GBuffer& g = *out;
   g.Resize(camera.width, camera.height);
-  std::vector<float> depth(static_cast<size_t>(camera.width) * camera.height, 1.0f);
+  // The depth buffer is scratch: one per thread, kept, so a per-frame caller faults no new pages.
+  thread_local std::vector<float> depth;
+  depth.assign(static_cast<size_t>(camera.width) * camera.height, 1.0f);
   const double near = camera.near_plane, far = camera.far_plane;
 
   for (int32_t t : drawn_triangles(model_, options)) {
@@ -213,7 +222,6 @@ GBuffer CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& ca
       }
     }
   }
-  return g;
 }
 
 }  // namespace face_reenact::gpu

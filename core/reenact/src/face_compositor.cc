@@ -1,6 +1,7 @@
 #include "face_reenact/reenact/face_compositor.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <vector>
@@ -76,6 +77,37 @@ float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
   for (int k = 0; k < gpu::kNumShCoefficients; ++k) e += gamma[static_cast<size_t>(c * 9 + k)] * basis[static_cast<size_t>(k)];
   const float ambient = gamma[static_cast<size_t>(c * 9)] * basis[0];
   return std::max(e, 0.15f * ambient);
+}
+
+// sRGB byte -> linear light, once per byte value.
+const std::array<float, 256>& srgb_decode_table() {
+  static const std::array<float, 256> table = [] {
+    std::array<float, 256> t{};
+    for (int i = 0; i < 256; ++i) t[static_cast<size_t>(i)] = srgb_decode(static_cast<float>(i) / 255.0f);
+    return t;
+  }();
+  return table;
+}
+
+// Linear colour of `bgr` at the sub-pixel position (x, y), bilinear (0 <= x <= w-1, 0 <= y <= h-1).
+Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
+  const auto& lut = srgb_decode_table();
+  const int i0 = std::min(static_cast<int>(x), bgr.cols - 2 >= 0 ? bgr.cols - 2 : 0);
+  const int j0 = std::min(static_cast<int>(y), bgr.rows - 2 >= 0 ? bgr.rows - 2 : 0);
+  const int i1 = std::min(i0 + 1, bgr.cols - 1), j1 = std::min(j0 + 1, bgr.rows - 1);
+  const float fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f), fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
+  const cv::Vec3b a = bgr.at<cv::Vec3b>(j0, i0), b = bgr.at<cv::Vec3b>(j0, i1), c = bgr.at<cv::Vec3b>(j1, i0),
+                  d = bgr.at<cv::Vec3b>(j1, i1);
+  Eigen::Vector3f out;
+  for (int ch = 0; ch < 3; ++ch) {
+    const int k = 2 - ch;  // BGR -> RGB
+    out[ch] = (1 - fy) * ((1 - fx) * lut[a[k]] + fx * lut[b[k]]) + fy * ((1 - fx) * lut[c[k]] + fx * lut[d[k]]);
+  }
+  return out;
+}
+
+bool same_geometry(const gpu::FaceParameters& a, const gpu::FaceParameters& b) {
+  return a.alpha == b.alpha && a.delta == b.delta && a.euler == b.euler && a.translation == b.translation;
 }
 
 }  // namespace
@@ -179,15 +211,19 @@ struct FaceCompositor::Impl {
     return vk_renderer.get();
   }
 
-  // The G-buffer of `state` (evaluated at `params`), rasterised by Vulkan or the CPU twin. The
-  // colour channel is always the Gouraud interpolation of state.colors (the compositor's own
-  // shading: albedo map, rendering lighting), whichever rasteriser ran.
-  gpu::GBuffer rasterize(const gpu::VertexState& state, const gpu::FaceParameters& params,
-                         const gpu::PinholeCamera& camera, const gpu::RenderOptions& ropt) const {
+  // The G-buffer of `state` (evaluated at `params`) into `out`, rasterised by Vulkan or the CPU
+  // twin. The colour channel is always the Gouraud interpolation of state.colors (the
+  // compositor's own shading: albedo map, rendering lighting), whichever rasteriser ran.
+  void rasterize(const gpu::VertexState& state, const gpu::FaceParameters& params, const gpu::PinholeCamera& camera,
+                 const gpu::RenderOptions& ropt, gpu::GBuffer* out) const {
     gpu::Renderer* vk = vulkan();
-    if (!vk) return renderer.rasterize(state, camera, ropt);
+    if (!vk) {
+      renderer.rasterize(state, camera, ropt, out);
+      return;
+    }
     vk->render(params, camera, ropt);
-    gpu::GBuffer g = vk->read_gbuffer();
+    *out = vk->read_gbuffer();
+    gpu::GBuffer& g = *out;
     for (size_t p = 0; p < g.triangle.size(); ++p) {
       if (g.triangle[p] < 0) continue;
       for (int c = 0; c < 3; ++c) {
@@ -197,7 +233,113 @@ struct FaceCompositor::Impl {
         g.color[3 * p + static_cast<size_t>(c)] = v;
       }
     }
-    return g;
+  }
+
+  // Appearance::kFrameTexture: every drawn skin or eye pixel of `g` (the output's G-buffer)
+  // whose surface point the target frame shows takes that frame's colour there, times the
+  // change of the point's shading from the tracked normal to the output's. The surface point is
+  // the pixel's triangle and barycentrics evaluated on the target's tracked geometry; it is
+  // shown when the target's own G-buffer at its projection lies at its depth. Other pixels keep
+  // g->color (the albedo map).
+  void ApplyFrameTexture(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
+                         const gpu::FaceParameters& target, const gpu::FaceParameters& output,
+                         const gpu::VertexState& out_state, const Gamma& light, const gpu::RenderOptions& ropt,
+                         gpu::GBuffer* g) const {
+    const int w = camera.width, h = camera.height, n = model.num_vertices();
+    auto textured = [&](int32_t vertex) {
+      const FacePart part = part_of(vertex);
+      return part != FacePart::UpperTeeth && part != FacePart::LowerTeeth && part != FacePart::Tongue;
+    };
+    cv::Rect box;  // the drawn pixels to texture
+    for (int j = 0; j < h; ++j)
+      for (int i = 0; i < w; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (g->triangle[p] >= 0 && textured(g->vertices[3 * p])) box |= cv::Rect(i, j, 1, 1);
+      }
+    if (box.empty()) return;
+    // The tracked geometry (the output's own when only the lighting or albedo differ).
+    const bool same = same_geometry(target, output);
+    gpu::VertexState target_state;
+    gpu::GBuffer& target_g = scratch_gbuffer(1);
+    if (!same) {
+      target_state = renderer.evaluate(target);
+      rasterize(target_state, target, camera, ropt, &target_g);
+    }
+    const gpu::VertexState& ts = same ? out_state : target_state;
+    const gpu::GBuffer& tg = same ? *g : target_g;
+    // Per-vertex irradiance at the output's and at the tracked normals (same lighting).
+    std::vector<Eigen::Vector3f> e_out(static_cast<size_t>(n)), e_target(static_cast<size_t>(n));
+    for (int v = 0; v < n; ++v) {
+      const auto bo = gpu::sh_basis(out_state.camera_normals.segment<3>(3 * v));
+      const auto bt = same ? bo : gpu::sh_basis(ts.camera_normals.segment<3>(3 * v));
+      for (int c = 0; c < 3; ++c) {
+        e_out[static_cast<size_t>(v)][c] = irradiance(light, bo, c);
+        e_target[static_cast<size_t>(v)][c] = irradiance(light, bt, c);
+      }
+    }
+    // A surface point counts as shown when the frame's visible surface at its projection is
+    // within this depth of it: a few millimetres, more where one pixel spans more than that.
+    constexpr float kShownToleranceM = 0.004f;
+    constexpr float kMinShadingRatio = 0.5f, kMaxShadingRatio = 2.0f;
+    box = (box + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, w, h);
+    cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
+    cv::Mat texture(box.size(), CV_32FC3);
+    for (int j = box.y; j < box.y + box.height; ++j)
+      for (int i = box.x; i < box.x + box.width; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (g->triangle[p] < 0 || !textured(g->vertices[3 * p])) continue;
+        const int bi = i - box.x, bj = j - box.y;
+        covered.at<float>(bj, bi) = 1.0f;
+        Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero();
+        for (int k = 0; k < 3; ++k) {
+          const int32_t v = g->vertices[3 * p + static_cast<size_t>(k)];
+          const float b = g->barycentric[3 * p + static_cast<size_t>(k)];
+          x += b * ts.camera_positions.segment<3>(3 * v);
+          eo += b * e_out[static_cast<size_t>(v)];
+          et += b * e_target[static_cast<size_t>(v)];
+        }
+        if (!(x.z() > camera.near_plane)) continue;
+        const float u = camera.fx * x.x() / x.z() + camera.cx, vv = camera.fy * x.y() / x.z() + camera.cy;
+        if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
+        const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
+        // Not shown: nothing of the face there, the target's own teeth or tongue in front, or a
+        // surface at another depth (the point is hidden in the frame).
+        if (tg.triangle[q] < 0 || !textured(tg.vertices[3 * q])) continue;
+        const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
+        if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
+        const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
+        cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
+        for (int c = 0; c < 3; ++c) {
+          const float ratio = std::clamp(eo[c] / std::max(et[c], 1e-4f), kMinShadingRatio, kMaxShadingRatio);
+          t[c] = std::min(1.0f, seen[c] * ratio);
+        }
+        weight.at<float>(bj, bi) = 1.0f;
+      }
+    // The weight smoothed over the drawn pixels only (normalised, so the silhouette keeps 1):
+    // shown pixels next to unshown ones fade towards the albedo map, so a disoccluded region
+    // has no hard seam. Unshown pixels keep the albedo map (their texture is unknown).
+    cv::Mat ws, cs;
+    cv::GaussianBlur(weight, ws, cv::Size(0, 0), 1.0);
+    cv::GaussianBlur(covered, cs, cv::Size(0, 0), 1.0);
+    for (int bj = 0; bj < box.height; ++bj)
+      for (int bi = 0; bi < box.width; ++bi) {
+        if (!(weight.at<float>(bj, bi) > 0.f)) continue;
+        const float cw = cs.at<float>(bj, bi);
+        const float a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
+        const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+        const cv::Vec3f t = texture.at<cv::Vec3f>(bj, bi);
+        for (int c = 0; c < 3; ++c) {
+          float& col = g->color[3 * p + static_cast<size_t>(c)];
+          col = a * t[c] + (1.0f - a) * col;
+        }
+      }
+  }
+
+  // Per-thread G-buffers reused from frame to frame (16 values per pixel; allocating them anew
+  // every frame cost more than rasterising at 640x480). 0: the output, 1: the tracked geometry.
+  static gpu::GBuffer& scratch_gbuffer(int which) {
+    thread_local std::array<gpu::GBuffer, 2> buffers;
+    return buffers[static_cast<size_t>(which)];
   }
 
   gpu::PartMask drawn_parts() const {
@@ -266,7 +408,10 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   gpu::RenderOptions ropt;
   ropt.parts = im.drawn_parts();
   ropt.cull_back_faces = true;
-  const gpu::GBuffer g = im.rasterize(state, output, camera, ropt);
+  gpu::GBuffer& g = Impl::scratch_gbuffer(0);
+  im.rasterize(state, output, camera, ropt, &g);
+  if (opt.appearance == Appearance::kFrameTexture)
+    im.ApplyFrameTexture(target_bgr, camera, target, output, state, light, ropt, &g);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
@@ -399,7 +544,8 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   }
   gpu::RenderOptions ropt;
   ropt.parts = im.drawn_parts();
-  const gpu::GBuffer g = im.rasterize(state, params, camera, ropt);
+  gpu::GBuffer& g = Impl::scratch_gbuffer(1);
+  im.rasterize(state, params, camera, ropt, &g);
   constexpr float kMaxWeight = 12.0f;      // later frames keep refining, never frozen
   constexpr float kMinCos = 0.5f;          // grazing views are blurred, badly lit, near silhouettes
   constexpr float kDepthToleranceM = 0.0025f;

@@ -55,6 +55,8 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
   if (mode != ReenactMode::kReenact && mode != ReenactMode::kPassThrough && mode != ReenactMode::kOff)
     return fail("unknown reenactment mode");
   if (renderer != RendererKind::kCpu && renderer != RendererKind::kVulkan) return fail("unknown renderer kind");
+  if (appearance != Appearance::kFrameTexture && appearance != Appearance::kAlbedoMap)
+    return fail("unknown appearance");
   if (!std::isfinite(mouth_open_threshold) || mouth_open_threshold < 0.f || mouth_open_threshold > 1.f)
     return fail("mouth_open_threshold must be in [0, 1]");
   if (blend_levels < 1 || blend_levels > 10) return fail("blend_levels must be in [1, 10]");

@@ -112,6 +112,14 @@ const char* reenact_mode_name(ReenactMode mode) {
   return "unknown";
 }
 
+const char* appearance_name(Appearance appearance) {
+  switch (appearance) {
+    case Appearance::kFrameTexture: return "frame-texture";
+    case Appearance::kAlbedoMap: return "albedo-map";
+  }
+  return "unknown";
+}
+
 const char* tracking_status_name(TrackingStatus status) {
   switch (status) {
     case TrackingStatus::kCalibrating: return "calibrating";

@@ -34,6 +34,10 @@ class CpuRenderer {
                  CpuRenderTimes* times = nullptr) const;
   // Rasterises already evaluated vertices.
   GBuffer rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options) const;
+  // The same into `out`, reusing its buffers: a G-buffer holds 16 values per pixel (20 MB at
+  // 640x480), and a per-frame caller that keeps one allocates and page-faults none of it again.
+  void rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options,
+                 GBuffer* out) const;
 
  private:
   RenderModel model_;

@@ -81,9 +81,25 @@ enum class RendererKind {
   kVulkan,  // gpu::Renderer on the default Vulkan device (falls back to kCpu if none opens)
 };
 
+// Where the colour of the re-rendered face comes from (docs/reenactment.md, "Appearance").
+enum class Appearance {
+  // Each surface point takes the target frame's own colour where the frame shows that point (at
+  // the target's tracked geometry), times the change of its shading (the new normal against the
+  // tracked one): the paper's albedo texture made from the camera image divided by the
+  // estimated lighting (Sec. 6.3), refreshed every frame. Skin detail, brows, lips and the
+  // camera's grain stay the target's, and the face moves only where the expression moves it.
+  // Surface the frame does not show (the inside of lips an opened mouth reveals, a cheek a turn
+  // brings into view) takes the per-vertex AlbedoMap.
+  kFrameTexture,
+  // The per-vertex AlbedoMap everywhere: smooth, holds no detail finer than the mesh.
+  kAlbedoMap,
+};
+const char* appearance_name(Appearance appearance);
+
 struct ReenactmentOptions {
   ReenactMode mode = ReenactMode::kReenact;
   RendererKind renderer = RendererKind::kCpu;
+  Appearance appearance = Appearance::kFrameTexture;
 
   // --- mouth (Sec. 7.3; teeth and tongue from the model's helper geometry) ---
   bool render_mouth = true;
