@@ -531,6 +531,8 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   const SolverOptions so =
       WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()));
   const std::vector<gpu::FaceParameters> starts = params;
+  if (options_.calibration_starts_neutral)
+    for (auto& p : params) p.delta.setZero();
   const auto t0 = Clock::now();
   SolverSummary summary = solver_.SolveFrames(inputs, layout, so, &params);
   out->times.calibration_ms = ms_since(t0);

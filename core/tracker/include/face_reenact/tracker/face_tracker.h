@@ -87,6 +87,15 @@ struct TrackerOptions {
   // Leading identity / albedo components solved during calibration (-1 = all of the model's).
   int calibration_identity_components = -1;
   int calibration_albedo_components = -1;
+  // The joint solve starts every calibration frame from the neutral expression (all weights 0),
+  // not from the expression its per-frame fit found. Those fits use the mean identity, and their
+  // expression absorbs the difference between the mean face and the actor: on the demo's target,
+  // a closed mouth, they read jawOpen 1.0, tongueOut 1.0 and mouthShrugLower 1.0, the joint solve
+  // kept most of it (identity and expression trade along a valley), and the actor's neutral held
+  // an open jaw (0.9), which the transfer then subtracted. Starting neutral, the identity explains
+  // the shape: docs/tracking-pipeline.md, "Calibration start". The actor is expected near neutral
+  // while calibrating (Sec. 6.3); a real expression there is still found from 0.
+  bool calibration_starts_neutral = true;
   // The joint solve: more Gauss-Newton iterations than tracking (it starts from the mean face),
   // on the coarsest level only: measured on synthetic recordings, finer levels and more
   // iterations cost 3x the time and fit the identity no better (docs/tracker.md).
