@@ -548,6 +548,8 @@ void run_demo(const DemoArgs& a) {
                                 {"reenacted", r.reenacted},
                                 {"mouth", r.mouth_drawn},
                                 {"source_jaw_open", reenact::expression_weight(truth_src, reenact::kJawOpenIndex)},
+                                {"rendered_jaw_open",
+                                 r.reenacted ? reenact::expression_weight(r.output_params.delta, reenact::kJawOpenIndex) : 0.0f},
                                 {"loop_jaw_open", reenact::expression_weight(lt.params.delta, reenact::kJawOpenIndex)}}
                      .dump()
               << "\n";
