@@ -139,6 +139,42 @@ TEST(ReenactCompositorTest, FrameTextureMovesWithTheExpression) {
   EXPECT_LT(green_excess(c.bgr, before), 15.0) << "the mark should not stay where the lip was";
 }
 
+// With the frame texture, a mouth the output opens no wider than the tracked one shows the
+// target's own mouth (the tracker may read a closed mouth as slightly open: the demo's target
+// with dlib's points reads jawOpen 0.25); the interior fades in with the extra opening. The
+// albedo map draws the interior whenever the rendered mouth is open.
+TEST(ReenactCompositorTest, WithTheFrameTextureTheMouthInteriorFadesInWithTheExtraOpening) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  gpu::FaceParameters target = test_face(0.45f);
+  target.delta[kJawOpenIndex] = 0.3f;
+  const FaceCompositor fc(*test_model(), ReenactmentOptions{});
+  const Rendered t = make_target(fc, target, cam);
+  const CompositeResult same = fc.Compose(t.target, cam, target, target, &t.albedo);
+  ASSERT_TRUE(same.drawn);
+  EXPECT_FALSE(same.mouth_drawn);
+  EXPECT_LT(mean_abs_diff(same.bgr, t.target, same.face_mask), 1.0);
+  ReenactmentOptions albedo_only;
+  albedo_only.appearance = Appearance::kAlbedoMap;
+  EXPECT_TRUE(FaceCompositor(*test_model(), albedo_only).Compose(t.target, cam, target, target, &t.albedo).mouth_drawn);
+  // Wider: partly, then fully the interior; the opening darkens step by step.
+  gpu::FaceParameters wide = target;
+  wide.delta[kJawOpenIndex] = 0.9f;
+  const CompositeResult full = fc.Compose(t.target, cam, target, wide, &t.albedo);
+  ASSERT_TRUE(full.mouth_drawn);
+  const cv::Mat& region = full.mouth_mask;
+  double previous = cv::mean(t.target, region)[2] + 1.0;
+  for (const float jaw : {0.3f, 0.37f, 0.45f, 0.9f}) {
+    wide.delta[kJawOpenIndex] = jaw;
+    const CompositeResult c = fc.Compose(t.target, cam, target, wide, &t.albedo);
+    const double red = cv::mean(c.bgr, region)[2];
+    RecordProperty("mouth_red_at_jaw_" + std::to_string(jaw), std::to_string(red));
+    EXPECT_LE(red, previous + 0.5) << "jawOpen " << jaw;
+    previous = red;
+  }
+  EXPECT_LT(previous, cv::mean(t.target, region)[2] - 40) << "the fully opened mouth should be dark";
+}
+
 TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);

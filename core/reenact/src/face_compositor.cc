@@ -235,7 +235,7 @@ struct FaceCompositor::Impl {
     }
   }
 
-  // Appearance::kFrameTexture: every drawn skin or eye pixel of `g` (the output's G-buffer)
+  // Appearance::kFrameTexture: every drawn pixel of `g` (the output's G-buffer)
   // whose surface point the target frame shows takes that frame's colour there, times the
   // change of the point's shading from the tracked normal to the output's. The surface point is
   // the pixel's triangle and barycentrics evaluated on the target's tracked geometry; it is
@@ -246,15 +246,12 @@ struct FaceCompositor::Impl {
                          const gpu::VertexState& out_state, const Gamma& light, const gpu::RenderOptions& ropt,
                          gpu::GBuffer* g) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
-    auto textured = [&](int32_t vertex) {
-      const FacePart part = part_of(vertex);
-      return part != FacePart::UpperTeeth && part != FacePart::LowerTeeth && part != FacePart::Tongue;
-    };
+
     cv::Rect box;  // the drawn pixels to texture
     for (int j = 0; j < h; ++j)
       for (int i = 0; i < w; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
-        if (g->triangle[p] >= 0 && textured(g->vertices[3 * p])) box |= cv::Rect(i, j, 1, 1);
+        if (g->triangle[p] >= 0) box |= cv::Rect(i, j, 1, 1);
       }
     if (box.empty()) return;
     // The tracked geometry (the output's own when only the lighting or albedo differ).
@@ -287,7 +284,7 @@ struct FaceCompositor::Impl {
     for (int j = box.y; j < box.y + box.height; ++j)
       for (int i = box.x; i < box.x + box.width; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
-        if (g->triangle[p] < 0 || !textured(g->vertices[3 * p])) continue;
+        if (g->triangle[p] < 0) continue;
         const int bi = i - box.x, bj = j - box.y;
         covered.at<float>(bj, bi) = 1.0f;
         Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero();
@@ -302,9 +299,9 @@ struct FaceCompositor::Impl {
         const float u = camera.fx * x.x() / x.z() + camera.cx, vv = camera.fy * x.y() / x.z() + camera.cy;
         if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
         const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
-        // Not shown: nothing of the face there, the target's own teeth or tongue in front, or a
-        // surface at another depth (the point is hidden in the frame).
-        if (tg.triangle[q] < 0 || !textured(tg.vertices[3 * q])) continue;
+        // Not shown: nothing of the model there, or a surface at another depth (the point is
+        // hidden in the frame).
+        if (tg.triangle[q] < 0) continue;
         const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
         if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
         const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
@@ -450,8 +447,22 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // opening shows the inside of the head or nothing at all.
   start = Clock::now();
   const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
-  result.mouth_opened_wider = out_jaw > expression_weight(target.delta, kJawOpenIndex) + opt.mouth_open_threshold;
-  if (opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3) {
+  const float target_jaw = expression_weight(target.delta, kJawOpenIndex);
+  result.mouth_opened_wider = out_jaw > target_jaw + opt.mouth_open_threshold;
+  // How much of the mouth interior replaces what the opening shows. With the albedo map, all of
+  // it whenever the rendered mouth is open: the re-rendered face covers the target's own mouth.
+  // With the frame texture the opening already shows the target's own mouth as far as the output
+  // opens no wider than the tracked one (the same geometry samples the same pixels: the target's
+  // real lips, closed or open), and the interior fades in over the next kMouthFadeJaw of extra
+  // jawOpen. So a closed source mouth on a target whose closed mouth the tracker reads as
+  // slightly open (jawOpen 0.25 on the demo's target with dlib's points) keeps the target's
+  // lips instead of showing a dark slit, and an opening mouth darkens without a jump.
+  constexpr float kMouthFadeJaw = 0.1f;
+  const float mouth_alpha =
+      opt.appearance == Appearance::kFrameTexture
+          ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
+          : 1.0f;
+  if (opt.render_mouth && out_jaw > opt.mouth_open_threshold && mouth_alpha > 0.f && im.inner_lip_vertices.size() >= 3) {
     std::vector<cv::Point> polygon;
     float lip_z = 0.f;
     bool in_front = true;
@@ -484,22 +495,25 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                                               part == FacePart::Tongue);
           const float depth_behind = covered ? g.position[3 * p + 2] - lip_z : 1.0f;
           cv::Vec3f& px = rendered.at<cv::Vec3f>(j, i);
+          Eigen::Vector3f interior;
           if (mouth_part) {
             const float occlusion =
                 part == FacePart::Tongue
                     ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
                                  kMaxTongueOcclusion)
                     : std::clamp(1.0f - depth_behind / kTeethOcclusionDepthM, kMinTeethOcclusion, 1.0f);
-            for (int c = 0; c < 3; ++c)
-              px[2 - c] = 255.0f * srgb_encode(occlusion * g.color[3 * p + static_cast<size_t>(c)]);
+            for (int c = 0; c < 3; ++c) interior[c] = occlusion * g.color[3 * p + static_cast<size_t>(c)];
           } else if (!covered || depth_behind > kCavityDepthM) {
-            for (int c = 0; c < 3; ++c) px[2 - c] = 255.0f * srgb_encode(cavity_rgb[c]);
+            interior = cavity_rgb;
           } else {
             continue;  // the lips themselves
           }
+          for (int c = 0; c < 3; ++c)
+            px[2 - c] = mouth_alpha * 255.0f * srgb_encode(interior[c]) + (1.0f - mouth_alpha) * px[2 - c];
           result.mouth_mask.at<uchar>(j, i) = 255;
           result.face_mask.at<uchar>(j, i) = 255;
-          result.face_depth.at<float>(j, i) = 0.0f;
+          // The output depth has no surface in an opening that shows mostly the interior.
+          if (mouth_alpha >= 0.5f) result.face_depth.at<float>(j, i) = 0.0f;
           ++drawn;
         }
       }

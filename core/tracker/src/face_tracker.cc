@@ -562,6 +562,24 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
     mean_delta += d;
   }
   neutral_.delta = mean_delta / static_cast<float>(params.size());
+  if (options_.neutral_from_tracking) {
+    // Re-read each calibration frame the way tracking reads frames (identity fixed, tracking
+    // prior, warm start from the joint solve), so Eq. 15 subtracts a neutral in the same terms
+    // as the expressions it is subtracted from. Frames whose fit fails keep no say.
+    Eigen::VectorXf sum = Eigen::VectorXf::Zero(m.num_expression());
+    int fitted = 0;
+    for (size_t f = 0; f < inputs.size(); ++f) {
+      gpu::FaceParameters start = params[f];
+      start.alpha = identity_.alpha;
+      start.beta = identity_.beta;
+      const Attempt a = Solve(inputs[f], start, /*reinit=*/false, &out->times);
+      if (!a.failure.empty() || a.summary.termination == Termination::kStopped) continue;
+      const Eigen::Index k = std::min<Eigen::Index>(a.params.delta.size(), sum.size());
+      sum.head(k) += a.params.delta.head(k);
+      ++fitted;
+    }
+    if (fitted > 0) neutral_.delta = sum / static_cast<float>(fitted);
+  }
   calibrated_ = true;
   collecting_ = false;
   energy_history_.clear();  // energies with the new identity are not comparable to the old

@@ -5,7 +5,8 @@
 //     are collected; then identity alpha, albedo beta and, per frame, expression, lighting and
 //     pose are optimised jointly over all of them (CpuSolver::SolveFrames with the calibration
 //     layout). Identity and albedo are then fixed, and the actor's neutral expression is the
-//     mean expression over the calibration frames (the transfer of Eq. 15 subtracts it).
+//     mean expression over the calibration frames as tracking reads them (the transfer of Eq. 15
+//     subtracts it).
 //  2. Tracking: every frame solves expression, lighting and pose (tracking layout), warm-started
 //     from the previous frame's result.
 //  3. Loss and recovery: a fit is "lost" when the frame has too few landmarks, the landmarks
@@ -96,6 +97,13 @@ struct TrackerOptions {
   // the shape: docs/tracking-pipeline.md, "Calibration start". The actor is expected near neutral
   // while calibrating (Sec. 6.3); a real expression there is still found from 0.
   bool calibration_starts_neutral = true;
+  // The actor's neutral expression (neutral(), subtracted by Eq. 15) is the mean over the
+  // calibration frames re-fitted by the tracking solve (identity fixed, the tracking prior),
+  // not the joint solve's own expressions: the transfer subtracts it from tracked expressions,
+  // so it has to be read the same way. The joint solve's weaker quadratic prior read the demo
+  // target's closed mouth about 0.06 jawOpen wider than tracking did, and the difference opened
+  // the reenacted mouth of a source at rest. Costs one tracking solve per calibration frame.
+  bool neutral_from_tracking = true;
   // The joint solve: more Gauss-Newton iterations than tracking (it starts from the mean face),
   // on the coarsest level only: measured on synthetic recordings, finer levels and more
   // iterations cost 3x the time and fit the identity no better (docs/tracker.md).
