@@ -79,21 +79,11 @@ float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
   return std::max(e, 0.15f * ambient);
 }
 
-// sRGB byte -> linear light, once per byte value.
-const std::array<float, 256>& srgb_decode_table() {
-  static const std::array<float, 256> table = [] {
-    std::array<float, 256> t{};
-    for (int i = 0; i < 256; ++i) t[static_cast<size_t>(i)] = srgb_decode(static_cast<float>(i) / 255.0f);
-    return t;
-  }();
-  return table;
-}
-
 // Linear colour of `bgr` at the sub-pixel position (x, y), bilinear (0 <= x <= w-1, 0 <= y <= h-1).
 Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
   const auto& lut = srgb_decode_table();
-  const int i0 = std::min(static_cast<int>(x), bgr.cols - 2 >= 0 ? bgr.cols - 2 : 0);
-  const int j0 = std::min(static_cast<int>(y), bgr.rows - 2 >= 0 ? bgr.rows - 2 : 0);
+  const int i0 = std::min(static_cast<int>(x), std::max(bgr.cols - 2, 0));
+  const int j0 = std::min(static_cast<int>(y), std::max(bgr.rows - 2, 0));
   const int i1 = std::min(i0 + 1, bgr.cols - 1), j1 = std::min(j0 + 1, bgr.rows - 1);
   const float fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f), fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
   const cv::Vec3b a = bgr.at<cv::Vec3b>(j0, i0), b = bgr.at<cv::Vec3b>(j0, i1), c = bgr.at<cv::Vec3b>(j1, i0),
@@ -240,11 +230,12 @@ struct FaceCompositor::Impl {
   // change of the point's shading from the tracked normal to the output's. The surface point is
   // the pixel's triangle and barycentrics evaluated on the target's tracked geometry; it is
   // shown when the target's own G-buffer at its projection lies at its depth. Other pixels keep
-  // g->color (the albedo map).
+  // g->color (the albedo map). `e_out`: the output's per-vertex irradiance (uncapped), as
+  // Compose computed it for the shading.
   void ApplyFrameTexture(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                          const gpu::FaceParameters& target, const gpu::FaceParameters& output,
-                         const gpu::VertexState& out_state, const Gamma& light, const gpu::RenderOptions& ropt,
-                         gpu::GBuffer* g) const {
+                         const gpu::VertexState& out_state, const std::vector<Eigen::Vector3f>& e_out,
+                         const Gamma& light, const gpu::RenderOptions& ropt, gpu::GBuffer* g) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
 
     cv::Rect box;  // the drawn pixels to texture
@@ -264,16 +255,17 @@ struct FaceCompositor::Impl {
     }
     const gpu::VertexState& ts = same ? out_state : target_state;
     const gpu::GBuffer& tg = same ? *g : target_g;
-    // Per-vertex irradiance at the output's and at the tracked normals (same lighting).
-    std::vector<Eigen::Vector3f> e_out(static_cast<size_t>(n)), e_target(static_cast<size_t>(n));
-    for (int v = 0; v < n; ++v) {
-      const auto bo = gpu::sh_basis(out_state.camera_normals.segment<3>(3 * v));
-      const auto bt = same ? bo : gpu::sh_basis(ts.camera_normals.segment<3>(3 * v));
-      for (int c = 0; c < 3; ++c) {
-        e_out[static_cast<size_t>(v)][c] = irradiance(light, bo, c);
-        e_target[static_cast<size_t>(v)][c] = irradiance(light, bt, c);
+    // Per-vertex irradiance at the tracked normals, under the lighting e_out (the output's, at
+    // its normals) was computed with.
+    std::vector<Eigen::Vector3f> tracked_irradiance;
+    if (!same) {
+      tracked_irradiance.resize(static_cast<size_t>(n));
+      for (int v = 0; v < n; ++v) {
+        const auto basis = gpu::sh_basis(ts.camera_normals.segment<3>(3 * v));
+        for (int c = 0; c < 3; ++c) tracked_irradiance[static_cast<size_t>(v)][c] = irradiance(light, basis, c);
       }
     }
+    const std::vector<Eigen::Vector3f>& e_target = same ? e_out : tracked_irradiance;
     // A surface point counts as shown when the frame's visible surface at its projection is
     // within this depth of it: a few millimetres, more where one pixel spans more than that.
     constexpr float kShownToleranceM = 0.004f;
@@ -393,11 +385,13 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   const Gamma light = rendering_lighting(output.gamma);
   const bool use_map = albedo && albedo->albedo.size() == 3 * n;
   const bool cap = use_map && albedo->max_irradiance.minCoeff() > 0.f;
+  std::vector<Eigen::Vector3f> irradiance_out(static_cast<size_t>(n));  // uncapped, per vertex
   for (int v = 0; v < n; ++v) {
     const auto basis = gpu::sh_basis(state.camera_normals.segment<3>(3 * v));
     for (int c = 0; c < 3; ++c) {
       if (use_map) state.albedo[3 * v + c] = albedo->albedo[3 * v + c];
       float e = irradiance(light, basis, c);
+      irradiance_out[static_cast<size_t>(v)][c] = e;
       if (cap) e = std::min(e, 1.05f * albedo->max_irradiance[c]);
       state.colors[3 * v + c] = state.albedo[3 * v + c] * e;
     }
@@ -408,7 +402,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   gpu::GBuffer& g = Impl::scratch_gbuffer(0);
   im.rasterize(state, output, camera, ropt, &g);
   if (opt.appearance == Appearance::kFrameTexture)
-    im.ApplyFrameTexture(target_bgr, camera, target, output, state, light, ropt, &g);
+    im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt, &g);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
@@ -597,7 +591,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
       for (int di = -1; di <= 1; ++di) {
         if (!g.covered(i + di, j + dj) || std::abs(g.depth(i + di, j + dj) - x.z()) > 2.0f * kDepthToleranceM) continue;
         const cv::Vec3b px = frame_bgr.at<cv::Vec3b>(j + dj, i + di);
-        for (int c = 0; c < 3; ++c) linear[c] += srgb_decode(px[2 - c] / 255.0f);
+        for (int c = 0; c < 3; ++c) linear[c] += srgb_decode_table()[px[2 - c]];
         ++samples;
       }
     if (samples < 5) continue;

@@ -109,8 +109,7 @@ bool InputFrame::IsValid(std::string* why) const {
 void InputFrame::SetColorFromSrgb8(const uint8_t* rgb, size_t size_bytes) {
   const size_t n = pixel_count(camera);
   if (size_bytes != 3 * n) throw Error("input frame: sRGB image has the wrong size for the camera");
-  float table[256];
-  for (int v = 0; v < 256; ++v) table[v] = srgb_decode(v / 255.f);
+  const auto& table = srgb_decode_table();
   color.resize(3 * n);
   for (size_t k = 0; k < 3 * n; ++k) color[k] = table[rgb[k]];
 }

@@ -40,8 +40,7 @@ InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_d
     throw Error("frame " + std::to_string(frame.index) + ": colour image must be 8-bit BGR of the camera's size " +
                 std::to_string(w) + "x" + std::to_string(h));
   }
-  float table[256];
-  for (int v = 0; v < 256; ++v) table[v] = srgb_decode(v / 255.f);
+  const auto& table = srgb_decode_table();
   in.color.resize(static_cast<size_t>(w) * h * 3);
   for (int j = 0; j < h; ++j) {
     const uint8_t* row = frame.color.ptr<uint8_t>(j);

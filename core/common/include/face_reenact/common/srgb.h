@@ -3,6 +3,7 @@
 // values in [0,1]. The renderer, albedo and tracker work in linear RGB; images and meshes on
 // disk are sRGB-encoded.
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 namespace face_reenact {
@@ -16,6 +17,16 @@ T srgb_encode(T linear) {
 template <typename T>
 T srgb_decode(T encoded) {
   return encoded <= T(0.04045) ? encoded / T(12.92) : std::pow((encoded + T(0.055)) / T(1.055), T(2.4));
+}
+
+// srgb_decode of every 8-bit value (v / 255), computed once: images arrive as bytes.
+inline const std::array<float, 256>& srgb_decode_table() {
+  static const std::array<float, 256> table = [] {
+    std::array<float, 256> t{};
+    for (int v = 0; v < 256; ++v) t[static_cast<size_t>(v)] = srgb_decode(static_cast<float>(v) / 255.0f);
+    return t;
+  }();
+  return table;
 }
 
 }  // namespace face_reenact
