@@ -183,6 +183,7 @@ struct TrackArgs {
   bool ablation = false;
   int frames = 0;  // 0 = all
   int calibration_frames = 5;
+  std::string calibration_start = "neutral";
   int min_face_width = 40;
   int calibration_min_face_width = -1;  // -1: --min-face-width
   double fov_deg = 60.0;
@@ -205,6 +206,8 @@ constexpr EnergyConfig kAblation[] = {
 TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, bool depth_available) {
   TrackerOptions o;
   o.calibration_frames = a.calibration_frames;
+  if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
+    throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
   o.calibration_min_face_width_px = a.calibration_min_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
@@ -420,6 +423,15 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_ms"] = r.calibration_ms;
   j["calibrated"] = tracker.calibrated();
   j["calibration_frame"] = r.calibration_frame;
+  if (tracker.calibrated()) {
+    // Which start the joint solve kept and the final energy from each start solved (null: not solved).
+    const FaceTracker::CalibrationStartReport& cs = tracker.calibration_start_report();
+    auto energy = [](double e) { return std::isnan(e) ? nlohmann::json() : nlohmann::json(e); };
+    j["calibration_start"] = {{"option", calibration_start_name(tracker.options().calibration_start)},
+                              {"kept", calibration_start_name(cs.kept)},
+                              {"energy_from_neutral", energy(cs.neutral_energy)},
+                              {"energy_from_per_frame_fits", energy(cs.per_frame_fits_energy)}};
+  }
   j["statuses"] = r.statuses;
   j["recoveries"] = r.recoveries;
   j["max_frames_to_recover"] = r.max_frames_to_recover;
@@ -556,6 +568,10 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--frames", targs->frames, "Track at most this many frames (default: all)")->check(CLI::Range(1, 100000000));
   tc->add_option("--calibration-frames", targs->calibration_frames, "Frames of the joint identity calibration (default 5)")
       ->check(CLI::Range(1, 64));
+  tc->add_option("--calibration-start", targs->calibration_start,
+                 "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
+                 "(both, keeping the lower final energy: a better surface on some actors, twice the time)")
+      ->check(CLI::IsMember({"neutral", "per-frame-fits", "lower-energy"}));
   tc->add_option("--min-face-width", targs->min_face_width,
                  "Solve on pyramid levels where the face is at least this wide (px; default 40, 0 = the paper's levels 2 and 1)")
       ->check(CLI::Range(0, 4096));

@@ -71,6 +71,9 @@ TEST(FaceTrackerOptions, DefaultsValidAndBadValuesRejected) {
   bad.calibration_frame_stride = 0;
   expect_invalid(bad, "calibration_frame_stride");
   bad = o;
+  bad.calibration_start = static_cast<CalibrationStart>(7);
+  expect_invalid(bad, "calibration_start");
+  bad = o;
   bad.tracking_solver.schedule.clear();
   expect_invalid(bad, "tracking_solver");
   bad = o;
@@ -228,9 +231,10 @@ TEST(FaceTracker, CalibratesThenTracksASequence) {
 }
 
 // An actor with a neutral face and an identity far from the mean: the fits before calibration
-// (mean identity) read expressions into the shape difference; the calibration starts from the
-// neutral expression instead and recovers a neutral near zero (TrackerOptions::
-// calibration_starts_neutral). Prints both, so the docs' figures can be checked.
+// (mean identity) read expressions into the shape difference. Started from those expressions the
+// joint solve keeps much of them. CalibrationStart::kLowerEnergy also solves from neutral (the
+// default start) and keeps the lower final energy; here that is the neutral start, which
+// recovers a neutral near zero. Prints the figures, so the docs' can be checked.
 TEST(FaceTracker, CalibrationOfANeutralActorFindsANeutralExpression) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
@@ -241,31 +245,50 @@ TEST(FaceTracker, CalibrationOfANeutralActorFindsANeutralExpression) {
   actor.delta.setZero();
   auto max_weight = [](const Eigen::VectorXf& d) { return d.size() ? d.cwiseAbs().maxCoeff() : 0.f; };
   float pre_calibration = 0;
-  std::array<float, 2> largest{}, total{};  // [0]: neutral start, [1]: from the fits
-  for (const bool neutral_start : {true, false}) {
+  float fits_total = 0;            // neutral's sum of weights, started from the fits' expressions
+  double fits_energy = 0;          // that solve's final energy
+  for (const CalibrationStart start : {CalibrationStart::kPerFrameFits, CalibrationStart::kLowerEnergy}) {
     TrackerOptions o = fast_options(3);
-    o.calibration_starts_neutral = neutral_start;
+    o.calibration_start = start;
     FaceTracker tracker(*model, o);
+    TrackedFrame t;
     for (int k = 0; k < 3; ++k) {
       gpu::FaceParameters p = actor;
       p.euler.y() += 0.12f * static_cast<float>(k - 1);
-      const TrackedFrame t = tracker.Track(render_frame(tracker.cpu_solver(), p));
+      t = tracker.Track(render_frame(tracker.cpu_solver(), p));
       ASSERT_TRUE(t.has_parameters) << t.message;
       if (k == 0) pre_calibration = std::max(pre_calibration, max_weight(t.params.delta));
     }
     ASSERT_TRUE(tracker.calibrated());
-    const size_t i = neutral_start ? 0 : 1;
-    largest[i] = max_weight(tracker.neutral().delta);
-    total[i] = tracker.neutral().delta.cwiseAbs().sum();
-    std::printf("neutral start %d: neutral expression largest weight %.3f, sum of 52 %.3f (before calibration: %.3f)\n",
-                neutral_start ? 1 : 0, largest[i], total[i], pre_calibration);
+    const FaceTracker::CalibrationStartReport& r = tracker.calibration_start_report();
+    const float largest = max_weight(tracker.neutral().delta);
+    const float total = tracker.neutral().delta.cwiseAbs().sum();
+    std::printf("start %s: kept %s, E neutral %.4f, E fits %.4f; neutral expression largest weight %.3f, sum of 52 %.3f "
+                "(before calibration: %.3f)\n",
+                calibration_start_name(start), calibration_start_name(r.kept), r.neutral_energy, r.per_frame_fits_energy,
+                largest, total, pre_calibration);
+    if (start == CalibrationStart::kPerFrameFits) {
+      EXPECT_EQ(r.kept, CalibrationStart::kPerFrameFits);
+      EXPECT_TRUE(std::isnan(r.neutral_energy)) << "only one start was asked for";
+      fits_total = total;
+      fits_energy = r.per_frame_fits_energy;
+      continue;
+    }
+    // Both starts were solved; the kept one is the lower energy and its solve is the summary.
+    ASSERT_TRUE(std::isfinite(r.neutral_energy) && std::isfinite(r.per_frame_fits_energy)) << t.message;
+    EXPECT_NEAR(r.per_frame_fits_energy, fits_energy, 1e-3 * fits_energy) << "the same solve as kPerFrameFits";
+    const double lower = std::min(r.neutral_energy, r.per_frame_fits_energy);
+    EXPECT_EQ(r.kept, r.neutral_energy <= r.per_frame_fits_energy ? CalibrationStart::kNeutral : CalibrationStart::kPerFrameFits);
+    EXPECT_DOUBLE_EQ(tracker.calibration_summary().final_energy.total(), lower);
+    EXPECT_NE(t.message.find("against"), std::string::npos) << "the message names both energies: " << t.message;
+    // Measured: kept neutral; largest 0.09 / sum 0.54, against sum 2.4 from the fits (0.85
+    // before calibration); the neutral is read by the tracking re-fit (neutral_from_tracking).
+    EXPECT_EQ(r.kept, CalibrationStart::kNeutral);
+    EXPECT_LT(largest, 0.35f);
+    EXPECT_LT(total, 2.5f);
+    EXPECT_GT(fits_total, 2.0f * total) << "starting from the fits' expressions should keep much of them";
   }
-  // Measured: largest 0.09 / sum 0.54 from neutral, 0.68 / 2.4 from the fits (0.85 before); the
-  // neutral is read by the tracking re-fit (neutral_from_tracking) in both.
   EXPECT_GT(pre_calibration, 0.5f) << "the fits before calibration should read a false expression here";
-  EXPECT_LT(largest[0], 0.35f);
-  EXPECT_LT(total[0], 2.5f);
-  EXPECT_GT(total[1], 2.0f * total[0]) << "starting from the fits' expressions should keep much of them";
 }
 
 TEST(FaceTracker, SurvivesBadFramesAndRecovers) {

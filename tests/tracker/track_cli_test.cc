@@ -119,6 +119,12 @@ TEST(TrackCli, TracksASyntheticRecordingEndToEnd) {
   EXPECT_EQ(report["calibration_min_face_width_px"], 20);  // follows --min-face-width unless given
   EXPECT_EQ(report["calibrated"], true);
   EXPECT_EQ(report["calibration_frame"], 2);
+  // The default calibration solves from the neutral start only (FaceTracker tests cover both).
+  const nlohmann::json& cs = report["calibration_start"];
+  EXPECT_EQ(cs["option"], "neutral");
+  EXPECT_EQ(cs["kept"], "neutral");
+  EXPECT_TRUE(cs["energy_from_neutral"].is_number()) << cs.dump();
+  EXPECT_TRUE(cs["energy_from_per_frame_fits"].is_null()) << cs.dump();
   EXPECT_EQ(report["ground_truth"], true);
   EXPECT_EQ(report["frames_evaluated"], 8);  // frames 2..9: from the calibration on
   // Loose bounds at 320x240 (a face ~40 px wide, solved on levels 1 and 0); the issue's
@@ -185,6 +191,25 @@ TEST(TrackCli, AblationReportsEachEnergyConfiguration) {
   // Depth is what fixes the distance: without it the surface error is far larger.
   EXPECT_LT(report["ablation"]["all"]["geometric_error_mm_mean"].get<double>(),
             report["ablation"]["feature"]["geometric_error_mm_mean"].get<double>());
+}
+
+// --calibration-start lower-energy: the report names both starts' final energies and keeps the
+// lower one.
+TEST(TrackCli, LowerEnergyCalibrationSolvesBothStartsAndKeepsTheLower) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "lower_energy";
+  fs::create_directories(out);
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2", "--frames", "3",
+                                             "--calibration-start", "lower-energy", "--quiet", "--min-face-width", "20",
+                                             "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json cs = read_json(out / "r.json")["calibration_start"];
+  EXPECT_EQ(cs["option"], "lower-energy");
+  ASSERT_TRUE(cs["energy_from_neutral"].is_number() && cs["energy_from_per_frame_fits"].is_number()) << cs.dump();
+  const bool neutral_lower = cs["energy_from_neutral"].get<double>() <= cs["energy_from_per_frame_fits"].get<double>();
+  EXPECT_EQ(cs["kept"], neutral_lower ? "neutral" : "per-frame-fits") << cs.dump();
 }
 
 // A copy of the recording with frames 4-5 blank (no face, no depth, no landmarks) and frame 6
@@ -315,6 +340,9 @@ TEST(TrackCli, BadArgumentsFailCleanly) {
   r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "no/such/dir/p.jsonl").string()});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--out"), std::string::npos) << r.output;
+  r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(), "--calibration-start", "sideways"});
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--calibration-start"), std::string::npos) << r.output;
   r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(), "--calibration-frames", "0"});
   EXPECT_NE(r.exit_code, 0);
   EXPECT_FALSE(fs::exists(tmp / "p.jsonl"));  // nothing half-written

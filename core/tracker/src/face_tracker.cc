@@ -147,6 +147,25 @@ const char* landmark_source_choice_name(LandmarkSourceChoice choice) {
   return "?";
 }
 
+const char* calibration_start_name(CalibrationStart start) {
+  switch (start) {
+    case CalibrationStart::kNeutral: return "neutral";
+    case CalibrationStart::kPerFrameFits: return "per-frame-fits";
+    case CalibrationStart::kLowerEnergy: return "lower-energy";
+  }
+  return "?";
+}
+
+bool parse_calibration_start(const std::string& name, CalibrationStart* start) {
+  for (const CalibrationStart c : {CalibrationStart::kNeutral, CalibrationStart::kPerFrameFits, CalibrationStart::kLowerEnergy}) {
+    if (name == calibration_start_name(c)) {
+      *start = c;
+      return true;
+    }
+  }
+  return false;
+}
+
 const char* tracking_status_name(TrackingStatus status) {
   switch (status) {
     case TrackingStatus::kCalibrating: return "calibrating";
@@ -197,6 +216,9 @@ bool LossDetectionOptions::IsValid(std::string* why) const {
 
 bool TrackerOptions::IsValid(std::string* why) const {
   if (calibration_frames < 1 || calibration_frames > 64) return fail(why, "tracker: calibration_frames must be 1..64");
+  if (calibration_start != CalibrationStart::kNeutral && calibration_start != CalibrationStart::kPerFrameFits &&
+      calibration_start != CalibrationStart::kLowerEnergy)
+    return fail(why, "tracker: calibration_start is not one of neutral, per-frame-fits, lower-energy");
   if (calibration_frame_stride < 1 || calibration_frame_stride > 10000) {
     return fail(why, "tracker: calibration_frame_stride must be 1..10000");
   }
@@ -249,6 +271,7 @@ void FaceTracker::Reset() {
   collecting_ = true;
   calibration_requested_.store(false);
   calibration_summary_ = SolverSummary();
+  calibration_start_report_ = CalibrationStartReport();
   calibration_inputs_.clear();
   calibration_starts_.clear();
   last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
@@ -531,10 +554,43 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   const SolverOptions so =
       WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()));
   const std::vector<gpu::FaceParameters> starts = params;
-  if (options_.calibration_starts_neutral)
-    for (auto& p : params) p.delta.setZero();
+  // One joint solve from the per-frame fits' expressions or from neutral, into `*p`.
+  auto solve_from = [&](CalibrationStart start, std::vector<gpu::FaceParameters>* p) {
+    *p = starts;
+    if (start == CalibrationStart::kNeutral)
+      for (auto& f : *p) f.delta.setZero();
+    return solver_.SolveFrames(inputs, layout, so, p);
+  };
+  auto usable = [](const SolverSummary& s) {
+    return s.termination != Termination::kStopped && s.termination != Termination::kNoValidResiduals &&
+           s.termination != Termination::kNonFinite;
+  };
+  CalibrationStartReport report;
+  report.kept = options_.calibration_start == CalibrationStart::kPerFrameFits ? CalibrationStart::kPerFrameFits
+                                                                             : CalibrationStart::kNeutral;
   const auto t0 = Clock::now();
-  SolverSummary summary = solver_.SolveFrames(inputs, layout, so, &params);
+  SolverSummary summary = solve_from(report.kept, &params);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  (report.kept == CalibrationStart::kNeutral ? report.neutral_energy : report.per_frame_fits_energy) =
+      usable(summary) ? summary.final_energy.total() : nan;
+  bool fits_start_differs = false;  // all-zero per-frame expressions are the neutral start again
+  for (const auto& p : starts) fits_start_differs = fits_start_differs || (p.delta.size() > 0 && p.delta.cwiseAbs().maxCoeff() > 0.f);
+  if (options_.calibration_start == CalibrationStart::kLowerEnergy && fits_start_differs &&
+      summary.termination != Termination::kStopped) {
+    std::vector<gpu::FaceParameters> other;
+    SolverSummary other_summary = solve_from(CalibrationStart::kPerFrameFits, &other);
+    report.per_frame_fits_energy = usable(other_summary) ? other_summary.final_energy.total() : nan;
+    // The lower energy wins among the usable results (a tie keeps neutral); a stop in either
+    // solve stops the calibration.
+    const bool take_other =
+        other_summary.termination == Termination::kStopped ||
+        (usable(other_summary) && (!usable(summary) || other_summary.final_energy.total() < summary.final_energy.total()));
+    if (take_other) {
+      summary = std::move(other_summary);
+      params = std::move(other);
+      report.kept = CalibrationStart::kPerFrameFits;
+    }
+  }
   out->times.calibration_ms = ms_since(t0);
   const int frames = static_cast<int>(inputs.size());
   if (summary.termination == Termination::kStopped) {
@@ -582,6 +638,7 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   }
   calibrated_ = true;
   collecting_ = false;
+  calibration_start_report_ = report;
   energy_history_.clear();  // energies with the new identity are not comparable to the old
   // This frame was the last calibration frame: its jointly fitted parameters are the result.
   out->params = params.back();
@@ -591,7 +648,13 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
                                                      options_.calibration_solver.energy.inner_landmarks_only);
   out->has_parameters = true;
   out->status = TrackingStatus::kCalibrated;
-  out->message = "calibrated over " + std::to_string(frames) + " frames (" + summary.BriefReport() + ")";
+  std::string start_note = std::string("from the ") + (report.kept == CalibrationStart::kNeutral ? "neutral" : "per-frame fits'") +
+                           " expressions";
+  if (!std::isnan(report.neutral_energy) && !std::isnan(report.per_frame_fits_energy))
+    start_note += format(", E %.4g against %.4g", summary.final_energy.total(),
+                         report.kept == CalibrationStart::kNeutral ? report.per_frame_fits_energy : report.neutral_energy) +
+                  (report.kept == CalibrationStart::kNeutral ? " from the per-frame fits'" : " from neutral");
+  out->message = "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + summary.BriefReport() + ")";
   calibration_summary_ = std::move(summary);
 }
 

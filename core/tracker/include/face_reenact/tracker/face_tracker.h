@@ -26,6 +26,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <stop_token>
 #include <string>
@@ -79,6 +80,17 @@ struct LossDetectionOptions {
   bool IsValid(std::string* why) const;
 };
 
+// Where the joint calibration solve starts each frame's expression (TrackerOptions::
+// calibration_start).
+enum class CalibrationStart {
+  kNeutral,       // all blendshape weights 0: the identity has to explain the shape
+  kPerFrameFits,  // the expressions the per-frame fits (mean or previous identity) found
+  kLowerEnergy,   // both, keeping the result with the lower final energy (twice the time)
+};
+const char* calibration_start_name(CalibrationStart start);  // "neutral", "per-frame-fits", ...
+// Parses calibration_start_name's words; false for anything else.
+bool parse_calibration_start(const std::string& name, CalibrationStart* start);
+
 struct TrackerOptions {
   // Calibration (Sec. 6.3): jointly over this many usable frames. 1 = the first usable frame.
   int calibration_frames = 5;
@@ -88,15 +100,18 @@ struct TrackerOptions {
   // Leading identity / albedo components solved during calibration (-1 = all of the model's).
   int calibration_identity_components = -1;
   int calibration_albedo_components = -1;
-  // The joint solve starts every calibration frame from the neutral expression (all weights 0),
-  // not from the expression its per-frame fit found. Those fits use the mean identity, and their
-  // expression absorbs the difference between the mean face and the actor: on the demo's target,
-  // a closed mouth, they read jawOpen 1.0, tongueOut 1.0 and mouthShrugLower 1.0, the joint solve
-  // kept most of it (identity and expression trade along a valley), and the actor's neutral held
-  // an open jaw (0.9), which the transfer then subtracted. Starting neutral, the identity explains
-  // the shape: docs/tracking-pipeline.md, "Calibration start". The actor is expected near neutral
-  // while calibrating (Sec. 6.3); a real expression there is still found from 0.
-  bool calibration_starts_neutral = true;
+  // Where the joint solve starts each calibration frame's expression. The fits before
+  // calibration use the mean identity, and their expressions absorb the difference between the
+  // mean face and the actor (on the demo's target, a closed mouth read jawOpen 1.0; started from
+  // there, the actor's neutral held an open jaw, which the transfer of Eq. 15 then subtracted).
+  // Identity and expression trade along a valley, so which start fits the surface better depends
+  // on the actor, and the lower final energy picks it (kLowerEnergy, measured on five synthetic
+  // actors). The default is neutral all the same: the actor is expected at rest while
+  // calibrating (Sec. 6.3), and the fits' start, where it wins on energy, brings an identity that
+  // explains the face together with an expression offset the neutral then keeps: on the demos
+  // where it won, the reenacted jaw followed the source worse (0.29 -> 0.40 and 0.20 -> 0.28 off).
+  // docs/tracking-pipeline.md, "Calibration start".
+  CalibrationStart calibration_start = CalibrationStart::kNeutral;
   // The actor's neutral expression (neutral(), subtracted by Eq. 15) is the mean over the
   // calibration frames re-fitted by the tracking solve (identity fixed, the tracking prior),
   // not the joint solve's own expressions: the transfer subtracts it from tracked expressions,
@@ -257,8 +272,16 @@ class FaceTracker {
   // (the mean over the calibration frames) and the pose/lighting of the first calibration
   // frame. Before calibration: the mean face (alpha = beta = delta = 0) at a frontal pose.
   const gpu::FaceParameters& neutral() const { return neutral_; }
-  // Summary of the last joint calibration solve (empty before one ran).
+  // Summary of the last joint calibration solve (empty before one ran); with kLowerEnergy, the
+  // solve that was kept.
   const SolverSummary& calibration_summary() const { return calibration_summary_; }
+  // Which start the last completed calibration kept, and the final energy from each start tried.
+  struct CalibrationStartReport {
+    CalibrationStart kept = CalibrationStart::kNeutral;  // kNeutral or kPerFrameFits
+    double neutral_energy = std::numeric_limits<double>::quiet_NaN();  // NaN: not solved
+    double per_frame_fits_energy = std::numeric_limits<double>::quiet_NaN();
+  };
+  const CalibrationStartReport& calibration_start_report() const { return calibration_start_report_; }
   // The fit of the last frame with a trustworthy fit (has_parameters false before any).
   const TrackedFrame& last_good() const { return last_good_; }
   int calibration_frames_collected() const { return static_cast<int>(calibration_inputs_.size()); }
@@ -296,6 +319,7 @@ class FaceTracker {
   gpu::FaceParameters neutral_;
   gpu::FaceParameters identity_;  // alpha/beta used while tracking (mean face before calibration)
   SolverSummary calibration_summary_;
+  CalibrationStartReport calibration_start_report_;
   std::vector<InputFrame> calibration_inputs_;
   std::vector<gpu::FaceParameters> calibration_starts_;
   int64_t last_calibration_pick_ = -1;
