@@ -61,6 +61,9 @@ TEST(TrackerPcg, StackedJacobianEqualsTheDenseStack) {
   stacked.MultiplyTransposed(v, &jtv);
   EXPECT_LT((jx - dense * x).norm(), 1e-12 * jx.norm());
   EXPECT_LT((jtv - dense.transpose() * v).norm(), 1e-12 * jtv.norm());
+  Eigen::VectorXd jtjx;
+  stacked.MultiplyNormal(x, &jtjx);  // the one-pass J^T (J x)
+  EXPECT_LT((jtjx - dense.transpose() * (dense * x)).norm(), 1e-12 * jtjx.norm());
   const Eigen::MatrixXd gram = dense.transpose() * dense;
   EXPECT_LT((stacked.Gram() - gram).norm(), 1e-12 * gram.norm());
   EXPECT_LT((stacked.ColumnSquaredNorms() - gram.diagonal()).norm(), 1e-12 * gram.diagonal().norm());

@@ -62,9 +62,30 @@ void StackedJacobian::MultiplyTransposed(const Eigen::VectorXd& v, Eigen::Vector
   }
 }
 
+void StackedJacobian::MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
+  y->setZero(cols());
+  for (int f = 0; f < num_frames(); ++f) {
+    const JacobianMatrix& j = *blocks_[f];
+    const Eigen::VectorXd& xl = gather(x, f);
+    local_y_.setZero(j.cols());
+    for (Eigen::Index i = 0; i < j.rows(); ++i) {
+      const auto row = j.row(i);
+      local_y_.noalias() += row.dot(xl) * row.transpose();
+    }
+    scatter_add(local_y_, f, y);
+  }
+}
+
 Eigen::VectorXd StackedJacobian::ColumnSquaredNorms() const {
   Eigen::VectorXd out = Eigen::VectorXd::Zero(cols());
-  for (int f = 0; f < num_frames(); ++f) scatter_add(blocks_[f]->colwise().squaredNorm().transpose(), f, &out);
+  for (int f = 0; f < num_frames(); ++f) {
+    // Row by row: one streaming pass over the row-major block (a column-wise reduction strides
+    // across it).
+    const JacobianMatrix& j = *blocks_[f];
+    local_y_.setZero(j.cols());
+    for (Eigen::Index i = 0; i < j.rows(); ++i) local_y_ += j.row(i).transpose().cwiseAbs2();
+    scatter_add(local_y_, f, &out);
+  }
   return out;
 }
 
@@ -88,14 +109,13 @@ Eigen::MatrixXd StackedJacobian::Gram() const {
 }
 
 MatrixFreeNormalOperator::MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping)
-    : jacobian_(jacobian), damping_(damping), jx_(jacobian.rows()) {
+    : jacobian_(jacobian), damping_(damping) {
   diagonal_ = jacobian_.ColumnSquaredNorms();
   diagonal_ *= (1.0 + damping_);
 }
 
 void MatrixFreeNormalOperator::Apply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
-  jacobian_.Multiply(x, &jx_);
-  jacobian_.MultiplyTransposed(jx_, y);
+  jacobian_.MultiplyNormal(x, y);
   if (damping_ > 0) y->array() += (damping_ / (1.0 + damping_)) * diagonal_.array() * x.array();
 }
 
@@ -133,7 +153,11 @@ PcgSummary Pcg(const NormalOperator& a, const Eigen::VectorXd& b, const PcgOptio
   const Eigen::VectorXd& diag = a.Diagonal();
   // Jacobi preconditioner; columns the data does not touch (zero diagonal) are left alone.
   for (Eigen::Index k = 0; k < diag.size(); ++k) s->inverse_diagonal[k] = diag[k] > 0 ? 1.0 / diag[k] : 0.0;
-  a.Apply(*x, &s->q);
+  // The solver starts from zero, where A x is zero without a pass over J.
+  if (x->isZero(0.0))
+    s->q.setZero();
+  else
+    a.Apply(*x, &s->q);
   s->r = b - s->q;
   const double b_norm = b.norm();
   summary.initial_residual_norm = s->r.norm();

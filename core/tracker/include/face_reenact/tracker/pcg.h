@@ -31,6 +31,11 @@ class StackedJacobian {
   void Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const;
   // y = J^T v (y is resized to cols()).
   void MultiplyTransposed(const Eigen::VectorXd& v, Eigen::VectorXd* y) const;
+  // y = J^T (J x) (y is resized to cols()) in one pass over J: row by row, (J_i . x) J_i^T is
+  // added. J is the largest thing the PCG touches (9 MB at 640x480's level 2) and on CPUs the
+  // products are bound by memory bandwidth, so one pass instead of Multiply's and
+  // MultiplyTransposed's two halves their cost.
+  void MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* y) const;
   // diag(J^T J).
   Eigen::VectorXd ColumnSquaredNorms() const;
   // J^T J, summed block by block.
@@ -57,7 +62,7 @@ class NormalOperator {
   virtual const Eigen::VectorXd& Diagonal() const = 0;
 };
 
-// Applies J then J^T; owns one residual-sized scratch vector.
+// Applies J^T J without forming it (StackedJacobian::MultiplyNormal: one pass over J).
 class MatrixFreeNormalOperator final : public NormalOperator {
  public:
   MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping);
@@ -71,7 +76,6 @@ class MatrixFreeNormalOperator final : public NormalOperator {
   StackedJacobian jacobian_;  // a view: the blocks stay the caller's
   double damping_;
   Eigen::VectorXd diagonal_;
-  mutable Eigen::VectorXd jx_;
 };
 
 // Assembles A = J^T J + D once (exploiting symmetry).
