@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "command_registry.h"
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/live/live_session.h"
 #include "face_reenact/output/frame_source.h"
@@ -94,7 +95,7 @@ void run_webcam(const WebcamArgs& args) {
     source = make_test_pattern_source(writer_options.width, writer_options.height, rate->fps());
   } else {
     source = open_media_source({.path = args.input, .loop = args.loop});
-    hold = is_still_image(args.input);  // a picture stays up until stopped
+    hold = capture::is_still_image(args.input);  // a picture stays up until stopped
   }
 
   V4l2LoopbackWriter writer(writer_options);

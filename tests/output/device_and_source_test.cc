@@ -9,6 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/output/frame_source.h"
@@ -149,7 +150,7 @@ TEST(WebcamCommand, BenchRuns) {
 TEST(MediaSource, StillImageGivesOneFrameThenEnd) {
   fs::path png = temp_dir() / "still.png";
   cv::imwrite(png.string(), cv::Mat(30, 40, CV_8UC3, cv::Scalar(5, 6, 7)));
-  EXPECT_TRUE(is_still_image(png.string()));
+  EXPECT_TRUE(capture::is_still_image(png.string()));
   auto source = open_media_source({.path = png.string()});
   SourceFrame f;
   std::string err;

@@ -10,10 +10,9 @@
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
 #include "face_reenact/capture/json_checks.h"
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 
@@ -362,9 +361,7 @@ RgbdFrame RecordingReader::read(int index) const {
   if (color.empty()) throw Error(what + ": cannot decode colour image '" + color_path + "' (truncated or not a PNG?)");
   if (color.depth() != CV_8U)
     throw Error(what + ": colour image '" + color_path + "' must have 8 bits per channel");
-  if (color.channels() == 1) cv::cvtColor(color, color, cv::COLOR_GRAY2BGR);
-  else if (color.channels() == 4) cv::cvtColor(color, color, cv::COLOR_BGRA2BGR);
-  else if (color.channels() != 3) throw Error(what + ": colour image '" + color_path + "' has an unsupported channel count");
+  if (!to_bgr8(&color)) throw Error(what + ": colour image '" + color_path + "' has an unsupported channel count");
   if (color.size() != size)
     throw Error(what + ": colour image '" + color_path + "' is " + std::to_string(color.cols) + "x" + std::to_string(color.rows) +
                 ", recording.json says " + std::to_string(size.width) + "x" + std::to_string(size.height));
@@ -409,25 +406,14 @@ bool VideoReader::Options::IsValid(std::string* why) const {
   return true;
 }
 
-struct VideoReader::Impl {
-  cv::VideoCapture capture;
-};
-
-VideoReader::VideoReader(const std::string& path, const Options& options) : impl_(std::make_unique<Impl>()), path_(path) {
+VideoReader::VideoReader(const std::string& path, const Options& options) : path_(path) {
   std::string why;
   if (!options.IsValid(&why)) throw Error("video '" + path + "': " + why);
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) throw Error("video '" + path + "': no such file");
-  if (!impl_->capture.open(path, cv::CAP_FFMPEG) || !impl_->capture.isOpened())
-    throw Error("video '" + path + "': cannot open (not a video file OpenCV/FFmpeg can decode)");
-  const int w = static_cast<int>(impl_->capture.get(cv::CAP_PROP_FRAME_WIDTH));
-  const int h = static_cast<int>(impl_->capture.get(cv::CAP_PROP_FRAME_HEIGHT));
-  if (w <= 0 || h <= 0 || w > 16384 || h > 16384) throw Error("video '" + path + "': invalid frame size");
-  info_.camera = camera_from_fov(w, h, options.horizontal_fov_deg);
-  const double fps = impl_->capture.get(cv::CAP_PROP_FPS);
-  info_.fps = std::isfinite(fps) && fps > 0 && fps <= 1000 ? fps : 30.0;  // unknown: assume 30
-  const double count = impl_->capture.get(cv::CAP_PROP_FRAME_COUNT);
-  info_.frame_count = std::isfinite(count) && count > 0 && count < 1e8 ? static_cast<int>(count) : -1;  // container's estimate
+  video_ = std::make_unique<VideoFileReader>(path);
+  info_.camera = camera_from_fov(video_->width(), video_->height(), options.horizontal_fov_deg);
+  info_.fps = video_->fps();
+  // The container's estimate (-1: unknown); below 1e9, so it fits.
+  info_.frame_count = static_cast<int>(video_->frame_count());
   info_.has_depth = false;
   info_.source = path;
   info_.generator = "video file";
@@ -436,19 +422,17 @@ VideoReader::VideoReader(const std::string& path, const Options& options) : impl
 VideoReader::~VideoReader() = default;
 
 bool VideoReader::read_next(RgbdFrame* frame) {
+  const int index = static_cast<int>(video_->frames_read());
   cv::Mat image;
-  if (!impl_->capture.read(image) || image.empty()) return false;
-  if (image.depth() != CV_8U) throw Error("video '" + path_ + "': frame " + std::to_string(next_) + " is not 8-bit");
-  if (image.channels() == 1) cv::cvtColor(image, image, cv::COLOR_GRAY2BGR);
-  else if (image.channels() == 4) cv::cvtColor(image, image, cv::COLOR_BGRA2BGR);
+  if (!video_->read(&image)) return false;
+  // The camera (intrinsics, and every consumer's buffers) is sized by the first frame.
   if (image.cols != info_.camera.width || image.rows != info_.camera.height)
-    throw Error("video '" + path_ + "': frame " + std::to_string(next_) + " changes size");
+    throw Error("video '" + path_ + "': frame " + std::to_string(index) + " changes size");
   *frame = RgbdFrame();
-  frame->index = next_;
-  frame->timestamp_s = next_ / info_.fps;  // container timestamps are unreliable across backends
+  frame->index = index;
+  frame->timestamp_s = index / info_.fps;  // container timestamps are unreliable across backends
   frame->color = image;
   frame->camera = info_.camera;
-  ++next_;
   return true;
 }
 

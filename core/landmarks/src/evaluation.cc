@@ -10,6 +10,7 @@
 #include <sstream>
 #include <time.h>
 
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/landmarks/frame_source.h"
 
@@ -175,7 +176,7 @@ EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector
        !ec && it != end; it.increment(ec)) {
     if (!it->is_regular_file(ec)) continue;
     const fs::path& p = it->path();
-    if (!has_still_image_extension(p.string())) continue;
+    if (!capture::has_still_image_extension(p.string())) continue;
     fs::path pts = p;
     pts.replace_extension(".pts");
     if (fs::is_regular_file(pts, ec)) images.push_back(p);

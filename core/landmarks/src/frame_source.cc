@@ -2,14 +2,13 @@
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
 #include <algorithm>
-#include <cmath>
 #include <filesystem>
 #include <map>
 #include <mutex>
 
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 
 namespace face_reenact::landmarks {
@@ -21,22 +20,14 @@ std::string lower_extension(const std::string& path) {
   return ext;
 }
 
-Image from_mat(const cv::Mat& mat) {
+// A decoded 8-bit BGR picture (what capture's readers deliver) as an Image.
+Image from_bgr8(const cv::Mat& bgr) {
+  const cv::Mat packed = bgr.isContinuous() ? bgr : bgr.clone();
   Image image;
-  cv::Mat bgr;
-  if (mat.channels() == 1) {
-    cv::cvtColor(mat, bgr, cv::COLOR_GRAY2BGR);
-  } else if (mat.channels() == 4) {
-    cv::cvtColor(mat, bgr, cv::COLOR_BGRA2BGR);
-  } else {
-    bgr = mat;
-  }
-  if (bgr.depth() != CV_8U) bgr.convertTo(bgr, CV_8U);
-  if (!bgr.isContinuous()) bgr = bgr.clone();
-  image.width = bgr.cols;
-  image.height = bgr.rows;
+  image.width = packed.cols;
+  image.height = packed.rows;
   image.format = PixelFormat::kBGR8;
-  image.pixels.assign(bgr.data, bgr.data + size_t(bgr.cols) * size_t(bgr.rows) * 3);
+  image.pixels.assign(packed.data, packed.data + size_t(packed.cols) * size_t(packed.rows) * 3);
   return image;
 }
 
@@ -72,48 +63,29 @@ class StillImageSource : public FrameSource {
 
 class VideoFileSource : public FrameSource {
  public:
-  explicit VideoFileSource(const std::string& path) : path_(path) {
-    if (!capture_.open(path, cv::CAP_FFMPEG) || !capture_.isOpened()) {
-      throw Error("video '" + path + "': cannot be opened (unknown container/codec or not a video)");
-    }
-    fps_ = capture_.get(cv::CAP_PROP_FPS);
-    if (!(fps_ > 0 && fps_ < 1000)) fps_ = 30.0;
-    const double count = capture_.get(cv::CAP_PROP_FRAME_COUNT);
-    count_ = count > 0 && count < 1e9 ? int64_t(count) : -1;
-  }
+  explicit VideoFileSource(const std::string& path) : video_(path) {}
   bool Next(Frame* frame) override {
-    cv::Mat mat;
+    const int64_t index = video_.frames_read();
+    cv::Mat bgr;
     try {
-      if (!capture_.read(mat) || mat.empty()) return false;
-    } catch (const cv::Exception&) {
+      if (!video_.read(&bgr)) return false;
+    } catch (const Error&) {
       return false;  // a damaged tail ends the video instead of the program
     }
-    frame->image = from_mat(mat);
-    frame->index = index_;
-    frame->timestamp_s = double(index_) / fps_;
-    ++index_;
+    frame->image = from_bgr8(bgr);
+    frame->index = index;
+    frame->timestamp_s = double(index) / video_.fps();
     return true;
   }
-  std::string Describe() const override { return "video '" + path_ + "'"; }
-  double fps() const override { return fps_; }
-  int64_t frame_count_hint() const override { return count_; }
+  std::string Describe() const override { return "video '" + video_.path() + "'"; }
+  double fps() const override { return video_.fps(); }
+  int64_t frame_count_hint() const override { return video_.frame_count(); }
 
  private:
-  std::string path_;
-  cv::VideoCapture capture_;
-  double fps_ = 30;
-  int64_t count_ = -1;
-  int64_t index_ = 0;
+  capture::VideoFileReader video_;
 };
 
 }  // namespace
-
-bool has_still_image_extension(const std::string& path) {
-  static const char* const kExtensions[] = {".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".pnm",
-                                            ".bmp", ".tif", ".tiff", ".webp"};
-  const std::string ext = lower_extension(path);
-  return std::any_of(std::begin(kExtensions), std::end(kExtensions), [&](const char* e) { return ext == e; });
-}
 
 void register_frame_source(const std::string& extension, FrameSourceOpener opener) {
   std::lock_guard<std::mutex> lock(registry_mutex());
@@ -130,22 +102,11 @@ std::unique_ptr<FrameSource> open_frame_source(const std::string& path) {
     if (auto it = registry().find(lower_extension(path)); it != registry().end()) opener = it->second;
   }
   if (opener) return opener(path);
-  if (has_still_image_extension(path)) return std::make_unique<StillImageSource>(path);
+  if (capture::is_still_image(path)) return std::make_unique<StillImageSource>(path);
   return std::make_unique<VideoFileSource>(path);
 }
 
-Image load_image(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) throw Error("image '" + path + "': no such file");
-  cv::Mat mat;
-  try {
-    mat = cv::imread(path, cv::IMREAD_COLOR);
-  } catch (const cv::Exception& e) {
-    throw Error("image '" + path + "': cannot be decoded (" + std::string(e.what()).substr(0, 200) + ")");
-  }
-  if (mat.empty()) throw Error("image '" + path + "': cannot be decoded (corrupt or unsupported format)");
-  return from_mat(mat);
-}
+Image load_image(const std::string& path) { return from_bgr8(capture::read_still_image(path)); }
 
 void save_png(const std::string& path, const ImageView& image) {
   std::string error;

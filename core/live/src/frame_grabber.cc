@@ -4,9 +4,9 @@
 
 #include <cmath>
 #include <filesystem>
-#include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "live_internal.h"
 
@@ -78,9 +78,7 @@ class CameraDevice : public InputDevice {
     cv::Mat image;
     if (!capture_.read(image) || image.empty())
       throw Error("camera " + path_ + ": stopped delivering frames (unplugged?)");
-    if (image.type() == CV_8UC1) cv::cvtColor(image, image, cv::COLOR_GRAY2BGR);
-    else if (image.type() == CV_8UC4) cv::cvtColor(image, image, cv::COLOR_BGRA2BGR);
-    else if (image.type() != CV_8UC3) throw Error("camera " + path_ + ": unsupported pixel type from the driver");
+    if (!capture::to_bgr8(&image)) throw Error("camera " + path_ + ": unsupported pixel type from the driver");
     if (description_.empty()) description_ = "camera " + path_ + " " + size_text(image);
     frame->index = index_++;
     frame->color = image;

@@ -2,10 +2,8 @@
 
 #include <cmath>
 #include <filesystem>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 
 namespace face_reenact::output {
@@ -43,72 +41,43 @@ class StillImageSource : public FrameSource {
 
 class VideoFileSource : public FrameSource {
  public:
-  explicit VideoFileSource(const MediaSourceOptions& options) : options_(options) {
-    try {
-      // Files are decoded by FFmpeg only: CAP_ANY would also probe GStreamer and camera
-      // back-ends for a bad path, slowly and with their own leaks.
-      if (!capture_.open(options.path, cv::CAP_FFMPEG) || !capture_.isOpened())
-        throw Error("cannot open input '" + options.path + "': not a video or image that OpenCV/ffmpeg can read");
-      double fps = capture_.get(cv::CAP_PROP_FPS);
-      fps_ = (std::isfinite(fps) && fps >= 1 && fps <= 240) ? fps : options.fallback_fps;
-      // Read the first frame now, so a file that opens but decodes nothing fails at start-up.
-      if (!capture_.read(first_) || first_.empty())
-        throw Error("input '" + options.path + "' holds no decodable video frame");
-    } catch (const cv::Exception& e) {
-      throw Error("cannot read input '" + options.path + "': " + e.what());
-    }
-    width_ = first_.cols;
-    height_ = first_.rows;
-  }
+  explicit VideoFileSource(const MediaSourceOptions& options)
+      : options_(options), video_(options.path, {.fallback_fps = options.fallback_fps}) {}
 
   SourceStatus next(SourceFrame* frame, std::string* error) override {
     cv::Mat image;
-    if (!first_.empty()) {
-      image = std::move(first_);
-      first_.release();
-    } else {
-      try {
-        if (!capture_.read(image) || image.empty()) {
-          if (!options_.loop) return SourceStatus::kEnd;
-          if (frames_in_pass_ == 0) {
-            if (error) *error = "input '" + options_.path + "' stopped delivering frames";
-            return SourceStatus::kError;
-          }
-          // Rewind by reopening: seeking is unreliable for some containers (wmv, streams).
-          capture_.release();
-          if (!capture_.open(options_.path, cv::CAP_FFMPEG) || !capture_.read(image) || image.empty()) {
-            if (error) *error = "input '" + options_.path + "' could not be read again for looping";
-            return SourceStatus::kError;
-          }
-          frames_in_pass_ = 0;
+    try {
+      if (!video_.read(&image)) {
+        if (!options_.loop) return SourceStatus::kEnd;
+        try {
+          video_.rewind();
+        } catch (const Error& e) {
+          if (error) *error = "input '" + options_.path + "' could not be read again for looping: " + e.what();
+          return SourceStatus::kError;
         }
-      } catch (const cv::Exception& e) {
-        if (error) *error = "decoding '" + options_.path + "' failed: " + e.what();
-        return SourceStatus::kError;
+        video_.read(&image);  // the first frame, which rewind() has decoded already
       }
+    } catch (const Error& e) {
+      if (error) *error = e.what();
+      return SourceStatus::kError;
     }
-    ++frames_in_pass_;
     frame->bgr = std::move(image);
-    frame->timestamp = frame_time(index_++, fps_);
+    frame->timestamp = frame_time(index_++, video_.fps());
     return SourceStatus::kFrame;
   }
 
   bool is_live() const override { return false; }
   std::string describe() const override {
     char fps[32];
-    std::snprintf(fps, sizeof fps, "%.2f", fps_);
-    return "video '" + options_.path + "' " + std::to_string(width_) + "x" + std::to_string(height_) + " @ " +
-           fps + " fps" + (options_.loop ? ", looping" : "");
+    std::snprintf(fps, sizeof fps, "%.2f", video_.fps());
+    return "video '" + options_.path + "' " + std::to_string(video_.width()) + "x" + std::to_string(video_.height()) +
+           " @ " + fps + " fps" + (options_.loop ? ", looping" : "");
   }
 
  private:
   MediaSourceOptions options_;
-  cv::VideoCapture capture_;
-  cv::Mat first_;
-  double fps_ = 30;
-  int width_ = 0, height_ = 0;
-  int64_t index_ = 0;
-  int64_t frames_in_pass_ = 0;
+  capture::VideoFileReader video_;
+  int64_t index_ = 0;  // frames delivered over all passes: timestamps keep increasing when looping
 };
 
 class TestPatternSource : public FrameSource {
@@ -155,30 +124,14 @@ class TestPatternSource : public FrameSource {
 
 }  // namespace
 
-bool is_still_image(const std::string& path) {
-  try {
-    return cv::haveImageReader(path);
-  } catch (const cv::Exception&) {
-    return false;
-  }
-}
-
 std::unique_ptr<FrameSource> open_media_source(const MediaSourceOptions& options) {
   std::error_code ec;
   if (options.path.empty()) throw Error("no input file given");
   if (!std::filesystem::exists(options.path, ec)) throw Error("input '" + options.path + "' does not exist");
   if (std::filesystem::is_directory(options.path, ec))
     throw Error("input '" + options.path + "' is a directory, not a video or image");
-  if (is_still_image(options.path)) {
-    cv::Mat image;
-    try {
-      image = cv::imread(options.path, cv::IMREAD_COLOR);
-    } catch (const cv::Exception& e) {
-      throw Error("cannot read image '" + options.path + "': " + e.what());
-    }
-    if (image.empty()) throw Error("cannot read image '" + options.path + "' (damaged or unsupported)");
-    return std::make_unique<StillImageSource>(options.path, std::move(image));
-  }
+  if (capture::is_still_image(options.path))
+    return std::make_unique<StillImageSource>(options.path, capture::read_still_image(options.path));
   return std::make_unique<VideoFileSource>(options);
 }
 

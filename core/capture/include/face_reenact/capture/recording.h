@@ -4,7 +4,7 @@
 // (camera, frame rate, provenance) and frames.jsonl (one JSON object per frame: timestamp,
 // file names and, for synthetic data, the ground-truth parameters P and 68 landmarks).
 // The same format holds real recordings (no ground truth). Ordinary video files (mp4, avi,
-// wmv, ...) open as RGB-only recordings through OpenCV's videoio.
+// wmv, ...) open as RGB-only recordings through VideoFileReader (media_file.h).
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -54,6 +54,8 @@ struct RecordingInfo {
 
   bool IsValid(std::string* why) const;
 };
+
+class VideoFileReader;  // media_file.h
 
 // Something that yields frames in order: a recording folder, a video file.
 class FrameSource {
@@ -134,18 +136,18 @@ class VideoReader : public FrameSource {
     double horizontal_fov_deg = 60.0;
     bool IsValid(std::string* why) const;
   };
+  // Throws face_reenact::Error for invalid options and for everything VideoFileReader rejects.
   VideoReader(const std::string& path, const Options& options);
   explicit VideoReader(const std::string& path) : VideoReader(path, Options()) {}
   ~VideoReader() override;
   const RecordingInfo& info() const override { return info_; }
+  // Throws face_reenact::Error also when a frame's size differs from the first frame's.
   bool read_next(RgbdFrame* frame) override;
 
  private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
+  std::unique_ptr<VideoFileReader> video_;
   RecordingInfo info_;
   std::string path_;
-  int next_ = 0;
 };
 
 // A camera with the principal point at the image centre and the given horizontal field of view.

@@ -33,13 +33,13 @@ using FrameSourceOpener = std::function<std::unique_ptr<FrameSource>(const std::
 
 // Registers an opener for files ending in `extension` (lower case, with the dot: ".frec").
 void register_frame_source(const std::string& extension, FrameSourceOpener opener);
-// Opens `path`: registered extensions first, then still images (png, jpg, jpeg, ppm, pgm, bmp,
-// tif, tiff, webp), then anything the video decoder accepts. Throws face_reenact::Error with
-// the path when the file is missing or cannot be decoded.
+// Opens `path`: registered extensions first, then still images (capture::is_still_image: png,
+// jpg, ... by name or content), then anything the video decoder accepts
+// (capture::VideoFileReader). Throws face_reenact::Error with the path when the file is missing
+// or cannot be decoded.
 std::unique_ptr<FrameSource> open_frame_source(const std::string& path);
 
-bool has_still_image_extension(const std::string& path);
-// Decodes a still image as BGR8; throws face_reenact::Error.
+// Decodes a still image as BGR8 (capture::read_still_image); throws face_reenact::Error.
 Image load_image(const std::string& path);
 // Writes a PNG (grey, BGR or BGRA; RGB is converted); throws face_reenact::Error.
 void save_png(const std::string& path, const ImageView& image);

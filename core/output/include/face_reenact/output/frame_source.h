@@ -1,6 +1,6 @@
 #pragma once
 // Where the virtual webcam's pictures come from. The reenactment pipeline implements this
-// interface (a live source); so do a video file or still image read with OpenCV and a test
+// interface (a live source); so do a video file or still image (read by core/capture) and a test
 // pattern, which exist for testing a set-up and for users who want to pipe a clip through.
 #include <chrono>
 #include <memory>
@@ -43,12 +43,10 @@ struct MediaSourceOptions {
   double fallback_fps = 30;
 };
 
-// Opens a video or image with OpenCV. Throws face_reenact::Error when the file is missing,
+// Opens a video (capture::VideoFileReader) or, when capture::is_still_image says so, an image
+// (capture::read_still_image). Throws face_reenact::Error when the file is missing,
 // unreadable, or holds no decodable frame. A still image yields one frame, then kEnd.
 std::unique_ptr<FrameSource> open_media_source(const MediaSourceOptions& options);
-
-// True when the path names an image format OpenCV can read (by content sniffing + extension).
-bool is_still_image(const std::string& path);
 
 // Colour bars (white, yellow, cyan, green, magenta, red, blue, black; 100% intensity) over the
 // top 3/4 and a grey strip with a white marker that moves one step per frame at the bottom, so
