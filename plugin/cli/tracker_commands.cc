@@ -571,7 +571,9 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")
-      ->check(CLI::IsMember({"neutral", "per-frame-fits", "lower-energy"}));
+      ->check(CLI::IsMember(std::vector<std::string>{calibration_start_name(CalibrationStart::kNeutral),
+                                                     calibration_start_name(CalibrationStart::kPerFrameFits),
+                                                     calibration_start_name(CalibrationStart::kLowerEnergy)}));
   tc->add_option("--min-face-width", targs->min_face_width,
                  "Solve on pyramid levels where the face is at least this wide (px; default 40, 0 = the paper's levels 2 and 1)")
       ->check(CLI::Range(0, 4096));

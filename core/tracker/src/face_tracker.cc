@@ -216,8 +216,7 @@ bool LossDetectionOptions::IsValid(std::string* why) const {
 
 bool TrackerOptions::IsValid(std::string* why) const {
   if (calibration_frames < 1 || calibration_frames > 64) return fail(why, "tracker: calibration_frames must be 1..64");
-  if (calibration_start != CalibrationStart::kNeutral && calibration_start != CalibrationStart::kPerFrameFits &&
-      calibration_start != CalibrationStart::kLowerEnergy)
+  if (std::string(calibration_start_name(calibration_start)) == "?")
     return fail(why, "tracker: calibration_start is not one of neutral, per-frame-fits, lower-energy");
   if (calibration_frame_stride < 1 || calibration_frame_stride > 10000) {
     return fail(why, "tracker: calibration_frame_stride must be 1..10000");
@@ -561,10 +560,11 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
       for (auto& f : *p) f.delta.setZero();
     return solver_.SolveFrames(inputs, layout, so, p);
   };
-  auto usable = [](const SolverSummary& s) {
-    return s.termination != Termination::kStopped && s.termination != Termination::kNoValidResiduals &&
-           s.termination != Termination::kNonFinite;
+  // A solve that found no valid residuals or went non-finite leaves no identity to keep.
+  auto failed = [](const SolverSummary& s) {
+    return s.termination == Termination::kNoValidResiduals || s.termination == Termination::kNonFinite;
   };
+  auto usable = [&](const SolverSummary& s) { return s.termination != Termination::kStopped && !failed(s); };
   CalibrationStartReport report;
   report.kept = options_.calibration_start == CalibrationStart::kPerFrameFits ? CalibrationStart::kPerFrameFits
                                                                              : CalibrationStart::kNeutral;
@@ -573,8 +573,9 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
   (report.kept == CalibrationStart::kNeutral ? report.neutral_energy : report.per_frame_fits_energy) =
       usable(summary) ? summary.final_energy.total() : nan;
-  bool fits_start_differs = false;  // all-zero per-frame expressions are the neutral start again
-  for (const auto& p : starts) fits_start_differs = fits_start_differs || (p.delta.size() > 0 && p.delta.cwiseAbs().maxCoeff() > 0.f);
+  // All-zero per-frame expressions are the neutral start again.
+  const bool fits_start_differs =
+      std::any_of(starts.begin(), starts.end(), [](const gpu::FaceParameters& p) { return !p.delta.isZero(0.f); });
   if (options_.calibration_start == CalibrationStart::kLowerEnergy && fits_start_differs &&
       summary.termination != Termination::kStopped) {
     std::vector<gpu::FaceParameters> other;
@@ -601,7 +602,7 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
     calibration_summary_ = std::move(summary);
     return;
   }
-  if (summary.termination == Termination::kNoValidResiduals || summary.termination == Termination::kNonFinite) {
+  if (failed(summary)) {
     // Keep the previous identity and collect a fresh set of frames.
     out->message = "calibration over " + std::to_string(frames) + " frames failed (" + summary.message +
                    "); collecting new frames";
