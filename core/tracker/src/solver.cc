@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "face_reenact/common/error.h"
+#include "gauss_newton_loop.h"
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
@@ -20,13 +21,142 @@ std::string energy_line(const TermEnergies& e) {
   return buf;
 }
 
-// One linearisation with its residuals and Jacobian.
-struct State {
+// One frame's linearisation with its residuals and Jacobian.
+struct FrameState {
   Linearization lin;
   Eigen::VectorXd r;
   JacobianMatrix j;
   bool has_jacobian = false;  // J is evaluated only when a step is solved from this state
   TermEnergies energy;
+};
+
+// The Gauss-Newton loop's work on the CPU, for one frame or several frames solved jointly
+// (calibration): x = [shared identity/albedo | frame 0's own | frame 1's own | ...].
+class CpuGaussNewton final : public internal::GaussNewtonBackend {
+ public:
+  CpuGaussNewton(const TrackerModel& model, const gpu::CpuRenderer& renderer, const ParameterLayout& layout,
+                 const SolverOptions& options, const std::vector<const std::vector<InputFrame>*>& pyramids,
+                 const std::vector<gpu::FaceParameters>& bases)
+      : model_(model),
+        renderer_(renderer),
+        layout_(layout),
+        options_(options),
+        pyramids_(pyramids),
+        bases_(bases),
+        shared_(layout.num_identity + layout.num_albedo),
+        own_(layout.num_parameters() - shared_),
+        threads_(options.ResolvedThreads()),
+        states_(pyramids.size()) {
+    const int n = shared_ + static_cast<int>(pyramids.size()) * own_;
+    scratch_.Resize(n);
+    b_.resize(n);
+  }
+
+  // Frame f's parameter vector in the layout's order.
+  Eigen::VectorXd FrameX(const Eigen::VectorXd& global, int f) const {
+    Eigen::VectorXd out(shared_ + own_);
+    out.head(shared_) = global.head(shared_);
+    out.tail(own_) = global.segment(shared_ + f * own_, own_);
+    return out;
+  }
+
+  internal::Linearized Linearize(const LevelSchedule& level, const Eigen::VectorXd& x, bool /*step_follows*/,
+                                 double* synthesis_ms, double* analysis_ms) override {
+    internal::Linearized out;
+    out.has_data = true;
+    for (size_t f = 0; f < states_.size(); ++f) {
+      const InputFrame& frame = (*pyramids_[f])[level.level];
+      const Eigen::VectorXd xf = FrameX(x, static_cast<int>(f));
+      const auto t0 = Clock::now();
+      const gpu::FaceParameters p = layout_.Unpack(xf, bases_[f]);
+      const gpu::VertexState vs = renderer_.evaluate(p);
+      const gpu::GBuffer g = renderer_.rasterize(vs, frame.camera, options_.render);
+      *synthesis_ms += ms_since(t0);
+      const auto t1 = Clock::now();
+      FrameState& st = states_[f];
+      st.lin = tracker::Linearize(model_, layout_, p, vs, g, frame, options_.energy, /*regularize_shared=*/f == 0);
+      EvaluateResiduals(model_, st.lin, options_.energy, xf, &st.r, nullptr, &st.energy, threads_);
+      st.has_jacobian = false;
+      *analysis_ms += ms_since(t1);
+      for (int t = 0; t < kNumTerms; ++t) out.energy.value[t] += st.energy.value[t];
+      out.residuals += st.r.size();
+      out.has_data = out.has_data && st.lin.term_rows[kNumTerms - 1] > 0;
+    }
+    return out;
+  }
+
+  void SolveStep(const LevelSchedule& level, const Eigen::VectorXd& x, Eigen::VectorXd* dx,
+                 IterationRecord* rec) override {
+    const auto start = Clock::now();
+    for (size_t f = 0; f < states_.size(); ++f) {
+      FrameState& st = states_[f];
+      if (st.has_jacobian) continue;
+      EvaluateResiduals(model_, st.lin, options_.energy, FrameX(x, static_cast<int>(f)), &st.r, &st.j, &st.energy,
+                        threads_);
+      st.has_jacobian = true;
+    }
+    const Eigen::VectorXd* r = nullptr;
+    const StackedJacobian j = System(&r);
+    j.MultiplyTransposed(*r, &b_);
+    b_ = -b_;
+    dx->setZero(b_.size());
+    const PcgOptions pcg{level.pcg_iterations, options_.pcg_relative_tolerance};
+    PcgSummary ps;
+    if (options_.linear_solver == LinearSolverType::kAssembled) {
+      AssembledNormalOperator op(j, options_.damping);
+      ps = Pcg(op, b_, pcg, &scratch_, dx);
+    } else {
+      MatrixFreeNormalOperator op(j, options_.damping);
+      ps = Pcg(op, b_, pcg, &scratch_, dx);
+    }
+    rec->analysis_ms += ms_since(start);
+    rec->pcg_iterations = ps.iterations;
+    rec->pcg_relative_residual = ps.initial_residual_norm > 0 ? ps.final_residual_norm / ps.initial_residual_norm : 0;
+  }
+
+  double TrialEnergy(int /*halving*/, const Eigen::VectorXd& x_try) override {
+    double total = 0;
+    for (size_t f = 0; f < states_.size(); ++f) {
+      TermEnergies e;
+      EvaluateResiduals(model_, states_[f].lin, options_.energy, FrameX(x_try, static_cast<int>(f)), &trial_r_, nullptr,
+                        &e, threads_);
+      total += e.total();
+    }
+    return total;
+  }
+
+ private:
+  // The joint system: the frames' Jacobian blocks as they are (no zeros stored), their
+  // residuals stacked in the same row order (no copy with one frame).
+  StackedJacobian System(const Eigen::VectorXd** r) {
+    if (states_.size() == 1) {
+      *r = &states_[0].r;
+      return StackedJacobian(states_[0].j);
+    }
+    StackedJacobian j(shared_, own_);
+    Eigen::Index rows = 0;
+    for (const FrameState& st : states_) rows += st.r.size();
+    stacked_r_.resize(rows);
+    Eigen::Index row = 0;
+    for (const FrameState& st : states_) {
+      j.AddFrame(st.j);
+      stacked_r_.segment(row, st.r.size()) = st.r;
+      row += st.r.size();
+    }
+    *r = &stacked_r_;
+    return j;
+  }
+
+  const TrackerModel& model_;
+  const gpu::CpuRenderer& renderer_;
+  const ParameterLayout& layout_;
+  const SolverOptions& options_;
+  const std::vector<const std::vector<InputFrame>*>& pyramids_;
+  const std::vector<gpu::FaceParameters>& bases_;
+  const int shared_, own_, threads_;
+  std::vector<FrameState> states_;
+  PcgScratch scratch_;
+  Eigen::VectorXd b_, stacked_r_, trial_r_;
 };
 
 }  // namespace
@@ -58,14 +188,6 @@ bool SolverOptions::IsValid(std::string* why) const {
   if (!(function_tolerance >= 0)) return fail(why, "solver: function_tolerance must be non-negative");
   if (!(pcg_relative_tolerance >= 0)) return fail(why, "solver: pcg_relative_tolerance must be non-negative");
   if (threads < 0 || threads > 64) return fail(why, "solver: threads must be 0..64 (0 = one per hardware thread)");
-  return true;
-}
-
-bool internal::EndIfStopRequested(const SolverOptions& options, int level, int iteration, SolverSummary* summary) {
-  if (!options.stop.stop_requested()) return false;
-  summary->termination = Termination::kStopped;
-  summary->message += "level " + std::to_string(level) + ": stopped before iteration " + std::to_string(iteration) +
-                      " (stop requested); parameters of the last accepted step";
   return true;
 }
 
@@ -187,219 +309,21 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
     }
   }
   const auto start = Clock::now();
-  SolverSummary summary;
   // Unknowns: [shared identity/albedo (S) | frame 0's own (P) | frame 1's own | ...]; with one
   // frame this is exactly the layout's x.
   const int shared = layout.num_identity + layout.num_albedo;
   const int own = layout.num_parameters() - shared;
-  const int n = shared + num_frames * own;
   const std::vector<gpu::FaceParameters> bases = *params;
-  Eigen::VectorXd x(n);
+  Eigen::VectorXd x(shared + num_frames * own);
   x.head(shared) = layout.Pack(bases[0]).head(shared);
   for (int f = 0; f < num_frames; ++f) x.segment(shared + f * own, own) = layout.Pack(bases[f]).tail(own);
-  auto frame_x = [&](const Eigen::VectorXd& global, int f) {
-    Eigen::VectorXd out(shared + own);
-    out.head(shared) = global.head(shared);
-    out.tail(own) = global.segment(shared + f * own, own);
-    return out;
-  };
-  const int o_exp_own = layout.offset(Block::kExpression) - shared;
-  const int threads = options.ResolvedThreads();
-  PcgScratch scratch;
-  scratch.Resize(n);
-  Eigen::VectorXd b(n), dx(n), rg;
-  const PcgOptions pcg_base{1, options.pcg_relative_tolerance};
-  auto sum = [](const std::vector<State>& states) {
-    TermEnergies e;
-    for (const State& st : states) {
-      for (int t = 0; t < kNumTerms; ++t) e.value[t] += st.energy.value[t];
-    }
-    return e;
-  };
-  // Renders every frame at x and linearises; the caller times it.
-  auto linearise = [&](int level, const Eigen::VectorXd& at, std::vector<State>* states, double* synth_ms,
-                       double* analysis_ms) {
-    for (int f = 0; f < num_frames; ++f) {
-      const InputFrame& frame = (*pyramids[f])[level];
-      const Eigen::VectorXd xf = frame_x(at, f);
-      const auto t0 = Clock::now();
-      const gpu::FaceParameters p = layout.Unpack(xf, bases[f]);
-      const gpu::VertexState vs = renderer_.evaluate(p);
-      const gpu::GBuffer g = renderer_.rasterize(vs, frame.camera, options.render);
-      *synth_ms += ms_since(t0);
-      const auto t1 = Clock::now();
-      State& st = (*states)[f];
-      st.lin = Linearize(model_, layout, p, vs, g, frame, options.energy, /*regularize_shared=*/f == 0);
-      EvaluateResiduals(model_, st.lin, options.energy, xf, &st.r, nullptr, &st.energy, threads);
-      st.has_jacobian = false;
-      *analysis_ms += ms_since(t1);
-    }
-  };
-  auto ensure_jacobians = [&](const Eigen::VectorXd& at, std::vector<State>* states) {
-    for (int f = 0; f < num_frames; ++f) {
-      State& st = (*states)[f];
-      if (st.has_jacobian) continue;
-      EvaluateResiduals(model_, st.lin, options.energy, frame_x(at, f), &st.r, &st.j, &st.energy, threads);
-      st.has_jacobian = true;
-    }
-  };
-  // The joint system: the frames' Jacobian blocks as they are (no zeros stored), their residuals
-  // stacked in the same row order (no copy with one frame).
-  auto system = [&](const std::vector<State>& states, const Eigen::VectorXd** r) {
-    if (num_frames == 1) {
-      *r = &states[0].r;
-      return StackedJacobian(states[0].j);
-    }
-    StackedJacobian j(shared, own);
-    Eigen::Index rows = 0;
-    for (const State& st : states) rows += st.r.size();
-    rg.resize(rows);
-    Eigen::Index row = 0;
-    for (const State& st : states) {
-      j.AddFrame(st.j);
-      rg.segment(row, st.r.size()) = st.r;
-      row += st.r.size();
-    }
-    *r = &rg;
-    return j;
-  };
-
-  int accepted_steps = 0, attempted_steps = 0;
-  bool first_level = true;
-  bool stop_all = false;
-  std::vector<State> cur(num_frames);
-  Eigen::VectorXd trial_r;
-  for (const LevelSchedule& level : options.schedule) {
-    double synth = 0, analysis = 0;
-    linearise(level.level, x, &cur, &synth, &analysis);
-    summary.synthesis_ms += synth;
-    summary.analysis_ms += analysis;
-    TermEnergies energy = sum(cur);
-    if (first_level) summary.initial_energy = energy;
-    first_level = false;
-    summary.final_energy = energy;
-    bool empty_frame = false;
-    for (const State& st : cur) empty_frame = empty_frame || st.lin.term_rows[kNumTerms - 1] == 0;
-    if (empty_frame) {
-      summary.termination = Termination::kNoValidResiduals;
-      summary.message += "level " + std::to_string(level.level) +
-                         ": no pixel or landmark of the input overlaps the rendered face" +
-                         (num_frames > 1 ? " in at least one frame" : "") + "; parameters left unchanged";
-      stop_all = true;
-      break;
-    }
-    PcgOptions pcg = pcg_base;
-    pcg.max_iterations = level.pcg_iterations;
-    for (int it = 0; it < level.gauss_newton_iterations; ++it) {
-      if (internal::EndIfStopRequested(options, level.level, it, &summary)) {
-        stop_all = true;
-        break;
-      }
-      ++attempted_steps;
-      IterationRecord rec;
-      rec.level = level.level;
-      rec.iteration = it;
-      rec.energy_before = energy;
-      const auto t_solve = Clock::now();
-      ensure_jacobians(x, &cur);
-      const Eigen::VectorXd* r = nullptr;
-      const StackedJacobian j = system(cur, &r);
-      rec.residuals = r->size();
-      j.MultiplyTransposed(*r, &b);
-      b = -b;
-      dx.setZero();
-      PcgSummary ps;
-      if (options.linear_solver == LinearSolverType::kAssembled) {
-        AssembledNormalOperator op(j, options.damping);
-        ps = Pcg(op, b, pcg, &scratch, &dx);
-      } else {
-        MatrixFreeNormalOperator op(j, options.damping);
-        ps = Pcg(op, b, pcg, &scratch, &dx);
-      }
-      rec.analysis_ms += ms_since(t_solve);
-      rec.pcg_iterations = ps.iterations;
-      rec.pcg_relative_residual = ps.initial_residual_norm > 0 ? ps.final_residual_norm / ps.initial_residual_norm : 0;
-      if (!dx.allFinite()) {
-        summary.termination = Termination::kNonFinite;
-        summary.message += "level " + std::to_string(level.level) + " iteration " + std::to_string(it) +
-                           ": the linear solve produced a non-finite step; kept the last good parameters";
-        summary.iterations.push_back(rec);
-        stop_all = true;
-        break;
-      }
-      // Step control on the energy with this step's correspondences held (the function the
-      // Gauss-Newton step models): comparing energies of different renders would mix in the
-      // change of the pixel set, which is not what the step optimises. Costs no rendering.
-      bool accepted = false;
-      double scale = 1.0, linear_energy = 0.0;
-      const double before = energy.total();
-      Eigen::VectorXd x_try;
-      const auto t_control = Clock::now();
-      for (int h = 0; h <= options.max_step_halvings; ++h, scale *= 0.5) {
-        x_try = x + scale * dx;
-        if (options.clamp_expression) {
-          for (int f = 0; f < num_frames; ++f) {
-            for (int q = 0; q < layout.num_expression; ++q) {
-              double& d = x_try[shared + f * own + o_exp_own + q];
-              d = std::clamp(d, 0.0, 1.0);
-            }
-          }
-        }
-        linear_energy = 0;
-        for (int f = 0; f < num_frames; ++f) {
-          TermEnergies e;
-          EvaluateResiduals(model_, cur[f].lin, options.energy, frame_x(x_try, f), &trial_r, nullptr, &e, threads);
-          linear_energy += e.total();
-        }
-        rec.step_halvings = h;
-        if ((std::isfinite(linear_energy) && linear_energy <= before) || options.max_step_halvings == 0) {
-          accepted = true;
-          break;
-        }
-      }
-      rec.analysis_ms += ms_since(t_control);
-      rec.step_norm = accepted ? (x_try - x).norm() : 0.0;
-      if (!accepted) {
-        rec.energy_after = energy;
-        summary.iterations.push_back(rec);
-        summary.synthesis_ms += rec.synthesis_ms;
-        summary.analysis_ms += rec.analysis_ms;
-        summary.message += "level " + std::to_string(level.level) + " converged at iteration " + std::to_string(it) +
-                           " (no step along the Gauss-Newton direction lowered the energy); ";
-        break;  // next level
-      }
-      ++accepted_steps;
-      const Eigen::VectorXd x_before = x;
-      x = x_try;
-      // The next synthesis: re-render at the new parameters and linearise there.
-      linearise(level.level, x, &cur, &rec.synthesis_ms, &rec.analysis_ms);
-      energy = sum(cur);
-      rec.energy_after = energy;
-      summary.iterations.push_back(rec);
-      summary.synthesis_ms += rec.synthesis_ms;
-      summary.analysis_ms += rec.analysis_ms;
-      summary.final_energy = energy;
-      bool lost = false;
-      for (const State& st : cur) lost = lost || st.lin.term_rows[kNumTerms - 1] == 0;
-      if (lost) {
-        x = x_before;  // a step that loses the face is not kept
-        summary.termination = Termination::kNoValidResiduals;
-        summary.message += "level " + std::to_string(level.level) + ": a step moved the face out of the input; kept the parameters before it";
-        stop_all = true;
-        break;
-      }
-      if (before - linear_energy <= options.function_tolerance * before) break;  // converged on this level
-    }
-    if (stop_all) break;
+  std::vector<internal::ExpressionSpan> expressions;
+  for (int f = 0; f < num_frames; ++f) {
+    expressions.push_back({shared + f * own + layout.offset(Block::kExpression) - shared, layout.num_expression});
   }
-  if (!stop_all && attempted_steps > 0 && accepted_steps == 0) {
-    summary.termination = Termination::kNoProgress;
-    summary.message += "no Gauss-Newton step lowered the energy: the start is already a (local) minimum";
-  } else if (!stop_all) {
-    summary.message += "ran the schedule of " + std::to_string(options.schedule.size()) + " level(s), " +
-                       std::to_string(accepted_steps) + " of " + std::to_string(attempted_steps) + " steps accepted";
-  }
-  for (int f = 0; f < num_frames; ++f) (*params)[f] = layout.Unpack(frame_x(x, f), bases[f]);
+  CpuGaussNewton backend(model_, renderer_, layout, options, pyramids, bases);
+  SolverSummary summary = internal::RunGaussNewton(options, expressions, num_frames, &backend, &x);
+  for (int f = 0; f < num_frames; ++f) (*params)[f] = layout.Unpack(backend.FrameX(x, f), bases[f]);
   summary.total_ms = ms_since(start);
   return summary;
 }

@@ -4,11 +4,6 @@
 
 #include "face_reenact/common/timing.h"
 
-namespace face_reenact::tracker {
-struct SolverOptions;
-struct SolverSummary;
-}  // namespace face_reenact::tracker
-
 namespace face_reenact::tracker::internal {
 
 using Clock = SteadyClock;
@@ -18,9 +13,5 @@ inline bool fail(std::string* why, const std::string& message) {
   if (why) *why = message;
   return false;
 }
-
-// Both solvers call this before every Gauss-Newton iteration: true when options.stop was
-// requested, with the summary's termination (kStopped) and message set (solver.cc).
-bool EndIfStopRequested(const SolverOptions& options, int level, int iteration, SolverSummary* summary);
 
 }  // namespace face_reenact::tracker::internal

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <numeric>
 #include <unordered_map>
+#include <utility>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/buffer.h"
@@ -18,6 +19,7 @@
 #include "face_reenact/gpu/renderer.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/common/timing.h"
+#include "gauss_newton_loop.h"
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
@@ -698,6 +700,59 @@ struct VulkanSolver::Impl {
   }
 
   const gpu::Buffer* current_input = nullptr;
+
+  class GaussNewton;
+};
+
+// The Gauss-Newton loop's work on the device (one frame). A linearisation that a step follows
+// computes that step and its trial energies in the same submission (analyze_step), so
+// SolveStep and TrialEnergy only hand over what that pass read back.
+class VulkanSolver::Impl::GaussNewton final : public internal::GaussNewtonBackend {
+ public:
+  GaussNewton(Impl& m, const ParameterLayout& layout, const SolverOptions& options,
+              std::unordered_map<int, LevelInput>& inputs, const gpu::FaceParameters& base)
+      : m_(m), layout_(layout), options_(options), inputs_(inputs), base_(base) {}
+
+  internal::Linearized Linearize(const LevelSchedule& level, const Eigen::VectorXd& x, bool step_follows,
+                                 double* synthesis_ms, double* analysis_ms) override {
+    LevelInput& li = inputs_.at(level.level);
+    m_.current_input = &li.data;
+    const Counts counts = m_.linearize(li, layout_, layout_.Unpack(x, base_), options_, synthesis_ms, analysis_ms);
+    const bool solve = step_follows && counts.has_data();
+    analysis_ = solve ? m_.analyze_step(x, options_, level.pcg_iterations)
+                      : m_.analyze(x, false, VulkanStrategy::kMatrixFree, options_, level.pcg_iterations);
+    // The fused pass's time belongs to the iteration that uses its step (as the CPU's Jacobian).
+    if (solve) {
+      step_ms_ = analysis_.wall_ms;
+    } else {
+      *analysis_ms += analysis_.wall_ms;
+    }
+    return {analysis_.energy, counts.residuals(), counts.has_data()};
+  }
+
+  void SolveStep(const LevelSchedule&, const Eigen::VectorXd& x, Eigen::VectorXd* dx, IterationRecord* rec) override {
+    if (analysis_.dx.size() != x.size()) throw Error("Vulkan solver: a step was asked for that no analysis computed");
+    *dx = analysis_.dx;
+    rec->analysis_ms += TakeUnusedStepMs();
+    rec->pcg_iterations = analysis_.pcg.iterations;
+    rec->pcg_relative_residual = analysis_.pcg.initial_residual_norm > 0
+                                     ? analysis_.pcg.final_residual_norm / analysis_.pcg.initial_residual_norm
+                                     : 0;
+  }
+
+  // The device evaluated clamp(x + 2^-h dx) for every h in the same pass, as the loop forms x_try.
+  double TrialEnergy(int halving, const Eigen::VectorXd&) override { return analysis_.trials.at(halving).total(); }
+
+  double TakeUnusedStepMs() override { return std::exchange(step_ms_, 0.0); }
+
+ private:
+  Impl& m_;
+  const ParameterLayout& layout_;
+  const SolverOptions& options_;
+  std::unordered_map<int, LevelInput>& inputs_;
+  const gpu::FaceParameters& base_;
+  Analysis analysis_;
+  double step_ms_ = 0;
 };
 
 VulkanSolver::VulkanSolver(const gpu::Context& context, TrackerModel model, const VulkanSolverOptions& options)
@@ -747,133 +802,15 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
     if (!pyramid[level.level].IsValid(&why)) throw Error(why);
   }
   const auto start = Clock::now();
-  SolverSummary summary;
   const gpu::FaceParameters base = *params;
   Eigen::VectorXd x = layout.Pack(base);
-  const int o_exp = layout.offset(Block::kExpression);
   std::unordered_map<int, LevelInput> inputs;
   for (const auto& level : options.schedule) {
     if (!inputs.count(level.level)) inputs.emplace(level.level, m.prepare_level(pyramid[level.level], options.energy));
   }
-
-  int accepted_steps = 0, attempted_steps = 0;
-  bool first_level = true, stop_all = false;
-  for (const LevelSchedule& level : options.schedule) {
-    LevelInput& li = inputs.at(level.level);
-    m.current_input = &li.data;
-    double synth = 0, analysis_ms = 0;
-    Counts counts = m.linearize(li, layout, layout.Unpack(x, base), options, &synth, &analysis_ms);
-    const bool solve_first = level.gauss_newton_iterations > 0 && counts.has_data();
-    Analysis analysis = solve_first ? m.analyze_step(x, options, level.pcg_iterations)
-                                    : m.analyze(x, false, VulkanStrategy::kMatrixFree, options, level.pcg_iterations);
-    // The first analysis belongs to the first iteration when it solves (as the CPU's Jacobian).
-    double pending_analysis_ms = solve_first ? analysis.wall_ms : 0;
-    analysis_ms += solve_first ? 0 : analysis.wall_ms;
-    summary.synthesis_ms += synth;
-    summary.analysis_ms += analysis_ms;
-    TermEnergies energy = analysis.energy;
-    if (first_level) summary.initial_energy = energy;
-    first_level = false;
-    summary.final_energy = energy;
-    if (!counts.has_data()) {
-      summary.termination = Termination::kNoValidResiduals;
-      summary.message += "level " + std::to_string(level.level) +
-                         ": no pixel or landmark of the input overlaps the rendered face; parameters left unchanged";
-      stop_all = true;
-      break;
-    }
-    for (int it = 0; it < level.gauss_newton_iterations; ++it) {
-      if (internal::EndIfStopRequested(options, level.level, it, &summary)) {
-        stop_all = true;
-        break;
-      }
-      ++attempted_steps;
-      IterationRecord rec;
-      rec.level = level.level;
-      rec.iteration = it;
-      rec.energy_before = energy;
-      rec.residuals = counts.residuals();
-      rec.analysis_ms += pending_analysis_ms;
-      pending_analysis_ms = 0;
-      rec.pcg_iterations = analysis.pcg.iterations;
-      rec.pcg_relative_residual = analysis.pcg.initial_residual_norm > 0
-                                      ? analysis.pcg.final_residual_norm / analysis.pcg.initial_residual_norm
-                                      : 0;
-      if (!analysis.dx.allFinite()) {
-        summary.termination = Termination::kNonFinite;
-        summary.message += "level " + std::to_string(level.level) + " iteration " + std::to_string(it) +
-                           ": the linear solve produced a non-finite step; kept the last good parameters";
-        summary.iterations.push_back(rec);
-        summary.analysis_ms += rec.analysis_ms;
-        stop_all = true;
-        break;
-      }
-      // The CPU's rule on the energies the device evaluated with this step's correspondences.
-      const double before = energy.total();
-      bool accepted = false;
-      double scale = 1.0, linear_energy = 0;
-      Eigen::VectorXd x_try = x;
-      for (int h = 0; h <= options.max_step_halvings; ++h, scale *= 0.5) {
-        linear_energy = analysis.trials[h].total();
-        rec.step_halvings = h;
-        if ((std::isfinite(linear_energy) && linear_energy <= before) || options.max_step_halvings == 0) {
-          accepted = true;
-          x_try = x + scale * analysis.dx;
-          if (options.clamp_expression) {
-            for (int q = 0; q < layout.num_expression; ++q) x_try[o_exp + q] = std::clamp(x_try[o_exp + q], 0.0, 1.0);
-          }
-          break;
-        }
-      }
-      rec.step_norm = accepted ? (x_try - x).norm() : 0.0;
-      if (!accepted) {
-        rec.energy_after = energy;
-        summary.iterations.push_back(rec);
-        summary.analysis_ms += rec.analysis_ms;
-        summary.message += "level " + std::to_string(level.level) + " converged at iteration " + std::to_string(it) +
-                           " (no step along the Gauss-Newton direction lowered the energy); ";
-        break;
-      }
-      ++accepted_steps;
-      const Eigen::VectorXd x_before = x;
-      x = x_try;
-      const bool converged = before - linear_energy <= options.function_tolerance * before;
-      counts = m.linearize(li, layout, layout.Unpack(x, base), options, &rec.synthesis_ms, &rec.analysis_ms);
-      const bool lost = !counts.has_data();
-      const bool solve_next = !lost && !converged && it + 1 < level.gauss_newton_iterations;
-      analysis = solve_next ? m.analyze_step(x, options, level.pcg_iterations)
-                            : m.analyze(x, false, VulkanStrategy::kMatrixFree, options, level.pcg_iterations);
-      if (solve_next) {
-        pending_analysis_ms = analysis.wall_ms;
-      } else {
-        rec.analysis_ms += analysis.wall_ms;
-      }
-      energy = analysis.energy;
-      rec.energy_after = energy;
-      summary.iterations.push_back(rec);
-      summary.synthesis_ms += rec.synthesis_ms;
-      summary.analysis_ms += rec.analysis_ms;
-      summary.final_energy = energy;
-      if (lost) {
-        x = x_before;
-        summary.termination = Termination::kNoValidResiduals;
-        summary.message += "level " + std::to_string(level.level) +
-                           ": a step moved the face out of the input; kept the parameters before it";
-        stop_all = true;
-        break;
-      }
-      if (converged) break;
-    }
-    summary.analysis_ms += pending_analysis_ms;  // a solve prepared for an iteration that did not run
-    if (stop_all) break;
-  }
-  if (!stop_all && attempted_steps > 0 && accepted_steps == 0) {
-    summary.termination = Termination::kNoProgress;
-    summary.message += "no Gauss-Newton step lowered the energy: the start is already a (local) minimum";
-  } else if (!stop_all) {
-    summary.message += "ran the schedule of " + std::to_string(options.schedule.size()) + " level(s), " +
-                       std::to_string(accepted_steps) + " of " + std::to_string(attempted_steps) + " steps accepted";
-  }
+  Impl::GaussNewton backend(m, layout, options, inputs, base);
+  SolverSummary summary = internal::RunGaussNewton(
+      options, {{layout.offset(Block::kExpression), layout.num_expression}}, 1, &backend, &x);
   const VulkanStrategy used = m.resolve(options);
   summary.message += std::string("; Vulkan (") + m.context.device_info().name + ", " + vulkan_strategy_name(used) + ")";
   *params = layout.Unpack(x, base);

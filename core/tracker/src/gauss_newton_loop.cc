@@ -1,0 +1,138 @@
+#include "gauss_newton_loop.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "tracker_internal.h"
+
+namespace face_reenact::tracker::internal {
+namespace {
+
+// True when options.stop was requested, with the summary's termination and message set.
+bool EndIfStopRequested(const SolverOptions& options, int level, int iteration, SolverSummary* summary) {
+  if (!options.stop.stop_requested()) return false;
+  summary->termination = Termination::kStopped;
+  summary->message += "level " + std::to_string(level) + ": stopped before iteration " + std::to_string(iteration) +
+                      " (stop requested); parameters of the last accepted step";
+  return true;
+}
+
+}  // namespace
+
+SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, int frames,
+                             GaussNewtonBackend* backend, Eigen::VectorXd* x) {
+  SolverSummary summary;
+  auto clamp = [&](Eigen::VectorXd* v) {
+    if (!options.clamp_expression) return;
+    for (const ExpressionSpan& span : expressions) {
+      for (int q = 0; q < span.count; ++q) {
+        double& d = (*v)[span.offset + q];
+        d = std::clamp(d, 0.0, 1.0);
+      }
+    }
+  };
+  auto keep = [&](const IterationRecord& rec) {
+    summary.iterations.push_back(rec);
+    summary.synthesis_ms += rec.synthesis_ms;
+    summary.analysis_ms += rec.analysis_ms;
+  };
+  int accepted_steps = 0, attempted_steps = 0;
+  bool first_level = true, stop_all = false;
+  Eigen::VectorXd dx, x_try;
+  for (const LevelSchedule& level : options.schedule) {
+    Linearized lin = backend->Linearize(level, *x, level.gauss_newton_iterations > 0, &summary.synthesis_ms,
+                                        &summary.analysis_ms);
+    TermEnergies energy = lin.energy;
+    if (first_level) summary.initial_energy = energy;
+    first_level = false;
+    summary.final_energy = energy;
+    if (!lin.has_data) {
+      summary.termination = Termination::kNoValidResiduals;
+      summary.message += "level " + std::to_string(level.level) +
+                         ": no pixel or landmark of the input overlaps the rendered face" +
+                         (frames > 1 ? " in at least one frame" : "") + "; parameters left unchanged";
+      stop_all = true;
+      break;
+    }
+    for (int it = 0; it < level.gauss_newton_iterations; ++it) {
+      if (EndIfStopRequested(options, level.level, it, &summary)) {
+        stop_all = true;
+        break;
+      }
+      ++attempted_steps;
+      IterationRecord rec;
+      rec.level = level.level;
+      rec.iteration = it;
+      rec.energy_before = energy;
+      rec.residuals = lin.residuals;
+      backend->SolveStep(level, *x, &dx, &rec);
+      if (!dx.allFinite()) {
+        summary.termination = Termination::kNonFinite;
+        summary.message += "level " + std::to_string(level.level) + " iteration " + std::to_string(it) +
+                           ": the linear solve produced a non-finite step; kept the last good parameters";
+        keep(rec);
+        stop_all = true;
+        break;
+      }
+      // Step control on the energy with this step's correspondences held (the function the
+      // Gauss-Newton step models): comparing energies of different renders would mix in the
+      // change of the pixel set, which is not what the step optimises. Costs no rendering.
+      const double before = energy.total();
+      bool accepted = false;
+      double scale = 1.0, linear_energy = 0.0;
+      const auto t_control = Clock::now();
+      for (int h = 0; h <= options.max_step_halvings; ++h, scale *= 0.5) {
+        x_try = *x + scale * dx;
+        clamp(&x_try);
+        linear_energy = backend->TrialEnergy(h, x_try);
+        rec.step_halvings = h;
+        if ((std::isfinite(linear_energy) && linear_energy <= before) || options.max_step_halvings == 0) {
+          accepted = true;
+          break;
+        }
+      }
+      rec.analysis_ms += ms_since(t_control);
+      rec.step_norm = accepted ? (x_try - *x).norm() : 0.0;
+      if (!accepted) {
+        rec.energy_after = energy;
+        keep(rec);
+        summary.message += "level " + std::to_string(level.level) + " converged at iteration " + std::to_string(it) +
+                           " (no step along the Gauss-Newton direction lowered the energy); ";
+        break;  // next level
+      }
+      ++accepted_steps;
+      const bool converged = before - linear_energy <= options.function_tolerance * before;
+      const Eigen::VectorXd x_before = *x;
+      *x = x_try;
+      // The next synthesis: re-render at the new parameters and linearise there.
+      lin = backend->Linearize(level, *x, !converged && it + 1 < level.gauss_newton_iterations, &rec.synthesis_ms,
+                               &rec.analysis_ms);
+      energy = lin.energy;
+      rec.energy_after = energy;
+      keep(rec);
+      summary.final_energy = energy;
+      if (!lin.has_data) {
+        *x = x_before;  // a step that loses the face is not kept
+        summary.termination = Termination::kNoValidResiduals;
+        summary.message += "level " + std::to_string(level.level) +
+                           ": a step moved the face out of the input; kept the parameters before it";
+        stop_all = true;
+        break;
+      }
+      if (converged) break;  // on this level
+    }
+    summary.analysis_ms += backend->TakeUnusedStepMs();
+    if (stop_all) break;
+  }
+  if (!stop_all && attempted_steps > 0 && accepted_steps == 0) {
+    summary.termination = Termination::kNoProgress;
+    summary.message += "no Gauss-Newton step lowered the energy: the start is already a (local) minimum";
+  } else if (!stop_all) {
+    summary.message += "ran the schedule of " + std::to_string(options.schedule.size()) + " level(s), " +
+                       std::to_string(accepted_steps) + " of " + std::to_string(attempted_steps) + " steps accepted";
+  }
+  return summary;
+}
+
+}  // namespace face_reenact::tracker::internal

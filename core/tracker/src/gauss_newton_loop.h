@@ -1,0 +1,54 @@
+#pragma once
+// The Gauss-Newton loop both solvers run (Sec. 6.1), in one place: per scheduled level,
+// linearise at x (synthesis, then analysis), solve the step, take the largest of the steps
+// dx, dx/2, dx/4, ... that lowers the energy with the step's correspondences held, and
+// linearise again there. The CPU and the Vulkan solver differ only in where that work runs,
+// so each supplies it as a GaussNewtonBackend; the step control, the per-iteration records,
+// the terminations and the summary's wording are this loop's alone.
+#include <Eigen/Core>
+
+#include <vector>
+
+#include "face_reenact/tracker/solver.h"
+
+namespace face_reenact::tracker::internal {
+
+// What one linearisation found.
+struct Linearized {
+  TermEnergies energy;         // at the linearisation point
+  Eigen::Index residuals = 0;  // rows of the system a step would solve
+  bool has_data = false;       // every frame has a pixel or landmark on the rendered face
+};
+
+class GaussNewtonBackend {
+ public:
+  virtual ~GaussNewtonBackend() = default;
+  // Renders at x on `level` and linearises there, adding the times. `step_follows`: the loop
+  // solves a step from this linearisation next, unless a stop is requested or it has no data
+  // (a backend may compute that step now, in the same pass).
+  virtual Linearized Linearize(const LevelSchedule& level, const Eigen::VectorXd& x, bool step_follows,
+                               double* synthesis_ms, double* analysis_ms) = 0;
+  // The Gauss-Newton step from the last linearisation: sets *dx and rec's PCG fields, adds the
+  // solve's time to rec->analysis_ms.
+  virtual void SolveStep(const LevelSchedule& level, const Eigen::VectorXd& x, Eigen::VectorXd* dx,
+                         IterationRecord* rec) = 0;
+  // The energy at x_try with the last linearisation's correspondences; x_try is
+  // x + 0.5^halving dx with the expression weights clamped when the options ask.
+  virtual double TrialEnergy(int halving, const Eigen::VectorXd& x_try) = 0;
+  // Analysis time of a step computed for an iteration that did not run (a stop request), which
+  // the loop adds to the summary at the end of the level.
+  virtual double TakeUnusedStepMs() { return 0; }
+};
+
+// Where x holds expression weights, clamped to [0, 1] when options.clamp_expression.
+struct ExpressionSpan {
+  int offset = 0;
+  int count = 0;
+};
+
+// Runs options.schedule from *x (validated by the caller) and leaves the parameters of the
+// last accepted step in *x. `frames` > 1 only changes the wording of a face-less frame.
+SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, int frames,
+                             GaussNewtonBackend* backend, Eigen::VectorXd* x);
+
+}  // namespace face_reenact::tracker::internal
