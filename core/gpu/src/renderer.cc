@@ -44,8 +44,10 @@ Buffer device_buffer_with(const Context& context, const void* data, size_t bytes
   return b;
 }
 
-Buffer matrix_buffer(const Context& context, const Eigen::MatrixXf& m, const std::string& name) {
-  return device_buffer_with(context, m.data(), static_cast<size_t>(m.size()) * sizeof(float), name);
+// Column-major on the device: the evaluation shader gives each invocation one row of E c, so a
+// column's rows are read by neighbouring invocations together.
+Buffer matrix_buffer(const Context& context, const Eigen::MatrixXf& column_major, const std::string& name) {
+  return device_buffer_with(context, column_major.data(), static_cast<size_t>(column_major.size()) * sizeof(float), name);
 }
 
 void copy_padded(float* out, const Eigen::VectorXf& v, Eigen::Index n) {
@@ -63,7 +65,7 @@ Renderer::Renderer(const Context& context, const RenderModel& model, const Optio
   coefficient_count_ = static_cast<uint32_t>(model_.identity_basis.cols() + model_.expression_basis.cols() +
                                              model_.albedo_basis.cols());
   const VkDeviceSize max_range = context.properties().limits.maxStorageBufferRange;
-  for (const Eigen::MatrixXf* m : {&model_.identity_basis, &model_.expression_basis, &model_.albedo_basis}) {
+  for (const BasisMatrix* m : {&model_.identity_basis, &model_.expression_basis, &model_.albedo_basis}) {
     if (static_cast<VkDeviceSize>(m->size()) * sizeof(float) > max_range) {
       throw Error("GPU renderer: a model basis of " + std::to_string(m->size() * sizeof(float)) +
                   " bytes exceeds the device's storage buffer range of " + std::to_string(max_range));
@@ -88,10 +90,10 @@ Renderer::Renderer(const Context& context, const RenderModel& model, const Optio
   require_format(kGBufferDepthFormat, VK_FORMAT_FEATURE_DEPTH_STENCIL_ATTACHMENT_BIT, "D32 depth");
 
   mean_shape_ = matrix_buffer(context, model_.mean_shape, "mean shape a_id");
-  identity_basis_ = matrix_buffer(context, model_.identity_basis, "identity basis E_id");
-  expression_basis_ = matrix_buffer(context, model_.expression_basis, "expression basis E_exp");
+  identity_basis_ = matrix_buffer(context, Eigen::MatrixXf(model_.identity_basis), "identity basis E_id");
+  expression_basis_ = matrix_buffer(context, Eigen::MatrixXf(model_.expression_basis), "expression basis E_exp");
   mean_albedo_ = matrix_buffer(context, model_.mean_albedo, "mean albedo a_alb");
-  albedo_basis_ = matrix_buffer(context, model_.albedo_basis, "albedo basis E_alb");
+  albedo_basis_ = matrix_buffer(context, Eigen::MatrixXf(model_.albedo_basis), "albedo basis E_alb");
 
   // Triangles flat, and the vertex -> incident triangle adjacency as CSR.
   std::vector<uint32_t> flat;

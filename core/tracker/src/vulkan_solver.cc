@@ -197,21 +197,20 @@ struct VulkanSolver::Impl {
     if (model.num_identity() + model.num_albedo() + model.num_expression() > 512) {
       throw Error("Vulkan solver: the model has more than 512 coefficients (tracker_evaluate.comp stages them in shared memory)");
     }
-    using Rm = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
     auto upload = [&](gpu::Buffer& b, const float* data, size_t count, const char* name) {
       b = gpu::Buffer(context, std::max<size_t>(count * sizeof(float), 16), kStorage, gpu::BufferDomain::Device, name);
       if (count) b.write(data, count * sizeof(float));
     };
     const auto& r = model.render;
-    const Rm id = r.identity_basis, ex = r.expression_basis, al = r.albedo_basis;
+    const Eigen::MatrixXf id_columns = r.identity_basis, ex_columns = r.expression_basis, al_columns = r.albedo_basis;
     upload(mean_shape, r.mean_shape.data(), r.mean_shape.size(), "tracker mean shape");
-    upload(identity_basis, id.data(), id.size(), "tracker identity basis (row-major)");
-    upload(expression_basis, ex.data(), ex.size(), "tracker expression basis (row-major)");
+    upload(identity_basis, r.identity_basis.data(), r.identity_basis.size(), "tracker identity basis (row-major)");
+    upload(expression_basis, r.expression_basis.data(), r.expression_basis.size(), "tracker expression basis (row-major)");
     upload(mean_albedo, r.mean_albedo.data(), r.mean_albedo.size(), "tracker mean albedo");
-    upload(albedo_basis, al.data(), al.size(), "tracker albedo basis (row-major)");
-    upload(identity_columns, r.identity_basis.data(), r.identity_basis.size(), "tracker identity basis (column-major)");
-    upload(expression_columns, r.expression_basis.data(), r.expression_basis.size(), "tracker expression basis (column-major)");
-    upload(albedo_columns, r.albedo_basis.data(), r.albedo_basis.size(), "tracker albedo basis (column-major)");
+    upload(albedo_basis, r.albedo_basis.data(), r.albedo_basis.size(), "tracker albedo basis (row-major)");
+    upload(identity_columns, id_columns.data(), id_columns.size(), "tracker identity basis (column-major)");
+    upload(expression_columns, ex_columns.data(), ex_columns.size(), "tracker expression basis (column-major)");
+    upload(albedo_columns, al_columns.data(), al_columns.size(), "tracker albedo basis (column-major)");
     namespace sh = gpu::shaders;
     classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 7, sizeof(ClassifyPush),
                                                        "tracker linearisation");

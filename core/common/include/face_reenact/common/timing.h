@@ -11,4 +11,9 @@ inline double ms_since(SteadyClock::time_point start) {
   return std::chrono::duration<double, std::milli>(SteadyClock::now() - start).count();
 }
 
+// Milliseconds from `start` to `end`.
+inline double ms_since(SteadyClock::time_point start, SteadyClock::time_point end) {
+  return std::chrono::duration<double, std::milli>(end - start).count();
+}
+
 }  // namespace face_reenact

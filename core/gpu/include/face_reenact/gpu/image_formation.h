@@ -100,16 +100,23 @@ struct RenderOptions {
   bool IsValid(std::string* why) const;
 };
 
+// A 3N x K model basis stored vertex-major (row-major): the 3 x K block of one vertex is
+// contiguous. The hot readers go vertex by vertex (the tracker's per-pixel Jacobian rows and
+// per-vertex evaluation, 3 vertices of a triangle at a time), and in column-major order each of
+// those reads touched K cache lines 12N bytes apart. Whole-model products (y = E c) stream it
+// either way; the GPU passes that want columns upload a column-major copy.
+using BasisMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
 // The linear model the renderer evaluates: a FaceModel's geometry and albedo, or any other
 // mesh with the same structure (test geometry). Bases are 3N x K, interleaved xyz rows.
 struct RenderModel {
   std::vector<std::array<int32_t, 3>> triangles;  // counter-clockwise seen from outside
   std::vector<uint8_t> vertex_part;               // N, FacePart values (0..31)
   Eigen::VectorXf mean_shape;                     // 3N, metres, model frame
-  Eigen::MatrixXf identity_basis;                 // 3N x K_id
-  Eigen::MatrixXf expression_basis;               // 3N x K_exp
+  BasisMatrix identity_basis;                     // 3N x K_id
+  BasisMatrix expression_basis;                   // 3N x K_exp
   Eigen::VectorXf mean_albedo;                    // 3N, linear RGB
-  Eigen::MatrixXf albedo_basis;                   // 3N x K_alb
+  BasisMatrix albedo_basis;                       // 3N x K_alb
 
   int num_vertices() const { return static_cast<int>(vertex_part.size()); }
   int num_triangles() const { return static_cast<int>(triangles.size()); }
