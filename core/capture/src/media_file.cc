@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "face_reenact/common/paths.h"
 #include "face_reenact/common/error.h"
 
 namespace face_reenact::capture {
@@ -19,12 +20,6 @@ namespace {
 
 // Larger frames are a corrupt header rather than a picture (16K is beyond any camera).
 constexpr int kMaxFrameSide = 16384;
-
-std::string lower_extension(const std::string& path) {
-  std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return ext;
-}
 
 // OpenCV's what() spans several lines with its own source location; err is the reason alone.
 std::string reason(const cv::Exception& e) { return e.err.empty() ? std::string(e.what()) : e.err; }
@@ -124,7 +119,7 @@ void VideoFileReader::rewind() { open(); }
 bool has_still_image_extension(const std::string& path) {
   static const char* const kExtensions[] = {".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".pnm",
                                             ".bmp", ".tif", ".tiff", ".webp"};
-  const std::string ext = lower_extension(path);
+  const std::string ext = lower_case_extension(path);
   return std::any_of(std::begin(kExtensions), std::end(kExtensions), [&](const char* e) { return ext == e; });
 }
 

@@ -13,6 +13,7 @@
 
 #include "face_reenact/capture/json_checks.h"
 #include "face_reenact/capture/media_file.h"
+#include "face_reenact/common/paths.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 
@@ -440,9 +441,7 @@ std::unique_ptr<FrameSource> open_frame_source(const std::string& path) {
   std::error_code ec;
   if (fs::is_directory(path, ec)) return std::make_unique<RecordingReader>(path);
   if (!fs::exists(path, ec)) throw Error("'" + path + "': no such file or folder");
-  std::string ext = fs::path(path).extension().string();
-  for (auto& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  if (ext == ".oni")
+  if (lower_case_extension(path) == ".oni")
     throw Error("'" + path + "': OpenNI .oni files are not supported yet; convert them to a recording folder");
   return std::make_unique<VideoReader>(path);
 }

@@ -2,6 +2,8 @@
 
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cstdlib>
 #include <filesystem>
 #include <vector>
@@ -62,5 +64,13 @@ std::string resolve_data_file(const std::string& relative) {
   }
   throw Error("data file '" + relative + "' not found (looked in the source tree and the install prefix)");
 }
+
+std::string ascii_lower(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return text;
+}
+
+std::string lower_case_extension(const std::string& path) { return ascii_lower(fs::path(path).extension().string()); }
 
 }  // namespace face_reenact

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <dlfcn.h>
 
+#include "face_reenact/common/paths.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/vk_check.h"
 
@@ -54,11 +55,6 @@ int type_rank(const std::string& type) {
   if (type == "virtual") return 2;
   if (type == "cpu") return 3;
   return 4;
-}
-
-std::string lower(std::string s) {
-  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return s;
 }
 
 // The graphics+compute queue family of `pd`, or -1.
@@ -137,7 +133,7 @@ size_t pick_device(const std::vector<DeviceInfo>& infos, const std::string& sele
     const bool numeric = std::all_of(selector.begin(), selector.end(), [](unsigned char c) { return std::isdigit(c); });
     for (size_t i = 0; i < infos.size(); ++i) {
       const bool match = numeric ? std::to_string(infos[i].index) == selector
-                                 : lower(infos[i].name).find(lower(selector)) != std::string::npos;
+                                 : ascii_lower(infos[i].name).find(ascii_lower(selector)) != std::string::npos;
       if (!match) continue;
       if (!infos[i].usable) {
         throw Error("Vulkan device '" + infos[i].name + "' matches '" + selector + "' but is unusable: " + infos[i].why_unusable);

@@ -10,15 +10,10 @@
 
 #include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/paths.h"
 
 namespace face_reenact::landmarks {
 namespace {
-
-std::string lower_extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-  return ext;
-}
 
 // A decoded 8-bit BGR picture (what capture's readers deliver) as an Image.
 Image from_bgr8(const cv::Mat& bgr) {
@@ -99,7 +94,7 @@ std::unique_ptr<FrameSource> open_frame_source(const std::string& path) {
   FrameSourceOpener opener;
   {
     std::lock_guard<std::mutex> lock(registry_mutex());
-    if (auto it = registry().find(lower_extension(path)); it != registry().end()) opener = it->second;
+    if (auto it = registry().find(lower_case_extension(path)); it != registry().end()) opener = it->second;
   }
   if (opener) return opener(path);
   if (capture::is_still_image(path)) return std::make_unique<StillImageSource>(path);

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <sstream>
 
+#include "face_reenact/common/paths.h"
 #include "face_reenact/common/byte_io.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/srgb.h"
@@ -96,8 +97,7 @@ void export_mesh(const FaceModel& model, const MeshInstance& instance, const std
   if (instance.positions.size() != n3 || instance.colours.size() != n3)
     throw Error("mesh export: instance does not match the model's vertex count");
   if (!instance.positions.allFinite()) throw Error("mesh export: positions contain NaN or infinity");
-  std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  const std::string ext = lower_case_extension(path);
   Selection s = select(model, parts);
   if (s.kept_triangles.empty()) throw Error("mesh export: the selected parts contain no triangles");
   if (ext == ".obj")

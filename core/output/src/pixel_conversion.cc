@@ -7,6 +7,7 @@
 #include <cstring>
 #include <opencv2/imgproc.hpp>
 
+#include "face_reenact/common/paths.h"
 #include "face_reenact/common/error.h"
 
 namespace face_reenact::output {
@@ -35,8 +36,7 @@ const char* pixel_format_name(PixelFormat format) {
 }
 
 std::optional<PixelFormat> parse_pixel_format(const std::string& name) {
-  std::string lower(name);
-  for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  const std::string lower = ascii_lower(name);
   if (lower == "yuyv" || lower == "yuy2") return PixelFormat::kYuyv;
   if (lower == "i420" || lower == "yu12" || lower == "yuv420p") return PixelFormat::kI420;
   return std::nullopt;

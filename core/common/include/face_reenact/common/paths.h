@@ -1,6 +1,6 @@
 #pragma once
-// Where the program finds its data: the generated face model, the files under data/, and the
-// per-user cache for downloaded registry data.
+// Where the program finds its data (the generated face model, the files under data/, the
+// per-user cache for downloaded registry data) and how it reads a file's name.
 #include <string>
 
 namespace face_reenact {
@@ -15,5 +15,10 @@ std::string executable_dir();
 std::string resolve_model_path(const std::string& explicit_path);
 // Resolves a file shipped under data/ (source tree or installed share/face-reenact/data).
 std::string resolve_data_file(const std::string& relative);
+
+// ASCII lower case ("MP4" -> "mp4"): file extensions, device types and option values.
+std::string ascii_lower(std::string text);
+// The extension of `path` with its dot, in ASCII lower case: "clip.MP4" -> ".mp4"; "" when none.
+std::string lower_case_extension(const std::string& path);
 
 }  // namespace face_reenact
