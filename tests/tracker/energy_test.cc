@@ -341,6 +341,23 @@ TEST(TrackerEnergy, ExpressionPriorRowsAreEq11PlusReweightedL1) {
 
 // The pixel rows split over threads: r, J and the energies are bit-identical to one thread
 // (each pixel writes only its own rows), for thread counts that do and do not divide the pixels.
+// J is not zeroed as a whole (energy.cc writes every row it owns): a buffer that held anything
+// before, NaN here, must come out exactly as a fresh one, for every term and thread count.
+TEST(TrackerEnergy, EveryEntryOfJIsWrittenWhateverTheBufferHeld) {
+  const TrackerModel model = sphere_model();
+  const ParameterLayout layout = ParameterLayout::Calibration(6, 4, 5);
+  const Linearised s = linearised(model, layout, EnergyOptions{}, test_camera(320, 240), 0.5f, 17);
+  for (int t = 0; t < kNumTerms; ++t) ASSERT_GT(s.lin.term_rows[t + 1], s.lin.term_rows[t]) << term_name(Term(t));
+  JacobianMatrix fresh;
+  EvaluateResiduals(model, s.lin, EnergyOptions{}, s.x, nullptr, &fresh, nullptr, 1);
+  for (int threads : {1, 2}) {
+    JacobianMatrix reused = JacobianMatrix::Constant(fresh.rows(), fresh.cols(), std::nan(""));
+    EvaluateResiduals(model, s.lin, EnergyOptions{}, s.x, nullptr, &reused, nullptr, threads);
+    ASSERT_TRUE(reused.allFinite()) << threads << " threads";
+    EXPECT_TRUE((reused.array() == fresh.array()).all()) << threads << " threads";
+  }
+}
+
 TEST(TrackerEnergy, ThreadedEvaluationIsBitIdentical) {
   const TrackerModel* real = real_model();
   const TrackerModel model = real ? *real : sphere_model();

@@ -248,7 +248,10 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   Eigen::VectorXd local_r;
   Eigen::VectorXd& r = residuals ? *residuals : local_r;
   r.resize(m);
-  if (jacobian) jacobian->setZero(m, np);
+  // Not zeroed as a whole: point and plane rows are written in full, and the rows that are
+  // accumulated or written in part (colour, landmark, prior) are zeroed where they are written.
+  // At 640x480's level 1, J is 36 MB, and a memset of it cost as much as a PCG product.
+  if (jacobian) jacobian->resize(m, np);
 
   const Coefficients c = coefficients(model, lin, x);
   const internal::RotationWithDerivatives rot = internal::rotation_with_derivatives(c.euler);
@@ -321,6 +324,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       if (s.color) {
         // C_c = sum_k b_k a_kc sum_j gamma_cj y_j(R n_k)
         Eigen::Vector3d color = Eigen::Vector3d::Zero();
+        if (jacobian) jacobian->middleRows(row_col, 3).setZero();
         for (int k = 0; k < 3; ++k) {
           const int v = s.vertex[k];
           const Eigen::Vector3d n_model = lin.model_normals.segment<3>(3 * v);
@@ -417,6 +421,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       const Eigen::Vector2d uv(cam.fx * X.x() * iz + cam.cx, cam.fy * X.y() * iz + cam.cy);
       r.segment<2>(row) = s * (uv - l.target);
       if (jacobian) {
+        jacobian->middleRows(row, 2).setZero();
         Eigen::Matrix<double, 2, 3> dproj;
         dproj << cam.fx * iz, 0, -cam.fx * X.x() * iz * iz, 0, cam.fy * iz, -cam.fy * X.y() * iz * iz;
         const Eigen::Matrix<double, 2, 3> dr = s * dproj;
@@ -439,7 +444,10 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       for (int q = 0; q < count; ++q) {
         const double inv = s_reg / sigma_of(q);
         r[row] = inv * x[offset + q];
-        if (jacobian) (*jacobian)(row, offset + q) = inv;
+        if (jacobian) {
+          jacobian->row(row).setZero();
+          (*jacobian)(row, offset + q) = inv;
+        }
         ++row;
       }
     };
@@ -453,7 +461,10 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       const double delta0 = std::abs(static_cast<double>(lin.base.delta[q]));
       const double inv = std::sqrt(l2 + options.w_expression_sparsity / (delta0 + options.expression_sparsity_epsilon));
       r[row] = inv * x[o_exp + q];
-      if (jacobian) (*jacobian)(row, o_exp + q) = inv;
+      if (jacobian) {
+        jacobian->row(row).setZero();
+        (*jacobian)(row, o_exp + q) = inv;
+      }
       ++row;
     }
   }
