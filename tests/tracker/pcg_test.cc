@@ -83,6 +83,38 @@ TEST(TrackerPcg, StackedJacobianEqualsTheDenseStack) {
   EXPECT_THROW(stacked.AddFrame(random_jacobian(4, shared + own + 1, 3)), Error);
 }
 
+// The products run over fixed chunks of 4096 rows on SetThreads() threads: with blocks of several
+// chunks (and a frame boundary inside the stack) they match the dense stack, and every thread
+// count gives the same bits.
+TEST(TrackerPcg, ThreadedProductsOverSeveralChunksAreBitIdentical) {
+  const int shared = 6, own = 4, frames = 2;
+  std::vector<JacobianMatrix> blocks{random_jacobian(9000, shared + own, 21), random_jacobian(4100, shared + own, 22)};
+  JacobianMatrix dense = JacobianMatrix::Zero(9000 + 4100, shared + frames * own);
+  dense.block(0, 0, 9000, shared) = blocks[0].leftCols(shared);
+  dense.block(0, shared, 9000, own) = blocks[0].rightCols(own);
+  dense.block(9000, 0, 4100, shared) = blocks[1].leftCols(shared);
+  dense.block(9000, shared + own, 4100, own) = blocks[1].rightCols(own);
+  const Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(dense.cols(), -1, 2);
+  const Eigen::VectorXd v = Eigen::VectorXd::LinSpaced(dense.rows(), 3, -1);
+  Eigen::VectorXd normal[3], transposed[3], diagonal[3];
+  for (int threads : {1, 2, 3}) {
+    StackedJacobian stacked(shared, own);
+    for (const auto& b : blocks) stacked.AddFrame(b);
+    stacked.SetThreads(threads);
+    stacked.MultiplyNormal(x, &normal[threads - 1]);
+    stacked.MultiplyTransposed(v, &transposed[threads - 1]);
+    diagonal[threads - 1] = stacked.ColumnSquaredNorms();
+  }
+  EXPECT_LT((normal[0] - dense.transpose() * (dense * x)).norm(), 1e-12 * normal[0].norm());
+  EXPECT_LT((transposed[0] - dense.transpose() * v).norm(), 1e-12 * transposed[0].norm());
+  EXPECT_LT((diagonal[0] - dense.colwise().squaredNorm().transpose()).norm(), 1e-12 * diagonal[0].norm());
+  for (int t : {1, 2}) {
+    EXPECT_TRUE((normal[t].array() == normal[0].array()).all()) << t + 1 << " threads";
+    EXPECT_TRUE((transposed[t].array() == transposed[0].array()).all()) << t + 1 << " threads";
+    EXPECT_TRUE((diagonal[t].array() == diagonal[0].array()).all()) << t + 1 << " threads";
+  }
+}
+
 TEST(TrackerPcg, ConvergesToTheDirectSolution) {
   const JacobianMatrix j = random_jacobian(500, 60, 2);
   const AssembledNormalOperator a(j, 0.0);

@@ -2,16 +2,14 @@
 
 #include <algorithm>
 #include <cmath>
-#include <exception>
 #include <memory>
-#include <system_error>
-#include <thread>
 #include <unordered_map>
 #include <vector>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 #include "math_internal.h"
+#include "parallel.h"
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
@@ -366,35 +364,20 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   if (chunks == 1) {
     dense_rows(0, num_pixels, lin.term_rows[0], lin.term_rows[1], lin.term_rows[2], cache);
   } else {
-    std::vector<std::thread> workers;
-    // Everything that may throw on this thread is made before the first worker starts.
+    // Each chunk's first pixel and first rows, from counting the terms of the pixels before it;
+    // everything that may throw is made before the threads start.
+    struct Chunk {
+      size_t begin = 0, end = 0;
+      Eigen::Index row_point = 0, row_plane = 0, row_col = 0;
+    };
+    std::vector<Chunk> plan(static_cast<size_t>(chunks));
     std::vector<std::unique_ptr<VertexCache>> caches;
-    for (int k = 0; k + 1 < chunks; ++k) caches.push_back(std::make_unique<VertexCache>(model, c));
-    std::vector<std::exception_ptr> failures(static_cast<size_t>(chunks));
-    workers.reserve(static_cast<size_t>(chunks));
     Eigen::Index row_point = lin.term_rows[0], row_plane = lin.term_rows[1], row_col = lin.term_rows[2];
     size_t begin = 0;
-    // Runs one chunk, keeping its exception for the caller's thread (a worker must not throw).
-    auto run_chunk = [&dense_rows, &failures](int k, size_t first, size_t last, Eigen::Index rp, Eigen::Index rl,
-                                              Eigen::Index rc, VertexCache* vc) {
-      try {
-        dense_rows(first, last, rp, rl, rc, *vc);
-      } catch (...) {
-        failures[static_cast<size_t>(k)] = std::current_exception();
-      }
-    };
     for (int k = 0; k < chunks; ++k) {
       const size_t end = num_pixels * static_cast<size_t>(k + 1) / static_cast<size_t>(chunks);
-      if (k + 1 < chunks) {
-        VertexCache* vc = caches[static_cast<size_t>(k)].get();
-        try {
-          workers.emplace_back(run_chunk, k, begin, end, row_point, row_plane, row_col, vc);
-        } catch (const std::system_error&) {
-          run_chunk(k, begin, end, row_point, row_plane, row_col, vc);  // no thread to be had: run it here
-        }
-      } else {
-        run_chunk(k, begin, end, row_point, row_plane, row_col, &cache);  // the last chunk on this thread
-      }
+      plan[static_cast<size_t>(k)] = {begin, end, row_point, row_plane, row_col};
+      if (k + 1 < chunks) caches.push_back(std::make_unique<VertexCache>(model, c));
       for (size_t q = begin; q < end; ++q) {
         const PixelSample& s = lin.pixels[q];
         row_point += s.point ? 3 : 0;
@@ -403,9 +386,12 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       }
       begin = end;
     }
-    for (auto& w : workers) w.join();
-    for (const auto& f : failures)
-      if (f) std::rethrow_exception(f);
+    internal::ParallelFor(chunks, chunks, [&](int k) {
+      const Chunk& ch = plan[static_cast<size_t>(k)];
+      // The last chunk uses the caller's cache, which the landmarks below read again.
+      VertexCache& vc = k + 1 < chunks ? *caches[static_cast<size_t>(k)] : cache;
+      dense_rows(ch.begin, ch.end, ch.row_point, ch.row_plane, ch.row_col, vc);
+    });
   }
 
   // Landmarks (Eq. 10): projections of the landmark vertices against the detected points.

@@ -1,9 +1,11 @@
 #include "face_reenact/tracker/pcg.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
 #include "face_reenact/common/error.h"
+#include "parallel.h"
 
 namespace face_reenact::tracker {
 
@@ -15,26 +17,50 @@ StackedJacobian::StackedJacobian(const JacobianMatrix& single) : shared_(static_
   AddFrame(single);
 }
 
+namespace {
+// Rows per chunk of the products: 4096 rows of 85 doubles are 2.8 MB, so 640x480's level 2
+// (13k rows) splits into 4 chunks and level 1 (53k) into 13.
+constexpr Eigen::Index kRowsPerChunk = 4096;
+}  // namespace
+
 void StackedJacobian::AddFrame(const JacobianMatrix& block) {
   if (block.cols() != shared_ + own_) {
     throw Error("stacked Jacobian: a frame block has " + std::to_string(block.cols()) + " columns, expected " +
                 std::to_string(shared_ + own_));
   }
+  const int frame = num_frames();
+  for (Eigen::Index begin = 0; begin < block.rows(); begin += kRowsPerChunk) {
+    chunks_.push_back({frame, begin, std::min(block.rows(), begin + kRowsPerChunk), rows_ + begin});
+  }
   blocks_.push_back(&block);
+  local_x_.emplace_back();
   rows_ += block.rows();
+  partials_.resize(chunks_.size());
 }
 
 const Eigen::VectorXd& StackedJacobian::gather(const Eigen::VectorXd& x, int frame) const {
   if (own_ == 0) return x;  // every column is shared: the frame's x is x
-  local_x_.resize(shared_ + own_);
-  local_x_.head(shared_) = x.head(shared_);
-  local_x_.tail(own_) = x.segment(shared_ + static_cast<Eigen::Index>(frame) * own_, own_);
-  return local_x_;
+  Eigen::VectorXd& local = local_x_[static_cast<size_t>(frame)];
+  local.resize(shared_ + own_);
+  local.head(shared_) = x.head(shared_);
+  local.tail(own_) = x.segment(shared_ + static_cast<Eigen::Index>(frame) * own_, own_);
+  return local;
 }
 
 void StackedJacobian::scatter_add(const Eigen::VectorXd& local, int frame, Eigen::VectorXd* y) const {
   y->head(shared_) += local.head(shared_);
   if (own_ > 0) y->segment(shared_ + static_cast<Eigen::Index>(frame) * own_, own_) += local.tail(own_);
+}
+
+void StackedJacobian::SumOverChunks(const std::function<void(const RowChunk&, Eigen::VectorXd*)>& chunk_sum,
+                                    Eigen::VectorXd* y) const {
+  internal::ParallelFor(static_cast<int>(chunks_.size()), threads_, [&](int k) {
+    Eigen::VectorXd& partial = partials_[static_cast<size_t>(k)];
+    partial.setZero(shared_ + own_);
+    chunk_sum(chunks_[static_cast<size_t>(k)], &partial);
+  });
+  y->setZero(cols());
+  for (size_t k = 0; k < chunks_.size(); ++k) scatter_add(partials_[k], chunks_[k].frame, y);
 }
 
 void StackedJacobian::Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
@@ -48,44 +74,38 @@ void StackedJacobian::Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) con
 }
 
 void StackedJacobian::MultiplyTransposed(const Eigen::VectorXd& v, Eigen::VectorXd* y) const {
-  if (num_frames() == 1 && own_ == 0) {
-    y->noalias() = blocks_[0]->transpose() * v;
-    return;
-  }
-  y->setZero(cols());
-  Eigen::Index row = 0;
-  for (int f = 0; f < num_frames(); ++f) {
-    const JacobianMatrix& j = *blocks_[f];
-    local_y_.noalias() = j.transpose() * v.segment(row, j.rows());
-    scatter_add(local_y_, f, y);
-    row += j.rows();
-  }
+  SumOverChunks(
+      [&](const RowChunk& c, Eigen::VectorXd* partial) {
+        const JacobianMatrix& j = *blocks_[c.frame];
+        partial->noalias() += j.middleRows(c.begin, c.end - c.begin).transpose() * v.segment(c.first, c.end - c.begin);
+      },
+      y);
 }
 
 void StackedJacobian::MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
-  y->setZero(cols());
-  for (int f = 0; f < num_frames(); ++f) {
-    const JacobianMatrix& j = *blocks_[f];
-    const Eigen::VectorXd& xl = gather(x, f);
-    local_y_.setZero(j.cols());
-    for (Eigen::Index i = 0; i < j.rows(); ++i) {
-      const auto row = j.row(i);
-      local_y_.noalias() += row.dot(xl) * row.transpose();
-    }
-    scatter_add(local_y_, f, y);
-  }
+  for (int f = 0; f < num_frames(); ++f) gather(x, f);  // before the threads: each reads its frame's
+  SumOverChunks(
+      [&](const RowChunk& c, Eigen::VectorXd* partial) {
+        const JacobianMatrix& j = *blocks_[c.frame];
+        const Eigen::VectorXd& xl = own_ == 0 ? x : local_x_[static_cast<size_t>(c.frame)];
+        for (Eigen::Index i = c.begin; i < c.end; ++i) {
+          const auto row = j.row(i);
+          partial->noalias() += row.dot(xl) * row.transpose();
+        }
+      },
+      y);
 }
 
 Eigen::VectorXd StackedJacobian::ColumnSquaredNorms() const {
-  Eigen::VectorXd out = Eigen::VectorXd::Zero(cols());
-  for (int f = 0; f < num_frames(); ++f) {
-    // Row by row: one streaming pass over the row-major block (a column-wise reduction strides
-    // across it).
-    const JacobianMatrix& j = *blocks_[f];
-    local_y_.setZero(j.cols());
-    for (Eigen::Index i = 0; i < j.rows(); ++i) local_y_ += j.row(i).transpose().cwiseAbs2();
-    scatter_add(local_y_, f, &out);
-  }
+  // Row by row: one streaming pass over the row-major block (a column-wise reduction strides
+  // across it).
+  Eigen::VectorXd out;
+  SumOverChunks(
+      [&](const RowChunk& c, Eigen::VectorXd* partial) {
+        const JacobianMatrix& j = *blocks_[c.frame];
+        for (Eigen::Index i = c.begin; i < c.end; ++i) *partial += j.row(i).transpose().cwiseAbs2();
+      },
+      &out);
   return out;
 }
 

@@ -144,9 +144,12 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
   StackedJacobian System(const Eigen::VectorXd** r) {
     if (states_.size() == 1) {
       *r = &states_[0].r;
-      return StackedJacobian(states_[0].j);
+      StackedJacobian j(states_[0].j);
+      j.SetThreads(threads_);
+      return j;
     }
     StackedJacobian j(shared_, own_);
+    j.SetThreads(threads_);
     Eigen::Index rows = 0;
     for (const FrameState& st : states_) rows += st.r.size();
     stacked_r_.resize(rows);

@@ -5,6 +5,7 @@
 // twice per iteration (matrix-free, the paper's Sec. 6.2) or with J^T J assembled once. The
 // preconditioner is Jacobi: the inverse of diag(J^T J + D). Nothing allocates inside Pcg().
 #include <Eigen/Core>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -24,6 +25,9 @@ class StackedJacobian {
   explicit StackedJacobian(const JacobianMatrix& single);  // one frame, all columns shared
   // Appends the next frame's block (shared + own columns).
   void AddFrame(const JacobianMatrix& block);
+  // Threads for the products below (default 1). They go over fixed chunks of rows whose partial
+  // sums are added in order, so the results are bit-identical for any thread count.
+  void SetThreads(int threads) { threads_ = threads < 1 ? 1 : threads; }
   int num_frames() const { return static_cast<int>(blocks_.size()); }
   Eigen::Index rows() const { return rows_; }
   Eigen::Index cols() const { return shared_ + static_cast<Eigen::Index>(num_frames()) * own_; }
@@ -42,14 +46,25 @@ class StackedJacobian {
   Eigen::MatrixXd Gram() const;
 
  private:
+  // Rows [begin, end) of one frame's block; `first` is the first row's index in the stack.
+  struct RowChunk {
+    int frame = 0;
+    Eigen::Index begin = 0, end = 0, first = 0;
+  };
   // The frame's local x: the shared entries, then its own.
   const Eigen::VectorXd& gather(const Eigen::VectorXd& x, int frame) const;
   void scatter_add(const Eigen::VectorXd& local, int frame, Eigen::VectorXd* y) const;
+  // partials_[k] = chunk_sum(chunks_[k], partials_[k]) for every chunk (on threads_ threads),
+  // then y = the partials scattered and added in chunk order.
+  void SumOverChunks(const std::function<void(const RowChunk&, Eigen::VectorXd*)>& chunk_sum,
+                     Eigen::VectorXd* y) const;
 
   int shared_, own_;
+  int threads_ = 1;
   Eigen::Index rows_ = 0;
   std::vector<const JacobianMatrix*> blocks_;
-  mutable Eigen::VectorXd local_x_, local_y_;
+  std::vector<RowChunk> chunks_;
+  mutable std::vector<Eigen::VectorXd> local_x_, partials_;
 };
 
 class NormalOperator {
