@@ -90,7 +90,6 @@ class VertexCache {
   // out += (3 x K block of vertex v) * coefficients.
   void add_product(const gpu::BasisMatrix& basis, int v, const Eigen::VectorXd& coefficients, Eigen::Vector3d* out) {
     if (basis.cols() == 0) return;
-    block_.resize(3, basis.cols());
     block_ = basis.middleRows<3>(3 * v).cast<double>();
     out->noalias() += block_ * coefficients;
   }

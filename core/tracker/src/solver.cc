@@ -27,7 +27,7 @@ struct FrameState {
   Linearization lin;
   Eigen::VectorXd r;
   JacobianMatrix j;
-  bool has_jacobian = false;  // J is evaluated only when a step is solved from this state
+  bool has_jacobian = false;  // J is evaluated only when the loop says a step follows
   TermEnergies energy;
 };
 
@@ -95,17 +95,13 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
     return out;
   }
 
-  void SolveStep(const LevelSchedule& level, const Eigen::VectorXd& x, Eigen::VectorXd* dx,
+  void SolveStep(const LevelSchedule& level, const Eigen::VectorXd&, Eigen::VectorXd* dx,
                  IterationRecord* rec) override {
     const auto start = Clock::now();
-    rec->analysis_ms += TakeUnusedStepMs();
-    for (size_t f = 0; f < states_.size(); ++f) {
-      FrameState& st = states_[f];
-      if (st.has_jacobian) continue;  // evaluated by Linearize
-      EvaluateResiduals(model_, st.lin, options_.energy, FrameX(x, static_cast<int>(f)), &st.r, &st.j, &st.energy,
-                        threads_);
-      st.has_jacobian = true;
+    for (const FrameState& st : states_) {
+      if (!st.has_jacobian) throw Error("CPU solver: a step was asked for that no linearisation prepared");
     }
+    rec->analysis_ms += TakeUnusedStepMs();
     const Eigen::VectorXd* r = nullptr;
     const StackedJacobian j = System(&r);
     j.MultiplyTransposed(*r, &b_);
