@@ -31,7 +31,8 @@ TEST(TrackerPcg, OperatorsAgree) {
   as.Apply(x, &b);
   EXPECT_LT((a - b).norm(), 1e-9 * b.norm());
   EXPECT_LT((mf.Diagonal() - as.Diagonal()).norm(), 1e-9 * as.Diagonal().norm());
-  const Eigen::MatrixXd expect = j.transpose() * j;
+  const Eigen::MatrixXd jd = j.cast<double>();
+  const Eigen::MatrixXd expect = jd.transpose() * jd;
   Eigen::VectorXd direct = expect * x;
   direct.array() += 0.01 * expect.diagonal().array() * x.array();
   EXPECT_LT((direct - b).norm(), 1e-9 * b.norm());
@@ -56,15 +57,16 @@ TEST(TrackerPcg, StackedJacobianEqualsTheDenseStack) {
   ASSERT_EQ(stacked.cols(), dense.cols());
   const Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(dense.cols(), -1, 2);
   const Eigen::VectorXd v = Eigen::VectorXd::LinSpaced(dense.rows(), 3, -1);
+  const Eigen::MatrixXd dd = dense.cast<double>();  // the products accumulate in double
   Eigen::VectorXd jx, jtv;
   stacked.Multiply(x, &jx);
   stacked.MultiplyTransposed(v, &jtv);
-  EXPECT_LT((jx - dense * x).norm(), 1e-12 * jx.norm());
-  EXPECT_LT((jtv - dense.transpose() * v).norm(), 1e-12 * jtv.norm());
+  EXPECT_LT((jx - dd * x).norm(), 1e-12 * jx.norm());
+  EXPECT_LT((jtv - dd.transpose() * v).norm(), 1e-12 * jtv.norm());
   Eigen::VectorXd jtjx;
   stacked.MultiplyNormal(x, &jtjx);  // the one-pass J^T (J x)
-  EXPECT_LT((jtjx - dense.transpose() * (dense * x)).norm(), 1e-12 * jtjx.norm());
-  const Eigen::MatrixXd gram = dense.transpose() * dense;
+  EXPECT_LT((jtjx - dd.transpose() * (dd * x)).norm(), 1e-12 * jtjx.norm());
+  const Eigen::MatrixXd gram = dd.transpose() * dd;
   EXPECT_LT((stacked.Gram() - gram).norm(), 1e-12 * gram.norm());
   EXPECT_LT((stacked.ColumnSquaredNorms() - gram.diagonal()).norm(), 1e-12 * gram.diagonal().norm());
   // Both operators over the blocks match the dense ones.
@@ -96,6 +98,7 @@ TEST(TrackerPcg, ThreadedProductsOverSeveralChunksAreBitIdentical) {
   dense.block(9000, shared + own, 4100, own) = blocks[1].rightCols(own);
   const Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(dense.cols(), -1, 2);
   const Eigen::VectorXd v = Eigen::VectorXd::LinSpaced(dense.rows(), 3, -1);
+  const Eigen::MatrixXd dd = dense.cast<double>();
   Eigen::VectorXd normal[3], transposed[3], diagonal[3];
   for (int threads : {1, 2, 3}) {
     StackedJacobian stacked(shared, own);
@@ -105,9 +108,9 @@ TEST(TrackerPcg, ThreadedProductsOverSeveralChunksAreBitIdentical) {
     stacked.MultiplyTransposed(v, &transposed[threads - 1]);
     diagonal[threads - 1] = stacked.ColumnSquaredNorms();
   }
-  EXPECT_LT((normal[0] - dense.transpose() * (dense * x)).norm(), 1e-12 * normal[0].norm());
-  EXPECT_LT((transposed[0] - dense.transpose() * v).norm(), 1e-12 * transposed[0].norm());
-  EXPECT_LT((diagonal[0] - dense.colwise().squaredNorm().transpose()).norm(), 1e-12 * diagonal[0].norm());
+  EXPECT_LT((normal[0] - dd.transpose() * (dd * x)).norm(), 1e-12 * normal[0].norm());
+  EXPECT_LT((transposed[0] - dd.transpose() * v).norm(), 1e-12 * transposed[0].norm());
+  EXPECT_LT((diagonal[0] - dd.colwise().squaredNorm().transpose()).norm(), 1e-12 * diagonal[0].norm());
   for (int t : {1, 2}) {
     EXPECT_TRUE((normal[t].array() == normal[0].array()).all()) << t + 1 << " threads";
     EXPECT_TRUE((transposed[t].array() == transposed[0].array()).all()) << t + 1 << " threads";

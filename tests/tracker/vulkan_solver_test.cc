@@ -92,7 +92,8 @@ TEST_F(VulkanSolverTest, ResidualsAndJacobianRowsMatchTheCpuOnTheSameLinearisati
     const Eigen::Index begin = lin.term_rows[t], rows = lin.term_rows[t + 1] - begin;
     if (rows == 0) continue;
     const double r_error = relative(gpu_system.residuals.segment(begin, rows), r.segment(begin, rows));
-    const double j_error = relative(gpu_system.jacobian.middleRows(begin, rows), j.middleRows(begin, rows));
+    const double j_error =
+        relative(gpu_system.jacobian.middleRows(begin, rows).cast<double>(), j.middleRows(begin, rows).cast<double>());
     std::cout << term_name(static_cast<Term>(t)) << ": " << rows << " rows, relative error r " << r_error << ", J "
               << j_error << ", energy " << gpu_system.energy.value[t] << " vs " << e.value[t] << "\n";
     EXPECT_LT(r_error, 1e-4) << term_name(static_cast<Term>(t));
@@ -101,9 +102,10 @@ TEST_F(VulkanSolverTest, ResidualsAndJacobianRowsMatchTheCpuOnTheSameLinearisati
   }
 
   // Normal equations: the assembled path's J^T J, J^T r, and the matrix-free J^T (J v).
-  const Eigen::MatrixXd jtj = j.transpose() * j;
-  const Eigen::VectorXd jtr = j.transpose() * r;
-  const Eigen::VectorXd product = j.transpose() * (j * v);
+  const Eigen::MatrixXd jd = j.cast<double>();
+  const Eigen::MatrixXd jtj = jd.transpose() * jd;
+  const Eigen::VectorXd jtr = jd.transpose() * r;
+  const Eigen::VectorXd product = jd.transpose() * (jd * v);
   const double jtj_error = relative(gpu_system.jtj, jtj), jtr_error = relative(gpu_system.jtr, jtr);
   const double mf_jtr_error = relative(gpu_system.jtr_matrix_free, jtr);
   const double product_error = relative(gpu_system.normal_product, product);
@@ -136,8 +138,9 @@ TEST_F(VulkanSolverTest, ColourOnlyFrameMatchesTheCpu) {
   EXPECT_EQ(lin.num_point, 0);
   for (int t = 0; t <= kNumTerms; ++t) ASSERT_EQ(g.term_rows[t], lin.term_rows[t]) << "term boundary " << t;
   EXPECT_LT(relative(g.residuals, r), 1e-4);
-  EXPECT_LT(relative(g.jacobian, j), 1e-4);
-  EXPECT_LT(relative(g.normal_product, j.transpose() * (j * v)), 1e-4);
+  const Eigen::MatrixXd jd = j.cast<double>();
+  EXPECT_LT(relative(g.jacobian.cast<double>(), jd), 1e-4);
+  EXPECT_LT(relative(g.normal_product, jd.transpose() * (jd * v)), 1e-4);
 }
 
 // A full coarse-to-fine solve lands where the CPU solver lands, with either strategy.

@@ -245,9 +245,9 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   Eigen::VectorXd local_r;
   Eigen::VectorXd& r = residuals ? *residuals : local_r;
   r.resize(m);
-  // Not zeroed as a whole: point and plane rows are written in full, and the rows that are
-  // accumulated or written in part (colour, landmark, prior) are zeroed where they are written.
-  // At 640x480's level 1, J is 36 MB, and a memset of it cost as much as a PCG product.
+  // Not zeroed as a whole: every row is written in full where it is computed (the accumulated
+  // colour, plane and landmark rows go through double scratch, the prior rows are zeroed first).
+  // At 640x480's level 1, J is 18 MB, and a memset of it cost as much as a PCG product.
   if (jacobian) jacobian->resize(m, np);
 
   const Coefficients c = coefficients(model, lin, x);
@@ -273,6 +273,9 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
                         VertexCache& vertices) {
     // Scratch for the pixel-level derivatives of X_S (3 x np) - only the shape/pose columns are used.
     Eigen::Matrix<double, 3, Eigen::Dynamic> dx(3, np);
+    // A plane pair's and a colour triple's rows, accumulated in double and rounded once into J.
+    Eigen::Matrix<double, 2, Eigen::Dynamic> d_plane(2, np);
+    Eigen::Matrix<double, 3, Eigen::Dynamic> d_col(3, np);
     Eigen::MatrixXd e_id(3, k_id), e_exp(3, k_exp);
     for (size_t p = begin; p < end; ++p) {
       const PixelSample& s = lin.pixels[p];
@@ -301,7 +304,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
         }
         if (s.point) {
           r.segment<3>(row_point) = s_point * diff;
-          if (jacobian) jacobian->middleRows(row_point, 3) = s_point * dx;
+          if (jacobian) jacobian->middleRows(row_point, 3) = (s_point * dx).cast<float>();
           row_point += 3;
         }
         if (s.plane) {
@@ -311,9 +314,10 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
           r[row_plane] = s_plane * s.input_normal.dot(diff);
           r[row_plane + 1] = s_plane * n_s.dot(diff);
           if (jacobian) {
-            jacobian->row(row_plane) = s_plane * (s.input_normal.transpose() * dx);
-            jacobian->row(row_plane + 1) = s_plane * (n_s.transpose() * dx);
-            for (int a = 0; a < 3; ++a) (*jacobian)(row_plane + 1, o_rot + a) += s_plane * (rot.d[a] * n_model).dot(diff);
+            d_plane.row(0) = s_plane * (s.input_normal.transpose() * dx);
+            d_plane.row(1) = s_plane * (n_s.transpose() * dx);
+            for (int a = 0; a < 3; ++a) d_plane(1, o_rot + a) += s_plane * (rot.d[a] * n_model).dot(diff);
+            jacobian->middleRows(row_plane, 2) = d_plane.cast<float>();
           }
           row_plane += 2;
         }
@@ -321,7 +325,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       if (s.color) {
         // C_c = sum_k b_k a_kc sum_j gamma_cj y_j(R n_k)
         Eigen::Vector3d color = Eigen::Vector3d::Zero();
-        if (jacobian) jacobian->middleRows(row_col, 3).setZero();
+        if (jacobian) d_col.setZero();
         for (int k = 0; k < 3; ++k) {
           const int v = s.vertex[k];
           const Eigen::Vector3d n_model = lin.model_normals.segment<3>(3 * v);
@@ -339,7 +343,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
             for (int q = 0; q < 9; ++q) irradiance += c.gamma[ch * 9 + q] * y[q];
             color[ch] += s.bary[k] * albedo[ch] * irradiance;
             if (!jacobian) continue;
-            auto jrow = jacobian->row(row_col + ch);
+            auto jrow = d_col.row(ch);
             const double ba = s_col * s.bary[k] * albedo[ch];
             for (int q = 0; q < 9; ++q) jrow[o_gam + ch * 9 + q] += ba * y[q];
             if (k_alb > 0) {
@@ -354,6 +358,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
           }
         }
         r.segment<3>(row_col) = s_col * (color - s.input_color);
+        if (jacobian) jacobian->middleRows(row_col, 3) = d_col.cast<float>();
         row_col += 3;
       }
     }
@@ -406,17 +411,18 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       const Eigen::Vector2d uv(cam.fx * X.x() * iz + cam.cx, cam.fy * X.y() * iz + cam.cy);
       r.segment<2>(row) = s * (uv - l.target);
       if (jacobian) {
-        jacobian->middleRows(row, 2).setZero();
+        Eigen::Matrix<double, 2, Eigen::Dynamic> d_lan = Eigen::Matrix<double, 2, Eigen::Dynamic>::Zero(2, np);
         Eigen::Matrix<double, 2, 3> dproj;
         dproj << cam.fx * iz, 0, -cam.fx * X.x() * iz * iz, 0, cam.fy * iz, -cam.fy * X.y() * iz * iz;
         const Eigen::Matrix<double, 2, 3> dr = s * dproj;
         const Eigen::Matrix<double, 2, 3> drr = dr * R;
-        if (k_id > 0) jacobian->block(row, o_id, 2, k_id) = drr * rm.identity_basis.block(3 * l.vertex, 0, 3, k_id).cast<double>();
+        if (k_id > 0) d_lan.middleCols(o_id, k_id) = drr * rm.identity_basis.block(3 * l.vertex, 0, 3, k_id).cast<double>();
         if (k_exp > 0) {
-          jacobian->block(row, o_exp, 2, k_exp) = drr * rm.expression_basis.block(3 * l.vertex, 0, 3, k_exp).cast<double>();
+          d_lan.middleCols(o_exp, k_exp) = drr * rm.expression_basis.block(3 * l.vertex, 0, 3, k_exp).cast<double>();
         }
-        for (int a = 0; a < 3; ++a) jacobian->block<2, 1>(row, o_rot + a) = dr * (rot.d[a] * v);
-        jacobian->block<2, 3>(row, o_t) = dr;
+        for (int a = 0; a < 3; ++a) d_lan.col(o_rot + a) = dr * (rot.d[a] * v);
+        d_lan.middleCols<3>(o_t) = dr;
+        jacobian->middleRows(row, 2) = d_lan.cast<float>();
       }
       row += 2;
     }
@@ -431,7 +437,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
         r[row] = inv * x[offset + q];
         if (jacobian) {
           jacobian->row(row).setZero();
-          (*jacobian)(row, offset + q) = inv;
+          (*jacobian)(row, offset + q) = static_cast<float>(inv);
         }
         ++row;
       }
@@ -448,7 +454,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       r[row] = inv * x[o_exp + q];
       if (jacobian) {
         jacobian->row(row).setZero();
-        (*jacobian)(row, o_exp + q) = inv;
+        (*jacobian)(row, o_exp + q) = static_cast<float>(inv);
       }
       ++row;
     }

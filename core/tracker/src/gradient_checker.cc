@@ -44,7 +44,7 @@ GradientCheckResult CompareWithFiniteDifferences(const ResidualFunction& f, cons
         const Eigen::Index begin = term_rows[t], rows = term_rows[t + 1] - term_rows[t];
         if (rows == 0) continue;
         const Eigen::VectorXd num = numeric.segment(begin, rows);
-        const Eigen::VectorXd ana = analytic.col(col).segment(begin, rows);
+        const Eigen::VectorXd ana = analytic.col(col).segment(begin, rows).cast<double>();
         const double err = (ana - num).norm() / std::max(num.norm(), options.absolute_floor);
         double& worst = result.worst_error[t][b];
         worst = std::max(worst, err);
