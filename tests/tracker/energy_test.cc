@@ -409,5 +409,37 @@ TEST(TrackerEnergy, InvisibleLandmarksArePruned) {
   EXPECT_EQ(s.solver.LinearizeAt(s.frame, s.layout, EnergyOptions{}, p).landmarks.size(), 0u);
 }
 
+
+// Tracking's precomputed identity shapes and albedos (Linearization::fixed) change nothing but
+// the time: r and J are bit-identical with and without them, on one and two threads. Parts made
+// for another identity or albedo are not used, and a layout that solves a block ignores them.
+TEST(TrackerEnergy, FixedModelPartsGiveTheSameBits) {
+  const TrackerModel* real = real_model();
+  const TrackerModel model = real ? *real : sphere_model();
+  for (const ParameterLayout& layout :
+       {ParameterLayout::Tracking(model.num_expression()), ParameterLayout::Calibration(4, 3, model.num_expression())}) {
+    const Linearised s = linearised(model, layout, EnergyOptions{}, test_camera(320, 240), 0.5f, 23);
+    for (int t = 0; t < kNumTerms; ++t) ASSERT_GT(s.lin.term_rows[t + 1], s.lin.term_rows[t]) << term_name(Term(t));
+    Eigen::VectorXd r0;
+    JacobianMatrix j0;
+    EvaluateResiduals(model, s.lin, EnergyOptions{}, s.x, &r0, &j0, nullptr, 1);
+
+    gpu::FaceParameters other = s.lin.base;
+    other.alpha[0] += 0.5f * model.identity_sigma[0];
+    other.beta[0] += 0.5f * model.albedo_sigma[0];
+    for (const gpu::FaceParameters& made_for : {s.lin.base, other}) {
+      Linearization with = s.lin;
+      with.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model, made_for));
+      for (int threads : {1, 2}) {
+        Eigen::VectorXd r;
+        JacobianMatrix j;
+        EvaluateResiduals(model, with, EnergyOptions{}, s.x, &r, &j, nullptr, threads);
+        EXPECT_TRUE((r.array() == r0.array()).all()) << layout.num_identity << " identity unknowns, " << threads << " threads";
+        EXPECT_TRUE((j.array() == j0.array()).all()) << layout.num_identity << " identity unknowns, " << threads << " threads";
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace face_reenact::tracker

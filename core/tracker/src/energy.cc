@@ -55,53 +55,93 @@ Coefficients coefficients(const TrackerModel& model, const Linearization& lin, c
 // 3 x K block of a (vertex-major) basis is converted to double in one vectorised pass and then
 // multiplied; a product of the float block cast on the fly is evaluated coefficient by coefficient,
 // which took a sixth of a tracking solve.
+// out += (3 x K block of vertex v) * coefficients; `block` is scratch.
+void add_product(const gpu::BasisMatrix& basis, int v, const Eigen::VectorXd& coefficients,
+                 Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>* block, Eigen::Vector3d* out) {
+  if (basis.cols() == 0) return;
+  *block = basis.middleRows<3>(3 * v).cast<double>();
+  out->noalias() += *block * coefficients;
+}
+
+// mean + identity part of vertex v's position, and its albedo: the same arithmetic whether
+// evaluated here per call or once into FixedModelParts, so both give the same bits.
+Eigen::Vector3d identity_shape(const gpu::RenderModel& m, int v, const Eigen::VectorXd& alpha,
+                               Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>* block) {
+  Eigen::Vector3d p = m.mean_shape.segment<3>(3 * v).cast<double>();
+  add_product(m.identity_basis, v, alpha, block, &p);
+  return p;
+}
+Eigen::Vector3d vertex_albedo(const gpu::RenderModel& m, int v, const Eigen::VectorXd& beta,
+                              Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>* block) {
+  Eigen::Vector3d a = m.mean_albedo.segment<3>(3 * v).cast<double>();
+  add_product(m.albedo_basis, v, beta, block, &a);
+  return a;
+}
+
 class VertexCache {
  public:
-  VertexCache(const TrackerModel& model, const Coefficients& c) : model_(model), c_(c) {
+  // `fixed_shape` / `fixed_albedo` (may be null): precomputed identity shapes / albedos for c's
+  // alpha / beta.
+  VertexCache(const TrackerModel& model, const Coefficients& c, const std::vector<Eigen::Vector3d>* fixed_shape,
+              const std::vector<Eigen::Vector3d>* fixed_albedo)
+      : model_(model), c_(c), fixed_shape_(fixed_shape), fixed_albedo_(fixed_albedo) {
     const size_t n = static_cast<size_t>(model.num_vertices());
     position_.resize(n);
-    albedo_.resize(n);
+    if (!fixed_albedo_) albedo_.resize(n);
     have_position_.assign(n, 0);
-    have_albedo_.assign(n, 0);
+    if (!fixed_albedo_) have_albedo_.assign(n, 0);
   }
   const Eigen::Vector3d& position(int v) {
     if (!have_position_[v]) {
       const auto& m = model_.render;
-      Eigen::Vector3d p = m.mean_shape.segment<3>(3 * v).cast<double>();
-      add_product(m.identity_basis, v, c_.alpha, &p);
-      add_product(m.expression_basis, v, c_.delta, &p);
+      Eigen::Vector3d p = fixed_shape_ ? (*fixed_shape_)[v] : identity_shape(m, v, c_.alpha, &block_);
+      add_product(m.expression_basis, v, c_.delta, &block_, &p);
       position_[v] = p;
       have_position_[v] = 1;
     }
     return position_[v];
   }
   const Eigen::Vector3d& albedo(int v) {
+    if (fixed_albedo_) return (*fixed_albedo_)[v];
     if (!have_albedo_[v]) {
-      const auto& m = model_.render;
-      Eigen::Vector3d a = m.mean_albedo.segment<3>(3 * v).cast<double>();
-      add_product(m.albedo_basis, v, c_.beta, &a);
-      albedo_[v] = a;
+      albedo_[v] = vertex_albedo(model_.render, v, c_.beta, &block_);
       have_albedo_[v] = 1;
     }
     return albedo_[v];
   }
 
  private:
-  // out += (3 x K block of vertex v) * coefficients.
-  void add_product(const gpu::BasisMatrix& basis, int v, const Eigen::VectorXd& coefficients, Eigen::Vector3d* out) {
-    if (basis.cols() == 0) return;
-    block_ = basis.middleRows<3>(3 * v).cast<double>();
-    out->noalias() += block_ * coefficients;
-  }
-
   const TrackerModel& model_;
   const Coefficients& c_;
+  const std::vector<Eigen::Vector3d>* fixed_shape_;
+  const std::vector<Eigen::Vector3d>* fixed_albedo_;
   std::vector<Eigen::Vector3d> position_, albedo_;
   std::vector<uint8_t> have_position_, have_albedo_;
   Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block_;
 };
 
+bool same_coefficients(const Eigen::VectorXf& a, const Eigen::VectorXf& b) {
+  return a.size() == b.size() && (a.array() == b.array()).all();
+}
+
 }  // namespace
+
+FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params) {
+  FixedModelParts out;
+  out.alpha = params.alpha;
+  out.beta = params.beta;
+  const Eigen::VectorXd alpha = padded(params.alpha, model.num_identity());
+  const Eigen::VectorXd beta = padded(params.beta, model.num_albedo());
+  const int n = model.num_vertices();
+  out.shape.resize(static_cast<size_t>(n));
+  out.albedo.resize(static_cast<size_t>(n));
+  Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block;
+  for (int v = 0; v < n; ++v) {
+    out.shape[static_cast<size_t>(v)] = identity_shape(model.render, v, alpha, &block);
+    out.albedo[static_cast<size_t>(v)] = vertex_albedo(model.render, v, beta, &block);
+  }
+  return out;
+}
 
 const char* term_name(Term t) {
   switch (t) {
@@ -253,7 +293,14 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   const Coefficients c = coefficients(model, lin, x);
   const internal::RotationWithDerivatives rot = internal::rotation_with_derivatives(c.euler);
   const Eigen::Matrix3d& R = rot.r;
-  VertexCache cache(model, c);
+  // The precomputed identity shapes / albedos, when this layout does not solve that block and
+  // they were computed for the base's coefficients.
+  const FixedModelParts* fixed = lin.fixed.get();
+  const std::vector<Eigen::Vector3d>* fixed_shape =
+      fixed && layout.num_identity == 0 && same_coefficients(fixed->alpha, lin.base.alpha) ? &fixed->shape : nullptr;
+  const std::vector<Eigen::Vector3d>* fixed_albedo =
+      fixed && layout.num_albedo == 0 && same_coefficients(fixed->beta, lin.base.beta) ? &fixed->albedo : nullptr;
+  VertexCache cache(model, c, fixed_shape, fixed_albedo);
   const auto& rm = model.render;
   const int k_id = layout.num_identity, k_alb = layout.num_albedo, k_exp = layout.num_expression;
   const int o_id = layout.offset(Block::kIdentity), o_alb = layout.offset(Block::kAlbedo);
@@ -381,7 +428,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
     for (int k = 0; k < chunks; ++k) {
       const size_t end = num_pixels * static_cast<size_t>(k + 1) / static_cast<size_t>(chunks);
       plan[static_cast<size_t>(k)] = {begin, end, row_point, row_plane, row_col};
-      if (k + 1 < chunks) caches.push_back(std::make_unique<VertexCache>(model, c));
+      if (k + 1 < chunks) caches.push_back(std::make_unique<VertexCache>(model, c, fixed_shape, fixed_albedo));
       for (size_t q = begin; q < end; ++q) {
         const PixelSample& s = lin.pixels[q];
         row_point += s.point ? 3 : 0;

@@ -47,7 +47,8 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
         shared_(layout.num_identity + layout.num_albedo),
         own_(layout.num_parameters() - shared_),
         threads_(options.ResolvedThreads()),
-        states_(pyramids.size()) {
+        states_(pyramids.size()),
+        fixed_(pyramids.size()) {
     const int n = shared_ + static_cast<int>(pyramids.size()) * own_;
     scratch_.Resize(n);
     b_.resize(n);
@@ -78,6 +79,11 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       const auto t1 = Clock::now();
       FrameState& st = states_[f];
       st.lin = tracker::Linearize(model_, layout_, p, vs, g, frame, options_.energy, /*regularize_shared=*/f == 0);
+      if (layout_.num_identity == 0 && layout_.num_albedo == 0) {
+        // Tracking: the identity shape and albedo stay the base's for the whole solve.
+        if (!fixed_[f]) fixed_[f] = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model_, bases_[f]));
+        st.lin.fixed = fixed_[f];
+      }
       const auto t2 = Clock::now();
       st.has_jacobian = step_follows;
       EvaluateResiduals(model_, st.lin, options_.energy, xf, &st.r, st.has_jacobian ? &st.j : nullptr, &st.energy,
@@ -167,6 +173,8 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
   const std::vector<gpu::FaceParameters>& bases_;
   const int shared_, own_, threads_;
   std::vector<FrameState> states_;
+  // Per frame, made on its first linearisation when the layout solves neither identity nor albedo.
+  std::vector<std::shared_ptr<const FixedModelParts>> fixed_;
   PcgScratch scratch_;
   Eigen::VectorXd b_, stacked_r_, trial_r_;
   double step_ms_ = 0;  // J evaluated by Linearize for the coming step

@@ -21,6 +21,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -102,6 +103,16 @@ struct LandmarkSample {
   double confidence = 1.0;
 };
 
+// The per-vertex parts of the model that a solve without identity and albedo unknowns (tracking)
+// does not change: the identity's shape (mean + E_id alpha) and the albedo (mean + E_alb beta),
+// in double, for the alpha and beta they were computed from. With them a vertex's position costs
+// the 52 expression columns instead of all 132 basis columns.
+struct FixedModelParts {
+  Eigen::VectorXf alpha, beta;
+  std::vector<Eigen::Vector3d> shape, albedo;
+};
+FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params);
+
 // Everything held fixed while one Gauss-Newton step is solved.
 struct Linearization {
   ParameterLayout layout;
@@ -119,6 +130,10 @@ struct Linearization {
   bool regularize_shared = true;
   // First row of each term in r / J; term_rows[kNumTerms] is the number of residuals.
   std::array<Eigen::Index, kNumTerms + 1> term_rows{};
+  // Optional (the solver sets it; Linearize does not): used by EvaluateResiduals for the blocks
+  // the layout does not solve when its alpha/beta are base's. Results are bit-identical with and
+  // without it.
+  std::shared_ptr<const FixedModelParts> fixed;
 
   Eigen::Index num_residuals() const { return term_rows[kNumTerms]; }
 };
