@@ -25,8 +25,8 @@ constexpr Eigen::Index kRowsPerChunk = 4096;
 // 256 rows of 85 doubles stay in L2.
 constexpr Eigen::Index kRowsPerTile = 256;
 
-// sum_k row[k] * x[k] in double, over four independent partial sums so the loop vectorises
-// without reassociating anything the compiler would have to prove.
+// sum_k row[k] * x[k] in double. Four independent partial sums, so the compiler can keep them in
+// one vector register; a single running sum it may not reorder, and would add one at a time.
 double RowDot(const float* row, const double* x, Eigen::Index n) {
   double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
   Eigen::Index k = 0;

@@ -26,7 +26,8 @@ class StackedJacobian {
   // Appends the next frame's block (shared + own columns).
   void AddFrame(const JacobianMatrix& block);
   // Threads for the products below (default 1). They go over fixed chunks of rows whose partial
-  // sums are added in order, so the results are bit-identical for any thread count.
+  // sums are added in order, so the results are bit-identical for any thread count. They read
+  // J's floats and accumulate in double.
   void SetThreads(int threads) { threads_ = threads < 1 ? 1 : threads; }
   int num_frames() const { return static_cast<int>(blocks_.size()); }
   Eigen::Index rows() const { return rows_; }
@@ -36,8 +37,8 @@ class StackedJacobian {
   // y = J^T v (y is resized to cols()).
   void MultiplyTransposed(const Eigen::VectorXd& v, Eigen::VectorXd* y) const;
   // y = J^T (J x) (y is resized to cols()) in one pass over J: row by row, (J_i . x) J_i^T is
-  // added. J is the largest thing the PCG touches (9 MB at 640x480's level 2) and on CPUs the
-  // products are bound by memory bandwidth, so one pass instead of Multiply's and
+  // added. J is the largest thing the PCG touches (4.5 MB of floats at 640x480's level 2) and
+  // on CPUs the products are bound by memory bandwidth, so one pass instead of Multiply's and
   // MultiplyTransposed's two halves their cost.
   void MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* y) const;
   // diag(J^T J).
