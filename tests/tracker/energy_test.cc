@@ -409,7 +409,6 @@ TEST(TrackerEnergy, InvisibleLandmarksArePruned) {
   EXPECT_EQ(s.solver.LinearizeAt(s.frame, s.layout, EnergyOptions{}, p).landmarks.size(), 0u);
 }
 
-
 // Tracking's precomputed identity shapes and albedos (Linearization::fixed) change nothing but
 // the time: r and J are bit-identical with and without them, on one and two threads. Parts made
 // for another identity or albedo are not used, and a layout that solves a block ignores them.

@@ -51,11 +51,10 @@ Coefficients coefficients(const TrackerModel& model, const Linearization& lin, c
   return c;
 }
 
-// Model-frame vertex positions and albedos, evaluated on demand in double precision. A vertex's
-// 3 x K block of a (vertex-major) basis is converted to double in one vectorised pass and then
-// multiplied; a product of the float block cast on the fly is evaluated coefficient by coefficient,
-// which took a sixth of a tracking solve.
-// out += (3 x K block of vertex v) * coefficients; `block` is scratch.
+// out += (3 x K block of vertex v) * coefficients; `block` is scratch. The vertex's block of the
+// (vertex-major) basis is converted to double in one vectorised pass and then multiplied; a
+// product of the float block cast on the fly is evaluated coefficient by coefficient, which took
+// a sixth of a tracking solve.
 void add_product(const gpu::BasisMatrix& basis, int v, const Eigen::VectorXd& coefficients,
                  Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>* block, Eigen::Vector3d* out) {
   if (basis.cols() == 0) return;
@@ -78,6 +77,7 @@ Eigen::Vector3d vertex_albedo(const gpu::RenderModel& m, int v, const Eigen::Vec
   return a;
 }
 
+// Model-frame vertex positions and albedos, evaluated on demand in double precision.
 class VertexCache {
  public:
   // `fixed_shape` / `fixed_albedo` (may be null): precomputed identity shapes / albedos for c's
@@ -450,6 +450,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   if (!lin.landmarks.empty()) {
     const auto& cam = lin.camera;
     const double s_lan = std::sqrt(options.w_lan / lin.landmark_weight_sum) * options.landmark_reference_width / cam.width;
+    Eigen::Matrix<double, 2, Eigen::Dynamic> d_lan(2, np);  // a landmark's rows, rounded once into J
     for (const LandmarkSample& l : lin.landmarks) {
       const Eigen::Vector3d& v = cache.position(l.vertex);
       const Eigen::Vector3d X = R * v + c.translation;
@@ -458,7 +459,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       const Eigen::Vector2d uv(cam.fx * X.x() * iz + cam.cx, cam.fy * X.y() * iz + cam.cy);
       r.segment<2>(row) = s * (uv - l.target);
       if (jacobian) {
-        Eigen::Matrix<double, 2, Eigen::Dynamic> d_lan = Eigen::Matrix<double, 2, Eigen::Dynamic>::Zero(2, np);
+        d_lan.setZero();
         Eigen::Matrix<double, 2, 3> dproj;
         dproj << cam.fx * iz, 0, -cam.fx * X.x() * iz * iz, 0, cam.fy * iz, -cam.fy * X.y() * iz * iz;
         const Eigen::Matrix<double, 2, 3> dr = s * dproj;

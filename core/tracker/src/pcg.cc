@@ -39,6 +39,11 @@ double RowDot(const float* row, const double* x, Eigen::Index n) {
   for (; k < n; ++k) s0 += static_cast<double>(row[k]) * x[k];
   return (s0 + s1) + (s2 + s3);
 }
+
+// acc[k] += s * row[k] for k < n, in double.
+void AddScaledRow(double s, const float* row, Eigen::Index n, double* acc) {
+  for (Eigen::Index k = 0; k < n; ++k) acc[k] += s * static_cast<double>(row[k]);
+}
 }  // namespace
 
 void StackedJacobian::AddFrame(const JacobianMatrix& block) {
@@ -95,11 +100,8 @@ void StackedJacobian::MultiplyTransposed(const Eigen::VectorXd& v, Eigen::Vector
   SumOverChunks(
       [&](const RowChunk& c, Eigen::VectorXd* partial) {
         const JacobianMatrix& j = *blocks_[c.frame];
-        double* acc = partial->data();
         for (Eigen::Index i = c.begin; i < c.end; ++i) {
-          const double vi = v[c.first + (i - c.begin)];
-          const float* row = j.row(i).data();
-          for (Eigen::Index k = 0; k < j.cols(); ++k) acc[k] += vi * static_cast<double>(row[k]);
+          AddScaledRow(v[c.first + (i - c.begin)], j.row(i).data(), j.cols(), partial->data());
         }
       },
       y);
@@ -111,12 +113,10 @@ void StackedJacobian::MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* 
       [&](const RowChunk& c, Eigen::VectorXd* partial) {
         const JacobianMatrix& j = *blocks_[c.frame];
         const Eigen::VectorXd& xl = own_ == 0 ? x : local_x_[static_cast<size_t>(c.frame)];
-        double* acc = partial->data();
         const Eigen::Index n = j.cols();
         for (Eigen::Index i = c.begin; i < c.end; ++i) {
           const float* row = j.row(i).data();
-          const double d = RowDot(row, xl.data(), n);
-          for (Eigen::Index k = 0; k < n; ++k) acc[k] += d * static_cast<double>(row[k]);
+          AddScaledRow(RowDot(row, xl.data(), n), row, n, partial->data());
         }
       },
       y);
