@@ -52,6 +52,33 @@ FaceParameters random_face_parameters(const FaceModel& m, std::mt19937& rng) {
   return p;
 }
 
+// The CPU rasteriser splits its work over threads (triangle set-up, then bands of rows); every
+// pixel must still see the same triangles in the same order, so the G-buffer is bit-identical.
+TEST(CpuRendererThreads, GBufferIsBitIdenticalOnAnyThreadCount) {
+  if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
+  const CpuRenderer cpu(RenderModel::FromFaceModel(face_model()));
+  std::mt19937 rng(4242);
+  for (int trial = 0; trial < 3; ++trial) {
+    const VertexState state = cpu.evaluate(random_face_parameters(face_model(), rng));
+    for (int level = 0; level < 3; ++level) {
+      const PinholeCamera camera = PinholeCamera{}.Downsampled(level);
+      GBuffer one;
+      cpu.rasterize(state, camera, RenderOptions{}, &one, 1);
+      ASSERT_GT(one.covered_count(), 100u);
+      for (int threads : {2, 3, 8}) {
+        GBuffer many;
+        cpu.rasterize(state, camera, RenderOptions{}, &many, threads);
+        EXPECT_EQ(many.color, one.color) << "trial " << trial << " level " << level << " threads " << threads;
+        EXPECT_EQ(many.position, one.position);
+        EXPECT_EQ(many.normal, one.normal);
+        EXPECT_EQ(many.barycentric, one.barycentric);
+        EXPECT_EQ(many.triangle, one.triangle);
+        EXPECT_EQ(many.vertices, one.vertices);
+      }
+    }
+  }
+}
+
 class FaceModelRenderTest : public ValidatedGpuTest {
  protected:
   void SetUp() override {

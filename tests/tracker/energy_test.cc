@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <random>
 
 #include "face_reenact/common/error.h"
@@ -97,6 +98,31 @@ TEST(TrackerPyramid, DepthIsNotAveragedAcrossSilhouettesOrHoles) {
   for (size_t l = 1; l < levels.size(); ++l) {
     for (float d : levels[l].depth) {
       EXPECT_TRUE(std::abs(d - 0.5f) < 1e-5f || std::abs(d - 1.5f) < 1e-5f) << d;
+    }
+  }
+}
+
+// The levels are built on several threads (row blocks): the same values for any count.
+TEST(TrackerPyramid, LevelsAreTheSameOnAnyThreadCount) {
+  InputFrame f = flat_frame(160, 120, 0.6f, 0.3f);
+  for (int j = 0; j < 120; ++j) {
+    for (int i = 0; i < 160; ++i) {
+      const size_t p = static_cast<size_t>(j) * 160 + i;
+      f.depth[p] = i > 100 ? 1.4f : 0.6f + 0.001f * static_cast<float>((i * 7 + j * 13) % 17);
+      if ((i + 3 * j) % 29 == 0) f.depth[p] = std::nanf("");
+      for (int k = 0; k < 3; ++k) f.color[3 * p + k] = static_cast<float>((i * (k + 1) + j) % 11) / 11.f;
+    }
+  }
+  const auto one = BuildPyramid(f, PyramidOptions{}, 1);
+  for (int threads : {2, 5}) {
+    const auto many = BuildPyramid(f, PyramidOptions{}, threads);
+    ASSERT_EQ(many.size(), one.size());
+    for (size_t l = 0; l < one.size(); ++l) {
+      EXPECT_EQ(many[l].color, one[l].color) << "level " << l << ", " << threads << " threads";
+      // Bytes, not values: level 0 is the input itself, holes (NaN) included.
+      ASSERT_EQ(many[l].depth.size(), one[l].depth.size());
+      EXPECT_EQ(std::memcmp(many[l].depth.data(), one[l].depth.data(), one[l].depth.size() * sizeof(float)), 0)
+          << "level " << l << ", " << threads << " threads";
     }
   }
 }
@@ -410,7 +436,8 @@ TEST(TrackerEnergy, InvisibleLandmarksArePruned) {
 }
 
 // Tracking's precomputed identity shapes and albedos (Linearization::fixed) change nothing but
-// the time: r and J are bit-identical with and without them, on one and two threads. Parts made
+// the time: r and J are bit-identical with and without them, on one and two threads (and with
+// parts made on several threads). Parts made
 // for another identity or albedo are not used, and a layout that solves a block ignores them.
 TEST(TrackerEnergy, FixedModelPartsGiveTheSameBits) {
   const TrackerModel* real = real_model();
@@ -428,7 +455,8 @@ TEST(TrackerEnergy, FixedModelPartsGiveTheSameBits) {
     other.beta[0] += 0.5f * model.albedo_sigma[0];
     for (const gpu::FaceParameters& made_for : {s.lin.base, other}) {
       Linearization with = s.lin;
-      with.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model, made_for));
+      // Made on three threads: the parts (and so r and J) do not depend on the count.
+      with.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model, made_for, 3));
       for (int threads : {1, 2}) {
         Eigen::VectorXd r;
         JacobianMatrix j;

@@ -107,6 +107,11 @@ TEST(TrackerPcg, ThreadedProductsOverSeveralChunksAreBitIdentical) {
     stacked.MultiplyNormal(x, &normal[threads - 1]);
     stacked.MultiplyTransposed(v, &transposed[threads - 1]);
     diagonal[threads - 1] = stacked.ColumnSquaredNorms();
+    // The fused pass (J^T v and diag(J^T J) together) gives the same bits as the two alone.
+    Eigen::VectorXd fused_transposed, fused_diagonal;
+    stacked.MultiplyTransposedWithColumnSquaredNorms(v, &fused_transposed, &fused_diagonal);
+    EXPECT_TRUE((fused_transposed.array() == transposed[threads - 1].array()).all()) << threads << " threads";
+    EXPECT_TRUE((fused_diagonal.array() == diagonal[threads - 1].array()).all()) << threads << " threads";
   }
   EXPECT_LT((normal[0] - dd.transpose() * (dd * x)).norm(), 1e-12 * normal[0].norm());
   EXPECT_LT((transposed[0] - dd.transpose() * v).norm(), 1e-12 * transposed[0].norm());

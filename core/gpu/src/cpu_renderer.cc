@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/common/timing.h"
 
 namespace face_reenact::gpu {
@@ -37,12 +38,59 @@ std::vector<int32_t> drawn_triangles(const RenderModel& model, const RenderOptio
   return out;
 }
 
+namespace {
+// Vertices per item of evaluate's per-vertex passes, and triangles per item of its face-normal
+// pass: fixed sizes, so the arithmetic does not depend on the thread count.
+constexpr int kVerticesPerItem = 1024;
+constexpr int kTrianglesPerItem = 2048;
+
+int items_for(int count, int per_item) { return (count + per_item - 1) / per_item; }
+}  // namespace
+
 CpuRenderer::CpuRenderer(RenderModel model) : model_(std::move(model)) {
   std::string why;
   if (!model_.IsValid(&why)) throw Error("CPU renderer: " + why);
+  // Each vertex's incident triangles in ascending order (compressed rows), so the normals can be
+  // gathered per vertex in parallel and still add the face normals in the order a scatter over
+  // the triangle list would.
+  const int n = model_.num_vertices();
+  incident_begin_.assign(static_cast<size_t>(n) + 1, 0);
+  for (const auto& t : model_.triangles)
+    for (int k = 0; k < 3; ++k) ++incident_begin_[static_cast<size_t>(t[k]) + 1];
+  for (int v = 0; v < n; ++v) incident_begin_[static_cast<size_t>(v) + 1] += incident_begin_[static_cast<size_t>(v)];
+  incident_.resize(static_cast<size_t>(incident_begin_.back()));
+  std::vector<int32_t> fill(incident_begin_.begin(), incident_begin_.end() - 1);
+  for (size_t t = 0; t < model_.triangles.size(); ++t) {
+    for (int k = 0; k < 3; ++k) {
+      int32_t& slot = fill[static_cast<size_t>(model_.triangles[t][k])];
+      incident_[static_cast<size_t>(slot++)] = static_cast<int32_t>(t);
+    }
+  }
 }
 
-VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* times) const {
+CpuRenderer::CpuRenderer(const CpuRenderer& other) : CpuRenderer(other.model_) {}
+
+std::shared_ptr<const CpuRenderer::IdentityParts> CpuRenderer::identity_parts(const FaceParameters& params) const {
+  {
+    std::lock_guard<std::mutex> lock(identity_mutex_);
+    if (identity_ && identity_->alpha.size() == params.alpha.size() && identity_->alpha == params.alpha &&
+        identity_->beta.size() == params.beta.size() && identity_->beta == params.beta) {
+      return identity_;
+    }
+  }
+  auto parts = std::make_shared<IdentityParts>();
+  parts->alpha = params.alpha;
+  parts->beta = params.beta;
+  parts->shape = model_.mean_shape;
+  if (model_.identity_basis.cols() > 0) parts->shape += model_.identity_basis * padded(params.alpha, model_.identity_basis.cols());
+  parts->albedo = model_.mean_albedo;
+  if (model_.albedo_basis.cols() > 0) parts->albedo += model_.albedo_basis * padded(params.beta, model_.albedo_basis.cols());
+  std::lock_guard<std::mutex> lock(identity_mutex_);
+  identity_ = parts;
+  return parts;
+}
+
+VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* times, int threads) const {
   std::string why;
   if (!params.IsValid(&why, static_cast<int>(model_.identity_basis.cols()), static_cast<int>(model_.expression_basis.cols()),
                       static_cast<int>(model_.albedo_basis.cols()))) {
@@ -51,40 +99,58 @@ VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* 
   const int n = model_.num_vertices();
   auto start = Clock::now();
   VertexState s;
-  s.model_positions = model_.mean_shape;
-  if (model_.identity_basis.cols() > 0) s.model_positions += model_.identity_basis * padded(params.alpha, model_.identity_basis.cols());
-  if (model_.expression_basis.cols() > 0) s.model_positions += model_.expression_basis * padded(params.delta, model_.expression_basis.cols());
-  s.albedo = model_.mean_albedo;
-  if (model_.albedo_basis.cols() > 0) s.albedo += model_.albedo_basis * padded(params.beta, model_.albedo_basis.cols());
-
+  // a_id + E_id alpha and the albedo are kept for the last alpha/beta (a tracking solve renders
+  // one identity many times), as the GPU renderer keeps them; the sums are the same either way.
+  const std::shared_ptr<const IdentityParts> identity = identity_parts(params);
+  s.model_positions = identity->shape;
+  s.albedo = identity->albedo;
+  const Eigen::Index k_exp = model_.expression_basis.cols();
+  if (k_exp > 0) {
+    const Eigen::VectorXf delta = padded(params.delta, k_exp);
+    ParallelFor(items_for(n, kVerticesPerItem), threads, [&](int item) {
+      const Eigen::Index first = 3 * static_cast<Eigen::Index>(item) * kVerticesPerItem;
+      const Eigen::Index rows = std::min<Eigen::Index>(3 * kVerticesPerItem, 3 * static_cast<Eigen::Index>(n) - first);
+      s.model_positions.segment(first, rows).noalias() += model_.expression_basis.middleRows(first, rows) * delta;
+    });
+  }
   if (times) times->model_ms = ms_since(start);
   start = Clock::now();
   // Area-weighted vertex normals: the sum of the (unnormalised) cross products of the incident
   // triangles, whose length is twice the triangle area.
-  Eigen::Matrix3Xf sums = Eigen::Matrix3Xf::Zero(3, n);
   auto pos = [&](int v) { return Eigen::Vector3f(s.model_positions.segment<3>(3 * v)); };
-  for (const auto& t : model_.triangles) {
-    const Eigen::Vector3f a = pos(t[0]);
-    const Eigen::Vector3f face = (pos(t[1]) - a).cross(pos(t[2]) - a);
-    for (int k = 0; k < 3; ++k) sums.col(t[k]) += face;
-  }
+  const int num_triangles = static_cast<int>(model_.triangles.size());
+  std::vector<Eigen::Vector3f> face(static_cast<size_t>(num_triangles));
+  ParallelFor(items_for(num_triangles, kTrianglesPerItem), threads, [&](int item) {
+    const int end = std::min(num_triangles, (item + 1) * kTrianglesPerItem);
+    for (int t = item * kTrianglesPerItem; t < end; ++t) {
+      const auto& tri = model_.triangles[static_cast<size_t>(t)];
+      const Eigen::Vector3f a = pos(tri[0]);
+      face[static_cast<size_t>(t)] = (pos(tri[1]) - a).cross(pos(tri[2]) - a);
+    }
+  });
   const Eigen::Matrix3f rotation = rotation_from_euler(params.euler);
   s.camera_positions.resize(3 * n);
   s.camera_normals.resize(3 * n);
   s.colors.resize(3 * n);
-  for (int v = 0; v < n; ++v) {
-    const float len = sums.col(v).norm();
-    const Eigen::Vector3f normal = len > 0.f ? Eigen::Vector3f(sums.col(v) / len) : Eigen::Vector3f::Zero();
-    const Eigen::Vector3f cam_normal = rotation * normal;
-    s.camera_positions.segment<3>(3 * v) = rotation * pos(v) + params.translation;
-    s.camera_normals.segment<3>(3 * v) = cam_normal;
-    const auto basis = sh_basis(cam_normal);
-    for (int c = 0; c < 3; ++c) {
-      float irradiance = 0.f;
-      for (int k = 0; k < kNumShCoefficients; ++k) irradiance += params.gamma[c * kNumShCoefficients + k] * basis[k];
-      s.colors[3 * v + c] = s.albedo[3 * v + c] * irradiance;
+  ParallelFor(items_for(n, kVerticesPerItem), threads, [&](int item) {
+    const int end = std::min(n, (item + 1) * kVerticesPerItem);
+    for (int v = item * kVerticesPerItem; v < end; ++v) {
+      Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+      for (int32_t q = incident_begin_[static_cast<size_t>(v)]; q < incident_begin_[static_cast<size_t>(v) + 1]; ++q)
+        sum += face[static_cast<size_t>(incident_[static_cast<size_t>(q)])];
+      const float len = sum.norm();
+      const Eigen::Vector3f normal = len > 0.f ? Eigen::Vector3f(sum / len) : Eigen::Vector3f::Zero();
+      const Eigen::Vector3f cam_normal = rotation * normal;
+      s.camera_positions.segment<3>(3 * v) = rotation * pos(v) + params.translation;
+      s.camera_normals.segment<3>(3 * v) = cam_normal;
+      const auto basis = sh_basis(cam_normal);
+      for (int c = 0; c < 3; ++c) {
+        float irradiance = 0.f;
+        for (int k = 0; k < kNumShCoefficients; ++k) irradiance += params.gamma[c * kNumShCoefficients + k] * basis[k];
+        s.colors[3 * v + c] = s.albedo[3 * v + c] * irradiance;
+      }
     }
-  }
+  });
   if (times) times->shade_ms = ms_since(start);
   return s;
 }
@@ -107,121 +173,181 @@ GBuffer CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& ca
   return g;
 }
 
+namespace {
+
+// A triangle that passed culling and covers at least one pixel centre's bounding box, with what
+// its pixels need: made once, then rasterised band by band.
+struct TriangleSetup {
+  int32_t triangle = 0;
+  double ux[3], uy[3];  // exact (unsnapped) framebuffer positions, the triangle's corner order
+  double d[3];          // depth-buffer values of the corners
+  double z[3];          // camera-space depths (perspective correction)
+  double ox[3], oy[3];  // snapped positions in coverage order (area2 > 0)
+  int order[3];
+  bool top_left[3];
+  double exact_area2;
+  int i0, i1, j0, j1;  // pixel bounding box, inclusive
+};
+
+// Rows per band of the raster pass: bands are taken in order from a shared counter, several
+// per thread, so a band full of face does not leave the other threads waiting.
+constexpr int kRowsPerBand = 16;
+// Triangles per item of the setup pass.
+constexpr size_t kTrianglesPerSetupItem = 2048;
+
+}  // namespace
+
 void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options,
-                            GBuffer* out) const {
+                            GBuffer* out, int threads) const {
   std::string why;
   if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
   GBuffer& g = *out;
   g.Resize(camera.width, camera.height);
-  // The depth buffer is scratch: one per thread, kept, so a per-frame caller faults no new pages.
-  thread_local std::vector<float> depth;
-  depth.assign(static_cast<size_t>(camera.width) * camera.height, 1.0f);
+  // The depth buffer is scratch: one per calling thread, kept, so a per-frame caller faults no
+  // new pages. The bands below write disjoint rows of it.
+  thread_local std::vector<float> depth_buffer;
+  depth_buffer.assign(static_cast<size_t>(camera.width) * camera.height, 1.0f);
+  float* depth = depth_buffer.data();
   const double near = camera.near_plane, far = camera.far_plane;
 
-  for (int32_t t : drawn_triangles(model_, options)) {
-    const auto& tri = model_.triangles[t];
-    Eigen::Vector3f p[3];
-    bool inside_depth_range = true;
-    for (int k = 0; k < 3; ++k) {
-      p[k] = state.camera_positions.segment<3>(3 * tri[k]);
-      inside_depth_range = inside_depth_range && (p[k].z() > camera.near_plane && p[k].z() < camera.far_plane);
-    }
-    if (!inside_depth_range) continue;
-    // Framebuffer coordinates: the centre of pixel i is at i + 0.5.
-    double ux[3], uy[3], sx[3], sy[3], d[3];
-    for (int k = 0; k < 3; ++k) {
-      const double z = p[k].z();
-      ux[k] = camera.fx * p[k].x() / z + camera.cx + 0.5;
-      uy[k] = camera.fy * p[k].y() / z + camera.cy + 0.5;
-      sx[k] = snap(ux[k]);
-      sy[k] = snap(uy[k]);
-      d[k] = far * (z - near) / ((far - near) * z);
-    }
-    double area2 = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
-    if (area2 == 0.0 || !std::isfinite(area2)) continue;
-    // Front-facing triangles (counter-clockwise from outside) have area2 < 0 in this y-down frame.
-    if (options.cull_back_faces && area2 > 0.0) continue;
-    // Work on a copy ordered so that area2 > 0 (interior: every edge function positive).
-    int order[3] = {0, 1, 2};
-    if (area2 < 0.0) {
-      std::swap(order[1], order[2]);
-      area2 = -area2;
-    }
-    // The exact (unsnapped) area with the same corner order, for attribute interpolation.
-    double exact_area2 = (ux[order[1]] - ux[order[0]]) * (uy[order[2]] - uy[order[0]]) -
-                         (ux[order[2]] - ux[order[0]]) * (uy[order[1]] - uy[order[0]]);
-    if (!(exact_area2 > 0.0)) {  // the snap turned a degenerate or flipped sliver visible: use the snapped plane
+  // Setup pass: per triangle, in draw order, independent of the others.
+  const std::vector<int32_t> drawn = drawn_triangles(model_, options);
+  const int setup_items = static_cast<int>((drawn.size() + kTrianglesPerSetupItem - 1) / kTrianglesPerSetupItem);
+  std::vector<std::vector<TriangleSetup>> setups(static_cast<size_t>(setup_items));
+  ParallelFor(setup_items, threads, [&](int item) {
+    std::vector<TriangleSetup>& list = setups[static_cast<size_t>(item)];
+    const size_t begin = static_cast<size_t>(item) * kTrianglesPerSetupItem;
+    const size_t end = std::min(drawn.size(), begin + kTrianglesPerSetupItem);
+    for (size_t q = begin; q < end; ++q) {
+      const int32_t t = drawn[q];
+      const auto& tri = model_.triangles[t];
+      Eigen::Vector3f p[3];
+      bool inside_depth_range = true;
       for (int k = 0; k < 3; ++k) {
-        ux[k] = sx[k];
-        uy[k] = sy[k];
+        p[k] = state.camera_positions.segment<3>(3 * tri[k]);
+        inside_depth_range = inside_depth_range && (p[k].z() > camera.near_plane && p[k].z() < camera.far_plane);
       }
-      exact_area2 = area2;
-    }
-    const double ox[3] = {sx[order[0]], sx[order[1]], sx[order[2]]};
-    const double oy[3] = {sy[order[0]], sy[order[1]], sy[order[2]]};
-    // Edge e runs from corner e+1 to corner e+2 (opposite corner e); its function is the
-    // screen-space barycentric weight of corner e times area2.
-    bool top_left[3];
-    for (int e = 0; e < 3; ++e) {
-      const int a = (e + 1) % 3, b = (e + 2) % 3;
-      const double dx = ox[b] - ox[a], dy = oy[b] - oy[a];
-      top_left[e] = (dy == 0.0 && dx > 0.0) || dy < 0.0;
-    }
-    const double min_x = std::min({ox[0], ox[1], ox[2]}), max_x = std::max({ox[0], ox[1], ox[2]});
-    const double min_y = std::min({oy[0], oy[1], oy[2]}), max_y = std::max({oy[0], oy[1], oy[2]});
-    const int i0 = static_cast<int>(std::max(0.0, std::ceil(min_x - 0.5)));
-    const int i1 = static_cast<int>(std::min(camera.width - 1.0, std::floor(max_x - 0.5)));
-    const int j0 = static_cast<int>(std::max(0.0, std::ceil(min_y - 0.5)));
-    const int j1 = static_cast<int>(std::min(camera.height - 1.0, std::floor(max_y - 0.5)));
-    for (int j = j0; j <= j1; ++j) {
-      const double py = j + 0.5;
-      for (int i = i0; i <= i1; ++i) {
-        const double px = i + 0.5;
-        double w[3];
-        bool inside = true;
-        for (int e = 0; e < 3 && inside; ++e) {
-          const int a = (e + 1) % 3, b = (e + 2) % 3;
-          w[e] = (ox[b] - ox[a]) * (py - oy[a]) - (oy[b] - oy[a]) * (px - ox[a]);
-          inside = w[e] > 0.0 || (w[e] == 0.0 && top_left[e]);
-        }
-        if (!inside) continue;
-        // Screen-space weights back in the triangle's own corner order, from the unsnapped
-        // positions: the snap decides coverage, attribute interpolation uses the exact plane.
-        double lambda[3];
-        for (int e = 0; e < 3; ++e) {
-          const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
-          lambda[order[e]] = ((ux[b] - ux[a]) * (py - uy[a]) - (uy[b] - uy[a]) * (px - ux[a])) / exact_area2;
-        }
-        const double dz = lambda[0] * d[0] + lambda[1] * d[1] + lambda[2] * d[2];
-        const float depth_value = static_cast<float>(dz);
-        const size_t pix = static_cast<size_t>(j) * camera.width + i;
-        if (!(depth_value < depth[pix])) continue;
-        depth[pix] = depth_value;
-        double b[3], sum = 0.0;
+      if (!inside_depth_range) continue;
+      TriangleSetup ts;
+      ts.triangle = t;
+      // Framebuffer coordinates: the centre of pixel i is at i + 0.5.
+      double sx[3], sy[3];
+      for (int k = 0; k < 3; ++k) {
+        const double z = p[k].z();
+        ts.z[k] = z;
+        ts.ux[k] = camera.fx * p[k].x() / z + camera.cx + 0.5;
+        ts.uy[k] = camera.fy * p[k].y() / z + camera.cy + 0.5;
+        sx[k] = snap(ts.ux[k]);
+        sy[k] = snap(ts.uy[k]);
+        ts.d[k] = far * (z - near) / ((far - near) * z);
+      }
+      // Most triangles of a small level cover no pixel centre: their bounding box is empty.
+      const double min_x = std::min({sx[0], sx[1], sx[2]}), max_x = std::max({sx[0], sx[1], sx[2]});
+      const double min_y = std::min({sy[0], sy[1], sy[2]}), max_y = std::max({sy[0], sy[1], sy[2]});
+      ts.i0 = static_cast<int>(std::max(0.0, std::ceil(min_x - 0.5)));
+      ts.i1 = static_cast<int>(std::min(camera.width - 1.0, std::floor(max_x - 0.5)));
+      ts.j0 = static_cast<int>(std::max(0.0, std::ceil(min_y - 0.5)));
+      ts.j1 = static_cast<int>(std::min(camera.height - 1.0, std::floor(max_y - 0.5)));
+      if (ts.i0 > ts.i1 || ts.j0 > ts.j1) continue;
+      double area2 = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
+      if (area2 == 0.0 || !std::isfinite(area2)) continue;
+      // Front-facing triangles (counter-clockwise from outside) have area2 < 0 in this y-down frame.
+      if (options.cull_back_faces && area2 > 0.0) continue;
+      // Work on a copy ordered so that area2 > 0 (interior: every edge function positive).
+      ts.order[0] = 0;
+      ts.order[1] = 1;
+      ts.order[2] = 2;
+      if (area2 < 0.0) std::swap(ts.order[1], ts.order[2]);
+      const int* order = ts.order;
+      // The exact (unsnapped) area with the same corner order, for attribute interpolation.
+      ts.exact_area2 = (ts.ux[order[1]] - ts.ux[order[0]]) * (ts.uy[order[2]] - ts.uy[order[0]]) -
+                       (ts.ux[order[2]] - ts.ux[order[0]]) * (ts.uy[order[1]] - ts.uy[order[0]]);
+      if (!(ts.exact_area2 > 0.0)) {  // the snap turned a degenerate or flipped sliver visible: use the snapped plane
         for (int k = 0; k < 3; ++k) {
-          b[k] = lambda[k] / p[k].z();
-          sum += b[k];
+          ts.ux[k] = sx[k];
+          ts.uy[k] = sy[k];
         }
-        for (int k = 0; k < 3; ++k) b[k] /= sum;
-        Eigen::Vector3d x = Eigen::Vector3d::Zero(), nrm = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
-        for (int k = 0; k < 3; ++k) {
-          x += b[k] * p[k].cast<double>();
-          nrm += b[k] * state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
-          col += b[k] * state.colors.segment<3>(3 * tri[k]).cast<double>();
+        ts.exact_area2 = std::abs(area2);
+      }
+      for (int k = 0; k < 3; ++k) {
+        ts.ox[k] = sx[order[k]];
+        ts.oy[k] = sy[order[k]];
+      }
+      // Edge e runs from corner e+1 to corner e+2 (opposite corner e); its function is the
+      // screen-space barycentric weight of corner e times area2.
+      for (int e = 0; e < 3; ++e) {
+        const int a = (e + 1) % 3, b = (e + 2) % 3;
+        const double dx = ts.ox[b] - ts.ox[a], dy = ts.oy[b] - ts.oy[a];
+        ts.top_left[e] = (dy == 0.0 && dx > 0.0) || dy < 0.0;
+      }
+      list.push_back(ts);
+    }
+  });
+
+  // Raster pass: bands of rows, each visiting the triangles in draw order, so every pixel sees
+  // the same depth tests in the same order as a single pass would.
+  const int bands = (camera.height + kRowsPerBand - 1) / kRowsPerBand;
+  ParallelFor(bands, threads, [&](int band) {
+    const int band_j0 = band * kRowsPerBand, band_j1 = std::min(camera.height, band_j0 + kRowsPerBand) - 1;
+    for (const auto& list : setups) {
+      for (const TriangleSetup& ts : list) {
+        if (ts.j1 < band_j0 || ts.j0 > band_j1) continue;
+        const auto& tri = model_.triangles[ts.triangle];
+        const double* ox = ts.ox;
+        const double* oy = ts.oy;
+        const int* order = ts.order;
+        for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
+          const double py = j + 0.5;
+          for (int i = ts.i0; i <= ts.i1; ++i) {
+            const double px = i + 0.5;
+            double w[3];
+            bool inside = true;
+            for (int e = 0; e < 3 && inside; ++e) {
+              const int a = (e + 1) % 3, b = (e + 2) % 3;
+              w[e] = (ox[b] - ox[a]) * (py - oy[a]) - (oy[b] - oy[a]) * (px - ox[a]);
+              inside = w[e] > 0.0 || (w[e] == 0.0 && ts.top_left[e]);
+            }
+            if (!inside) continue;
+            // Screen-space weights back in the triangle's own corner order, from the unsnapped
+            // positions: the snap decides coverage, attribute interpolation uses the exact plane.
+            double lambda[3];
+            for (int e = 0; e < 3; ++e) {
+              const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
+              lambda[order[e]] =
+                  ((ts.ux[b] - ts.ux[a]) * (py - ts.uy[a]) - (ts.uy[b] - ts.uy[a]) * (px - ts.ux[a])) / ts.exact_area2;
+            }
+            const double dz = lambda[0] * ts.d[0] + lambda[1] * ts.d[1] + lambda[2] * ts.d[2];
+            const float depth_value = static_cast<float>(dz);
+            const size_t pix = static_cast<size_t>(j) * camera.width + i;
+            if (!(depth_value < depth[pix])) continue;
+            depth[pix] = depth_value;
+            double b[3], sum = 0.0;
+            for (int k = 0; k < 3; ++k) {
+              b[k] = lambda[k] / ts.z[k];
+              sum += b[k];
+            }
+            for (int k = 0; k < 3; ++k) b[k] /= sum;
+            Eigen::Vector3d x = Eigen::Vector3d::Zero(), nrm = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
+            for (int k = 0; k < 3; ++k) {
+              x += b[k] * state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
+              nrm += b[k] * state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
+              col += b[k] * state.colors.segment<3>(3 * tri[k]).cast<double>();
+            }
+            const double len = nrm.norm();
+            if (len > 0.0) nrm /= len;
+            for (int c = 0; c < 3; ++c) {
+              g.color[3 * pix + c] = static_cast<float>(col[c]);
+              g.position[3 * pix + c] = static_cast<float>(x[c]);
+              g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
+              g.barycentric[3 * pix + c] = static_cast<float>(b[c]);
+              g.vertices[3 * pix + c] = tri[c];
+            }
+            g.triangle[pix] = ts.triangle;
+          }
         }
-        const double len = nrm.norm();
-        if (len > 0.0) nrm /= len;
-        for (int c = 0; c < 3; ++c) {
-          g.color[3 * pix + c] = static_cast<float>(col[c]);
-          g.position[3 * pix + c] = static_cast<float>(x[c]);
-          g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
-          g.barycentric[3 * pix + c] = static_cast<float>(b[c]);
-          g.vertices[3 * pix + c] = tri[c];
-        }
-        g.triangle[pix] = t;
       }
     }
-  }
+  });
 }
 
 }  // namespace face_reenact::gpu

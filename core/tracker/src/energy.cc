@@ -9,7 +9,7 @@
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 #include "math_internal.h"
-#include "parallel.h"
+#include "face_reenact/common/parallel.h"
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
@@ -126,7 +126,7 @@ bool same_coefficients(const Eigen::VectorXf& a, const Eigen::VectorXf& b) {
 
 }  // namespace
 
-FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params) {
+FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params, int threads) {
   FixedModelParts out;
   out.alpha = params.alpha;
   out.beta = params.beta;
@@ -135,11 +135,14 @@ FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::Fac
   const int n = model.num_vertices();
   out.shape.resize(static_cast<size_t>(n));
   out.albedo.resize(static_cast<size_t>(n));
-  Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block;
-  for (int v = 0; v < n; ++v) {
-    out.shape[static_cast<size_t>(v)] = identity_shape(model.render, v, alpha, &block);
-    out.albedo[static_cast<size_t>(v)] = vertex_albedo(model.render, v, beta, &block);
-  }
+  constexpr int kVerticesPerItem = 512;
+  ParallelFor((n + kVerticesPerItem - 1) / kVerticesPerItem, threads, [&](int item) {
+    Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block;
+    for (int v = item * kVerticesPerItem; v < std::min(n, (item + 1) * kVerticesPerItem); ++v) {
+      out.shape[static_cast<size_t>(v)] = identity_shape(model.render, v, alpha, &block);
+      out.albedo[static_cast<size_t>(v)] = vertex_albedo(model.render, v, beta, &block);
+    }
+  });
   return out;
 }
 
@@ -437,7 +440,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       }
       begin = end;
     }
-    internal::ParallelFor(chunks, chunks, [&](int k) {
+    ParallelFor(chunks, chunks, [&](int k) {
       const Chunk& ch = plan[static_cast<size_t>(k)];
       // The last chunk uses the caller's cache, which the landmarks below read again.
       VertexCache& vc = k + 1 < chunks ? *caches[static_cast<size_t>(k)] : cache;

@@ -334,7 +334,7 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
       AdaptScheduleToFaceSize(reinit ? options_.recovery_solver : options_.tracking_solver,
                               LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px));
   const auto t_pyr = Clock::now();
-  const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid);
+  const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid, so.ResolvedThreads());
   times->pyramid_ms += ms_since(t_pyr);
   const ParameterLayout layout = ParameterLayout::Tracking(m.num_expression());
   a.params = start;

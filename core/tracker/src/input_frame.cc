@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/common/srgb.h"
 #include "tracker_internal.h"
 
@@ -16,55 +17,60 @@ size_t pixel_count(const gpu::PinholeCamera& c) { return static_cast<size_t>(c.w
 // Taps of the [1 3 3 1] / 8 kernel around coarse sample k: fine indices 2k-1 .. 2k+2.
 constexpr float kTap[4] = {1.f / 8, 3.f / 8, 3.f / 8, 1.f / 8};
 
-InputFrame downsample(const InputFrame& fine, const PyramidOptions& options) {
+// Coarse rows per work item: each coarse pixel reads only the fine frame, so rows are independent.
+constexpr int kRowsPerItem = 8;
+
+InputFrame downsample(const InputFrame& fine, const PyramidOptions& options, int threads) {
   InputFrame c;
   c.camera = fine.camera.Downsampled(1);
   const int fw = fine.width(), fh = fine.height(), w = c.width(), h = c.height();
   c.color.assign(3 * pixel_count(c.camera), 0.f);
   if (fine.has_depth()) c.depth.assign(pixel_count(c.camera), 0.f);
-  for (int j = 0; j < h; ++j) {
-    for (int i = 0; i < w; ++i) {
-      float rgb[3] = {0, 0, 0};
-      float weight_sum = 0;
-      for (int b = 0; b < 4; ++b) {
-        const int fj = std::clamp(2 * j - 1 + b, 0, fh - 1);
-        for (int a = 0; a < 4; ++a) {
-          const int fi = std::clamp(2 * i - 1 + a, 0, fw - 1);
-          const float wgt = kTap[a] * kTap[b];
-          const float* src = &fine.color[(static_cast<size_t>(fj) * fw + fi) * 3];
-          for (int k = 0; k < 3; ++k) rgb[k] += wgt * src[k];
-          weight_sum += wgt;
+  ParallelFor((h + kRowsPerItem - 1) / kRowsPerItem, threads, [&](int item) {
+    for (int j = item * kRowsPerItem; j < std::min(h, (item + 1) * kRowsPerItem); ++j) {
+      for (int i = 0; i < w; ++i) {
+        float rgb[3] = {0, 0, 0};
+        float weight_sum = 0;
+        for (int b = 0; b < 4; ++b) {
+          const int fj = std::clamp(2 * j - 1 + b, 0, fh - 1);
+          for (int a = 0; a < 4; ++a) {
+            const int fi = std::clamp(2 * i - 1 + a, 0, fw - 1);
+            const float wgt = kTap[a] * kTap[b];
+            const float* src = &fine.color[(static_cast<size_t>(fj) * fw + fi) * 3];
+            for (int k = 0; k < 3; ++k) rgb[k] += wgt * src[k];
+            weight_sum += wgt;
+          }
         }
-      }
-      float* dst = &c.color[(static_cast<size_t>(j) * w + i) * 3];
-      for (int k = 0; k < 3; ++k) dst[k] = rgb[k] / weight_sum;
-      if (!fine.has_depth()) continue;
-      // Depth: the nearest valid sample of the inner 2x2 block is the reference; only samples
-      // within depth_edge_threshold of it are averaged, so silhouettes do not blend with the
-      // background into phantom surfaces.
-      float nearest = std::numeric_limits<float>::infinity();
-      for (int b = 1; b <= 2; ++b) {
-        for (int a = 1; a <= 2; ++a) {
-          const int fi = std::min(2 * i - 1 + a, fw - 1), fj = std::min(2 * j - 1 + b, fh - 1);
-          if (fine.depth_valid(fi, fj)) nearest = std::min(nearest, fine.depth[static_cast<size_t>(fj) * fw + fi]);
+        float* dst = &c.color[(static_cast<size_t>(j) * w + i) * 3];
+        for (int k = 0; k < 3; ++k) dst[k] = rgb[k] / weight_sum;
+        if (!fine.has_depth()) continue;
+        // Depth: the nearest valid sample of the inner 2x2 block is the reference; only samples
+        // within depth_edge_threshold of it are averaged, so silhouettes do not blend with the
+        // background into phantom surfaces.
+        float nearest = std::numeric_limits<float>::infinity();
+        for (int b = 1; b <= 2; ++b) {
+          for (int a = 1; a <= 2; ++a) {
+            const int fi = std::min(2 * i - 1 + a, fw - 1), fj = std::min(2 * j - 1 + b, fh - 1);
+            if (fine.depth_valid(fi, fj)) nearest = std::min(nearest, fine.depth[static_cast<size_t>(fj) * fw + fi]);
+          }
         }
-      }
-      if (!std::isfinite(nearest)) continue;
-      float dsum = 0, dw = 0;
-      for (int b = 0; b < 4; ++b) {
-        const int fj = std::clamp(2 * j - 1 + b, 0, fh - 1);
-        for (int a = 0; a < 4; ++a) {
-          const int fi = std::clamp(2 * i - 1 + a, 0, fw - 1);
-          if (!fine.depth_valid(fi, fj)) continue;
-          const float d = fine.depth[static_cast<size_t>(fj) * fw + fi];
-          if (std::abs(d - nearest) > options.depth_edge_threshold) continue;
-          dsum += kTap[a] * kTap[b] * d;
-          dw += kTap[a] * kTap[b];
+        if (!std::isfinite(nearest)) continue;
+        float dsum = 0, dw = 0;
+        for (int b = 0; b < 4; ++b) {
+          const int fj = std::clamp(2 * j - 1 + b, 0, fh - 1);
+          for (int a = 0; a < 4; ++a) {
+            const int fi = std::clamp(2 * i - 1 + a, 0, fw - 1);
+            if (!fine.depth_valid(fi, fj)) continue;
+            const float d = fine.depth[static_cast<size_t>(fj) * fw + fi];
+            if (std::abs(d - nearest) > options.depth_edge_threshold) continue;
+            dsum += kTap[a] * kTap[b] * d;
+            dw += kTap[a] * kTap[b];
+          }
         }
+        c.depth[static_cast<size_t>(j) * w + i] = dsum / dw;
       }
-      c.depth[static_cast<size_t>(j) * w + i] = dsum / dw;
     }
-  }
+  });
   c.landmarks = fine.landmarks;
   for (auto& l : c.landmarks) l.position = (l.position.array() + 0.5f) * 0.5f - 0.5f;
   return c;
@@ -120,7 +126,7 @@ bool PyramidOptions::IsValid(std::string* why) const {
   return true;
 }
 
-std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options) {
+std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads) {
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   if (!frame.IsValid(&why)) throw Error(why);
@@ -132,7 +138,7 @@ std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptio
       throw Error("pyramid: a " + std::to_string(frame.width()) + "x" + std::to_string(frame.height()) +
                   " frame is too small for " + std::to_string(options.levels) + " levels");
     }
-    levels.push_back(downsample(levels.back(), options));
+    levels.push_back(downsample(levels.back(), options, threads));
   }
   return levels;
 }

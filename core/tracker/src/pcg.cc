@@ -5,7 +5,7 @@
 #include <string>
 
 #include "face_reenact/common/error.h"
-#include "parallel.h"
+#include "face_reenact/common/parallel.h"
 
 namespace face_reenact::tracker {
 
@@ -70,14 +70,14 @@ const Eigen::VectorXd& StackedJacobian::gather(const Eigen::VectorXd& x, int fra
   return local;
 }
 
-void StackedJacobian::scatter_add(const Eigen::VectorXd& local, int frame, Eigen::VectorXd* y) const {
+void StackedJacobian::scatter_add(const Eigen::Ref<const Eigen::VectorXd>& local, int frame, Eigen::VectorXd* y) const {
   y->head(shared_) += local.head(shared_);
   if (own_ > 0) y->segment(shared_ + static_cast<Eigen::Index>(frame) * own_, own_) += local.tail(own_);
 }
 
 void StackedJacobian::SumOverChunks(const std::function<void(const RowChunk&, Eigen::VectorXd*)>& chunk_sum,
                                     Eigen::VectorXd* y) const {
-  internal::ParallelFor(static_cast<int>(chunks_.size()), threads_, [&](int k) {
+  ParallelFor(static_cast<int>(chunks_.size()), threads_, [&](int k) {
     Eigen::VectorXd& partial = partials_[static_cast<size_t>(k)];
     partial.setZero(shared_ + own_);
     chunk_sum(chunks_[static_cast<size_t>(k)], &partial);
@@ -139,6 +139,30 @@ Eigen::VectorXd StackedJacobian::ColumnSquaredNorms() const {
   return out;
 }
 
+void StackedJacobian::MultiplyTransposedWithColumnSquaredNorms(const Eigen::VectorXd& v, Eigen::VectorXd* y,
+                                                               Eigen::VectorXd* column_squared_norms) const {
+  // Each chunk's partial holds J^T v, then diag(J^T J), each summed as the single products do.
+  const Eigen::Index local = shared_ + own_;
+  ParallelFor(static_cast<int>(chunks_.size()), threads_, [&](int k) {
+    const RowChunk& c = chunks_[static_cast<size_t>(k)];
+    Eigen::VectorXd& partial = partials_[static_cast<size_t>(k)];
+    partial.setZero(2 * local);
+    const JacobianMatrix& j = *blocks_[c.frame];
+    double* norms = partial.data() + local;
+    for (Eigen::Index i = c.begin; i < c.end; ++i) {
+      const float* row = j.row(i).data();
+      AddScaledRow(v[c.first + (i - c.begin)], row, local, partial.data());
+      for (Eigen::Index q = 0; q < local; ++q) norms[q] += static_cast<double>(row[q]) * static_cast<double>(row[q]);
+    }
+  });
+  y->setZero(cols());
+  column_squared_norms->setZero(cols());
+  for (size_t k = 0; k < chunks_.size(); ++k) {
+    scatter_add(partials_[k].head(local), chunks_[k].frame, y);
+    scatter_add(partials_[k].tail(local), chunks_[k].frame, column_squared_norms);
+  }
+}
+
 Eigen::MatrixXd StackedJacobian::Gram() const {
   const Eigen::Index n = cols(), local = shared_ + own_;
   Eigen::MatrixXd out = Eigen::MatrixXd::Zero(n, n);
@@ -166,6 +190,13 @@ Eigen::MatrixXd StackedJacobian::Gram() const {
 MatrixFreeNormalOperator::MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping)
     : jacobian_(jacobian), damping_(damping) {
   diagonal_ = jacobian_.ColumnSquaredNorms();
+  diagonal_ *= (1.0 + damping_);
+}
+
+MatrixFreeNormalOperator::MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping,
+                                                   const Eigen::VectorXd& column_squared_norms)
+    : jacobian_(jacobian), damping_(damping), diagonal_(column_squared_norms) {
+  if (diagonal_.size() != jacobian_.cols()) throw Error("matrix-free operator: the diagonal has the wrong size");
   diagonal_ *= (1.0 + damping_);
 }
 

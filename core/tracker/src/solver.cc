@@ -29,6 +29,7 @@ struct FrameState {
   JacobianMatrix j;
   bool has_jacobian = false;  // J is evaluated only when the loop says a step follows
   TermEnergies energy;
+  gpu::GBuffer gbuffer;  // kept: every synthesis of this frame reuses its memory
 };
 
 // The Gauss-Newton loop's work on the CPU, for one frame or several frames solved jointly
@@ -73,15 +74,17 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       const Eigen::VectorXd xf = FrameX(x, static_cast<int>(f));
       const auto t0 = Clock::now();
       const gpu::FaceParameters p = layout_.Unpack(xf, bases_[f]);
-      const gpu::VertexState vs = renderer_.evaluate(p);
-      const gpu::GBuffer g = renderer_.rasterize(vs, frame.camera, options_.render);
+      const gpu::VertexState vs = renderer_.evaluate(p, nullptr, threads_);
+      FrameState& st = states_[f];
+      renderer_.rasterize(vs, frame.camera, options_.render, &st.gbuffer, threads_);
       *synthesis_ms += ms_since(t0);
       const auto t1 = Clock::now();
-      FrameState& st = states_[f];
-      st.lin = tracker::Linearize(model_, layout_, p, vs, g, frame, options_.energy, /*regularize_shared=*/f == 0);
+      st.lin = tracker::Linearize(model_, layout_, p, vs, st.gbuffer, frame, options_.energy, /*regularize_shared=*/f == 0);
       if (layout_.num_identity == 0 && layout_.num_albedo == 0) {
         // Tracking: the identity shape and albedo stay the base's for the whole solve.
-        if (!fixed_[f]) fixed_[f] = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model_, bases_[f]));
+        if (!fixed_[f]) {
+          fixed_[f] = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model_, bases_[f], threads_));
+        }
         st.lin.fixed = fixed_[f];
       }
       const auto t2 = Clock::now();
@@ -110,16 +113,20 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
     rec->analysis_ms += TakeUnusedStepMs();
     const Eigen::VectorXd* r = nullptr;
     const StackedJacobian j = System(&r);
-    j.MultiplyTransposed(*r, &b_);
-    b_ = -b_;
-    dx->setZero(b_.size());
     const PcgOptions pcg{level.pcg_iterations, options_.pcg_relative_tolerance};
     PcgSummary ps;
     if (options_.linear_solver == LinearSolverType::kAssembled) {
+      j.MultiplyTransposed(*r, &b_);
+      b_ = -b_;
+      dx->setZero(b_.size());
       AssembledNormalOperator op(j, options_.damping);
       ps = Pcg(op, b_, pcg, &scratch_, dx);
     } else {
-      MatrixFreeNormalOperator op(j, options_.damping);
+      // J^T r and the preconditioner's diag(J^T J) in one pass over J.
+      j.MultiplyTransposedWithColumnSquaredNorms(*r, &b_, &column_norms_);
+      b_ = -b_;
+      dx->setZero(b_.size());
+      MatrixFreeNormalOperator op(j, options_.damping, column_norms_);
       ps = Pcg(op, b_, pcg, &scratch_, dx);
     }
     rec->analysis_ms += ms_since(start);
@@ -176,7 +183,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
   // Per frame, made on its first linearisation when the layout solves neither identity nor albedo.
   std::vector<std::shared_ptr<const FixedModelParts>> fixed_;
   PcgScratch scratch_;
-  Eigen::VectorXd b_, stacked_r_, trial_r_;
+  Eigen::VectorXd b_, column_norms_, stacked_r_, trial_r_;
   double step_ms_ = 0;  // J evaluated by Linearize for the coming step
 };
 
@@ -266,7 +273,7 @@ SolverSummary SolveOnPyramidOf(const InputFrame& frame, const SolverOptions& opt
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   const auto start = Clock::now();
-  const std::vector<InputFrame> pyramid = BuildPyramid(frame, options.pyramid);
+  const std::vector<InputFrame> pyramid = BuildPyramid(frame, options.pyramid, options.ResolvedThreads());
   const double pyramid_ms = ms_since(start);
   SolverSummary s = solve(pyramid);
   s.pyramid_ms = pyramid_ms;
@@ -301,7 +308,7 @@ SolverSummary CpuSolver::SolveFrames(const std::vector<InputFrame>& frames, cons
   const auto start = Clock::now();
   std::vector<std::vector<InputFrame>> pyramids;
   pyramids.reserve(frames.size());
-  for (const InputFrame& f : frames) pyramids.push_back(BuildPyramid(f, options.pyramid));
+  for (const InputFrame& f : frames) pyramids.push_back(BuildPyramid(f, options.pyramid, options.ResolvedThreads()));
   const double pyramid_ms = ms_since(start);
   std::vector<const std::vector<InputFrame>*> pointers;
   for (const auto& p : pyramids) pointers.push_back(&p);

@@ -7,6 +7,9 @@
 //   left edge (the top-left fill rule);
 // - barycentrics are perspective-correct; depth is tested with LESS on the same depth value the
 //   GPU writes, d = far * (z - near) / ((far - near) * z), triangles in draw order.
+#include <cstdint>
+#include <memory>
+#include <mutex>
 #include <vector>
 
 #include "face_reenact/gpu/image_formation.h"
@@ -22,25 +25,41 @@ struct CpuRenderTimes {
 // Indices (into the model's triangle list) of the triangles drawn with `options`.
 std::vector<int32_t> drawn_triangles(const RenderModel& model, const RenderOptions& options);
 
+// Safe to use from several threads at once.
 class CpuRenderer {
  public:
   explicit CpuRenderer(RenderModel model);
+  CpuRenderer(const CpuRenderer& other);  // the model; not the identity kept from other's renders
+  CpuRenderer& operator=(const CpuRenderer&) = delete;
 
   const RenderModel& model() const { return model_; }
 
-  // Model evaluation, normals and shading. Throws face_reenact::Error on invalid parameters.
-  VertexState evaluate(const FaceParameters& params, CpuRenderTimes* times = nullptr) const;
+  // Model evaluation, normals and shading, on up to `threads` threads (bit-identical for any
+  // count). Throws face_reenact::Error on invalid parameters.
+  VertexState evaluate(const FaceParameters& params, CpuRenderTimes* times = nullptr, int threads = 1) const;
   GBuffer render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options = {},
                  CpuRenderTimes* times = nullptr) const;
   // Rasterises already evaluated vertices.
   GBuffer rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options) const;
   // The same into `out`, reusing its buffers: a G-buffer holds 16 values per pixel (20 MB at
   // 640x480), and a per-frame caller that keeps one allocates and page-faults none of it again.
-  void rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options,
-                 GBuffer* out) const;
+  // Up to `threads` threads share the work (triangle set-up, then bands of rows); the result is
+  // bit-identical for any count.
+  void rasterize(const VertexState& state, const PinholeCamera& camera, const RenderOptions& options, GBuffer* out,
+                 int threads = 1) const;
 
  private:
+  // a_id + E_id alpha and a_alb + E_alb beta for one alpha/beta.
+  struct IdentityParts {
+    Eigen::VectorXf alpha, beta;
+    Eigen::VectorXf shape, albedo;
+  };
+  std::shared_ptr<const IdentityParts> identity_parts(const FaceParameters& params) const;
+
   RenderModel model_;
+  std::vector<int32_t> incident_begin_, incident_;  // each vertex's triangles, ascending
+  mutable std::mutex identity_mutex_;
+  mutable std::shared_ptr<const IdentityParts> identity_;  // of the last evaluate
 };
 
 }  // namespace face_reenact::gpu

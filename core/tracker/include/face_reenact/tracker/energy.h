@@ -111,7 +111,8 @@ struct FixedModelParts {
   Eigen::VectorXf alpha, beta;
   std::vector<Eigen::Vector3d> shape, albedo;
 };
-FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params);
+// Vertices are split over up to `threads` threads (the same values for any count).
+FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params, int threads = 1);
 
 // Everything held fixed while one Gauss-Newton step is solved.
 struct Linearization {

@@ -49,8 +49,9 @@ struct PyramidOptions {
 // on the 2x2 block it replaces and takes one sample per block, so coarse pixel centres sit where
 // PinholeCamera::Downsampled puts them. Depth averages only valid samples near the block's
 // nearest depth; landmarks move with the camera convention. Throws face_reenact::Error on an
-// invalid frame or options.
-std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options);
+// invalid frame or options. Up to `threads` threads share each level's rows (the same result for
+// any count).
+std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads = 1);
 
 // The input normal N_I(p): the cross product of the central differences of X_I along i and j,
 // oriented towards the camera. False where a neighbour is missing or across a depth jump larger

@@ -43,6 +43,10 @@ class StackedJacobian {
   void MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* y) const;
   // diag(J^T J).
   Eigen::VectorXd ColumnSquaredNorms() const;
+  // y = J^T v and diag(J^T J) in one pass over J (a Gauss-Newton step needs both before the
+  // PCG starts), bit-identical to MultiplyTransposed and ColumnSquaredNorms.
+  void MultiplyTransposedWithColumnSquaredNorms(const Eigen::VectorXd& v, Eigen::VectorXd* y,
+                                                Eigen::VectorXd* column_squared_norms) const;
   // J^T J, summed block by block.
   Eigen::MatrixXd Gram() const;
 
@@ -54,7 +58,7 @@ class StackedJacobian {
   };
   // The frame's local x: the shared entries, then its own.
   const Eigen::VectorXd& gather(const Eigen::VectorXd& x, int frame) const;
-  void scatter_add(const Eigen::VectorXd& local, int frame, Eigen::VectorXd* y) const;
+  void scatter_add(const Eigen::Ref<const Eigen::VectorXd>& local, int frame, Eigen::VectorXd* y) const;
   // partials_[k] = chunk_sum(chunks_[k], partials_[k]) for every chunk (on threads_ threads),
   // then y = the partials scattered and added in chunk order.
   void SumOverChunks(const std::function<void(const RowChunk&, Eigen::VectorXd*)>& chunk_sum,
@@ -82,6 +86,9 @@ class NormalOperator {
 class MatrixFreeNormalOperator final : public NormalOperator {
  public:
   MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping);
+  // With diag(J^T J) already computed (StackedJacobian::MultiplyTransposedWithColumnSquaredNorms).
+  MatrixFreeNormalOperator(const StackedJacobian& jacobian, double damping,
+                           const Eigen::VectorXd& column_squared_norms);
   MatrixFreeNormalOperator(const JacobianMatrix& jacobian, double damping)
       : MatrixFreeNormalOperator(StackedJacobian(jacobian), damping) {}
   Eigen::Index size() const override { return jacobian_.cols(); }

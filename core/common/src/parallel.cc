@@ -1,0 +1,122 @@
+#include "face_reenact/common/parallel.h"
+
+#include <algorithm>
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <exception>
+#include <mutex>
+#include <system_error>
+#include <thread>
+#include <vector>
+
+namespace face_reenact {
+namespace {
+
+// One ParallelFor call. It lives on the caller's stack; the caller takes it off the queue and
+// waits for the helpers that joined it before returning, so no helper touches it afterwards.
+struct Job {
+  const std::function<void(int)>* item = nullptr;
+  int count = 0;
+  std::atomic<int> next{0};
+  std::vector<std::exception_ptr>* failures = nullptr;
+  int seats = 0;   // helpers still wanted (guarded by the pool's mutex)
+  int active = 0;  // helpers running its items (guarded by the pool's mutex)
+
+  // Items are taken in order from a shared counter, so a slow thread does not hold up the rest.
+  void Run() {
+    for (int k = next.fetch_add(1); k < count; k = next.fetch_add(1)) {
+      try {
+        (*item)(k);
+      } catch (...) {
+        (*failures)[static_cast<size_t>(k)] = std::current_exception();
+      }
+    }
+  }
+};
+
+class WorkerPool {
+ public:
+  static WorkerPool& Instance() {
+    static WorkerPool pool;
+    return pool;
+  }
+
+  ~WorkerPool() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stopping_ = true;
+    }
+    work_.notify_all();
+    for (auto& t : workers_) t.join();
+  }
+
+  void Run(Job* job, int helpers) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      // Grow on demand; a failure to start one more thread only means fewer helpers.
+      while (static_cast<int>(workers_.size()) < helpers && !spawn_failed_) {
+        try {
+          workers_.emplace_back([this] { WorkerLoop(); });
+        } catch (const std::system_error&) {
+          spawn_failed_ = true;
+        }
+      }
+      job->seats = std::min(helpers, static_cast<int>(workers_.size()));
+      if (job->seats > 0) queue_.push_back(job);
+    }
+    if (job->seats > 0) work_.notify_all();
+    job->Run();
+    std::unique_lock<std::mutex> lock(mutex_);
+    // Every item is taken: no helper may join from now on.
+    queue_.erase(std::remove(queue_.begin(), queue_.end(), job), queue_.end());
+    done_.wait(lock, [&] { return job->active == 0; });
+  }
+
+ private:
+  WorkerPool() = default;
+
+  void WorkerLoop() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    for (;;) {
+      work_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
+      if (stopping_) return;
+      Job* job = queue_.front();
+      if (--job->seats == 0) queue_.pop_front();
+      ++job->active;
+      lock.unlock();
+      job->Run();
+      lock.lock();
+      if (--job->active == 0) done_.notify_all();
+    }
+  }
+
+  std::mutex mutex_;
+  std::condition_variable work_, done_;
+  std::deque<Job*> queue_;
+  std::vector<std::thread> workers_;
+  bool stopping_ = false;
+  bool spawn_failed_ = false;
+};
+
+}  // namespace
+
+void ParallelFor(int count, int threads, const std::function<void(int item)>& item) {
+  if (count <= 0) return;
+  std::vector<std::exception_ptr> failures(static_cast<size_t>(count));
+  Job job;
+  job.item = &item;
+  job.count = count;
+  job.failures = &failures;
+  const int helpers = std::clamp(threads, 1, count) - 1;  // besides the caller
+  if (helpers == 0) {
+    job.Run();
+  } else {
+    WorkerPool::Instance().Run(&job, helpers);
+  }
+  for (const auto& f : failures) {
+    if (f) std::rethrow_exception(f);
+  }
+}
+
+}  // namespace face_reenact
