@@ -183,6 +183,7 @@ struct TrackArgs {
   bool ablation = false;
   int frames = 0;  // 0 = all
   int calibration_frames = 5;
+  int calibration_frame_stride = 1;
   std::string calibration_start = "neutral";
   int min_face_width = 40;
   int calibration_min_face_width = -1;  // -1: --min-face-width
@@ -206,6 +207,7 @@ constexpr EnergyConfig kAblation[] = {
 TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, bool depth_available) {
   TrackerOptions o;
   o.calibration_frames = a.calibration_frames;
+  o.calibration_frame_stride = a.calibration_frame_stride;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
@@ -568,6 +570,9 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--frames", targs->frames, "Track at most this many frames (default: all)")->check(CLI::Range(1, 100000000));
   tc->add_option("--calibration-frames", targs->calibration_frames, "Frames of the joint identity calibration (default 5)")
       ->check(CLI::Range(1, 64));
+  tc->add_option("--calibration-frame-stride", targs->calibration_frame_stride,
+                 "Take the calibration frames at least this many frames apart (default 1: consecutive)")
+      ->check(CLI::Range(1, 1000));
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")

@@ -193,6 +193,27 @@ TEST(TrackCli, AblationReportsEachEnergyConfiguration) {
             report["ablation"]["feature"]["geometric_error_mm_mean"].get<double>());
 }
 
+// --calibration-frame-stride: the calibration frames are taken that many frames apart, so two of
+// them with stride 3 are frames 0 and 3, and the calibration happens on frame 3 (1 when consecutive).
+TEST(TrackCli, CalibrationFramesAreTakenStrideApart) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "stride";
+  fs::create_directories(out);
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2",
+                                             "--calibration-frame-stride", "3", "--frames", "5", "--quiet",
+                                             "--min-face-width", "20", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json report = read_json(out / "r.json");
+  EXPECT_EQ(report["calibrated"], true);
+  EXPECT_EQ(report["calibration_frame"], 3) << report.dump();
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                               (out / "q.jsonl").string(), "--calibration-frame-stride", "0"});
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("calibration-frame-stride"), std::string::npos) << bad.output;
+}
+
 // --calibration-start lower-energy: the report names both starts' final energies and keeps the
 // lower one.
 TEST(TrackCli, LowerEnergyCalibrationSolvesBothStartsAndKeepsTheLower) {
