@@ -185,8 +185,8 @@ struct TrackArgs {
   int calibration_frames = 5;
   int calibration_frame_stride = 1;
   std::string calibration_start = "neutral";
-  int min_face_width = 40;
-  int calibration_min_face_width = -1;  // -1: --min-face-width
+  int min_face_width = TrackerOptions{}.min_face_width_px;
+  int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
   double fov_deg = 60.0;
   std::string solver = "auto";
   std::string device;
@@ -580,10 +580,13 @@ void add_tracker_commands(CLI::App& app) {
                                                      calibration_start_name(CalibrationStart::kPerFrameFits),
                                                      calibration_start_name(CalibrationStart::kLowerEnergy)}));
   tc->add_option("--min-face-width", targs->min_face_width,
-                 "Solve on pyramid levels where the face is at least this wide (px; default 40, 0 = the paper's levels 2 and 1)")
+                 "Track on pyramid levels where the face is at least this wide (px; default " +
+                     std::to_string(TrackerOptions{}.min_face_width_px) + ", 0 = the paper's levels 2 and 1)")
       ->check(CLI::Range(0, 4096));
   tc->add_option("--calibration-min-face-width", targs->calibration_min_face_width,
-                 "The same for the calibration solve (px; default: --min-face-width; 0 = its schedule's level 2)")
+                 "The same for the calibration solve (px; default " +
+                     std::to_string(TrackerOptions{}.calibration_min_face_width_px) +
+                     ", -1 = --min-face-width, 0 = its schedule's level 2)")
       ->check(CLI::Range(-1, 4096));
   tc->add_option("--fov", targs->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
       ->check(CLI::Range(10.0, 170.0));

@@ -116,7 +116,7 @@ TEST(TrackCli, TracksASyntheticRecordingEndToEnd) {
   EXPECT_EQ(report["depth_used"], true);
   EXPECT_EQ(report["intrinsics"], "recording");
   EXPECT_EQ(report["min_face_width_px"], 20);
-  EXPECT_EQ(report["calibration_min_face_width_px"], 20);  // follows --min-face-width unless given
+  EXPECT_EQ(report["calibration_min_face_width_px"], 40);  // its own default (TrackerOptions), not --min-face-width
   EXPECT_EQ(report["calibrated"], true);
   EXPECT_EQ(report["calibration_frame"], 2);
   // The default calibration solves from the neutral start only (FaceTracker tests cover both).

@@ -160,15 +160,16 @@ struct TrackerOptions {
   // camera (~160 px wide). When the face (the extent of its landmarks) is smaller, every
   // schedule is moved to finer levels until the face is at least this many pixels wide on the
   // coarsest solved level (level 0 at most); 0 keeps the schedules as given.
-  int min_face_width_px = 40;
-  // The same rule for the calibration solve; -1 takes min_face_width_px. Calibrating one level
-  // coarser than tracking (20 against 40 on 640x480 recordings) lowered the tracked rotation error
-  // on three synthetic recordings (mean 1.12 -> 0.61 deg) and made the calibration 4x faster, but
-  // raised the surface error (0.55 -> 0.82 mm) and, on seed 202, the translation error (4.0 ->
-  // 6.3 mm); on the demo's 320x240 targets the identity error rose 0.25-0.4 mm. So by default it
-  // follows the tracking rule; docs/tracking-pipeline.md, "Accuracy and speed", has the tables
-  // (`track --calibration-min-face-width` reproduces them).
-  int calibration_min_face_width_px = -1;
+  // Tracking takes 20, the calibration 40 (below): the fitted identity sets the accuracy, the
+  // per-frame level the cost. On three 640x480 recordings (landmark extent ~100 px) tracking on
+  // the paper's levels after a calibration on levels 1-0 matched tracking on levels 1-0 in every
+  // error (surface, rotation, translation, expression, 2D within 0.02 mm / 0.05 deg / 0.05 mm)
+  // at a third of the time per frame (26-33 against 82-97 ms); calibrating on the paper's levels
+  // too was as fast but fitted worse (seed 202: surface 1.22 against 0.53 mm).
+  // docs/tracking-pipeline.md, "Accuracy and speed".
+  int min_face_width_px = 20;
+  // The same rule for the calibration solve; -1 takes min_face_width_px.
+  int calibration_min_face_width_px = 40;
   LossDetectionOptions loss;
   // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
   // itself takes whatever landmarks the InputFrame carries).
