@@ -284,6 +284,38 @@ TEST(ReenactCompositorTest, RejectsBadInputsWithErrors) {
   EXPECT_NE(why.find("appearance"), std::string::npos) << why;
 }
 
+// The CPU re-rendering runs on ReenactmentOptions::render_threads threads (evaluation and both
+// rasterisations of the frame texture); the composite is the same for any count.
+TEST(ReenactCompositorTest, RenderThreadsDoNotChangeTheComposite) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.5f);
+  gpu::FaceParameters open = target;
+  open.delta[kJawOpenIndex] = 0.5f;
+  const cv::Mat frame = render_target(target, cam);
+  cv::Mat reference;
+  for (int threads : {1, 2, 5}) {
+    ReenactmentOptions o;
+    o.render_threads = threads;
+    const FaceCompositor fc(model, o);
+    AlbedoMap albedo;
+    fc.ObserveAlbedo(frame, cam, target, &albedo);
+    const CompositeResult c = fc.Compose(frame, cam, target, open, &albedo);
+    ASSERT_TRUE(c.drawn);
+    if (reference.empty()) {
+      reference = c.bgr;
+      continue;
+    }
+    EXPECT_EQ(cv::norm(c.bgr, reference, cv::NORM_INF), 0.0) << threads << " threads";
+  }
+  ReenactmentOptions bad;
+  bad.render_threads = -1;
+  std::string why;
+  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_NE(why.find("render_threads"), std::string::npos) << why;
+}
+
 // The Vulkan rasteriser (lavapipe here) and the CPU twin give the same composite up to edge
 // pixels: both shade with the compositor's per-vertex colours.
 TEST(ReenactCompositorTest, VulkanAndCpuRasterisersAgree) {

@@ -119,4 +119,9 @@ void ParallelFor(int count, int threads, const std::function<void(int item)>& it
   }
 }
 
+int ResolvedThreadCount(int requested) {
+  if (requested > 0) return requested;
+  return static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 8u));
+}
+
 }  // namespace face_reenact

@@ -202,11 +202,18 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   std::string why;
   if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
   GBuffer& g = *out;
-  g.Resize(camera.width, camera.height);
+  // Sized here, cleared by the bands below (each its own rows): at 640x480 the G-buffer is 20 MB,
+  // and clearing it on one thread cost as much as rasterising the face.
+  const size_t num_pixels = static_cast<size_t>(camera.width) * camera.height;
+  g.width = camera.width;
+  g.height = camera.height;
+  for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric}) v->resize(3 * num_pixels);
+  g.vertices.resize(3 * num_pixels);
+  g.triangle.resize(num_pixels);
   // The depth buffer is scratch: one per calling thread, kept, so a per-frame caller faults no
   // new pages. The bands below write disjoint rows of it.
   thread_local std::vector<float> depth_buffer;
-  depth_buffer.assign(static_cast<size_t>(camera.width) * camera.height, 1.0f);
+  depth_buffer.resize(num_pixels);
   float* depth = depth_buffer.data();
   const double near = camera.near_plane, far = camera.far_plane;
 
@@ -289,6 +296,15 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   const int bands = (camera.height + kRowsPerBand - 1) / kRowsPerBand;
   ParallelFor(bands, threads, [&](int band) {
     const int band_j0 = band * kRowsPerBand, band_j1 = std::min(camera.height, band_j0 + kRowsPerBand) - 1;
+    {
+      // The band's rows as GBuffer::Resize leaves them, and the depth buffer at the far plane.
+      const size_t p0 = static_cast<size_t>(band_j0) * camera.width, p1 = static_cast<size_t>(band_j1 + 1) * camera.width;
+      for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric})
+        std::fill(v->begin() + static_cast<std::ptrdiff_t>(3 * p0), v->begin() + static_cast<std::ptrdiff_t>(3 * p1), 0.f);
+      std::fill(g.vertices.begin() + static_cast<std::ptrdiff_t>(3 * p0), g.vertices.begin() + static_cast<std::ptrdiff_t>(3 * p1), -1);
+      std::fill(g.triangle.begin() + static_cast<std::ptrdiff_t>(p0), g.triangle.begin() + static_cast<std::ptrdiff_t>(p1), -1);
+      std::fill(depth + p0, depth + p1, 1.0f);
+    }
     for (const auto& list : setups) {
       for (const TriangleSetup& ts : list) {
         if (ts.j1 < band_j0 || ts.j0 > band_j1) continue;

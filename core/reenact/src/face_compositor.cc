@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/common/srgb.h"
 #include "face_reenact/gpu/context.h"
 #include "face_reenact/gpu/cpu_renderer.h"
@@ -201,6 +202,8 @@ struct FaceCompositor::Impl {
     return vk_renderer.get();
   }
 
+  int threads() const { return ResolvedThreadCount(options.render_threads); }
+
   // The G-buffer of `state` (evaluated at `params`) into `out`, rasterised by Vulkan or the CPU
   // twin. The colour channel is always the Gouraud interpolation of state.colors (the
   // compositor's own shading: albedo map, rendering lighting), whichever rasteriser ran.
@@ -208,7 +211,7 @@ struct FaceCompositor::Impl {
                  const gpu::RenderOptions& ropt, gpu::GBuffer* out) const {
     gpu::Renderer* vk = vulkan();
     if (!vk) {
-      renderer.rasterize(state, camera, ropt, out);
+      renderer.rasterize(state, camera, ropt, out, threads());
       return;
     }
     vk->render(params, camera, ropt);
@@ -250,7 +253,7 @@ struct FaceCompositor::Impl {
     gpu::VertexState target_state;
     gpu::GBuffer& target_g = scratch_gbuffer(1);
     if (!same) {
-      target_state = renderer.evaluate(target);
+      target_state = renderer.evaluate(target, nullptr, threads());
       rasterize(target_state, target, camera, ropt, &target_g);
     }
     const gpu::VertexState& ts = same ? out_state : target_state;
@@ -380,7 +383,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
 
   // --- re-render (Sec. 7.4): the target's identity, pose and lighting with the output expression.
   auto start = Clock::now();
-  gpu::VertexState state = im.renderer.evaluate(output);
+  gpu::VertexState state = im.renderer.evaluate(output, nullptr, im.threads());
   const int n = im.model.num_vertices();
   const Gamma light = rendering_lighting(output.gamma);
   const bool use_map = albedo && albedo->albedo.size() == 3 * n;
@@ -545,7 +548,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     throw Error("albedo observation: the frame must be 8-bit BGR of the camera's size");
   const Impl& im = *impl_;
   const int n = im.model.num_vertices();
-  const gpu::VertexState state = im.renderer.evaluate(params);
+  const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
   if (map->albedo.size() != 3 * n || map->weight.size() != n) {
     map->albedo = state.albedo;
     map->weight = Eigen::VectorXf::Zero(n);

@@ -67,6 +67,7 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
   if (!std::isfinite(depth_background_m) || depth_background_m < 0.f || !std::isfinite(depth_occluder_m) ||
       depth_occluder_m < 0.f)
     return fail("depth_background_m and depth_occluder_m must be finite and >= 0");
+  if (render_threads < 0 || render_threads > 64) return fail("render_threads must be 0..64 (0 = one per hardware thread)");
   std::string sub;
   if (!use_ground_truth_target) {
     if (!tracker.IsValid(&sub)) return fail("tracker: " + sub);

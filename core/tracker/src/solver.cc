@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "gauss_newton_loop.h"
 #include "tracker_internal.h"
 
@@ -219,10 +220,7 @@ bool SolverOptions::IsValid(std::string* why) const {
   return true;
 }
 
-int SolverOptions::ResolvedThreads() const {
-  if (threads > 0) return threads;
-  return static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 8u));
-}
+int SolverOptions::ResolvedThreads() const { return ResolvedThreadCount(threads); }
 
 std::string SolverSummary::BriefReport() const {
   char buf[160];

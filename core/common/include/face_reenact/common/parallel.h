@@ -18,4 +18,8 @@ namespace face_reenact {
 // no helper thread can be started, the caller runs the rest.
 void ParallelFor(int count, int threads, const std::function<void(int item)>& item);
 
+// A thread count option resolved: `requested` when positive, else one per hardware thread, at
+// most 8 (beyond that the products here are bound by memory bandwidth).
+int ResolvedThreadCount(int requested);
+
 }  // namespace face_reenact

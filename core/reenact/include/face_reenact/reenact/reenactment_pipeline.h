@@ -120,6 +120,9 @@ struct ReenactmentOptions {
   // 0 turns the check off.
   float depth_background_m = 0.08f;
   float depth_occluder_m = 0.04f;
+  // Threads of the CPU re-rendering (model evaluation and rasterisation; 0 = one per hardware
+  // thread, at most 8). The output does not depend on it.
+  int render_threads = 0;
 
   // --- tracking of the target (core/tracker/.../face_tracker.h, rgbd_input.h) ---
   tracker::TrackerOptions tracker;
