@@ -214,7 +214,10 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.calibration_min_face_width_px = a.calibration_min_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
-    s->energy.use_point = s->energy.use_plane = config.depth && depth_available;
+    // The depth terms a solver uses (the calibration has no point term), when there is depth.
+    const bool depth = config.depth && depth_available;
+    s->energy.use_point = s->energy.use_point && depth;
+    s->energy.use_plane = s->energy.use_plane && depth;
     s->energy.use_color = config.colour;
   }
   return o;

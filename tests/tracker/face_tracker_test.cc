@@ -216,11 +216,13 @@ TEST(FaceTracker, CalibratesThenTracksASequence) {
   }
   mean_geometric /= evaluated;
   // Loose versions of the targets (1 degree, 2 mm, 1.5 mm) on noise-free renders. The
-  // calibrated identity trades off against the pose (measured here: surface 1.0-1.1 mm, 1.3-1.4
-  // degrees, 8 mm of the model origin); docs/tracker.md has the numbers and the reason.
-  EXPECT_LT(worst_rotation, 2.5);
-  EXPECT_LT(worst_translation, 12.0);
-  EXPECT_LT(mean_geometric, 1.6);
+  // calibrated identity trades off against the pose (measured here: surface 0.33-0.48 mm,
+  // 0.53-0.70 degrees, 3.2-3.4 mm of the model origin; with the point-to-point term in the
+  // calibration, before 2026-11-23: 1.0-1.1 mm, 1.3-1.4 degrees, 8 mm); docs/tracker.md has the
+  // numbers and the reason.
+  EXPECT_LT(worst_rotation, 1.2);
+  EXPECT_LT(worst_translation, 5.0);
+  EXPECT_LT(mean_geometric, 0.8);
   ASSERT_TRUE(tracker.calibrated());
   EXPECT_GT(tracker.neutral().alpha.norm(), 0.f);  // identity was fitted
   EXPECT_EQ(tracker.neutral().delta.size(), model->num_expression());
@@ -289,6 +291,55 @@ TEST(FaceTracker, CalibrationOfANeutralActorFindsANeutralExpression) {
     EXPECT_GT(fits_total, 2.0f * total) << "starting from the fits' expressions should keep much of them";
   }
   EXPECT_GT(pre_calibration, 0.5f) << "the fits before calibration should read a false expression here";
+}
+
+// The default joint calibration solve, long as it is, ends at its lowest energy: each accepted
+// step is judged with the correspondences held, so a term whose Gauss-Newton model is biased
+// against the re-rendered energy shows up as an energy that climbs again after its low. The
+// projective point-to-point term did (on a 640x480 recording: 1.74 -> 2.42 over the last 37 of
+// 60 iterations); the calibration leaves it out. Run with it too, so the check is shown to bite.
+TEST(FaceTracker, TheCalibrationSolveDoesNotClimbAfterItsLowestEnergy) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  gpu::FaceParameters actor = testing::true_parameters(*model, 0.9f, 5);
+  for (int k = 0; k < model->num_identity(); ++k) actor.alpha[k] = 1.5f * u(rng) * model->identity_sigma[k];
+  std::vector<InputFrame> frames;
+  std::vector<gpu::FaceParameters> starts;
+  for (int k = 0; k < 3; ++k) {
+    gpu::FaceParameters p = actor;
+    p.euler.y() += 0.15f * static_cast<float>(k - 1);
+    frames.push_back(render_frame(solver, p, 640, 480));
+    // The start: the mean face, neutral, at a pose a mean-identity fit would give (a few mm and
+    // a degree off).
+    p.alpha.setZero();
+    p.beta.setZero();
+    p.delta.setZero();
+    p.translation.z() -= 0.004f;
+    p.euler.x() -= 0.02f;
+    starts.push_back(p);
+  }
+  const ParameterLayout layout = ParameterLayout::Calibration(model->num_identity(), model->num_albedo(), model->num_expression());
+  auto climb = [&](const SolverOptions& so, const char* name) {
+    std::vector<gpu::FaceParameters> p = starts;
+    const SolverSummary s = solver.SolveFrames(frames, layout, so, &p);
+    double lowest = s.initial_energy.total();
+    for (const IterationRecord& r : s.iterations) lowest = std::min(lowest, r.energy_after.total());
+    const double rise = s.final_energy.total() / lowest - 1.0;
+    std::printf("%s: %zu iterations, E %.4f -> lowest %.4f, final %.4f (%.1f %% above the lowest)\n", name,
+                s.iterations.size(), s.initial_energy.total(), lowest, s.final_energy.total(), 100.0 * rise);
+    return rise;
+  };
+  const SolverOptions calibration = AdaptScheduleToFaceSize(TrackerOptions{}.calibration_solver, 90.0, 40);
+  EXPECT_FALSE(calibration.energy.use_point);
+  SolverOptions with_point = calibration;
+  with_point.energy.use_point = true;
+  // Measured: 0.0 % without the point term, 1.3 % with it (on these noise-free renders; 39 % on
+  // the recording above).
+  EXPECT_LT(climb(calibration, "default calibration"), 0.005);
+  EXPECT_GT(climb(with_point, "with the point-to-point term"), 0.005);
 }
 
 TEST(FaceTracker, SurvivesBadFramesAndRecovers) {
