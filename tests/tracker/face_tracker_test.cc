@@ -321,7 +321,8 @@ TEST(FaceTracker, TheCalibrationSolveDoesNotClimbAfterItsLowestEnergy) {
     p.euler.x() -= 0.02f;
     starts.push_back(p);
   }
-  const ParameterLayout layout = ParameterLayout::Calibration(model->num_identity(), model->num_albedo(), model->num_expression());
+  const ParameterLayout layout =
+      ParameterLayout::Calibration(model->num_identity(), model->num_albedo(), model->num_expression());
   auto climb = [&](const SolverOptions& so, const char* name) {
     std::vector<gpu::FaceParameters> p = starts;
     const SolverSummary s = solver.SolveFrames(frames, layout, so, &p);

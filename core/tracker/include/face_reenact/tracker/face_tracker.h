@@ -127,16 +127,17 @@ struct TrackerOptions {
   // close to the mean face; the weaker prior measured better rotation and surface errors.
   // The expression rows keep the paper's w_reg_expression 0.025 (a weaker expression prior
   // let the per-frame expressions absorb identity: expression error 0.089 against 0.074).
-  // No point-to-point term (use_point false; the plane term and the others keep the paper's weights):
-  // with projective correspondences its Gauss-Newton steps kept lowering the energy with the
-  // correspondences held while the energy after re-rendering climbed (seed 202, 640x480: 1.74
+  // No point-to-point term (use_point false; the plane term and the others keep the paper's
+  // weights): with projective correspondences its Gauss-Newton steps kept lowering the energy
+  // with the correspondences held while the energy after re-rendering climbed (seed 202, 640x480: 1.74
   // at iteration 23 -> 2.42 at 60, the residual count falling 162k -> 153k), so a long joint
   // solve drifted off; without it the energy falls through all 60 iterations and the identity
   // comes out closer (seed 202: surface max 12.2 -> 6.1 mm, origin 4.1 -> 2.4 mm). Tracking
   // keeps it (same errors with or without). 60 GN x 4 PCG: shorter inner solves damp the steps
   // along the weakly determined identity/distance valley (x 16 and x 64 ended at higher
   // energies), and without the drift more iterations keep helping: 40 -> 60 lowered rotation
-  // and translation on three 640x480 recordings (docs/tracking-pipeline.md, "Calibration").
+  // and translation on three 640x480 recordings (docs/tracking-pipeline.md, "Calibration
+  // without the point-to-point term").
   SolverOptions calibration_solver = [] {
     SolverOptions s;
     s.schedule = {{2, 60, 4}};
