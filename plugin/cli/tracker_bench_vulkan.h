@@ -15,8 +15,8 @@ namespace face_reenact::cli {
 
 // One solver of the `bench track` table: tracks `frames` in order from `start` (frame 0 is the
 // untimed warm-up) and returns {"levels": [per level: gauss_newton_per_frame, residuals,
-// synthesis_ms_per_frame, analysis_ms_per_frame], pyramid_ms_per_frame, total_ms_per_frame,
-// mean_final_energy}, averaged over the timed frames. Shared by the CPU and Vulkan columns.
+// synthesis_ms_per_frame, analysis_ms_per_frame], pyramid_ms_per_frame, input_ms_per_frame,
+// total_ms_per_frame, mean_final_energy}, averaged over the timed frames. Shared by the CPU and Vulkan columns.
 using BenchSolveFunction = std::function<tracker::SolverSummary(const tracker::InputFrame&, gpu::FaceParameters*)>;
 nlohmann::json time_track_solver(const BenchSolveFunction& solve, const std::vector<tracker::InputFrame>& frames,
                                  gpu::FaceParameters start);

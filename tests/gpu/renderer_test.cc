@@ -403,6 +403,32 @@ TEST_F(RendererTest, TargetsStayOnTheGpuPerResolution) {
   EXPECT_EQ(renderer.targets().ids.handle(), full_ids) << "targets are cached per resolution";
 }
 
+// read_gbuffer reuses one readback buffer and the caller's GBuffer across renders: a read after
+// a larger render, at another pose, must equal a fresh read, with nothing of the earlier image.
+TEST_F(RendererTest, ReusedReadbackEqualsAFreshReadAfterALargerRender) {
+  Renderer renderer(context(), testing::make_icosphere(kRadius, 2));
+  const PinholeCamera full;
+  GBuffer reused;
+  renderer.render(frontal_pose(kDistance), full);
+  renderer.read_gbuffer(&reused);
+  ASSERT_GT(reused.covered_count(), 0u);
+  FaceParameters moved = frontal_pose(kDistance);
+  moved.translation.x() += 0.05f;
+  renderer.render(moved, full.Downsampled(1));
+  renderer.read_gbuffer(&reused);
+  const GBuffer fresh = renderer.read_gbuffer();
+  ASSERT_EQ(reused.width, 320);
+  ASSERT_EQ(reused.height, 240);
+  EXPECT_EQ(reused.triangle, fresh.triangle);
+  EXPECT_EQ(reused.vertices, fresh.vertices);
+  EXPECT_EQ(reused.position, fresh.position);
+  EXPECT_EQ(reused.normal, fresh.normal);
+  EXPECT_EQ(reused.barycentric, fresh.barycentric);
+  EXPECT_EQ(reused.color, fresh.color);
+  EXPECT_GT(fresh.covered_count(), 0u);
+  EXPECT_THROW(renderer.read_gbuffer(nullptr), face_reenact::Error);
+}
+
 TEST_F(RendererTest, TimingsAreReported) {
   Renderer renderer(context(), testing::make_icosphere(kRadius, 3));
   const RenderTimings t = renderer.render(frontal_pose(kDistance), PinholeCamera{});

@@ -109,6 +109,17 @@ void Buffer::write(const void* data, VkDeviceSize bytes, VkDeviceSize offset) {
       "buffer upload");
 }
 
+const void* Buffer::mapped_for_read() const {
+  if (!mapped_) throw Error("GPU buffer '" + name_ + "' is not host-visible");
+  if (!coherent_) {
+    VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE};
+    range.memory = memory_;
+    range.size = VK_WHOLE_SIZE;
+    FR_VK_CHECK(vkInvalidateMappedMemoryRanges(context_->device(), 1, &range));
+  }
+  return mapped_;
+}
+
 void Buffer::read(void* data, VkDeviceSize bytes, VkDeviceSize offset) const {
   if (!buffer_) throw Error("read from an empty GPU buffer");
   if (offset > size_ || bytes > size_ - offset) {
@@ -117,13 +128,7 @@ void Buffer::read(void* data, VkDeviceSize bytes, VkDeviceSize offset) const {
   }
   if (bytes == 0) return;
   if (mapped_) {
-    if (!coherent_) {
-      VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE};
-      range.memory = memory_;
-      range.size = VK_WHOLE_SIZE;
-      FR_VK_CHECK(vkInvalidateMappedMemoryRanges(context_->device(), 1, &range));
-    }
-    std::memcpy(data, static_cast<const char*>(mapped_) + offset, bytes);
+    std::memcpy(data, static_cast<const char*>(mapped_for_read()) + offset, bytes);
     return;
   }
   Buffer staging(*context_, bytes, VK_BUFFER_USAGE_TRANSFER_DST_BIT, BufferDomain::Readback, name_ + " readback");

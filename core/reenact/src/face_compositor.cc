@@ -215,7 +215,7 @@ struct FaceCompositor::Impl {
       return;
     }
     vk->render(params, camera, ropt);
-    *out = vk->read_gbuffer();
+    vk->read_gbuffer(out);
     gpu::GBuffer& g = *out;
     for (size_t p = 0; p < g.triangle.size(); ++p) {
       if (g.triangle[p] < 0) continue;

@@ -11,6 +11,7 @@
 #include <utility>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/gpu/buffer.h"
 #include "face_reenact/gpu/command.h"
 #include "face_reenact/gpu/context.h"
@@ -240,36 +241,43 @@ struct VulkanSolver::Impl {
                                  gpu::BufferDomain::Device, "tracker landmark items");
   }
 
-  LevelInput prepare_level(const InputFrame& f, const EnergyOptions& energy) const {
-    LevelInput li;
+  // Fills `li` for frame `f`: the per-pixel input (point, normal, colour) written straight into
+  // its upload buffer, rows split over `threads`, and the landmark candidates. The buffers are
+  // kept from frame to frame and grow only when a level gets larger: allocating them per frame
+  // cost a real GPU's driver more than the level's whole analysis (bench track, 2026-11-24).
+  void prepare_level(const InputFrame& f, const EnergyOptions& energy, int threads, LevelInput* out) {
+    LevelInput& li = *out;
     li.frame = &f;
     const int w = f.width(), h = f.height();
     const size_t pixels = static_cast<size_t>(w) * h;
-    std::vector<float> data(12 * pixels, 0.f);
-    for (int j = 0; j < h; ++j) {
-      for (int i = 0; i < w; ++i) {
-        const size_t p = static_cast<size_t>(j) * w + i;
-        float* d = &data[12 * p];
-        if (f.has_depth() && f.depth_valid(i, j)) {
-          const Eigen::Vector3d x = f.point(i, j);
-          d[0] = static_cast<float>(x.x());
-          d[1] = static_cast<float>(x.y());
-          d[2] = static_cast<float>(x.z());
-          d[3] = 1.f;
-          Eigen::Vector3d nrm;
-          if (InputNormal(f, i, j, energy.max_depth_jump_m, &nrm)) {
-            d[4] = static_cast<float>(nrm.x());
-            d[5] = static_cast<float>(nrm.y());
-            d[6] = static_cast<float>(nrm.z());
-            d[7] = 1.f;
+    ensure(li.data, 12 * pixels * sizeof(float), gpu::BufferDomain::Upload, "tracker level input");
+    auto* data = static_cast<float*>(li.data.mapped());
+    constexpr int kRowsPerItem = 16;
+    ParallelFor((h + kRowsPerItem - 1) / kRowsPerItem, ResolvedThreadCount(threads), [&](int item) {
+      for (int j = item * kRowsPerItem; j < std::min(h, (item + 1) * kRowsPerItem); ++j) {
+        for (int i = 0; i < w; ++i) {
+          const size_t p = static_cast<size_t>(j) * w + i;
+          float d[12] = {};
+          if (f.has_depth() && f.depth_valid(i, j)) {
+            const Eigen::Vector3d x = f.point(i, j);
+            d[0] = static_cast<float>(x.x());
+            d[1] = static_cast<float>(x.y());
+            d[2] = static_cast<float>(x.z());
+            d[3] = 1.f;
+            Eigen::Vector3d nrm;
+            if (InputNormal(f, i, j, energy.max_depth_jump_m, &nrm)) {
+              d[4] = static_cast<float>(nrm.x());
+              d[5] = static_cast<float>(nrm.y());
+              d[6] = static_cast<float>(nrm.z());
+              d[7] = 1.f;
+            }
           }
+          for (int c = 0; c < 3; ++c) d[8 + c] = f.color[3 * p + c];
+          d[11] = 1.f;
+          std::memcpy(data + 12 * p, d, sizeof(d));  // whole pixels: the mapping may be write-combined
         }
-        for (int c = 0; c < 3; ++c) d[8 + c] = f.color[3 * p + c];
-        d[11] = 1.f;
       }
-    }
-    li.data = gpu::Buffer(context, data.size() * sizeof(float), kStorage, gpu::BufferDomain::Upload, "tracker level input");
-    li.data.write(data.data(), data.size() * sizeof(float));
+    });
     // Landmark candidates exactly as Linearize filters them before visibility.
     std::unordered_map<int, int> vertex_of;
     for (const auto& l : model.landmarks) {
@@ -289,10 +297,8 @@ struct VulkanSolver::Impl {
       }
     }
     li.num_candidates = static_cast<uint32_t>(cand.size() / 4);
-    li.candidates = gpu::Buffer(context, std::max<size_t>(cand.size() * sizeof(float), 16), kStorage,
-                                gpu::BufferDomain::Upload, "tracker landmark candidates");
+    ensure(li.candidates, cand.size() * sizeof(float), gpu::BufferDomain::Upload, "tracker landmark candidates");
     if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(float));
-    return li;
   }
 
   // Renders `p` for the level and runs the linearisation pass; returns its counts.
@@ -699,6 +705,8 @@ struct VulkanSolver::Impl {
   }
 
   const gpu::Buffer* current_input = nullptr;
+  // Per pyramid level, the input buffers of the frame being solved, kept for the next frame.
+  std::unordered_map<int, LevelInput> level_inputs;
 
   class GaussNewton;
 };
@@ -803,16 +811,21 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
   const auto start = Clock::now();
   const gpu::FaceParameters base = *params;
   Eigen::VectorXd x = layout.Pack(base);
-  std::unordered_map<int, LevelInput> inputs;
+  std::unordered_map<int, LevelInput>& inputs = m.level_inputs;
+  std::unordered_map<int, bool> prepared;
   for (const auto& level : options.schedule) {
-    if (!inputs.count(level.level)) inputs.emplace(level.level, m.prepare_level(pyramid[level.level], options.energy));
+    if (prepared[level.level]) continue;
+    m.prepare_level(pyramid[level.level], options.energy, options.threads, &inputs[level.level]);
+    prepared[level.level] = true;
   }
+  const double input_ms = ms_since(start);
   Impl::GaussNewton backend(m, layout, options, inputs, base);
   SolverSummary summary = internal::RunGaussNewton(
       options, {{layout.offset(Block::kExpression), layout.num_expression}}, 1, &backend, &x);
   const VulkanStrategy used = m.resolve(options);
   summary.message += std::string("; Vulkan (") + m.context.device_info().name + ", " + vulkan_strategy_name(used) + ")";
   *params = layout.Unpack(x, base);
+  summary.input_ms = input_ms;
   summary.total_ms = ms_since(start);
   m.current_input = nullptr;
   return summary;
@@ -835,7 +848,8 @@ VulkanLinearSystem VulkanSolver::Inspect(const InputFrame& level_frame, const Pa
   o.energy = energy;
   o.render = render;
   o.max_step_halvings = 0;
-  LevelInput li = m.prepare_level(level_frame, energy);
+  LevelInput li;
+  m.prepare_level(level_frame, energy, 0, &li);
   m.current_input = &li.data;
   double unused = 0;
   const Counts counts = m.linearize(li, layout, params, o, &unused, &unused);

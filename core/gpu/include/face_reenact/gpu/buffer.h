@@ -35,6 +35,9 @@ class Buffer {
   bool valid() const { return buffer_ != VK_NULL_HANDLE; }
   // Host pointer for Upload/Readback buffers, nullptr for Device buffers.
   void* mapped() const { return mapped_; }
+  // The mapped pointer of a Readback buffer for reading what the GPU wrote, in place (no copy
+  // of a large readback; non-coherent memory is invalidated first). Throws for Device buffers.
+  const void* mapped_for_read() const;
 
   // Copies host data in at `offset` (bounds-checked). Device buffers go through a temporary
   // staging buffer and a synchronous transfer.

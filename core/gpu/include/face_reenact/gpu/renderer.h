@@ -73,6 +73,8 @@ class Renderer {
   const GBufferTargets& targets() const;
   const PinholeCamera& last_camera() const { return last_camera_; }
   GBuffer read_gbuffer() const;
+  // The same into `out`, reusing its storage (per-frame callers: no fresh 20 MB per 640x480 frame).
+  void read_gbuffer(GBuffer* out) const;
   // Per-vertex results of the last render().
   VertexState read_vertex_state() const;
 
@@ -102,6 +104,9 @@ class Renderer {
   std::vector<float> identity_key_;
   bool identity_valid_ = false;
   Buffer draw_list_;
+  // Reused by read_gbuffer: allocating ~25 MB of host-visible memory per read cost a real GPU's
+  // driver more than the render itself (bench reenact, 2026-11-24).
+  mutable Buffer readback_;
   uint32_t draw_count_ = 0;
   PartMask draw_list_parts_ = ~0u;
 

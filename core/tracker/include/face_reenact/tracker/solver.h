@@ -86,6 +86,7 @@ struct SolverSummary {
   TermEnergies final_energy;    // at the result, on the last scheduled level
   std::vector<IterationRecord> iterations;
   double pyramid_ms = 0;
+  double input_ms = 0;  // the levels' input made ready for the device (Vulkan: normals + upload)
   double synthesis_ms = 0;
   double analysis_ms = 0;
   double total_ms = 0;
