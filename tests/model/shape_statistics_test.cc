@@ -75,6 +75,78 @@ TEST(AlignSamples, RemovesRigidMotionButKeepsShapeChanges) {
   EXPECT_NEAR((mean.segment<3>(0) - mean.segment<3>(3)).norm(), (base.segment<3>(0) - base.segment<3>(3)).norm(), 1e-4);
 }
 
+TEST(RigidMotionShare, IsOneForRigidFieldsZeroForShapeChangesAndHonoursWeights) {
+  const int n = 30;
+  const Eigen::VectorXf mean = random_points(n, 6);
+  Eigen::Vector3f c = Eigen::Vector3f::Zero();
+  for (int i = 0; i < n; ++i) c += mean.segment<3>(3 * i) / n;
+  Eigen::VectorXf shift(3 * n), spin(3 * n), scale(3 * n);
+  for (int i = 0; i < n; ++i) {
+    shift.segment<3>(3 * i) = Eigen::Vector3f(0.2f, -0.5f, 1.f);
+    spin.segment<3>(3 * i) = Eigen::Vector3f(0.3f, 1.f, -0.4f).cross(mean.segment<3>(3 * i) - c);
+    scale.segment<3>(3 * i) = mean.segment<3>(3 * i) - c;  // orthogonal to every rigid motion
+  }
+  auto one = [](const Eigen::VectorXf& v) {
+    Eigen::MatrixXf b = v.normalized();
+    return b;
+  };
+  const Eigen::VectorXf sd = Eigen::VectorXf::Constant(1, 2.f);
+  EXPECT_NEAR(rigid_motion_share(mean, one(shift), sd), 1.0, 1e-6);
+  EXPECT_NEAR(rigid_motion_share(mean, one(spin), sd), 1.0, 1e-6);
+  EXPECT_NEAR(rigid_motion_share(mean, one(scale), sd), 0.0, 1e-6);
+  // Two components, the rigid one with twice the standard deviation: 4 / (4 + 1).
+  Eigen::MatrixXf two(3 * n, 2);
+  two << one(shift), one(scale);
+  EXPECT_NEAR(rigid_motion_share(mean, two, Eigen::Vector2f(2.f, 1.f)), 0.8, 1e-6);
+  // A shift of only the unweighted half is not rigid motion of the weighted half: it is no motion
+  // of it at all, so nothing is left there but the scale.
+  Eigen::VectorXf w = Eigen::VectorXf::Zero(n);
+  w.head(n / 2).setOnes();
+  Eigen::VectorXf tail_shift = shift;
+  tail_shift.head(3 * (n / 2)).setZero();
+  Eigen::Vector3f head_centre = Eigen::Vector3f::Zero();
+  for (int i = 0; i < n / 2; ++i) head_centre += mean.segment<3>(3 * i) / (n / 2);
+  Eigen::VectorXf head_scale(3 * n);  // a scale about the weighted points' own centroid
+  for (int i = 0; i < n; ++i) head_scale.segment<3>(3 * i) = mean.segment<3>(3 * i) - head_centre;
+  two << one(tail_shift), one(head_scale);
+  EXPECT_NEAR(rigid_motion_share(mean, two, Eigen::Vector2f(2.f, 1.f), w), 0.0, 1e-6);
+  // Over all points that half shift is at least half translation: 4 * 0.5 / 5 or more.
+  EXPECT_GT(rigid_motion_share(mean, two, Eigen::Vector2f(2.f, 1.f)), 0.39);
+  EXPECT_THROW(rigid_motion_share(mean, two, Eigen::Vector3f::Ones()), Error);
+  EXPECT_THROW(rigid_motion_share(mean, two, Eigen::Vector2f::Ones(), Eigen::VectorXf::Zero(n)), Error);
+  EXPECT_THROW(rigid_motion_share(mean.head(10), two, Eigen::Vector2f::Ones()), Error);
+}
+
+// Aligning on a subset of the points leaves no rigid motion on that subset, while aligning on
+// all points (each sample also deformed elsewhere) leaves a rigid share there: the builder's
+// face-region alignment in miniature.
+TEST(AlignSamples, WeightedAlignmentLeavesNoRigidShareOnTheWeightedPoints) {
+  const int n = 40, s = 60;
+  const Eigen::VectorXf base = random_points(n, 7);
+  Eigen::VectorXf w = Eigen::VectorXf::Zero(n);
+  w.head(n / 2).setOnes();
+  std::mt19937 rng(8);
+  std::normal_distribution<float> g;
+  Eigen::MatrixXf samples(3 * n, s);
+  for (int c = 0; c < s; ++c) {
+    Eigen::VectorXf col = base;
+    for (int i = 0; i < col.size(); ++i) col[i] += (i < 3 * (n / 2) ? 0.02f : 0.3f) * g(rng);
+    samples.col(c) = col;
+  }
+  auto share_after = [&](const Eigen::VectorXf& align_weights) {
+    Eigen::MatrixXf a = samples;
+    const Eigen::VectorXf mean = align_samples(&a, align_weights, 20, 1e-9, nullptr);
+    a.colwise() -= mean;
+    PcaOptions po;
+    po.min_components = po.max_components = 20;
+    po.subspace_size = 20;
+    PcaResult pca = pca_of_centered_samples(a, po);
+    return rigid_motion_share(mean, pca.basis, pca.sigma, w);
+  };
+  EXPECT_LT(share_after(w), 1e-4);
+  EXPECT_GT(share_after(Eigen::VectorXf()), 0.05);
+}
+
 // Samples with a known covariance: orthonormal directions Q with standard deviations sd.
 Eigen::MatrixXf known_samples(int dim, int count, const std::vector<double>& sd, uint32_t seed, Eigen::MatrixXd* q) {
   std::mt19937 rng(seed);

@@ -146,6 +146,7 @@ std::string FaceModelBuildOptions::ToJson() const {
                       {"local_modifier_sigma", local_modifier_sigma},
                       {"asymmetry_sigma", asymmetry_sigma},
                       {"neck_cut_dm", neck_cut_dm},
+                      {"alignment", alignment == Alignment::Face ? "face" : "head"},
                       {"min_identity_components", min_identity_components},
                       {"max_identity_components", max_identity_components},
                       {"identity_variance_target", identity_variance_target}};
@@ -477,11 +478,18 @@ FaceModel build_face_model(const ZipArchive& wheel, const std::string& wheel_sha
                              fmt("%.0f", opt.max_age_years) + ")");
 
   ProcrustesSummary ps;
-  Eigen::VectorXf mean = align_samples(&heads, Eigen::VectorXf(), 10, 1e-7, &ps);
+  Eigen::VectorXf align_weights;  // empty: every vertex counts
+  if (opt.alignment == FaceModelBuildOptions::Alignment::Face) {
+    align_weights = Eigen::VectorXf::Zero(n);
+    for (int i = 0; i < n; ++i)
+      if (part_of[i] == FacePart::Face) align_weights[i] = 1;
+  }
+  Eigen::VectorXf mean = align_samples(&heads, align_weights, 10, 1e-7, &ps);
   heads.colwise() -= mean;
   sum.procrustes_iterations = ps.iterations;
   sum.procrustes_residual_m = ps.mean_residual;
-  timer.done("rigid alignment", std::to_string(ps.iterations) + " Procrustes iterations, RMS spread " +
+  timer.done("rigid alignment", std::to_string(ps.iterations) + " Procrustes iterations on the " +
+                                    (align_weights.size() ? "face" : "head") + " region, RMS spread " +
                                     fmt("%.2f mm", 1000 * ps.mean_residual));
 
   PcaOptions po;

@@ -44,6 +44,15 @@ void apply_rigid(const RigidTransform& t, Eigen::Ref<Eigen::VectorXf> points) {
   for (Eigen::Index i = 0; i + 2 < points.size(); i += 3) points.segment<3>(i) = r * points.segment<3>(i) + tr;
 }
 
+namespace {
+
+Eigen::MatrixXd orthonormalize(const Eigen::MatrixXd& y) {
+  Eigen::HouseholderQR<Eigen::MatrixXd> qr(y);
+  return qr.householderQ() * Eigen::MatrixXd::Identity(y.rows(), y.cols());
+}
+
+}  // namespace
+
 Eigen::VectorXf align_samples(Eigen::MatrixXf* samples, const Eigen::VectorXf& weights, int max_iterations,
                               double tolerance, ProcrustesSummary* summary) {
   Eigen::MatrixXf& s = *samples;
@@ -68,6 +77,43 @@ Eigen::VectorXf align_samples(Eigen::MatrixXf* samples, const Eigen::VectorXf& w
   return mean;
 }
 
+double rigid_motion_share(const Eigen::VectorXf& mean, const Eigen::MatrixXf& basis, const Eigen::VectorXf& sigma,
+                          const Eigen::VectorXf& weights) {
+  const Eigen::Index n = mean.size() / 3;
+  if (mean.size() == 0 || mean.size() % 3 != 0 || basis.rows() != mean.size() || sigma.size() != basis.cols())
+    throw Error("rigid_motion_share: need a 3N mean, a 3N x K basis and K sigmas");
+  if (weights.size() != 0 && weights.size() != n) throw Error("rigid_motion_share: one weight per point expected");
+  auto w = [&](Eigen::Index i) { return weights.size() ? static_cast<double>(weights[i]) : 1.0; };
+  double wsum = 0;
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (Eigen::Index i = 0; i < n; ++i) {
+    wsum += w(i);
+    c += w(i) * mean.segment<3>(3 * i).cast<double>();
+  }
+  if (!(wsum > 0)) throw Error("rigid_motion_share: total weight is zero");
+  c /= wsum;
+  // The six motion fields with sqrt(w) folded in, so that plain dot products are the weighted ones.
+  Eigen::MatrixXd fields = Eigen::MatrixXd::Zero(3 * n, 6);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double sw = std::sqrt(w(i));
+    const Eigen::Vector3d p = mean.segment<3>(3 * i).cast<double>() - c;
+    for (int a = 0; a < 3; ++a) {
+      fields(3 * i + a, a) = sw;
+      fields.block<3, 1>(3 * i, 3 + a) = sw * Eigen::Vector3d::Unit(a).cross(p);
+    }
+  }
+  const Eigen::MatrixXd q = orthonormalize(fields);
+  double total = 0, rigid = 0;
+  for (Eigen::Index k = 0; k < basis.cols(); ++k) {
+    Eigen::VectorXd e = basis.col(k).cast<double>();
+    for (Eigen::Index i = 0; i < n; ++i) e.segment<3>(3 * i) *= std::sqrt(w(i));
+    const double var = static_cast<double>(sigma[k]) * sigma[k];
+    total += var * e.squaredNorm();
+    rigid += var * (q.transpose() * e).squaredNorm();
+  }
+  return total > 0 ? rigid / total : 0;
+}
+
 bool PcaOptions::IsValid(std::string* why) const {
   auto bad = [&](const char* m) {
     if (why) *why = m;
@@ -83,11 +129,6 @@ bool PcaOptions::IsValid(std::string* why) const {
 }
 
 namespace {
-
-Eigen::MatrixXd orthonormalize(const Eigen::MatrixXd& y) {
-  Eigen::HouseholderQR<Eigen::MatrixXd> qr(y);
-  return qr.householderQ() * Eigen::MatrixXd::Identity(y.rows(), y.cols());
-}
 
 // Deterministic standard normals (own Box-Muller so the model does not depend on the
 // standard library's distribution implementation).

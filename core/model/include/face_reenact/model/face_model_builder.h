@@ -32,6 +32,12 @@ struct FaceModelBuildOptions {
   double asymmetry_sigma = 0.1;
   // Body vertices above this height (hm08 decimetres) form the head region (upper neck included).
   double neck_cut_dm = 5.75;
+  // Which vertices the rigid (Procrustes) alignment of the sampled heads weighs. Face: the face
+  // part only (what the tracker sees), so no identity component moves the face region rigidly
+  // and the tracker's pose is not traded against identity (docs/face-model.md). Head: every
+  // vertex of the head region.
+  enum class Alignment { Head, Face };
+  Alignment alignment = Alignment::Face;
   // PCA: keep max(min, #components for variance_target), at most max.
   int min_identity_components = 80;
   int max_identity_components = 160;

@@ -32,6 +32,16 @@ struct ProcrustesSummary {
 Eigen::VectorXf align_samples(Eigen::MatrixXf* samples, const Eigen::VectorXf& weights, int max_iterations,
                               double tolerance, ProcrustesSummary* summary);
 
+// Share of the variance of a linear shape model, over the weighted points, that is rigid motion
+// of those points: sum_k sigma_k^2 |P e_k|_w^2 / sum_k sigma_k^2 |e_k|_w^2, P projecting onto
+// the six infinitesimal rigid motions (three translations, three rotations about the weighted
+// centroid) of `mean`. A basis aligned by Procrustes on the same weights has (nearly) none: its
+// components cannot stand in for the pose. `basis` is 3N x K, `sigma` K, `weights` N (empty: all
+// 1). Returns 0 for a model with no variance over the weighted points; throws Error on size
+// mismatch or zero total weight.
+double rigid_motion_share(const Eigen::VectorXf& mean, const Eigen::MatrixXf& basis, const Eigen::VectorXf& sigma,
+                          const Eigen::VectorXf& weights = Eigen::VectorXf());
+
 struct PcaOptions {
   int min_components = 80;
   int max_components = 160;
