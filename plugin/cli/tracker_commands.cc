@@ -19,6 +19,7 @@
 #include <fstream>
 #include <algorithm>
 #include <map>
+#include <optional>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -380,8 +381,10 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
       r.max_frames_to_recover = std::max(r.max_frames_to_recover, f - no_face_run_start);
       no_face_run_start = -1;
     }
+    std::optional<FitErrors> errors;
     if (fit && tracker.calibrated() && frame.ground_truth.params) {
-      const FitErrors e = CompareToGroundTruth(renderer, model, t.params, *frame.ground_truth.params, frame.camera);
+      errors = CompareToGroundTruth(renderer, model, t.params, *frame.ground_truth.params, frame.camera);
+      const FitErrors& e = *errors;
       ++r.evaluated;
       r.geo_mean += e.geometric_mm_mean;
       r.geo_max = std::max(r.geo_max, e.geometric_mm_max);
@@ -394,7 +397,18 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
       int64_t ts = static_cast<int64_t>(std::llround(frame.timestamp_s * 1e6));
       ts = std::max(ts, last_timestamp_us + 1);  // the replay format needs strictly increasing times
       last_timestamp_us = ts;
-      params_file << frame_json(t, frame.index, ts, tracker, model.num_expression()).dump() << '\n';
+      nlohmann::json line = frame_json(t, frame.index, ts, tracker, model.num_expression());
+      if (errors) {
+        // Per frame, so a report's mean or max can be traced to the frames (and the vertex) behind it.
+        line["errors"] = {{"geometric_mm_mean", errors->geometric_mm_mean},
+                          {"geometric_mm_max", errors->geometric_mm_max},
+                          {"geometric_max_vertex", errors->geometric_max_vertex},
+                          {"alignment_px_mean", errors->alignment_px_mean},
+                          {"rotation_deg", errors->rotation_deg},
+                          {"translation_mm", errors->translation_mm},
+                          {"expression_mean_abs", errors->expression_mean_abs}};
+      }
+      params_file << line.dump() << '\n';
       if (!params_file) throw Error("track: writing '" + params_partial + "' failed (disk full?)");
     }
     if (!mesh_dir.empty() && t.has_parameters && fit) {

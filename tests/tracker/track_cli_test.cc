@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
 #include <map>
@@ -150,7 +151,19 @@ TEST(TrackCli, TracksASyntheticRecordingEndToEnd) {
     EXPECT_TRUE(lines[k].contains("pose"));
     const std::string status = lines[k]["status"];
     EXPECT_EQ(status, k < 2 ? "calibrating" : k == 2 ? "calibrated" : "tracking") << lines[k]["message"];
+    // Per-frame errors on the frames the report averages (from the calibration on).
+    EXPECT_EQ(lines[k].contains("errors"), k >= 2) << k;
   }
+  double max_of_frames = 0, mean_of_frames = 0;
+  for (size_t k = 2; k < lines.size(); ++k) {
+    const nlohmann::json& e = lines[k]["errors"];
+    max_of_frames = std::max(max_of_frames, e["geometric_mm_max"].get<double>());
+    mean_of_frames += e["geometric_mm_mean"].get<double>() / 8;
+    EXPECT_GE(e["geometric_max_vertex"].get<int>(), 0);
+    EXPECT_GE(e["rotation_deg"].get<double>(), 0.0);
+  }
+  EXPECT_DOUBLE_EQ(max_of_frames, report["geometric_error_mm_max"].get<double>());
+  EXPECT_NEAR(mean_of_frames, report["geometric_error_mm_mean"].get<double>(), 1e-9);
   const std::vector<stream::ParameterFrame> replay = stream::load_parameter_file((out / "params.jsonl").string());
   ASSERT_EQ(replay.size(), 10u);
   EXPECT_TRUE(replay[5].has_timestamp);

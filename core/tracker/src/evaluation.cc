@@ -181,7 +181,10 @@ FitErrors CompareToGroundTruth(const gpu::CpuRenderer& renderer, const TrackerMo
     const Eigen::Vector3d pt = xt.segment<3>(3 * v), pf = xf.segment<3>(3 * v);
     const double d = surface.Distance(pt) * 1000.0;
     e.geometric_mm_mean += d;
-    e.geometric_mm_max = std::max(e.geometric_mm_max, d);
+    if (d > e.geometric_mm_max) {
+      e.geometric_mm_max = d;
+      e.geometric_max_vertex = v;
+    }
     ++n;
     if (pt.z() > camera.near_plane && pf.z() > camera.near_plane) {
       const Eigen::Vector2d ut(camera.fx * pt.x() / pt.z() + camera.cx, camera.fy * pt.y() / pt.z() + camera.cy);

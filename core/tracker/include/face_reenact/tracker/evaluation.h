@@ -28,6 +28,7 @@ struct FitErrors {
   // Mean |delta_fit - delta_true| over the model's blendshapes (weights in [0, 1]).
   double expression_mean_abs = 0;
   int region_vertices = 0;  // vertices the surface and 2D errors average over
+  int geometric_max_vertex = -1;  // the model vertex where geometric_mm_max was found
 };
 
 // Closest points on a triangle mesh (uniform grid over the triangles' bounding boxes).
