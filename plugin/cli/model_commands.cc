@@ -67,9 +67,8 @@ nlohmann::json describe(const LoadedModel& l) {
   std::vector<float> sigma(m.identity_sigma.data(), m.identity_sigma.data() + m.identity_sigma.size());
   // How much of the identity variance over the face region is rigid motion, i.e. could stand in
   // for the head pose the tracker estimates (none when the builder aligned on the face region).
-  Eigen::VectorXf face_weights = Eigen::VectorXf::Zero(m.num_vertices());
-  for (int v = 0; v < m.num_vertices(); ++v) face_weights[v] = m.vertex_part[v] == FacePart::Face ? 1.f : 0.f;
-  const double rigid_share = rigid_motion_share(m.mean_shape, m.identity_basis, m.identity_sigma, face_weights);
+  const double rigid_share =
+      rigid_motion_share(m.mean_shape, m.identity_basis, m.identity_sigma, m.part_weights(FacePart::Face));
   std::vector<float> asigma(m.albedo_sigma.data(), m.albedo_sigma.data() + m.albedo_sigma.size());
   return {{"file", l.path},
           {"file_bytes", std::filesystem::file_size(l.path)},

@@ -320,9 +320,7 @@ TEST(ModelBuildCommand, AlignOnTheHeadLeavesRigidMotionOnTheFaceThatTheDefaultRe
     auto r = run_cli("", "model build --quiet --samples 150 --wheel " + wheel + " --out " + (dir / name) + align);
     EXPECT_EQ(r.code, 0) << r.output;
     FaceModel m = load_face_model(dir / name);
-    Eigen::VectorXf face = Eigen::VectorXf::Zero(m.num_vertices());
-    for (int v = 0; v < m.num_vertices(); ++v) face[v] = m.vertex_part[v] == FacePart::Face ? 1.f : 0.f;
-    return rigid_motion_share(m.mean_shape, m.identity_basis, m.identity_sigma, face);
+    return rigid_motion_share(m.mean_shape, m.identity_basis, m.identity_sigma, m.part_weights(FacePart::Face));
   };
   EXPECT_LT(share("face.frm", ""), 1e-3);
   EXPECT_GT(share("head.frm", " --align head"), 0.05);

@@ -54,6 +54,12 @@ Eigen::VectorXf FaceModel::shape(const Eigen::VectorXf& alpha, const Eigen::Vect
   return s;
 }
 
+Eigen::VectorXf FaceModel::part_weights(FacePart part) const {
+  Eigen::VectorXf w(num_vertices());
+  for (int v = 0; v < num_vertices(); ++v) w[v] = vertex_part[v] == part ? 1.f : 0.f;
+  return w;
+}
+
 Eigen::VectorXf FaceModel::albedo(const Eigen::VectorXf& beta) const {
   Eigen::VectorXf a = mean_albedo;
   const Eigen::Index kb = std::min<Eigen::Index>(beta.size(), albedo_basis.cols());

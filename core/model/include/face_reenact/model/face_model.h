@@ -93,6 +93,9 @@ struct FaceModel {
   // trailing coefficients are zero); delta must have num_expression() entries or be empty.
   Eigen::VectorXf shape(const Eigen::VectorXf& alpha, const Eigen::VectorXf& delta) const;
   Eigen::VectorXf albedo(const Eigen::VectorXf& beta) const;
+  // One weight per vertex: 1 on the vertices of `part`, 0 elsewhere (for region statistics
+  // such as rigid_motion_share in shape_statistics.h).
+  Eigen::VectorXf part_weights(FacePart part) const;
 
   // Checks internal consistency (sizes, index ranges, finite values); on failure returns false
   // and says why in *why.
