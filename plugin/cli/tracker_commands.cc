@@ -447,6 +447,9 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_ms"] = r.calibration_ms;
   j["calibrated"] = tracker.calibrated();
   j["calibration_frame"] = r.calibration_frame;
+  // Null when the calibrated neutral looks at rest (TrackerOptions::rest_warning_weight).
+  j["calibration_warning"] =
+      tracker.calibration_warning().empty() ? nlohmann::json() : nlohmann::json(tracker.calibration_warning());
   if (tracker.calibrated()) {
     // Which start the joint solve kept and the final energy from each start solved (null: not solved).
     const FaceTracker::CalibrationStartReport& cs = tracker.calibration_start_report();
@@ -540,6 +543,8 @@ void run_track_command(const TrackArgs& a) {
     std::printf("track: %d frames, %.1f ms/frame (calibration %.0f ms), landmarks: %s, depth: %s\n",
                 report["frames"].get<int>(), num(report["ms_per_frame"]), num(report["calibration_ms"]),
                 report["landmark_source"].get<std::string>().c_str(), report["depth_used"].get<bool>() ? "yes" : "no");
+    if (report["calibration_warning"].is_string())
+      std::printf("  warning: %s\n", report["calibration_warning"].get<std::string>().c_str());
     if (report["ground_truth"].get<bool>()) {
       std::printf("  vs ground truth (%d frames after calibration): surface %.2f mm mean, %.2f mm max; 2D %.2f px; "
                   "rotation %.2f deg; translation %.2f mm; expression %.3f\n",

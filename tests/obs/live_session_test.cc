@@ -150,6 +150,21 @@ TEST(LiveOptionsTest, CheckInputsReportsMissingFilesUpFront) {
   EXPECT_NO_THROW(LiveSession::CheckInputs(o));
 }
 
+// The status bar (OBS properties, the webcam's log) asks for a new calibration when the last one
+// saw a face that was not at rest; while calibrating, or without the warning, it does not.
+TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
+  LiveStatus s;
+  s.target_open = true;
+  s.pipeline_ready = true;
+  s.tracking = TrackingState::kTracking;
+  s.output_fps = 30;
+  EXPECT_EQ(s.Headline(), "Tracking | 30.0 fps");
+  s.calibration_warning = "the face was not at rest while calibrating (mouthSmileLeft 0.56)";
+  EXPECT_EQ(s.Headline(), "Tracking (calibrated while the face was not at rest: calibrate again with a relaxed face) | 30.0 fps");
+  s.tracking = TrackingState::kCalibrating;
+  EXPECT_EQ(s.Headline().find("not at rest"), std::string::npos) << s.Headline();
+}
+
 TEST(LiveSessionTest, RawModeDeliversTheRecordingFramesInALoop) {
   REQUIRE_RECORDING(dir);
   std::vector<cv::Mat> frames = test::recording_frames(dir);

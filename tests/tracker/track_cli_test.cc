@@ -126,6 +126,7 @@ TEST(TrackCli, TracksASyntheticRecordingEndToEnd) {
   EXPECT_EQ(cs["kept"], "neutral");
   EXPECT_TRUE(cs["energy_from_neutral"].is_number()) << cs.dump();
   EXPECT_TRUE(cs["energy_from_per_frame_fits"].is_null()) << cs.dump();
+  EXPECT_TRUE(report["calibration_warning"].is_null()) << report["calibration_warning"].dump();  // actor at rest
   EXPECT_EQ(report["ground_truth"], true);
   EXPECT_EQ(report["frames_evaluated"], 8);  // frames 2..9: from the calibration on
   // Loose bounds at 320x240 (a face ~40 px wide, solved on levels 1 and 0); the issue's
@@ -225,6 +226,41 @@ TEST(TrackCli, CalibrationFramesAreTakenStrideApart) {
                                                (out / "q.jsonl").string(), "--calibration-frame-stride", "0"});
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.output.find("calibration-frame-stride"), std::string::npos) << bad.output;
+}
+
+// An actor who smiles through the calibration (the paper assumes a face at rest) is told so: the
+// report, the summary line and the calibrated frame's message name the smile and what to do.
+TEST(TrackCli, CalibrationWhileSmilingIsReported) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "smiling";
+  fs::create_directories(out);
+  std::ofstream(out / "smile.json")
+      << R"({"keyframes": [
+           {"time": 0.0, "expression": {"mouthSmileLeft": 1, "mouthSmileRight": 1, "cheekSquintLeft": 0.5,
+                                        "cheekSquintRight": 0.5}, "head": {"yaw_deg": -8}},
+           {"time": 0.2, "expression": {"mouthSmileLeft": 1, "mouthSmileRight": 1, "cheekSquintLeft": 0.5,
+                                        "cheekSquintRight": 0.5}, "head": {"yaw_deg": 8}}]})";
+  const SubprocessResult synth = run_subprocess({cli(), "synth", "--seed", "7331", "--script", (out / "smile.json").string(),
+                                                 "--frames", "4", "--size", "320x240", "--out", (out / "rec").string(),
+                                                 "--model", model(), "--wheel", wheel_path(), "--device", "llvmpipe",
+                                                 "--quiet"});
+  ASSERT_EQ(synth.exit_code, 0) << synth.output;
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", (out / "rec").string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "3",
+                                             "--min-face-width", "20", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json report = read_json(out / "r.json");
+  ASSERT_EQ(report["calibrated"], true);
+  ASSERT_TRUE(report["calibration_warning"].is_string()) << report.dump();
+  const std::string warning = report["calibration_warning"];
+  EXPECT_NE(warning.find("not at rest"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("mouthSmile"), std::string::npos) << warning;
+  EXPECT_NE(r.output.find("warning: the face was not at rest"), std::string::npos) << r.output;
+  const auto lines = read_lines(out / "p.jsonl");
+  ASSERT_EQ(lines.size(), 4u);
+  EXPECT_EQ(lines[2]["status"], "calibrated");
+  EXPECT_NE(lines[2]["message"].get<std::string>().find("not at rest"), std::string::npos) << lines[2]["message"];
 }
 
 // --calibration-start lower-energy: the report names both starts' final energies and keeps the

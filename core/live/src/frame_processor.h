@@ -21,6 +21,7 @@ struct ProcessedFrame {
   cv::Mat bgr;
   TrackingState tracking = TrackingState::kOff;
   std::string message;        // why the input passed unchanged, or ""
+  std::string calibration_warning;  // LiveStatus::calibration_warning
   bool actor_tracked = false; // the actor frame given was tracked and now drives the expression
   bool actor_lost = false;    // the actor frame given had no trackable face
 };

@@ -95,6 +95,8 @@ std::string LiveStatus::Headline() const {
       case TrackingState::kOff: line = "Starting"; break;
     }
     if (tracking != TrackingState::kTracking && !pipeline_message.empty()) line += " (" + pipeline_message + ")";
+    if (tracking == TrackingState::kTracking && !calibration_warning.empty())
+      line += " (calibrated while the face was not at rest: calibrate again with a relaxed face)";
   }
   bool stream = source_description.rfind("udp", 0) == 0;
   std::string what = stream ? "stream" : "source actor";
@@ -330,7 +332,7 @@ void LiveSession::run() {
   bool actor_ever_tracked = false;
   Clock::time_point actor_last_tracked{};
   TrackingState tracking = TrackingState::kOff;
-  std::string frame_message;
+  std::string frame_message, calibration_warning;
   double output_fps = 0, process_ms = 0, actor_rate = 0;
 
   while (!stopping()) {
@@ -363,6 +365,7 @@ void LiveSession::run() {
       if (out.bgr.empty() || out.bgr.type() != CV_8UC3) out.bgr = frame.color;
       tracking = out.tracking;
       frame_message = out.message;
+      calibration_warning = out.calibration_warning;
       if (out.actor_tracked) {
         actor_ever_tracked = true;
         actor_last_tracked = Clock::now();
@@ -417,6 +420,7 @@ void LiveSession::run() {
     s.pipeline_ready = pipeline_ready;
     s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
+    s.calibration_warning = pipeline_ready ? calibration_warning : "";
     s.output_fps = ts.open ? output_fps : 0;
     s.process_ms = process_ms;
     if (source_spec_.kind == InputKind::kUdp) {

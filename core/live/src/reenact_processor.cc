@@ -65,6 +65,9 @@ class ReenactProcessor : public FrameProcessor {
     out.bgr = result.bgr;
     out.tracking = tracking_from(result.status);
     out.message = result.message;
+    out.calibration_warning = target_->calibration_warning();
+    if (actor_ && !actor_->calibration_warning().empty())
+      out.calibration_warning += (out.calibration_warning.empty() ? "" : "; ") + ("source actor: " + actor_->calibration_warning());
     return out;
   }
 

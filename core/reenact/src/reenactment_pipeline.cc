@@ -153,6 +153,9 @@ void ReenactmentPipeline::SetOptions(const ReenactmentOptions& options) {
 const ReenactmentOptions& ReenactmentPipeline::options() const { return impl_->options; }
 TrackingStatus ReenactmentPipeline::status() const { return impl_->status; }
 const gpu::FaceParameters& ReenactmentPipeline::target_neutral() const { return impl_->neutral; }
+std::string ReenactmentPipeline::calibration_warning() const {
+  return impl_->tracker ? impl_->tracker->calibration_warning() : std::string();
+}
 
 PipelineSummary ReenactmentPipeline::summary() const {
   PipelineSummary s = impl_->summary;

@@ -103,6 +103,27 @@ std::array<float, gpu::kNumShParameters> initial_lighting(const TrackerModel& mo
   return gpu::ambient_sh(irradiance);
 }
 
+// The calibration's neutral expression against TrackerOptions::rest_warning_weight: "" when the
+// actor looked at rest, else the strongest weights (ARKit names) and what to do about them.
+std::string NotAtRestWarning(const TrackerModel& model, const Eigen::VectorXf& neutral, float threshold) {
+  if (threshold <= 0.f) return "";
+  std::vector<std::pair<float, int>> strong;
+  for (Eigen::Index k = 0; k < neutral.size(); ++k)
+    if (neutral[k] > threshold) strong.emplace_back(neutral[k], static_cast<int>(k));
+  if (strong.empty()) return "";
+  std::sort(strong.rbegin(), strong.rend());
+  const auto& names = arkit_blendshape_names();
+  std::string list;
+  for (size_t i = 0; i < std::min<size_t>(strong.size(), 3); ++i) {
+    const int k = strong[i].second;
+    const std::string name = model.num_expression() == static_cast<int>(names.size()) ? names[static_cast<size_t>(k)]
+                                                                                      : "blendshape " + std::to_string(k);
+    list += (i ? ", " : "") + name + format(" %.2f", strong[i].first);
+  }
+  return "the face was not at rest while calibrating (" + list +
+         "): part of that expression is now in the identity; calibrate again with a relaxed face and closed mouth";
+}
+
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
@@ -232,6 +253,8 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
+  if (!(rest_warning_weight >= 0.f && rest_warning_weight <= 1.f))
+    return fail(why, "tracker: rest_warning_weight must be in [0, 1] (0: no check)");
   if (!(default_face_distance_m > 0.1f && default_face_distance_m < 20.f)) {
     return fail(why, "tracker: default_face_distance_m must be in (0.1, 20) m");
   }
@@ -271,6 +294,7 @@ void FaceTracker::Reset() {
   calibration_requested_.store(false);
   calibration_summary_ = SolverSummary();
   calibration_start_report_ = CalibrationStartReport();
+  calibration_warning_.clear();
   calibration_inputs_.clear();
   calibration_starts_.clear();
   last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
@@ -656,6 +680,8 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
                          report.kept == CalibrationStart::kNeutral ? report.per_frame_fits_energy : report.neutral_energy) +
                   (report.kept == CalibrationStart::kNeutral ? " from the per-frame fits'" : " from neutral");
   out->message = "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + summary.BriefReport() + ")";
+  calibration_warning_ = NotAtRestWarning(m, neutral_.delta, options_.rest_warning_weight);
+  if (!calibration_warning_.empty()) out->message += "; " + calibration_warning_;
   calibration_summary_ = std::move(summary);
 }
 

@@ -20,7 +20,8 @@ bool same_inputs(const live::LiveSession::Options& a, const live::LiveSession::O
 // not the rates (those change every second).
 std::string state_key(const live::LiveStatus& s) {
   return std::to_string(s.target_open) + s.target_error + "|" + live::tracking_state_name(s.tracking) + "|" +
-         std::to_string(s.pipeline_ready) + s.pipeline_message + "|" + live::source_state_name(s.source) + s.source_error;
+         std::to_string(s.pipeline_ready) + s.pipeline_message + "|" + live::source_state_name(s.source) + s.source_error +
+         "|" + s.calibration_warning;
 }
 
 }  // namespace

@@ -67,6 +67,9 @@ struct LiveStatus {
   bool pipeline_ready = false;    // the reenactment pipeline is loaded
   std::string pipeline_message;   // why frames pass unchanged (model missing, no face), or ""
   bool calibration_pending = false;
+  // Non-empty when the last calibration saw a face that was not at rest (smiling, talking): part
+  // of that expression is in the fitted identity; a new calibration with a relaxed face fixes it.
+  std::string calibration_warning;
   // Expression source.
   SourceState source = SourceState::kNone;
   std::string source_description;  // "udp port 9000", "recording 'actor'"

@@ -214,6 +214,9 @@ class ReenactmentPipeline {
   // The target's calibrated neutral (identity, albedo, neutral expression, last pose and
   // lighting); valid once status() has been kTracking.
   const gpu::FaceParameters& target_neutral() const;
+  // Non-empty when the target's last calibration saw a face not at rest
+  // (tracker::FaceTracker::calibration_warning()): the front-end should ask for a new one.
+  std::string calibration_warning() const;
   PipelineSummary summary() const;
 
  private:

@@ -119,6 +119,13 @@ struct TrackerOptions {
   // target's closed mouth about 0.06 jawOpen wider than tracking did, and the difference opened
   // the reenacted mouth of a source at rest. Costs one tracking solve per calibration frame.
   bool neutral_from_tracking = true;
+  // Calibration assumes the actor at rest (paper Sec. 6.3). When a weight of the calibrated
+  // neutral expression exceeds this, the actor was smiling, talking or frowning: part of that
+  // expression went into the identity and stays in every reenacted frame, so the tracker says so
+  // (calibration_warning(), the calibrated frame's message). Synthetic actors at rest calibrate
+  // to at most 0.15; actors holding a smile of 0.8-1.0 to 0.44-0.65
+  // (docs/tracking-pipeline.md, "A face not at rest while calibrating"). 0 switches it off.
+  float rest_warning_weight = 0.3f;
   // The joint solve: more Gauss-Newton iterations than tracking (it starts from the mean face),
   // on the coarsest level only: measured on synthetic recordings, finer levels and more
   // iterations cost 3x the time and fit the identity no better (docs/tracker.md).
@@ -292,6 +299,9 @@ class FaceTracker {
     double per_frame_fits_energy = std::numeric_limits<double>::quiet_NaN();
   };
   const CalibrationStartReport& calibration_start_report() const { return calibration_start_report_; }
+  // Non-empty when the last calibration's neutral expression says the actor was not at rest
+  // (TrackerOptions::rest_warning_weight): names the strongest weights and what to do.
+  const std::string& calibration_warning() const { return calibration_warning_; }
   // The fit of the last frame with a trustworthy fit (has_parameters false before any).
   const TrackedFrame& last_good() const { return last_good_; }
   int calibration_frames_collected() const { return static_cast<int>(calibration_inputs_.size()); }
@@ -330,6 +340,7 @@ class FaceTracker {
   gpu::FaceParameters identity_;  // alpha/beta used while tracking (mean face before calibration)
   SolverSummary calibration_summary_;
   CalibrationStartReport calibration_start_report_;
+  std::string calibration_warning_;
   std::vector<InputFrame> calibration_inputs_;
   std::vector<gpu::FaceParameters> calibration_starts_;
   int64_t last_calibration_pick_ = -1;
