@@ -27,6 +27,7 @@ struct SynthArgs {
   std::string identity = "random";
   std::string script, size = "640x480", out, preview, model, wheel, device;
   double fps = 30;
+  double calibration_turn_s = 0;
   int preview_rows = 4;
   bool overwrite = false;
   bool quiet = false;
@@ -80,12 +81,14 @@ void run_synth(const SynthArgs& a) {
   SynthIdentity identity = a.identity == "random" ? random_identity(model, a.seed)
                                                   : parse_identity(read_file(a.identity, "identity file"), model, a.identity);
   std::unique_ptr<Timeline> timeline;
+  if (!a.script.empty() && a.calibration_turn_s > 0)
+    throw Error("--calibration-turn applies to the random performance; a --script sets the head itself");
   if (!a.script.empty()) {
     timeline = std::make_unique<Timeline>(parse_script(read_file(a.script, "script"), a.script));
     opt.frames = a.frames > 0 ? a.frames : static_cast<int>(std::floor(timeline->keys().back().time_s * opt.fps)) + 1;
   } else {
     opt.frames = a.frames > 0 ? a.frames : 90;
-    timeline = std::make_unique<Timeline>(random_timeline(a.seed, opt.frames, opt.fps));
+    timeline = std::make_unique<Timeline>(random_timeline(a.seed, opt.frames, opt.fps, a.calibration_turn_s));
   }
   std::string why;
   if (!opt.IsValid(&why)) throw Error("synth: " + why);
@@ -105,6 +108,7 @@ void run_synth(const SynthArgs& a) {
   gen << "face-reenact synth --seed " << a.seed << " --frames " << opt.frames << " --size " << opt.width << "x"
       << opt.height << " --fps " << opt.fps << " --identity " << a.identity;
   if (!a.script.empty()) gen << " --script " << a.script;
+  if (a.calibration_turn_s > 0) gen << " --calibration-turn " << a.calibration_turn_s;
   const std::vector<int> sheet_indices = contact_sheet_indices(opt.frames, a.preview_rows);
   std::vector<RgbdFrame> sheet;
   auto last_report = std::chrono::steady_clock::now();
@@ -133,6 +137,10 @@ void add_synth_command(CLI::App& app) {
   c->add_option("--frames", args->frames, "Number of frames (default 90, or the script's length)")->check(CLI::Range(1, 1000000));
   c->add_option("--identity", args->identity, "'random' (from the seed) or a JSON file {\"alpha\": [...], \"beta\": [...]}");
   c->add_option("--script", args->script, "JSON timeline of keyframes (expression, head, light); default: random behaviour");
+  c->add_option("--calibration-turn", args->calibration_turn_s,
+                 "Seconds of the paper's calibration sequence before the random performance: the actor at rest "
+                 "turns the head 25 degrees each way (default 0: none)")
+      ->check(CLI::Range(0.0, 60.0));
   c->add_option("--size", args->size, "Frame size WIDTHxHEIGHT (default 640x480; intrinsics scale with the width)");
   c->add_option("--fps", args->fps, "Frame rate (default 30)")->check(CLI::Range(0.1, 240.0));
   c->add_option("--out", args->out, "Recording folder to create")->required();

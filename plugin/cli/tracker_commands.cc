@@ -190,6 +190,7 @@ struct TrackArgs {
   int frames = 0;  // 0 = all
   int calibration_frames = 5;
   int calibration_frame_stride = 1;
+  int calibration_window = TrackerOptions{}.calibration_window_frames;
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
@@ -214,6 +215,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   TrackerOptions o;
   o.calibration_frames = a.calibration_frames;
   o.calibration_frame_stride = a.calibration_frame_stride;
+  o.calibration_window_frames = a.calibration_window;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
@@ -467,6 +469,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["depth_used"] = depth && config.depth;
   j["min_face_width_px"] = tracker.options().min_face_width_px;
   j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
+  j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
   j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
@@ -600,6 +603,10 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--calibration-frame-stride", targs->calibration_frame_stride,
                  "Take the calibration frames at least this many frames apart (default 1: consecutive)")
       ->check(CLI::Range(1, 1000));
+  tc->add_option("--calibration-window", targs->calibration_window,
+                 "Watch this many usable frames (the actor turning the head) and calibrate on the --calibration-frames "
+                 "among them with the most varied head poses (default 0: the first usable frames)")
+      ->check(CLI::Range(0, 100000));
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")

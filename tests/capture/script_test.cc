@@ -110,6 +110,49 @@ TEST(CaptureRandomTimelineTest, PlausibleAndDeterministic) {
   (void)max_smile;
 }
 
+// The calibration sequence (Sec. 6.3) before the performance: at rest but for blinks, facing
+// the camera, turning 25 degrees each way, then the performance exactly as without the turn.
+TEST(CaptureRandomTimelineTest, CalibrationTurnAtRestThenTheSamePerformance) {
+  const double fps = 30, turn_s = 2;
+  const int turn = static_cast<int>(turn_s * fps), after = 90;
+  const Timeline with = random_timeline(9001, turn + after, fps, turn_s), without = random_timeline(9001, after, fps);
+  ASSERT_EQ(static_cast<int>(with.keys().size()), turn + after);
+  const int blink_l = arkit_blendshape_index("eyeBlinkLeft"), blink_r = arkit_blendshape_index("eyeBlinkRight");
+  double min_yaw = 0, max_yaw = 0, max_pitch = 0, max_step_deg = 0;
+  for (int i = 0; i < turn; ++i) {
+    const PerformanceState& s = with.keys()[static_cast<size_t>(i)].state;
+    for (int k = 0; k < 52; ++k)
+      if (k != blink_l && k != blink_r) ASSERT_EQ(s.expression[k], 0.f) << "frame " << i << " weight " << k;
+    if (i < turn * 4 / 5) {  // the turn proper; the rest eases into the performance's first pose
+      min_yaw = std::min(min_yaw, double(s.head_deg.y()));
+      max_yaw = std::max(max_yaw, double(s.head_deg.y()));
+      max_pitch = std::max(max_pitch, double(std::abs(s.head_deg.x())));
+    }
+    EXPECT_EQ(s.translation, without.keys()[0].state.translation);
+    EXPECT_EQ(s.light.direction, without.keys()[0].state.light.direction);
+  }
+  EXPECT_NEAR(with.keys()[0].state.head_deg.norm(), 0.0, 1e-6);  // starts facing the camera
+  EXPECT_GT(max_yaw, 24.0);
+  EXPECT_LT(min_yaw, -24.0);
+  EXPECT_LE(max_yaw, 25.0);
+  EXPECT_LE(max_pitch, 6.0);
+  for (int i = 1; i < turn + after; ++i) {
+    const double step = (with.keys()[static_cast<size_t>(i)].state.head_deg - with.keys()[static_cast<size_t>(i - 1)].state.head_deg).norm();
+    max_step_deg = std::max(max_step_deg, step);
+  }
+  EXPECT_LT(max_step_deg, 4.0);  // a brisk turn (peak ~110 deg/s), smooth into the performance
+  for (int i = 0; i < after; ++i) {
+    const PerformanceState& a = with.keys()[static_cast<size_t>(turn + i)].state;
+    const PerformanceState& b = without.keys()[static_cast<size_t>(i)].state;
+    EXPECT_EQ(a.head_deg, b.head_deg) << i;
+    EXPECT_EQ(a.translation, b.translation) << i;
+    for (int k = 0; k < 52; ++k)  // blinks keep their own clock
+      if (k != blink_l && k != blink_r) ASSERT_EQ(a.expression[k], b.expression[k]) << "frame " << i << " weight " << k;
+  }
+  EXPECT_THROW(random_timeline(1, 10, 30, -1), Error);
+  EXPECT_THROW(random_timeline(1, 10, 30, std::nan("")), Error);
+}
+
 TEST(CaptureLightTest, ShCoefficientsReproduceLambertianShading) {
   LightState l;
   l.direction = Eigen::Vector3f(0, 0, -1);

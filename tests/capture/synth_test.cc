@@ -222,6 +222,13 @@ TEST(CaptureSynthCliTest, BadInputsFailCleanly) {
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("keyframes[0].expression.smile"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(tmp / "rec"));
+  r = run_subprocess({cli, "synth", "--script", tmp / "bad.json", "--calibration-turn", "2", "--out", tmp / "rec", "--wheel",
+                      wheel_path()});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("--calibration-turn applies to the random performance"), std::string::npos) << r.output;
+  r = run_subprocess({cli, "synth", "--calibration-turn", "-1", "--out", tmp / "rec", "--wheel", wheel_path()});
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--calibration-turn"), std::string::npos) << r.output;
   r = run_subprocess({cli, "synth", "--frames", "1", "--out", tmp / "no/such/folder/rec", "--wheel", wheel_path()});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("does not exist"), std::string::npos) << r.output;

@@ -106,6 +106,37 @@ TEST(FaceTrackerOptions, DefaultsValidAndBadValuesRejected) {
   EXPECT_THROW(FaceTracker(testing::sphere_model(), too_many), Error);
 }
 
+TEST(FaceTrackerOptions, CalibrationWindowNeedsRoomForTheFramesAndNoStride) {
+  TrackerOptions o;
+  o.calibration_window_frames = 60;
+  EXPECT_TRUE(o.IsValid(nullptr));
+  std::string why;
+  o.calibration_window_frames = o.calibration_frames - 1;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("at least calibration_frames"), std::string::npos) << why;
+  o.calibration_window_frames = 60;
+  o.calibration_frame_stride = 4;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("calibration_frame_stride"), std::string::npos) << why;
+  o.calibration_frame_stride = 1;
+  o.calibration_window_frames = -1;
+  EXPECT_FALSE(o.IsValid(&why));
+}
+
+TEST(CalibrationPoseSwap, WidensTheSpreadOfHeadPosesOrKeepsTheSet) {
+  auto yaw = [](double deg) { return gpu::rotation_from_euler(Eigen::Vector3f(float(M_PI), float(deg / kDeg), 0.f)); };
+  EXPECT_EQ(calibration_pose_swap({}, yaw(10)), -1);
+  // {0, 2, 20}: 2 degrees next to 0 is the redundant one; -20 replaces it (spread 4+2+18 -> 20+20+40).
+  EXPECT_EQ(calibration_pose_swap({yaw(0), yaw(2), yaw(20)}, yaw(-20)), 1);
+  // A still head: the same pose again changes nothing (the earliest frames stay).
+  EXPECT_EQ(calibration_pose_swap({yaw(0), yaw(0), yaw(0)}, yaw(0)), -1);
+  // A candidate inside an already wide set does not narrow it.
+  EXPECT_EQ(calibration_pose_swap({yaw(-25), yaw(0), yaw(25)}, yaw(3)), -1);
+  // Pitch counts as much as yaw: a nod widens a set of yaws.
+  const Eigen::Matrix3f nod = gpu::rotation_from_euler(Eigen::Vector3f(float(M_PI + 20 / kDeg), 0.f, 0.f));
+  EXPECT_EQ(calibration_pose_swap({yaw(0), yaw(1), yaw(-20), yaw(20)}, nod), 1);
+}
+
 TEST(FaceTrackerOptions, StatusNames) {
   EXPECT_STREQ(tracking_status_name(TrackingStatus::kCalibrating), "calibrating");
   EXPECT_STREQ(tracking_status_name(TrackingStatus::kCalibrated), "calibrated");
@@ -495,6 +526,39 @@ TEST(FaceTracker, CalibratesFromLandmarkPosesWithoutTrackingFirst) {
   EXPECT_LT(CompareToGroundTruth(solver.renderer(), *model, t.params, truth, testing::test_camera(320, 240)).rotation_deg, 2.5);
   t = tracker.Track(render_frame(solver, sequence_parameters(*model, 2)));
   EXPECT_EQ(t.status, TrackingStatus::kTracking) << t.message;
+}
+
+// The paper's calibration sequence is the actor turning the head: within a window the tracker
+// keeps the frames with the most varied head poses. Here a turned, a frontal and an opposite
+// turned view, then a near-frontal one that ends the window: the set keeps both turned views,
+// calibrates on the window's last frame and fits that frame (not in the set) with the new
+// identity.
+TEST(FaceTracker, ACalibrationWindowKeepsTheMostVariedPosesAndFitsTheFrameThatEndsIt) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  TrackerOptions o = fast_options(2);
+  o.calibration_window_frames = 4;
+  FaceTracker tracker(*model, o);
+  const CpuSolver& solver = tracker.cpu_solver();
+  const float yaw[4] = {-0.25f, 0.0f, 0.25f, 0.02f};
+  for (int k = 0; k < 4; ++k) {
+    gpu::FaceParameters truth = sequence_parameters(*model, 0);
+    truth.euler.y() += yaw[k];
+    const TrackedFrame t = tracker.Track(render_frame(solver, truth));
+    ASSERT_TRUE(t.has_parameters) << t.message;
+    if (k < 3) {
+      EXPECT_EQ(t.status, TrackingStatus::kCalibrating) << t.message;
+      EXPECT_NE(t.message.find("watching " + std::to_string(k + 1) + " of 4"), std::string::npos) << t.message;
+    } else {
+      EXPECT_EQ(t.status, TrackingStatus::kCalibrated) << t.message;
+      const FitErrors e = CompareToGroundTruth(solver.renderer(), *model, t.params, truth, testing::test_camera(320, 240));
+      EXPECT_LT(e.rotation_deg, 2.0);  // the set's last frame is 13 degrees away
+      EXPECT_LT(t.landmark_error_px, 3.0);
+    }
+    if (k == 1) EXPECT_EQ(tracker.calibration_frame_indices(), (std::vector<int64_t>{0, 1}));
+    if (k == 2) EXPECT_EQ(tracker.calibration_frame_indices(), (std::vector<int64_t>{0, 2}));  // the frontal view gave way
+  }
+  EXPECT_TRUE(tracker.calibrated());
 }
 
 TEST(FaceTracker, UsesAReplacementSolver) {

@@ -228,6 +228,35 @@ TEST(TrackCli, CalibrationFramesAreTakenStrideApart) {
   EXPECT_NE(bad.output.find("calibration-frame-stride"), std::string::npos) << bad.output;
 }
 
+// --calibration-window: the calibration waits for the window's last usable frame (frame 3 of a
+// window of 4) and keeps the most varied of them (FaceTracker tests check the choice).
+TEST(TrackCli, CalibrationWindowCalibratesAtItsEnd) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "window";
+  fs::create_directories(out);
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2",
+                                             "--calibration-window", "4", "--frames", "5", "--quiet",
+                                             "--min-face-width", "20", "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json report = read_json(out / "r.json");
+  EXPECT_EQ(report["calibrated"], true);
+  EXPECT_EQ(report["calibration_frame"], 3) << report.dump();
+  EXPECT_EQ(report["calibration_window_frames"], 4);
+  const std::vector<nlohmann::json> frames = read_lines(out / "p.jsonl");
+  ASSERT_EQ(frames.size(), 5u);
+  EXPECT_NE(frames[1]["message"].get<std::string>().find("watching 2 of 4: turn your head"), std::string::npos)
+      << frames[1]["message"];
+  EXPECT_EQ(frames[3]["status"], "calibrated");
+  EXPECT_LT(frames[3]["landmark_error_px"].get<double>(), 3.0);  // the window's last frame is fitted, not a kept one's fit
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                               (out / "q.jsonl").string(), "--calibration-frames", "5",
+                                               "--calibration-window", "3", "--model", model()});
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("calibration_window_frames must be at least calibration_frames"), std::string::npos) << bad.output;
+}
+
 // An actor who smiles through the calibration (the paper assumes a face at rest) is told so: the
 // report, the summary line and the calibrated frame's message name the smile and what to do.
 TEST(TrackCli, CalibrationWhileSmilingIsReported) {

@@ -39,6 +39,12 @@ enum Stream : uint64_t {
   kLook,
 };
 
+// The calibration turn's amplitudes: the side of the face in front of the ears, which the
+// identity moves by up to 14 mm (s.d.), faces the camera at 25 degrees of yaw.
+constexpr double kCalibrationTurnYawDeg = 25;
+constexpr double kCalibrationTurnPitchDeg = 6;
+constexpr double kCalibrationTurnShare = 0.8;  // the rest of the turn eases into the performance
+
 double smoothstep01(double x) {
   x = std::clamp(x, 0.0, 1.0);
   return x * x * (3 - 2 * x);
@@ -196,8 +202,9 @@ Timeline parse_script(const std::string& json_text, const std::string& what) {
   return Timeline(std::move(keys));
 }
 
-Timeline random_timeline(uint64_t seed, int frames, double fps) {
+Timeline random_timeline(uint64_t seed, int frames, double fps, double calibration_turn_s) {
   if (frames < 1 || !(fps > 0)) throw Error("random_timeline: need frames >= 1 and fps > 0");
+  if (!(calibration_turn_s >= 0) || calibration_turn_s > 60) throw Error("random_timeline: calibration turn must be 0..60 s");
   auto key = [&](uint64_t stream) { return hash_key(seed, stream); };
   // Per-recording constants.
   const double distance = 0.7 + 0.45 * uniform01(key(kDistance));
@@ -211,9 +218,12 @@ Timeline random_timeline(uint64_t seed, int frames, double fps) {
   std::vector<Keyframe> keys;
   keys.reserve(static_cast<size_t>(frames));
   for (int i = 0; i < frames; ++i) {
-    const double t = i / fps;
+    const double frame_t = i / fps;
+    // During the calibration turn the performance is held at its first state (t = 0) and only
+    // the head turns; the performance starts when the turn ends.
+    const double t = std::max(0.0, frame_t - calibration_turn_s);
     Keyframe k;
-    k.time_s = t;
+    k.time_s = frame_t;
     PerformanceState& s = k.state;
     // Head: slow looks around, within the documented ranges.
     s.head_deg.y() = static_cast<float>(std::clamp(14.0 * smooth_noise(key(kYaw), t, 2.2), -30.0, 30.0));
@@ -238,7 +248,7 @@ Timeline random_timeline(uint64_t seed, int frames, double fps) {
     // Blinks: 80 ms closing, 170 ms opening.
     double blink = 0;
     for (double b : blinks) {
-      const double dt = t - b;
+      const double dt = frame_t - b;  // blinks are involuntary: they go on through the turn
       if (dt > -0.08 && dt < 0) blink = std::max(blink, 1 + dt / 0.08);
       else if (dt >= 0 && dt < 0.17) blink = std::max(blink, 1 - dt / 0.17);
     }
@@ -274,6 +284,23 @@ Timeline random_timeline(uint64_t seed, int frames, double fps) {
     s.light.ambient = static_cast<float>(0.42 + 0.06 * smooth_noise(key(kLightAmbient), t, 5.0));
     const double tint = 0.04 * smooth_noise(key(kLightTint), t, 8.0);
     s.light.color = Eigen::Vector3f(static_cast<float>(1 + tint), 1.0f, static_cast<float>(1 - tint));
+    if (frame_t < calibration_turn_s) {
+      // The paper's control sequence (Sec. 6.3): the actor at rest, facing the camera, turns
+      // the head to one side, to the other and back with a slight nod (the first 80 % of the
+      // turn), then eases into the performance's first pose, under that pose's light. Blinks go
+      // on (they are involuntary); everything else is at rest.
+      const double u = frame_t / calibration_turn_s;
+      s.expression.setZero();
+      set_weight(s, "eyeBlinkLeft", blink);
+      set_weight(s, "eyeBlinkRight", blink);
+      if (u < kCalibrationTurnShare) {
+        const double phase = 2 * M_PI * u / kCalibrationTurnShare;
+        s.head_deg = Eigen::Vector3f(static_cast<float>(kCalibrationTurnPitchDeg * std::sin(2 * phase)),
+                                     static_cast<float>(kCalibrationTurnYawDeg * std::sin(phase)), 0.0f);
+      } else {
+        s.head_deg *= static_cast<float>(smoothstep01((u - kCalibrationTurnShare) / (1 - kCalibrationTurnShare)));
+      }
+    }
     keys.push_back(std::move(k));
   }
   return Timeline(std::move(keys));

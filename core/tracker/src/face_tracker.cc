@@ -168,6 +168,41 @@ const char* landmark_source_choice_name(LandmarkSourceChoice choice) {
   return "?";
 }
 
+int calibration_pose_swap(const std::vector<Eigen::Matrix3f>& kept, const Eigen::Matrix3f& candidate) {
+  const size_t n = kept.size();
+  if (n == 0) return -1;
+  // Angle (radians) of the relative rotation between two head poses.
+  auto angle = [](const Eigen::Matrix3f& a, const Eigen::Matrix3f& b) {
+    const double c = std::clamp((static_cast<double>((a.transpose() * b).trace()) - 1.0) / 2.0, -1.0, 1.0);
+    return std::acos(c);
+  };
+  std::vector<Eigen::Matrix3f> set = kept;
+  auto spread = [&] {
+    if (set.size() < 2) return 0.0;
+    double sum = 0;
+    for (size_t i = 0; i < set.size(); ++i) {
+      double nearest = std::numeric_limits<double>::infinity();
+      for (size_t j = 0; j < set.size(); ++j)
+        if (j != i) nearest = std::min(nearest, angle(set[i], set[j]));
+      sum += nearest;
+    }
+    return sum;
+  };
+  const double current = spread();
+  int best = -1;
+  double best_spread = current + 1e-6;  // a strict gain only (~0.00006 degrees)
+  for (size_t i = 0; i < n; ++i) {
+    set[i] = candidate;
+    const double s = spread();
+    if (s > best_spread) {
+      best_spread = s;
+      best = static_cast<int>(i);
+    }
+    set[i] = kept[i];
+  }
+  return best;
+}
+
 const char* calibration_start_name(CalibrationStart start) {
   switch (start) {
     case CalibrationStart::kNeutral: return "neutral";
@@ -242,6 +277,12 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (calibration_frame_stride < 1 || calibration_frame_stride > 10000) {
     return fail(why, "tracker: calibration_frame_stride must be 1..10000");
   }
+  if (calibration_window_frames < 0 || calibration_window_frames > 100000)
+    return fail(why, "tracker: calibration_window_frames must be 0..100000 (0: the first usable frames)");
+  if (calibration_window_frames > 0 && calibration_window_frames < calibration_frames)
+    return fail(why, "tracker: calibration_window_frames must be at least calibration_frames");
+  if (calibration_window_frames > 0 && calibration_frame_stride != 1)
+    return fail(why, "tracker: calibration_window_frames chooses the frames itself: leave calibration_frame_stride at 1");
   if (calibration_identity_components < -1 || calibration_albedo_components < -1) {
     return fail(why, "tracker: calibration component counts must be -1 (all) or >= 0");
   }
@@ -295,9 +336,7 @@ void FaceTracker::Reset() {
   calibration_summary_ = SolverSummary();
   calibration_start_report_ = CalibrationStartReport();
   calibration_warning_.clear();
-  calibration_inputs_.clear();
-  calibration_starts_.clear();
-  last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+  ClearCalibrationFrames();
   previous_ = TrackedFrame();
   last_good_ = TrackedFrame();
   have_fit_ = false;
@@ -383,9 +422,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   out.frame_index = frames_seen_++;
   if (calibration_requested_.exchange(false)) {
     collecting_ = true;
-    calibration_inputs_.clear();
-    calibration_starts_.clear();
-    last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+    ClearCalibrationFrames();
   }
   auto hold = [&](TrackingStatus status, const std::string& message) {
     out.status = status;
@@ -445,15 +482,10 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     start.translation = pose.translation;
     out.status = TrackingStatus::kCalibrating;
     out.pose_reinitialized = true;
-    if (CalibrationWantsFrame(out.frame_index)) {
-      calibration_inputs_.push_back(*input);
-      calibration_starts_.push_back(start);
-      last_calibration_pick_ = out.frame_index;
-    }
-    out.message = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
-                  std::to_string(options_.calibration_frames) + " frames (" + pose.message + "; not fitted yet)";
-    if (static_cast<int>(calibration_inputs_.size()) >= options_.calibration_frames) {
-      Calibrate(*input, &out);
+    OfferCalibrationFrame(*input, start, out.frame_index);
+    out.message = CalibrationProgress() + " (" + pose.message + "; not fitted yet)";
+    if (CalibrationReady()) {
+      Calibrate(*input, start, &out);
       if (out.status == TrackingStatus::kCalibrated) {
         have_fit_ = true;
         previous_ = out;
@@ -535,24 +567,59 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   if (collecting_) {
     const std::string fit_message = out.message;
     out.status = TrackingStatus::kCalibrating;
-    if (CalibrationWantsFrame(out.frame_index)) {
-      calibration_inputs_.push_back(*input);
-      calibration_starts_.push_back(out.params);
-      last_calibration_pick_ = out.frame_index;
-    }
-    out.message = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
-                  std::to_string(options_.calibration_frames) + " frames; " + fit_message;
-    if (static_cast<int>(calibration_inputs_.size()) >= options_.calibration_frames) Calibrate(*input, &out);
+    OfferCalibrationFrame(*input, out.params, out.frame_index);
+    out.message = CalibrationProgress() + "; " + fit_message;
+    if (CalibrationReady()) Calibrate(*input, out.params, &out);
   }
   previous_ = out;
   last_good_ = out;
   return out;
 }
 
-bool FaceTracker::CalibrationWantsFrame(int64_t frame_index) const {
-  // A full set (kept after a stopped calibration) takes no more frames.
-  return static_cast<int>(calibration_inputs_.size()) < options_.calibration_frames &&
-         frame_index - last_calibration_pick_ >= options_.calibration_frame_stride;
+void FaceTracker::OfferCalibrationFrame(const InputFrame& input, const gpu::FaceParameters& start, int64_t frame_index) {
+  ++calibration_frames_seen_;
+  const int kept = static_cast<int>(calibration_inputs_.size());
+  if (kept < options_.calibration_frames) {
+    if (frame_index - last_calibration_pick_ < options_.calibration_frame_stride) return;
+    calibration_inputs_.push_back(input);
+    calibration_starts_.push_back(start);
+    last_calibration_pick_ = frame_index;
+    calibration_frame_indices_.push_back(frame_index);
+    return;
+  }
+  // A full set takes no more frames, except within a window, where a frame that widens the
+  // spread of head poses replaces one (a set kept after a stopped calibration counts as seen).
+  if (options_.calibration_window_frames == 0 || calibration_frames_seen_ > options_.calibration_window_frames) return;
+  std::vector<Eigen::Matrix3f> rotations;
+  rotations.reserve(calibration_starts_.size());
+  for (const auto& p : calibration_starts_) rotations.push_back(gpu::rotation_from_euler(p.euler));
+  const int swap = calibration_pose_swap(rotations, gpu::rotation_from_euler(start.euler));
+  if (swap < 0) return;
+  calibration_inputs_[static_cast<size_t>(swap)] = input;
+  calibration_starts_[static_cast<size_t>(swap)] = start;
+  calibration_frame_indices_[static_cast<size_t>(swap)] = frame_index;
+}
+
+bool FaceTracker::CalibrationReady() const {
+  return static_cast<int>(calibration_inputs_.size()) >= options_.calibration_frames &&
+         calibration_frames_seen_ >= options_.calibration_window_frames;
+}
+
+void FaceTracker::ClearCalibrationFrames() {
+  calibration_inputs_.clear();
+  calibration_starts_.clear();
+  calibration_frame_indices_.clear();
+  last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+  calibration_frames_seen_ = 0;
+}
+
+std::string FaceTracker::CalibrationProgress() const {
+  std::string m = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
+                  std::to_string(options_.calibration_frames) + " frames";
+  if (options_.calibration_window_frames > 0)
+    m += " (watching " + std::to_string(std::min(calibration_frames_seen_, options_.calibration_window_frames)) + " of " +
+         std::to_string(options_.calibration_window_frames) + ": turn your head slowly left and right)";
+  return m;
 }
 
 SolverOptions FaceTracker::WithStop(SolverOptions options) const {
@@ -560,7 +627,7 @@ SolverOptions FaceTracker::WithStop(SolverOptions options) const {
   return options;
 }
 
-void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
+void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out) {
   const TrackerModel& m = solver_.model();
   const int n_id = options_.calibration_identity_components < 0 ? m.num_identity() : options_.calibration_identity_components;
   const int n_alb = options_.calibration_albedo_components < 0 ? m.num_albedo() : options_.calibration_albedo_components;
@@ -569,9 +636,8 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   // fresh collection instead of retrying the same set on every frame.
   std::vector<InputFrame> inputs = std::move(calibration_inputs_);
   std::vector<gpu::FaceParameters> params = std::move(calibration_starts_);
-  calibration_inputs_.clear();
-  calibration_starts_.clear();
-  last_calibration_pick_ = std::numeric_limits<int64_t>::min() / 2;
+  const std::vector<int64_t> frame_indices = std::move(calibration_frame_indices_);
+  ClearCalibrationFrames();
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
   const SolverOptions so =
@@ -623,6 +689,8 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
     out->message = "calibration over " + std::to_string(frames) + " frames stopped before it finished (" + summary.message + ")";
     calibration_inputs_ = std::move(inputs);
     calibration_starts_ = starts;
+    calibration_frame_indices_ = frame_indices;
+    calibration_frames_seen_ = options_.calibration_window_frames;
     calibration_summary_ = std::move(summary);
     return;
   }
@@ -665,8 +733,18 @@ void FaceTracker::Calibrate(const InputFrame& current, TrackedFrame* out) {
   collecting_ = false;
   calibration_start_report_ = report;
   energy_history_.clear();  // energies with the new identity are not comparable to the old
-  // This frame was the last calibration frame: its jointly fitted parameters are the result.
-  out->params = params.back();
+  // This frame's parameters: its joint fit when it is a calibration frame (always, without a
+  // window: it completed the set), else a tracking solve with the new identity.
+  const auto in_set = std::find(frame_indices.begin(), frame_indices.end(), out->frame_index);
+  if (in_set != frame_indices.end()) {
+    out->params = params[static_cast<size_t>(in_set - frame_indices.begin())];
+  } else {
+    gpu::FaceParameters start = current_start;
+    start.alpha = identity_.alpha;
+    start.beta = identity_.beta;
+    const Attempt a = Solve(current, start, /*reinit=*/false, &out->times);
+    out->params = a.failure.empty() ? a.params : start;
+  }
   out->params.alpha = identity_.alpha;
   out->params.beta = identity_.beta;
   out->landmark_error_px = LandmarkReprojectionError(m, current, out->params, options_.loss.min_landmark_confidence,

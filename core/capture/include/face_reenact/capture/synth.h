@@ -82,7 +82,11 @@ Timeline parse_script(const std::string& json_text, const std::string& what);
 // Random, plausible behaviour for `frames` frames at `fps`: talking-like jaw and lip motion in
 // speech bursts, blinks every 2-6 s, smiles, brow raises, head yaw within +-30 degrees, pitch
 // +-15, roll +-10, slow translation, slowly moving light. One keyframe per frame.
-Timeline random_timeline(uint64_t seed, int frames, double fps);
+// A `calibration_turn_s` > 0 starts the recording with the paper's calibration sequence
+// (Sec. 6.3): for that long the actor rests (blinks only), facing the camera, turns the head 25
+// degrees to one side, to the other and back with a slight nod, and eases into the performance's
+// first pose, under that pose's light; the performance follows.
+Timeline random_timeline(uint64_t seed, int frames, double fps, double calibration_turn_s = 0);
 
 // ------------------------------------------------------------------ head, neck and shoulders
 // The render model of the whole upper body: the face model's vertices first (same indices, so
