@@ -191,6 +191,7 @@ struct TrackArgs {
   int calibration_frames = 5;
   int calibration_frame_stride = 1;
   int calibration_window = TrackerOptions{}.calibration_window_frames;
+  bool all_inner_landmarks = false;
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
@@ -216,6 +217,8 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.calibration_frames = a.calibration_frames;
   o.calibration_frame_stride = a.calibration_frame_stride;
   o.calibration_window_frames = a.calibration_window;
+  for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver})
+    s->energy.all_inner_landmarks = a.all_inner_landmarks;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
@@ -470,6 +473,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["min_face_width_px"] = tracker.options().min_face_width_px;
   j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
+  j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
   j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
@@ -607,6 +611,10 @@ void add_tracker_commands(CLI::App& app) {
                  "Watch this many usable frames (the actor turning the head) and calibrate on the --calibration-frames "
                  "among them with the most varied head poses (default 0: the first usable frames)")
       ->check(CLI::Range(0, 100000));
+  tc->add_flag("--all-inner-landmarks", targs->all_inner_landmarks,
+              "Also fit the 12 eye points and the nose base (33): for exact landmarks such as a recording's, where they "
+              "read blinks; off by default (dlib's eye points do not follow a closing eyelid, and its 33 is not the "
+              "model's)");
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")

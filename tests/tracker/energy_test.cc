@@ -431,8 +431,69 @@ TEST(TrackerEnergy, InvisibleLandmarksArePruned) {
   const SphereScene s;
   gpu::FaceParameters p = s.truth;
   EXPECT_EQ(s.solver.LinearizeAt(s.frame, s.layout, EnergyOptions{}, p).landmarks.size(), s.model.landmarks.size());
-  p.euler.y() += static_cast<float>(M_PI);  // the landmark side now faces away
+  p.euler.y() += static_cast<float>(M_PI);  // the landmark side is now behind the sphere
   EXPECT_EQ(s.solver.LinearizeAt(s.frame, s.layout, EnergyOptions{}, p).landmarks.size(), 0u);
+}
+
+// EnergyOptions::landmark_occlusion_m: a landmark's vertex is kept unless the render shows a
+// surface more than 1 cm in front of it at its pixel.
+TEST(TrackerEnergy, LandmarkVisibilityIsADepthTestAgainstTheRender) {
+  gpu::GBuffer g;
+  g.Resize(4, 4);
+  gpu::PinholeCamera cam;
+  cam.width = cam.height = 4;
+  cam.fx = cam.fy = 2;
+  cam.cx = cam.cy = 1.5f;
+  const Eigen::Vector3f x(0.25f, -0.25f, 1.0f);  // projects to (2.0, 1.0): pixel (2, 1)
+  const size_t p = 1 * 4 + 2;
+  EXPECT_TRUE(LandmarkVertexVisible(x, g, cam, 0.01f));  // nothing rendered there: the silhouette
+  g.triangle[p] = 0;
+  auto at_depth = [&](float z) {
+    g.position[3 * p + 2] = z;
+    return LandmarkVertexVisible(x, g, cam, 0.01f);
+  };
+  EXPECT_TRUE(at_depth(1.0f));     // the vertex's own surface
+  EXPECT_TRUE(at_depth(0.995f));   // 5 mm nearer: a neighbouring slope at this pixel
+  EXPECT_FALSE(at_depth(0.98f));   // 2 cm nearer: something hides it (a nose before an eye)
+  EXPECT_TRUE(at_depth(1.2f));     // behind it
+  EXPECT_TRUE(LandmarkVertexVisible(Eigen::Vector3f(10, 0, 1), g, cam, 0.01f));  // outside the image
+  EXPECT_FALSE(LandmarkVertexVisible(Eigen::Vector3f(0, 0, cam.near_plane * 0.5f), g, cam, 0.01f));
+  EnergyOptions o;
+  o.landmark_occlusion_m = 0;
+  std::string why;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("landmark_occlusion_m"), std::string::npos) << why;
+}
+
+// The eye landmarks sit on eyelid-margin vertices whose normals point away from the camera (the
+// inner lid's faces outweigh the outer ones): a normal test pruned all 12 of them (and 33), so
+// blinks were invisible to the landmark term. The depth test keeps every inner landmark of a
+// frontal face (the eyes and 33 when asked: EnergyOptions::all_inner_landmarks), and still drops the far
+// side of a face turned 70 degrees.
+TEST(TrackerEnergy, EveryInnerLandmarkOfAFrontalFaceCounts) {
+  const TrackerModel* real = real_model();
+  if (!real) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*real);
+  gpu::FaceParameters truth = true_parameters(*real, 0.8f, 3);
+  const ParameterLayout layout = ParameterLayout::Tracking(real->num_expression());
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *real, truth, test_camera(640, 480));
+  size_t inner = 0, eyes = 0;
+  for (const auto& l : real->landmarks) inner += (l.flags & kLandmarkInner) != 0;
+  EnergyOptions with_eyes;
+  with_eyes.all_inner_landmarks = true;
+  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, truth).landmarks.size(), inner - 13);  // eyes and 33 off by default
+  const Linearization lin = solver.LinearizeAt(frame, layout, with_eyes, truth);
+  for (const auto& s : lin.landmarks)
+    for (const auto& l : real->landmarks)
+      if (l.vertex == s.vertex && l.ibug_index >= 36 && l.ibug_index <= 47) ++eyes;
+  EXPECT_EQ(lin.landmarks.size(), inner);
+  EXPECT_EQ(eyes, 12u);
+  gpu::FaceParameters turned = truth;
+  turned.euler.y() += static_cast<float>(70 * M_PI / 180);
+  const InputFrame side = RenderSyntheticFrame(solver.renderer(), *real, turned, test_camera(640, 480));
+  const size_t kept = solver.LinearizeAt(side, layout, with_eyes, turned).landmarks.size();
+  EXPECT_LT(kept, inner);
+  EXPECT_GT(kept, inner / 3);
 }
 
 // Tracking's precomputed identity shapes and albedos (Linearization::fixed) change nothing but

@@ -43,7 +43,7 @@ inline TrackerModel sphere_model() {
   int next = 0;
   for (int v = 0; v < m.render.num_vertices() && next < 12; v += 7) {
     if (m.render.mean_shape[3 * v + 2] > 0.06f) {
-      m.landmarks.push_back({next + 36, v, kLandmarkInner});  // 36..47: inner (eye) indices
+      m.landmarks.push_back({next + 48, v, kLandmarkInner});  // 48..59: inner (mouth) indices
       ++next;
     }
   }

@@ -178,10 +178,25 @@ bool EnergyOptions::IsValid(std::string* why) const {
   if (!(max_point_distance_m > 0)) return fail(why, "energy: max_point_distance_m must be positive");
   if (!(min_normal_dot >= -1 && min_normal_dot <= 1)) return fail(why, "energy: min_normal_dot must be in [-1, 1]");
   if (!(max_depth_jump_m > 0)) return fail(why, "energy: max_depth_jump_m must be positive");
+  if (!(landmark_occlusion_m > 0) || !std::isfinite(landmark_occlusion_m)) {
+    return fail(why, "energy: landmark_occlusion_m must be positive");
+  }
   if (!use_point && !use_plane && !use_color && !use_landmarks && !use_regularizer) {
     return fail(why, "energy: every term is switched off");
   }
   return true;
+}
+
+bool LandmarkVertexVisible(const Eigen::Vector3f& x, const gpu::GBuffer& gbuffer, const gpu::PinholeCamera& camera,
+                           float occlusion_m) {
+  if (!(x.z() > camera.near_plane)) return false;
+  // In float, as tracker_landmarks.comp computes it, so both prune the same landmarks.
+  const float u = camera.fx * x.x() / x.z() + camera.cx, v = camera.fy * x.y() / x.z() + camera.cy;
+  const float fi = std::floor(u + 0.5f), fj = std::floor(v + 0.5f);
+  if (!(fi >= 0.f && fj >= 0.f && fi < static_cast<float>(gbuffer.width) && fj < static_cast<float>(gbuffer.height))) return true;
+  const int i = static_cast<int>(fi), j = static_cast<int>(fj);
+  if (!gbuffer.covered(i, j)) return true;
+  return !(gbuffer.depth(i, j) < x.z() - occlusion_m);
 }
 
 Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout, const gpu::FaceParameters& params,
@@ -249,6 +264,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
     std::unordered_map<int, const TrackerLandmark*> by_index;
     for (const auto& l : model.landmarks) {
       if (options.inner_landmarks_only && !(l.flags & kLandmarkInner)) continue;
+      if (!options.all_inner_landmarks && LeftOutUnlessAllInner(l.ibug_index)) continue;
       by_index[l.ibug_index] = &l;
     }
     for (const auto& in : frame.landmarks) {
@@ -256,10 +272,8 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
       auto it = by_index.find(in.ibug_index);
       if (it == by_index.end()) continue;
       const int v = it->second->vertex;
-      const Eigen::Vector3d x = state.camera_positions.segment<3>(3 * v).cast<double>();
-      const Eigen::Vector3d nrm = state.camera_normals.segment<3>(3 * v).cast<double>();
-      // Visibility pruning: the vertex must be in front of the camera and face it.
-      if (!(x.z() > frame.camera.near_plane) || nrm.dot(x) >= 0) continue;
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+      if (!LandmarkVertexVisible(x, gbuffer, frame.camera, static_cast<float>(options.landmark_occlusion_m))) continue;
       lin.landmarks.push_back({v, in.position.cast<double>(), in.confidence});
       lin.landmark_weight_sum += in.confidence;
     }

@@ -59,6 +59,9 @@ struct ClassifyPush {
 struct LandmarkPush {
   uint32_t count;
   float near_plane;
+  uint32_t width, height;
+  float fx, fy, cx, cy;
+  float occlusion_m;
 };
 struct VerticesPush {
   uint32_t x_slot, mode;  // mode: 0 full, 1 fill the identity cache, 2 cache + expression
@@ -282,6 +285,7 @@ struct VulkanSolver::Impl {
     std::unordered_map<int, int> vertex_of;
     for (const auto& l : model.landmarks) {
       if (energy.inner_landmarks_only && !(l.flags & kLandmarkInner)) continue;
+      if (!energy.all_inner_landmarks && LeftOutUnlessAllInner(l.ibug_index)) continue;
       vertex_of[l.ibug_index] = l.vertex;
     }
     std::vector<float> cand;
@@ -386,10 +390,11 @@ struct VulkanSolver::Impl {
           rec.bind(*landmarks);
           rec.set_storage_buffer(0, li.candidates);
           rec.set_storage_buffer(1, renderer.camera_positions());
-          rec.set_storage_buffer(2, renderer.camera_normals());
+          rec.set_storage_buffer(2, g_position);
           rec.set_storage_buffer(3, landmark_items);
           rec.set_storage_buffer(4, counters);
-          rec.push_constants(LandmarkPush{li.num_candidates, f.camera.near_plane});
+          rec.push_constants(LandmarkPush{li.num_candidates, f.camera.near_plane, w, h, f.camera.fx, f.camera.fy, f.camera.cx,
+                                          f.camera.cy, static_cast<float>(e.landmark_occlusion_m)});
           rec.dispatch(1, 1, 1);
           rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                              VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);

@@ -75,14 +75,38 @@ struct EnergyOptions {
   double landmark_reference_width = 640.0;  // landmark offsets in pixels of an image this wide
   // Correspondence pruning (per linearisation): a pixel carries the geometric terms only when
   // |X_S - X_I| <= max_point_distance_m and N_S . N_I >= min_normal_dot (the plane terms also
-  // need N_I). Landmarks count only when their vertex faces the camera.
+  // need N_I).
   double max_point_distance_m = 0.05;
   double min_normal_dot = 0.2;
   float max_depth_jump_m = 0.02f;  // input normals are not taken across larger jumps
   bool inner_landmarks_only = true;  // the paper's 38 inner points (no jaw line, no brows)
+  // All 38 inner points. By default the 12 eye points (iBUG 36-47) and the nose base (33) are
+  // left out: their model vertices (eyelid margins, the underside of the nose) do not match
+  // where dlib puts them. dlib does not follow a closing eyelid (a scripted second of closed
+  // eyes read eyeBlink 0.00 with the eye points as without) and its eye points pulled the pose
+  // (that recording: rotation 0.60 -> 1.24 degrees); with 33, seed 9001 tracked with dlib went
+  // from 1.87 to 2.74 degrees. With exact landmarks (a recording's stored ones) all 38 read
+  // blinks (0.005 -> 0.5) and lower most errors (docs/tracker.md, "Landmark visibility"), so
+  // `track --all-inner-landmarks` can switch them on.
+  bool all_inner_landmarks = false;
+  // Landmark visibility: a landmark counts when its vertex is in front of the camera and the
+  // render, at the pixel the vertex projects to, shows no surface more than this much nearer
+  // (an uncovered pixel or one outside the image keeps it: the vertex is on the silhouette).
+  // A depth test, not the vertex normal: the eyelid-margin vertices the eye landmarks sit on
+  // (and the subnasale, 33) have normals that point away from the camera (the inner lid's
+  // faces outweigh the outer ones), so a normal test never used them (docs/tracker.md,
+  // "Landmark visibility").
+  double landmark_occlusion_m = 0.01;
 
   bool IsValid(std::string* why) const;
 };
+
+// The inner points EnergyOptions::all_inner_landmarks adds: the eyes (iBUG 36-47) and 33.
+inline bool LeftOutUnlessAllInner(int ibug_index) { return ibug_index == 33 || (ibug_index >= 36 && ibug_index <= 47); }
+
+// EnergyOptions::landmark_occlusion_m's rule for one landmark vertex at camera position x.
+bool LandmarkVertexVisible(const Eigen::Vector3f& x, const gpu::GBuffer& gbuffer, const gpu::PinholeCamera& camera,
+                           float occlusion_m);
 
 // One pixel that is valid in both the synthetic and the input image.
 struct PixelSample {

@@ -108,7 +108,7 @@ struct TrackerOptions {
   // the calibration_frames among them with the most varied head poses (calibration_pose_swap),
   // then calibrates; 0 takes the first usable frames calibration_frame_stride apart. Measured
   // on five synthetic actors turning 25 degrees each way at rest (`synth --calibration-turn 2`),
-  // a window of 60 over the turn lowered the surface max on all five (5.97 -> 4.66, 20.7 -> 17.1
+  // a window of 60 over the turn lowered the surface max on all five (5.99 -> 4.66, 20.7 -> 17.2
   // mm) and the 2D error on all five (docs/tracking-pipeline.md, "Calibration over a head turn").
   // It is off by default: it delays the calibration by its length, and a recording shorter than
   // the window never calibrates. Needs calibration_frame_stride 1.
