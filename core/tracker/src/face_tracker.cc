@@ -711,6 +711,12 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     mean_delta += d;
   }
   neutral_.delta = mean_delta / static_cast<float>(params.size());
+  // A tracking solve of `input` (identity fixed at the new one), warm-started from `start`.
+  auto track_with_new_identity = [&](const InputFrame& input, gpu::FaceParameters start) {
+    start.alpha = identity_.alpha;
+    start.beta = identity_.beta;
+    return Solve(input, start, /*reinit=*/false, &out->times);
+  };
   if (options_.neutral_from_tracking) {
     // Re-read each calibration frame the way tracking reads frames (identity fixed, tracking
     // prior, warm start from the joint solve), so Eq. 15 subtracts a neutral in the same terms
@@ -718,10 +724,7 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     Eigen::VectorXf sum = Eigen::VectorXf::Zero(m.num_expression());
     int fitted = 0;
     for (size_t f = 0; f < inputs.size(); ++f) {
-      gpu::FaceParameters start = params[f];
-      start.alpha = identity_.alpha;
-      start.beta = identity_.beta;
-      const Attempt a = Solve(inputs[f], start, /*reinit=*/false, &out->times);
+      const Attempt a = track_with_new_identity(inputs[f], params[f]);
       if (!a.failure.empty() || a.summary.termination == Termination::kStopped) continue;
       const Eigen::Index k = std::min<Eigen::Index>(a.params.delta.size(), sum.size());
       sum.head(k) += a.params.delta.head(k);
@@ -739,11 +742,8 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
   if (in_set != frame_indices.end()) {
     out->params = params[static_cast<size_t>(in_set - frame_indices.begin())];
   } else {
-    gpu::FaceParameters start = current_start;
-    start.alpha = identity_.alpha;
-    start.beta = identity_.beta;
-    const Attempt a = Solve(current, start, /*reinit=*/false, &out->times);
-    out->params = a.failure.empty() ? a.params : start;
+    const Attempt a = track_with_new_identity(current, current_start);
+    out->params = a.failure.empty() ? a.params : current_start;
   }
   out->params.alpha = identity_.alpha;
   out->params.beta = identity_.beta;

@@ -87,15 +87,16 @@ enum class CalibrationStart {
   kPerFrameFits,  // the expressions the per-frame fits (mean or previous identity) found
   kLowerEnergy,   // both, keeping the result with the lower final energy (twice the time)
 };
-const char* calibration_start_name(CalibrationStart start);
+const char* calibration_start_name(CalibrationStart start);  // "neutral", "per-frame-fits", ...
+// Parses calibration_start_name's words; false for anything else.
+bool parse_calibration_start(const std::string& name, CalibrationStart* start);
+
 // The calibration window's choice (TrackerOptions::calibration_window_frames): given the head
 // rotations of the frames kept so far and a candidate's, the index of the kept frame the
 // candidate should replace, or -1 to keep the set. The set's spread is the sum over its frames
 // of the angle to the nearest other frame; the swap that widens it most wins, and only a strict
 // gain swaps (so a still head keeps the earliest frames).
-int calibration_pose_swap(const std::vector<Eigen::Matrix3f>& kept, const Eigen::Matrix3f& candidate);  // "neutral", "per-frame-fits", ...
-// Parses calibration_start_name's words; false for anything else.
-bool parse_calibration_start(const std::string& name, CalibrationStart* start);
+int calibration_pose_swap(const std::vector<Eigen::Matrix3f>& kept, const Eigen::Matrix3f& candidate);
 
 struct TrackerOptions {
   // Calibration (Sec. 6.3): jointly over this many usable frames. 1 = the first usable frame.
@@ -352,7 +353,7 @@ class FaceTracker {
   void OfferCalibrationFrame(const InputFrame& input, const gpu::FaceParameters& start, int64_t frame_index);
   bool CalibrationReady() const;
   void ClearCalibrationFrames();
-  std::string CalibrationProgress() const;  // "calibrating: 3 of 5 frames ..." 
+  std::string CalibrationProgress() const;  // "calibrating: 3 of 5 frames ..."
   SolverOptions WithStop(SolverOptions options) const;  // options_.stop given to a solve
 
   TrackerOptions options_;
