@@ -140,6 +140,21 @@ void run_bench_track(const TrackBenchArgs& a) {
                           {"total_ms", s.total_ms},
                           {"termination", termination_name(s.termination)}};
   }
+  {
+    // The gaze reading that follows each tracked frame's solve (gaze.h), on the true fits.
+    const GazeEstimator gaze(model);
+    const GazeOptions options;
+    double ms = 0;
+    int readings = 0;
+    for (size_t f = 1; f < frames.size(); ++f) {
+      gpu::FaceParameters p = truths[f];
+      const GazeReading r = gaze.Read(solver.renderer(), frames[f], &p, options);
+      ms += r.ms;
+      readings += r.ok;
+    }
+    const double n = std::max<double>(1.0, static_cast<double>(frames.size()) - 1);
+    doc["gaze"] = {{"ms_per_frame", ms / n}, {"readings", readings}};
+  }
   add_vulkan_track_bench(model, frames, truths[0], layout, a.vulkan, &doc);
   if (a.json) {
     std::printf("%s\n", doc.dump(2).c_str());
@@ -172,6 +187,8 @@ void run_bench_track(const TrackBenchArgs& a) {
               "(synthesis %.0f, analysis %.0f)\n",
               int(c["frames"]), int(c["unknowns"]), int(c["gauss_newton"]), double(c["residuals"]), double(c["total_ms"]),
               double(c["synthesis_ms"]), double(c["analysis_ms"]));
+  std::printf("gaze (CPU, after each solve): %.2f ms per frame (%d of %d frames read)\n", double(doc["gaze"]["ms_per_frame"]),
+              int(doc["gaze"]["readings"]), a.frames);
   print_vulkan_track_bench(doc);
 }
 
@@ -192,6 +209,7 @@ struct TrackArgs {
   int calibration_frame_stride = 1;
   int calibration_window = TrackerOptions{}.calibration_window_frames;
   bool all_inner_landmarks = false;
+  bool no_gaze = false;
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
@@ -219,6 +237,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.calibration_window_frames = a.calibration_window;
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver})
     s->energy.all_inner_landmarks = a.all_inner_landmarks;
+  o.gaze.enabled = !a.no_gaze;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
@@ -274,10 +293,14 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   j["landmarks"] = t.landmarks_used;
   j["landmark_error_px"] = t.landmark_error_px;
   j["pose_reinitialized"] = t.pose_reinitialized;
+  // The gaze reading (null when none was made: gaze off, eyes closed, no fit).
+  j["gaze"] = t.gaze.ok ? nlohmann::json{{"horizontal", t.gaze.horizontal}, {"vertical", t.gaze.vertical},
+                                         {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels}}
+                        : nlohmann::json();
   j["times_ms"] = {{"landmarks", t.times.landmarks_ms}, {"pose_init", t.times.pose_init_ms},
                    {"pyramid", t.times.pyramid_ms},     {"synthesis", t.times.synthesis_ms},
-                   {"analysis", t.times.analysis_ms},   {"calibration", t.times.calibration_ms},
-                   {"total", t.times.total_ms}};
+                   {"analysis", t.times.analysis_ms},   {"gaze", t.times.gaze_ms},
+                   {"calibration", t.times.calibration_ms}, {"total", t.times.total_ms}};
   return j;
 }
 
@@ -299,7 +322,7 @@ struct RunTotals {
   int frames = 0;
   int tracked_frames = 0;  // frames whose tracking time counts in ms_per_frame
   double read_ms = 0, convert_ms = 0, landmarks_ms = 0, pose_init_ms = 0, pyramid_ms = 0, synthesis_ms = 0,
-         analysis_ms = 0, total_ms = 0, calibration_ms = 0;
+         analysis_ms = 0, gaze_ms = 0, total_ms = 0, calibration_ms = 0;
   std::map<std::string, int> statuses;
   int64_t calibration_frame = -1;
   // Ground truth, over frames with a current fit after the calibration.
@@ -373,6 +396,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     r.pyramid_ms += t.times.pyramid_ms;
     r.synthesis_ms += t.times.synthesis_ms;
     r.analysis_ms += t.times.analysis_ms;
+    r.gaze_ms += t.times.gaze_ms;
     if (t.status == TrackingStatus::kCalibrated) {
       r.calibration_ms += t.times.calibration_ms;
       r.calibration_frame = frame.index;
@@ -447,6 +471,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["pyramid_ms"] = r.pyramid_ms / r.frames;
   j["synthesis_ms"] = r.synthesis_ms / r.frames;
   j["analysis_ms"] = r.analysis_ms / r.frames;
+  j["gaze_ms"] = r.gaze_ms / r.frames;
   j["read_ms"] = r.read_ms / r.frames;
   j["convert_ms"] = r.convert_ms / r.frames;
   j["calibration_ms"] = r.calibration_ms;
@@ -474,6 +499,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
+  j["gaze"] = tracker.options().gaze.enabled;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
   j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
@@ -615,6 +641,9 @@ void add_tracker_commands(CLI::App& app) {
               "Also fit the 12 eye points and the nose base (33): for exact landmarks such as a recording's, where they "
               "read blinks; off by default (dlib's eye points do not follow a closing eyelid, and its 33 is not the "
               "model's)");
+  tc->add_flag("--no-gaze", targs->no_gaze,
+               "Do not read the gaze from the colour around the eyes (the eyeLook weights are then the solver's, "
+               "which cannot see the iris turn)");
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")

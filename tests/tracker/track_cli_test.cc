@@ -18,6 +18,7 @@
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/subprocess.h"
+#include "face_reenact/model/face_model.h"
 #include "face_reenact/model/wheel_archive.h"
 #include "face_reenact/stream/sender.h"
 #include "support/temp_dir.h"
@@ -256,6 +257,53 @@ TEST(TrackCli, CalibrationWindowCalibratesAtItsEnd) {
                                                "--calibration-window", "3", "--model", model()});
   EXPECT_EQ(bad.exit_code, 1);
   EXPECT_NE(bad.output.find("calibration_window_frames must be at least calibration_frames"), std::string::npos) << bad.output;
+}
+
+// An actor who looks aside: the gaze is read from the colour around the eyes into the eyeLook
+// weights of every fitted frame (the solver alone reads 0 there), and --no-gaze leaves it out.
+TEST(TrackCli, ReadsTheGazeOfAnActorLookingAside) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "gaze";
+  fs::create_directories(out);
+  std::ofstream(out / "look.json")
+      << R"({"keyframes": [
+           {"time": 0.0, "expression": {"eyeLookOutLeft": 0.5, "eyeLookInRight": 0.5},
+            "head": {"yaw_deg": -6, "translation": [0, -0.02, 0.65]}},
+           {"time": 0.2, "expression": {"eyeLookOutLeft": 0.5, "eyeLookInRight": 0.5}, "head": {"yaw_deg": 4}}]})";
+  const SubprocessResult synth = run_subprocess({cli(), "synth", "--seed", "4711", "--script", (out / "look.json").string(),
+                                                 "--frames", "5", "--size", "640x480", "--out", (out / "rec").string(),
+                                                 "--model", model(), "--wheel", wheel_path(), "--device", "llvmpipe",
+                                                 "--quiet"});
+  ASSERT_EQ(synth.exit_code, 0) << synth.output;
+  const int out_left = arkit_blendshape_index("eyeLookOutLeft"), in_right = arkit_blendshape_index("eyeLookInRight");
+  auto track = [&](const std::string& name, bool gaze) {
+    std::vector<std::string> args = {cli(), "track", "--input", (out / "rec").string(), "--out",
+                                      (out / (name + ".jsonl")).string(), "--report", (out / (name + ".json")).string(),
+                                      "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
+    if (!gaze) args.push_back("--no-gaze");
+    const SubprocessResult r = run_subprocess(args);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return std::make_pair(read_json(out / (name + ".json")), read_lines(out / (name + ".jsonl")));
+  };
+  const auto [report, frames] = track("on", true);
+  EXPECT_EQ(report["gaze"], true);
+  EXPECT_GT(report["gaze_ms"].get<double>(), 0.0);
+  ASSERT_EQ(frames.size(), 5u);
+  for (size_t f = 2; f < frames.size(); ++f) {
+    SCOPED_TRACE(frames[f].dump());
+    ASSERT_TRUE(frames[f]["gaze"].is_object());
+    EXPECT_NEAR(frames[f]["gaze"]["horizontal"].get<double>(), 0.5, 0.15);
+    EXPECT_NEAR(frames[f]["expression"][out_left].get<double>(), 0.5, 0.15);
+    EXPECT_NEAR(frames[f]["expression"][in_right].get<double>(), 0.5, 0.15);
+    EXPECT_GT(frames[f]["times_ms"]["gaze"].get<double>(), 0.0);
+  }
+  const auto [off_report, off_frames] = track("off", false);
+  EXPECT_EQ(off_report["gaze"], false);
+  ASSERT_EQ(off_frames.size(), 5u);
+  for (size_t f = 2; f < off_frames.size(); ++f) {
+    EXPECT_TRUE(off_frames[f]["gaze"].is_null());
+    EXPECT_LT(off_frames[f]["expression"][out_left].get<double>(), 0.15);
+  }
 }
 
 // An actor who smiles through the calibration (the paper assumes a face at rest) is told so: the

@@ -291,6 +291,7 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (!tracking_solver.IsValid(&inner)) return fail(why, "tracker: tracking_solver: " + inner);
   if (!recovery_solver.IsValid(&inner)) return fail(why, "tracker: recovery_solver: " + inner);
   if (!loss.IsValid(why)) return false;
+  if (!gaze.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
@@ -308,7 +309,7 @@ FaceTracker::FaceTracker(const FaceModel& model, const TrackerOptions& options)
     : FaceTracker(TrackerModel::FromFaceModel(model), options) {}
 
 FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
-    : options_(options), solver_(std::move(model)) {
+    : options_(options), solver_(std::move(model)), gaze_(solver_.model()) {
   std::string why;
   if (!options_.IsValid(&why)) throw Error(why);
   const TrackerModel& m = solver_.model();
@@ -413,6 +414,10 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
   } else if (!(a.landmark_error_px <= options_.loss.lost_landmark_error_px)) {
     a.failure = format("landmarks %.1f px from the fitted model (limit %.1f px)", a.landmark_error_px,
                        options_.loss.lost_landmark_error_px);
+  }
+  if (a.failure.empty() && options_.gaze.enabled) {
+    a.gaze = gaze_.Read(solver_.renderer(), input, &a.params, options_.gaze);
+    times->gaze_ms += a.gaze.ms;
   }
   return a;
 }
@@ -542,6 +547,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   out.landmark_error_px = a.landmark_error_px;
   out.pose_reinitialized = a.reinit;
   out.solver_termination = a.summary.termination;
+  out.gaze = a.gaze;
   const std::string depth_note = depth_dropped ? "; no valid depth at the face: fitted colour and landmarks only" : "";
   if (!a.failure.empty()) {
     have_fit_ = false;

@@ -34,6 +34,7 @@
 
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/tracker/energy.h"
+#include "face_reenact/tracker/gaze.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/parameter_layout.h"
 #include "face_reenact/tracker/solver.h"
@@ -202,6 +203,11 @@ struct TrackerOptions {
   // The same rule for the calibration solve; -1 takes min_face_width_px.
   int calibration_min_face_width_px = 40;
   LossDetectionOptions loss;
+  // Gaze (gaze.h): after each per-frame solve that passed its checks, the eyeLook weights are
+  // read from the full-resolution colour around the eyes, which the solve cannot do. On
+  // synthetic actors looking aside by 0.2-0.5 it lowered the expression error
+  // (docs/tracker.md, "Gaze"). enabled = false leaves the eyeLook weights to the solve.
+  GazeOptions gaze;
   // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
   // itself takes whatever landmarks the InputFrame carries).
   LandmarkSourceChoice landmark_source = LandmarkSourceChoice::kDetector;
@@ -251,6 +257,7 @@ struct StageTimes {
   double synthesis_ms = 0;    // rendering inside the solver(s)
   double analysis_ms = 0;     // linearisation, J, PCG inside the solver(s)
   double calibration_ms = 0;  // the joint calibration solve, on the frame that ran it
+  double gaze_ms = 0;         // reading the gaze (TrackerOptions::gaze)
   double total_ms = 0;        // everything, including landmarks_ms
 };
 
@@ -271,6 +278,9 @@ struct TrackedFrame {
   double landmark_error_px = -1;
   bool pose_reinitialized = false;  // the pose came from the landmark fit this frame
   Termination solver_termination = Termination::kScheduleDone;
+  // The gaze reading of this frame's fit (ok false: none, and why; the eyeLook weights are then
+  // the solve's).
+  GazeReading gaze;
   StageTimes times;
 };
 
@@ -342,6 +352,7 @@ class FaceTracker {
     bool reinit = false;
     std::string pose_message;
     std::string failure;  // empty: passed the loss checks
+    GazeReading gaze;
   };
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
   Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times) const;
@@ -358,6 +369,7 @@ class FaceTracker {
 
   TrackerOptions options_;
   CpuSolver solver_;
+  GazeEstimator gaze_;  // reads solver_'s model
   PyramidSolveFunction tracking_solve_;
   std::atomic<bool> calibration_requested_{false};
   bool calibrated_ = false;

@@ -1,0 +1,123 @@
+#pragma once
+// Gaze: the eyeLook* blendshape weights read from the colour image around the eyes.
+//
+// The solver cannot read gaze. Turning an eyeball moves its iris across the sphere but not the
+// sphere itself, so the depth terms do not see it, and the colour term's Jacobian holds the
+// rasterised correspondences fixed within a Gauss-Newton step (energy.h): the iris moving under
+// a pixel has no derivative there. At the tracking levels the iris is also 1-2 pixels wide. On
+// synthetic actors that look aside, gaze was most of the expression error left
+// (docs/tracker.md, "Gaze").
+//
+// What is used instead is that a turned eyeball is the same sphere: one render of the fitted
+// face at full resolution, around the eyes, says which pixels show eyeball and where on the
+// sphere each one lies, and the shading of each pixel is fixed; only the albedo under a pixel
+// depends on the gaze. The model's eyeball albedo is a pattern around the eye's axis (pupil,
+// iris, sclera: docs/face-model.md), so the predicted colour of every eyeball pixel for a
+// candidate gaze is the albedo at that pixel's angle from the turned axis times its shading.
+// The axis moves with the eyeLook weights exactly as the model moves the front of the eyeball
+// (the blendshapes are linear offsets), so a reading is in the model's own units. Both eyes
+// turn together (conjugate gaze: looking to the person's left is eyeLookOutLeft and
+// eyeLookInRight); the weights that minimise the colour difference over both eyes, searched on
+// a grid and refined, are the reading.
+#include <Eigen/Core>
+#include <array>
+#include <string>
+#include <vector>
+
+#include "face_reenact/gpu/cpu_renderer.h"
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/input_frame.h"
+#include "face_reenact/tracker/tracker_model.h"
+
+namespace face_reenact::tracker {
+
+struct GazeOptions {
+  bool enabled = true;
+  // Fewer visible eyeball pixels than this over both eyes (closed eyes, a face far away or
+  // turned so far that one eye is hidden and the other small): no reading; the solve's weights
+  // stay.
+  int min_eye_pixels = 12;
+  // Pixels the fit shows as eyeball but the image as lid (nearer the lid's colour than any of
+  // the eyeball's) are left out; when fewer than this fraction of the fit's eyeball pixels
+  // remain, the eyes are mostly covered (a blink the fit does not show) and there is no reading.
+  double min_open_fraction = 0.6;
+  // Up and down (eyeLookUp*/Down*). Off by default: a turn up or down moves the iris half as far
+  // as one to the side, the lids hide most of it, and on sensor-modelled synthetic recordings it
+  // read 0.4-0.5 down on an actor 0.65 m away looking straight sideways (and dragged the sideways
+  // reading from 0.5 to 0.27). On clean renders it reads within 0.1 (down) and 0.25 (up: the
+  // upper lid covers the iris) at 0.6 m.
+  bool read_vertical = false;
+  // With read_vertical, only when an eye's rendered opening spans at least this many pixel rows;
+  // below, the vertical gaze stays 0 (1 m from a 640x480 camera the openings are 3-4 rows).
+  int min_vertical_rows = 6;
+  // The search: a grid of this many steps over [-1, 1] per axis (horizontal, vertical), then a
+  // finer grid around the best cell.
+  int grid_steps = 21;
+  int refine_steps = 11;
+  // Quadratic pull towards looking straight ahead, in the units of the mean squared colour
+  // difference (linear RGB): it decides between gazes the image cannot tell apart (an iris
+  // half under the lid) and costs 0.0002 at a full turn, a tenth of what a misplaced iris costs
+  // over an eye's pixels on a 640x480 face 0.6 m away.
+  double prior = 0.0002;
+
+  bool IsValid(std::string* why) const;
+};
+
+struct GazeReading {
+  bool ok = false;
+  std::string message;    // why there is no reading (ok false)
+  float horizontal = 0;   // > 0: towards the person's left (eyeLookOutLeft + eyeLookInRight)
+  float vertical = 0;     // > 0: up (eyeLookUp*); 0 when not read
+  bool vertical_read = false;  // the opening was tall enough (GazeOptions::min_vertical_rows)
+  int pixels = 0;         // eyeball pixels compared
+  int eyeball_pixels = 0; // eyeball pixels of the fit's render (pixels: those that look like one)
+  double energy = 0;      // mean squared colour difference at the reading, prior included
+  double ms = 0;          // wall time of the reading
+};
+
+class GazeEstimator {
+ public:
+  // A model without two eyeballs or without the eight eyeLook blendshapes (a test mesh) gives an
+  // estimator that is not available() and reads nothing.
+  explicit GazeEstimator(const TrackerModel& model);
+
+  bool available() const { return available_; }
+
+  // Reads the gaze of the face fitted as `params` in `frame` (full resolution, linear colour,
+  // the frame's camera) and writes it into params->delta's eyeLook weights. Without a reading
+  // (ok false) params is left unchanged. Never throws for frame content.
+  GazeReading Read(const gpu::CpuRenderer& renderer, const InputFrame& frame, gpu::FaceParameters* params,
+                   const GazeOptions& options) const;
+
+  // The eyeLook weights (model's expression indices, ARKit order) for a conjugate gaze.
+  struct Weight {
+    int index = -1;
+    float value = 0;
+  };
+  std::array<Weight, 8> WeightsFor(float horizontal, float vertical) const;
+
+ private:
+  struct Eye {
+    std::vector<int> vertices;  // the eyeball's vertices
+    std::vector<int> front;     // those within 20 degrees of the model's +z from its centre
+    int part = 0;               // FacePart value
+  };
+  struct Pass {
+    bool ok = false;
+    std::string message;
+    double h = 0, v = 0, energy = 0;
+    int pixels = 0, rendered_pixels = 0;
+    int opening_rows = 0;  // the taller eye's rendered opening, pixel rows
+    bool vertical_read = false;
+  };
+  Pass Search(const gpu::CpuRenderer& renderer, const InputFrame& frame, const gpu::FaceParameters& fit, float h0,
+              float v0, double ch, double cv, double half, const GazeOptions& options) const;
+
+  bool available_ = false;
+  std::array<Eye, 2> eyes_{};  // left (the person's), right
+  // eyeLook indices: [eye][0 = Out, 1 = In, 2 = Up, 3 = Down]
+  std::array<std::array<int, 4>, 2> look_{};
+  const TrackerModel* model_ = nullptr;
+};
+
+}  // namespace face_reenact::tracker

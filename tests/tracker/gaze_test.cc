@@ -1,0 +1,207 @@
+// Gaze reading (gaze.h): conjugate gaze recovered from renders of the real model at known
+// eyeLook weights, closed eyes and models without eyes give no reading, bad options are refused,
+// and the tracker writes the reading into its fits (and leaves it to the solve when switched off).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+
+#include "face_reenact/common/error.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/gaze.h"
+#include "face_reenact/tracker/solver.h"
+#include "tracker_test_support.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+const char* kLook[8] = {"eyeLookOutLeft", "eyeLookInLeft", "eyeLookUpLeft", "eyeLookDownLeft",
+                        "eyeLookOutRight", "eyeLookInRight", "eyeLookUpRight", "eyeLookDownRight"};
+
+// The fitted face of the tests: the ground truth of tracker_test_support with no expression but
+// the gaze, `distance` m away.
+gpu::FaceParameters face_looking(const TrackerModel& m, const GazeEstimator& gaze, float horizontal, float vertical,
+                                 float distance = 0.6f, uint32_t seed = 11) {
+  gpu::FaceParameters p = testing::true_parameters(m, distance, seed);
+  p.delta.setZero();
+  for (const auto& w : gaze.WeightsFor(horizontal, vertical)) p.delta[w.index] = w.value;
+  return p;
+}
+
+float weight(const gpu::FaceParameters& p, const char* name) { return p.delta[arkit_blendshape_index(name)]; }
+
+TEST(GazeOptions, DefaultsValidAndBadValuesRejected) {
+  GazeOptions o;
+  std::string why;
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+  auto expect_invalid = [](GazeOptions bad, const std::string& needle) {
+    std::string w;
+    EXPECT_FALSE(bad.IsValid(&w)) << needle;
+    EXPECT_NE(w.find(needle), std::string::npos) << w;
+    TrackerOptions t;
+    t.gaze = bad;
+    EXPECT_FALSE(t.IsValid(&w));
+    EXPECT_THROW(FaceTracker(testing::sphere_model(), t), Error) << needle;
+  };
+  GazeOptions bad = o;
+  bad.min_eye_pixels = 0;
+  expect_invalid(bad, "min_eye_pixels");
+  bad = o;
+  bad.grid_steps = 2;
+  expect_invalid(bad, "grid_steps");
+  bad = o;
+  bad.refine_steps = 0;
+  expect_invalid(bad, "refine_steps");
+  bad = o;
+  bad.prior = std::numeric_limits<double>::quiet_NaN();
+  expect_invalid(bad, "prior");
+}
+
+TEST(Gaze, WeightsForAConjugateGaze) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const GazeEstimator gaze(*model);
+  ASSERT_TRUE(gaze.available());
+  gpu::FaceParameters p = face_looking(*model, gaze, 0.4f, -0.25f);
+  // To the person's left: the left eye out, the right eye in; down on both.
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookOutLeft"), 0.4f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookInRight"), 0.4f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookInLeft"), 0.f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookOutRight"), 0.f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookDownLeft"), 0.25f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookDownRight"), 0.25f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookUpLeft"), 0.f);
+  p = face_looking(*model, gaze, -0.3f, 0.5f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookInLeft"), 0.3f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookOutRight"), 0.3f);
+  EXPECT_FLOAT_EQ(weight(p, "eyeLookUpRight"), 0.5f);
+}
+
+// The fit holds the eyes straight (what the solve reads); the render of the true face looks
+// aside and up or down. The reading finds the true weights.
+TEST(Gaze, ReadsTheGazeOfARenderedFace) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  GazeOptions options;
+  options.read_vertical = true;
+  // Up is read short: the upper lid covers the top of the iris, and an iris turned up goes under
+  // it (eyeLookUp moves the eyeball's front half as far as eyeLookOut). At 1 m the opening is too
+  // short for a vertical reading at all (GazeOptions::min_vertical_rows).
+  struct Case {
+    float h, v, distance, v_tolerance;
+  };
+  for (const Case c : {Case{0.4f, 0.f, 0.6f, 0.1f}, Case{-0.3f, 0.5f, 0.6f, 0.25f}, Case{0.f, -0.3f, 0.6f, 0.1f},
+                       Case{0.f, 0.f, 0.6f, 0.1f}, Case{0.45f, 0.f, 1.0f, 0.f}}) {
+    SCOPED_TRACE(::testing::Message() << "h " << c.h << " v " << c.v << " at " << c.distance << " m");
+    const gpu::FaceParameters truth = face_looking(*model, gaze, c.h, c.v, c.distance);
+    const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, truth, testing::test_camera());
+    gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f, c.distance);
+    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, options);
+    ASSERT_TRUE(r.ok) << r.message;
+    std::printf("h %.2f v %.2f at %.1f m: read %.3f %.3f over %d px, %.2f ms\n", c.h, c.v, c.distance, r.horizontal,
+                r.vertical, r.pixels, r.ms);
+    EXPECT_NEAR(r.horizontal, c.h, 0.06);
+    EXPECT_NEAR(r.vertical, c.v, c.v_tolerance);
+    EXPECT_EQ(r.vertical_read, c.distance < 0.8f);
+    for (const char* name : kLook) EXPECT_NEAR(weight(fit, name), weight(truth, name), std::max(0.06f, c.v_tolerance)) << name;
+    // Nothing but the eyeLook weights changes.
+    for (int k = 0; k < model->num_expression(); ++k) {
+      bool look = false;
+      for (const char* name : kLook) look = look || k == arkit_blendshape_index(name);
+      if (!look) EXPECT_EQ(fit.delta[k], truth.delta[k]) << k;
+    }
+  }
+}
+
+TEST(Gaze, ClosedEyesGiveNoReadingAndLeaveTheFit) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f);
+  truth.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.f;
+  truth.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.f;
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, truth, testing::test_camera());
+  gpu::FaceParameters fit = truth;
+  fit.delta[arkit_blendshape_index("eyeLookOutLeft")] = 0.3f;
+  const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions());
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.message.find("eyes closed"), std::string::npos) << r.message;
+  EXPECT_EQ(weight(fit, "eyeLookOutLeft"), 0.3f);
+}
+
+TEST(Gaze, BadFramesAndModelsWithoutEyesGiveNoReading) {
+  const TrackerModel sphere = testing::sphere_model();
+  const GazeEstimator none(sphere);
+  EXPECT_FALSE(none.available());
+  const CpuSolver sphere_solver(sphere);
+  gpu::FaceParameters p = gpu::frontal_pose(0.6f);
+  const InputFrame frame = RenderSyntheticFrame(sphere_solver.renderer(), sphere, p, testing::test_camera());
+  const GazeReading r = none.Read(sphere_solver.renderer(), frame, &p, GazeOptions());
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.message.find("no eyeballs"), std::string::npos) << r.message;
+
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f);
+  InputFrame empty;
+  empty.camera = testing::test_camera();
+  EXPECT_FALSE(gaze.Read(solver.renderer(), empty, &fit, GazeOptions()).ok);
+  // A face whose eyes are out of the image, and one behind the camera.
+  InputFrame real = RenderSyntheticFrame(solver.renderer(), *model, fit, testing::test_camera());
+  gpu::FaceParameters away = fit;
+  away.translation.x() += 2.0f;
+  EXPECT_FALSE(gaze.Read(solver.renderer(), real, &away, GazeOptions()).ok);
+  gpu::FaceParameters behind = fit;
+  behind.translation.z() = -0.6f;
+  EXPECT_FALSE(gaze.Read(solver.renderer(), real, &behind, GazeOptions()).ok);
+  // NaN colour where the eyes are: those pixels are skipped, no NaN reaches the fit.
+  for (float& c : real.color) c = std::numeric_limits<float>::quiet_NaN();
+  const GazeReading nan = gaze.Read(solver.renderer(), real, &fit, GazeOptions());
+  EXPECT_FALSE(nan.ok);
+  EXPECT_TRUE(fit.delta.allFinite());
+}
+
+// The tracker reads the gaze of every fitted frame; with the reading off, the solve alone does
+// not see it (the eyeLook weights stay near 0).
+TEST(Gaze, TheTrackerWritesTheReadingIntoItsFits) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  auto track = [&](bool enabled) {
+    TrackerOptions o;
+    o.calibration_frames = 1;
+    o.calibration_solver.schedule = {{2, 8, 6}, {1, 2, 6}};
+    o.gaze.enabled = enabled;
+    FaceTracker tracker(*model, o);
+    const GazeEstimator gaze(*model);
+    TrackedFrame t;
+    for (int k = 0; k < 4; ++k) {
+      gpu::FaceParameters truth = face_looking(*model, gaze, 0.4f, 0.f, 0.6f, 5);
+      truth.euler.y() += 0.02f * k;
+      t = tracker.Track(RenderSyntheticFrame(tracker.cpu_solver().renderer(), *model, truth, testing::test_camera()));
+      EXPECT_TRUE(tracking_status_has_fit(t.status)) << t.message;
+    }
+    std::printf("gaze %s: eyeLookOutLeft %.3f, eyeLookInRight %.3f (reading ok %d, %.2f ms)\n", enabled ? "on" : "off",
+                weight(t.params, "eyeLookOutLeft"), weight(t.params, "eyeLookInRight"), t.gaze.ok, t.times.gaze_ms);
+    return t;
+  };
+  const TrackedFrame on = track(true);
+  EXPECT_TRUE(on.gaze.ok) << on.gaze.message;
+  EXPECT_NEAR(on.gaze.horizontal, 0.4f, 0.1f);
+  EXPECT_NEAR(weight(on.params, "eyeLookOutLeft"), 0.4f, 0.1f);
+  EXPECT_NEAR(weight(on.params, "eyeLookInRight"), 0.4f, 0.1f);
+  EXPECT_GT(on.times.gaze_ms, 0.0);
+  const TrackedFrame off = track(false);
+  EXPECT_FALSE(off.gaze.ok);
+  EXPECT_LT(weight(off.params, "eyeLookOutLeft"), 0.2f);
+}
+
+}  // namespace
+}  // namespace face_reenact::tracker
