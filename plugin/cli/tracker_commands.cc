@@ -295,7 +295,8 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   j["pose_reinitialized"] = t.pose_reinitialized;
   // The gaze reading (null when none was made: gaze off, eyes closed, no fit).
   j["gaze"] = t.gaze.ok ? nlohmann::json{{"horizontal", t.gaze.horizontal}, {"vertical", t.gaze.vertical},
-                                         {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels}}
+                                         {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels},
+                                         {"energy", t.gaze.energy}, {"straight_energy", t.gaze.straight_energy}}
                         : nlohmann::json();
   j["times_ms"] = {{"landmarks", t.times.landmarks_ms}, {"pose_init", t.times.pose_init_ms},
                    {"pyramid", t.times.pyramid_ms},     {"synthesis", t.times.synthesis_ms},

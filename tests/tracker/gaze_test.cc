@@ -58,6 +58,15 @@ TEST(GazeOptions, DefaultsValidAndBadValuesRejected) {
   bad = o;
   bad.prior = std::numeric_limits<double>::quiet_NaN();
   expect_invalid(bad, "prior");
+  bad = o;
+  bad.min_improvement = -0.1;
+  expect_invalid(bad, "min_improvement");
+  bad = o;
+  bad.min_open_fraction = 1.5;
+  expect_invalid(bad, "min_open_fraction");
+  bad = o;
+  bad.min_vertical_rows = 0;
+  expect_invalid(bad, "min_vertical_rows");
 }
 
 TEST(Gaze, WeightsForAConjugateGaze) {
@@ -102,12 +111,17 @@ TEST(Gaze, ReadsTheGazeOfARenderedFace) {
     const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, truth, testing::test_camera());
     gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f, c.distance);
     const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, options);
-    ASSERT_TRUE(r.ok) << r.message;
+    if (c.h == 0.f && c.v == 0.f) {
+      // Straight ahead: no gaze stands out (GazeOptions::min_improvement), or one near 0.
+      if (!r.ok) EXPECT_NE(r.message.find("no clear gaze"), std::string::npos) << r.message;
+    } else {
+      ASSERT_TRUE(r.ok) << r.message;
+    }
     std::printf("h %.2f v %.2f at %.1f m: read %.3f %.3f over %d px, %.2f ms\n", c.h, c.v, c.distance, r.horizontal,
                 r.vertical, r.pixels, r.ms);
     EXPECT_NEAR(r.horizontal, c.h, 0.06);
     EXPECT_NEAR(r.vertical, c.v, c.v_tolerance);
-    EXPECT_EQ(r.vertical_read, c.distance < 0.8f);
+    if (r.ok) EXPECT_EQ(r.vertical_read, c.distance < 0.8f);
     for (const char* name : kLook) EXPECT_NEAR(weight(fit, name), weight(truth, name), std::max(0.06f, c.v_tolerance)) << name;
     // Nothing but the eyeLook weights changes.
     for (int k = 0; k < model->num_expression(); ++k) {

@@ -738,6 +738,13 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     }
     if (fitted > 0) neutral_.delta = sum / static_cast<float>(fitted);
   }
+  // Gaze is absolute: the rest of the eyes is looking straight ahead, whatever the actor looked at
+  // while calibrating. Eq. 15 subtracts the neutral, so a neutral that kept a glance aside would
+  // turn the reenacted eyes away whenever the source looked straight at the camera; and gaze does
+  // not enter the identity, so it is no sign of a calibration not at rest either.
+  if (gaze_.available() && neutral_.delta.size() >= m.num_expression()) {
+    for (const GazeEstimator::Weight& w : gaze_.WeightsFor(0.f, 0.f)) neutral_.delta[w.index] = 0.f;
+  }
   calibrated_ = true;
   collecting_ = false;
   calibration_start_report_ = report;

@@ -116,6 +116,7 @@ bool GazeOptions::IsValid(std::string* why) const {
   if (grid_steps < 3 || grid_steps > 201) return fail("gaze: grid_steps must be in [3, 201]");
   if (refine_steps < 1 || refine_steps > 201) return fail("gaze: refine_steps must be in [1, 201]");
   if (!(prior >= 0 && std::isfinite(prior))) return fail("gaze: prior must be finite and >= 0");
+  if (!(min_improvement >= 0 && std::isfinite(min_improvement))) return fail("gaze: min_improvement must be finite and >= 0");
   return true;
 }
 
@@ -411,6 +412,7 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   out.h = std::clamp(ch, -1.0, 1.0);
   out.v = vertical ? std::clamp(cv, -1.0, 1.0) : 0.0;
   out.energy = energy(out.h, out.v, true, &gains);
+  out.straight_energy = energy(0.0, 0.0, true, nullptr);
   const double step = grid(ch, out.v, half, options.grid_steps, false, true);
   grid(out.h, out.v, step, options.refine_steps, false, true);
   if (vertical) {
@@ -454,10 +456,19 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   const Pass second = Search(renderer, frame, fit, static_cast<float>(first.h), static_cast<float>(first.v), first.h,
                              first.v, 1.5 * cell, local);
   const Pass& best = second.ok ? second : first;
+  // A gaze the image shows clearly lowers the straight-ahead difference by far more than noise
+  // and an eye region the fit does not match do (see GazeOptions::min_improvement).
+  if (!(first.straight_energy - best.energy >= options.min_improvement * best.energy)) {
+    out.message = "no clear gaze: looking straight ahead differs by " +
+                  std::to_string(best.energy > 0 ? (first.straight_energy - best.energy) / best.energy : 0.0) +
+                  " of the reading's colour difference";
+    return done(out.message);
+  }
   out.ok = true;
   out.horizontal = static_cast<float>(best.h);
   out.vertical = static_cast<float>(best.v);
   out.energy = best.energy;
+  out.straight_energy = first.straight_energy;
   out.pixels = best.pixels;
   out.eyeball_pixels = best.rendered_pixels;
   out.vertical_read = best.vertical_read;
