@@ -78,14 +78,10 @@ struct EyePixel {
   Eigen::Vector3d input;
 };
 
-// One eye as the fitted face has it: its centre and front (the centroid of the front vertices)
-// and how each of its eyeLook weights (Out, In, Up, Down) moves them, the albedo profile around
-// the axis from centre to front, its pixels. The blendshapes turn the eyeball about a point
-// behind its centre (its vertices' centroid moves 1.6 mm per unit weight, the front 5.4 mm), so
-// the centre moves too: as a turn about the centre alone, gaze read 1.6 times too far.
+// One eye as the fitted face has it: its centre and front (the centroid of the front vertices),
+// the albedo profile around the axis from centre to front, its pixels.
 struct EyeState {
   Eigen::Vector3d centre = Eigen::Vector3d::Zero(), front = Eigen::Vector3d::Zero();
-  std::array<Eigen::Vector3d, 4> centre_per_weight{}, front_per_weight{};
   AlbedoProfile profile;
   std::vector<EyePixel> pixels;
   // The colour of the skin around the eye as the camera sees it (the median of the face pixels
@@ -141,6 +137,14 @@ GazeEstimator::GazeEstimator(const TrackerModel& model) : model_(&model) {
       if (d.norm() > 0 && d.normalized().z() > cos_front) eye.front.push_back(v);
     }
     if (eye.front.empty()) return;
+    // The blendshapes are linear offsets, so centre and front move linearly with each weight.
+    for (int k = 0; k < 4; ++k) {
+      Eigen::Vector3d all = Eigen::Vector3d::Zero(), fr = Eigen::Vector3d::Zero();
+      for (int v : eye.vertices) all += rm.expression_basis.block(3 * v, look_[e][k], 3, 1).cast<double>();
+      for (int v : eye.front) fr += rm.expression_basis.block(3 * v, look_[e][k], 3, 1).cast<double>();
+      eye.centre_per_weight[k] = all / static_cast<double>(eye.vertices.size());
+      eye.front_per_weight[k] = fr / static_cast<double>(eye.front.size());
+    }
   }
   available_ = true;
 }
@@ -231,15 +235,6 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
     if (!((s.front - s.centre).norm() > 0)) {
       out.message = "degenerate eyeball";
       return out;
-    }
-    // The blendshapes are linear offsets, so centre and front move linearly with each weight.
-    for (int k = 0; k < 4; ++k) {
-      const int col = look_[e][k];
-      Eigen::Vector3d all = Eigen::Vector3d::Zero(), fr = Eigen::Vector3d::Zero();
-      for (int v : eye.vertices) all += rm.expression_basis.block(3 * v, col, 3, 1).cast<double>();
-      for (int v : eye.front) fr += rm.expression_basis.block(3 * v, col, 3, 1).cast<double>();
-      s.centre_per_weight[k] = all / static_cast<double>(eye.vertices.size());
-      s.front_per_weight[k] = fr / static_cast<double>(eye.front.size());
     }
     std::vector<double> degrees;
     std::vector<Eigen::Vector3d> albedo;
@@ -348,9 +343,8 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   // The vertical search takes the fitted lighting as it is: a turn up or down changes how much
   // dark iris the opening shows, which a gain absorbs (free gains read 0.13-0.21 up on renders
   // looking straight ahead, the sideways reading's gains 0.10-0.12, none -0.02-0).
-  std::array<double, 2> gains{1.0, 1.0};
   std::vector<Eigen::Vector3d> predicted;
-  auto energy = [&](double hz, double vt, bool fit_gains, std::array<double, 2>* fitted) {
+  auto energy = [&](double hz, double vt, bool fit_gains) {
     const auto weights = WeightsFor(static_cast<float>(hz), static_cast<float>(vt));
     double sum = 0;
     for (int e = 0; e < 2; ++e) {
@@ -358,8 +352,8 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
       Eigen::Vector3d centre = s.centre, front = s.front;
       for (int k = 0; k < 4; ++k) {
         const double dw = static_cast<double>(weights[4 * e + k].value) - rendered[4 * e + k].value;
-        centre += dw * s.centre_per_weight[k];
-        front += dw * s.front_per_weight[k];
+        centre += dw * eyes_[e].centre_per_weight[k];
+        front += dw * eyes_[e].front_per_weight[k];
       }
       const Eigen::Vector3d axis = (front - centre).normalized();
       // The least-squares gain (sum |g p - i|^2 is least at g = pi / pp), then each pixel's
@@ -376,28 +370,22 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
         pp += predicted[q].squaredNorm();
         pi += predicted[q].dot(px.input);
       }
-      double g = gains[e];
-      if (fit_gains) g = pp > 0 && pi > 0 ? std::clamp(pi / pp, kMinGain, kMaxGain) : 1.0;
-      if (fitted) (*fitted)[e] = g;
+      const double g = fit_gains && pp > 0 && pi > 0 ? std::clamp(pi / pp, kMinGain, kMaxGain) : 1.0;
       for (size_t q = 0; q < s.pixels.size(); ++q)
         sum += std::min((g * predicted[q] - s.pixels[q].input).squaredNorm(), kMaxPixelCost);
     }
     return sum / out.pixels + options.prior * (hz * hz + vt * vt);
   };
   // grid(centre h, centre v, half width, steps, vertical too, fit gains): the best candidate
-  // into out (and its gains into `gains` when fitted); returns the grid's step.
+  // into out; returns the grid's step.
   auto grid = [&](double gh, double gv, double gh_half, int steps, bool with_vertical, bool fit_gains) {
     const double step = steps > 1 ? 2 * gh_half / (steps - 1) : 0;
     for (int a = 0; a < steps; ++a) {
       for (int b = 0; b < (with_vertical ? steps : 1); ++b) {
         const double hz = std::clamp(gh - gh_half + a * step, -1.0, 1.0);
         const double vt = with_vertical ? std::clamp(gv - gh_half + b * step, -1.0, 1.0) : gv;
-        std::array<double, 2> g{};
-        const double en = energy(hz, vt, fit_gains, &g);
-        if (en < out.energy) {
-          out.energy = en, out.h = hz, out.v = vt;
-          if (fit_gains) gains = g;
-        }
+        const double en = energy(hz, vt, fit_gains);
+        if (en < out.energy) out.energy = en, out.h = hz, out.v = vt;
       }
     }
     return step;
@@ -411,13 +399,12 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   out.vertical_read = vertical;
   out.h = std::clamp(ch, -1.0, 1.0);
   out.v = vertical ? std::clamp(cv, -1.0, 1.0) : 0.0;
-  out.energy = energy(out.h, out.v, true, &gains);
-  out.straight_energy = energy(0.0, 0.0, true, nullptr);
+  out.energy = energy(out.h, out.v, true);
+  out.straight_energy = energy(0.0, 0.0, true);
   const double step = grid(ch, out.v, half, options.grid_steps, false, true);
   grid(out.h, out.v, step, options.refine_steps, false, true);
   if (vertical) {
-    gains = {1.0, 1.0};
-    out.energy = energy(out.h, out.v, false, nullptr);
+    out.energy = energy(out.h, out.v, false);
     grid(out.h, out.v, half, options.grid_steps, true, false);
     grid(out.h, out.v, step, options.refine_steps, true, false);
   }
