@@ -104,14 +104,14 @@ run_tests() {
   #   checked against the CPU one here by the VulkanSolverTest cases;
   # - `track` runs that differ from the end-to-end and bad-frame ones (kept here) only in their
   #   options and what they measure: the ablation, the calibration's frame choice, window, start
-  #   and warning, the gaze reading (GazeEstimator runs here in tracker_gaze_test), and two
+  #   and warning, the gaze and lid readings (GazeEstimator runs here in tracker_gaze_test), and two
   #   calibration-quality tests of FaceTracker (FaceTracker.CalibratesThenTracksASequence and
   #   the window and recalibration tests run the calibration here). 1360 s of the 3800 s this
   #   run took on 2 cores, measured 2026-11-25.
   local release_only=(
     'ReenactCliTest[.]DemoAndReenactEndToEnd'
     'TrackCli[.]VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe'
-    'TrackCli[.](AblationReportsEachEnergyConfiguration|ReadsTheGazeOfAnActorLookingAside)'
+    'TrackCli[.](AblationReportsEachEnergyConfiguration|ReadsTheGazeOfAnActorLookingAside|ReadsTheLidsOfAnActorClosingTheEyes)'
     'TrackCli[.](CalibrationFramesAreTakenStrideApart|CalibrationWindowCalibratesAtItsEnd)'
     'TrackCli[.](CalibrationWhileSmilingIsReported|LowerEnergyCalibrationSolvesBothStartsAndKeepsTheLower)'
     'FaceTracker[.](CalibrationOfANeutralActorFindsANeutralExpression|TheCalibrationSolveDoesNotClimbAfterItsLowestEnergy)'

@@ -210,6 +210,7 @@ struct TrackArgs {
   int calibration_window = TrackerOptions{}.calibration_window_frames;
   bool all_inner_landmarks = false;
   bool no_gaze = false;
+  bool no_lids = false;
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
@@ -238,6 +239,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver})
     s->energy.all_inner_landmarks = a.all_inner_landmarks;
   o.gaze.enabled = !a.no_gaze;
+  o.gaze.read_lids = !a.no_lids;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
@@ -298,6 +300,10 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
                                          {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels},
                                          {"energy", t.gaze.energy}, {"straight_energy", t.gaze.straight_energy}}
                         : nlohmann::json();
+  // The lids read from the colour (null when they were not: open eyes, or gaze off).
+  j["lids"] = t.gaze.lids_read ? nlohmann::json{{"blink", {t.gaze.blink[0], t.gaze.blink[1]}},
+                                               {"open_fraction", {t.gaze.open_fraction[0], t.gaze.open_fraction[1]}}}
+                               : nlohmann::json();
   j["times_ms"] = {{"landmarks", t.times.landmarks_ms}, {"pose_init", t.times.pose_init_ms},
                    {"pyramid", t.times.pyramid_ms},     {"synthesis", t.times.synthesis_ms},
                    {"analysis", t.times.analysis_ms},   {"gaze", t.times.gaze_ms},
@@ -501,6 +507,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
+  j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
   j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
@@ -643,8 +650,11 @@ void add_tracker_commands(CLI::App& app) {
               "read blinks; off by default (dlib's eye points do not follow a closing eyelid, and its 33 is not the "
               "model's)");
   tc->add_flag("--no-gaze", targs->no_gaze,
-               "Do not read the gaze from the colour around the eyes (the eyeLook weights are then the solver's, "
-               "which cannot see the iris turn)");
+               "Do not read the gaze and the lids from the colour around the eyes (the eyeLook and eyeBlink weights "
+               "are then the solver's, which cannot see the iris turn or, without the eye landmarks, a lid close)");
+  tc->add_flag("--no-lids", targs->no_lids,
+               "Read the gaze but not the lids (eyeBlink) from the colour around the eyes; they are read on RGB-D "
+               "input only");
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")

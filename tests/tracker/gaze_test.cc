@@ -1,6 +1,7 @@
 // Gaze reading (gaze.h): conjugate gaze recovered from renders of the real model at known
-// eyeLook weights, closed eyes and models without eyes give no reading, bad options are refused,
-// and the tracker writes the reading into its fits (and leaves it to the solve when switched off).
+// eyeLook weights, the lids from renders at known eyeBlink weights, closed eyes and models
+// without eyes give no gaze, bad options are refused, and the tracker writes both readings into
+// its fits (and leaves them to the solve when switched off).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -67,6 +68,15 @@ TEST(GazeOptions, DefaultsValidAndBadValuesRejected) {
   bad = o;
   bad.min_vertical_rows = 0;
   expect_invalid(bad, "min_vertical_rows");
+  bad = o;
+  bad.lids_below_open_fraction = -0.1;
+  expect_invalid(bad, "lids_below_open_fraction");
+  bad = o;
+  bad.lids_from_weight = std::numeric_limits<double>::quiet_NaN();
+  expect_invalid(bad, "lids_from_weight");
+  bad = o;
+  bad.lid_steps = 1;
+  expect_invalid(bad, "lid_steps");
 }
 
 TEST(Gaze, WeightsForAConjugateGaze) {
@@ -149,6 +159,74 @@ TEST(Gaze, ClosedEyesGiveNoReadingAndLeaveTheFit) {
   EXPECT_EQ(weight(fit, "eyeLookOutLeft"), 0.3f);
 }
 
+// The fit holds the eyes open (the solve does not see a lid close); the render of the true face
+// blinks, half or fully, or winks. The lids are read into the fit's eyeBlink weights, nothing
+// else changes but the gaze; with the lids off, or without depth, they stay open.
+TEST(Gaze, ReadsTheLidsOfARenderedFace) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  const int left = arkit_blendshape_index("eyeBlinkLeft"), right = arkit_blendshape_index("eyeBlinkRight");
+  struct Case {
+    float left, right, distance;
+  };
+  // From about 0.8 on, the lid covers the whole eyeball at these distances: every weight from
+  // there to 1 renders the same closed eye, so a closed eye is read as at least 0.8.
+  for (const Case c : {Case{0.3f, 0.3f, 0.6f}, Case{0.5f, 0.5f, 0.6f}, Case{1.f, 1.f, 0.6f}, Case{1.f, 0.f, 0.6f},
+                       Case{0.5f, 0.5f, 1.0f}}) {
+    SCOPED_TRACE(::testing::Message() << "blink " << c.left << " / " << c.right << " at " << c.distance << " m");
+    gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f, c.distance);
+    truth.delta[left] = c.left;
+    truth.delta[right] = c.right;
+    const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, truth, testing::test_camera());
+    const gpu::FaceParameters open = face_looking(*model, gaze, 0.f, 0.f, c.distance);
+    gpu::FaceParameters fit = open;
+    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions());
+    std::printf("blink %.2f / %.2f at %.1f m: read %.3f / %.3f (open fractions %.2f / %.2f), %.2f ms\n", c.left, c.right,
+                c.distance, r.blink[0], r.blink[1], r.open_fraction[0], r.open_fraction[1], r.ms);
+    ASSERT_TRUE(r.lids_read) << r.lids_message;
+    EXPECT_NEAR(fit.delta[left], c.left, c.left == 1.f ? 0.2 : 0.1);
+    EXPECT_NEAR(fit.delta[right], c.right, c.right == 1.f ? 0.2 : 0.1);
+    EXPECT_EQ(fit.delta[left], r.blink[0]);
+    EXPECT_EQ(fit.delta[right], r.blink[1]);
+    for (int k = 0; k < model->num_expression(); ++k) {
+      bool eye = k == left || k == right;
+      for (const char* name : kLook) eye = eye || k == arkit_blendshape_index(name);
+      if (!eye) EXPECT_EQ(fit.delta[k], truth.delta[k]) << k;
+    }
+    GazeOptions off;
+    off.read_lids = false;
+    gpu::FaceParameters kept = open;
+    const GazeReading no = gaze.Read(solver.renderer(), frame, &kept, off);
+    EXPECT_FALSE(no.lids_read);
+    EXPECT_EQ(kept.delta[left], 0.f);
+    EXPECT_EQ(kept.delta[right], 0.f);
+    // Without depth in the frame or in the fit (a webcam, a video file), the lids are not read.
+    InputFrame colour_only = frame;
+    colour_only.depth.clear();
+    const GazeReading rgb = gaze.Read(solver.renderer(), colour_only, &kept, GazeOptions());
+    EXPECT_FALSE(rgb.lids_read);
+    EXPECT_NE(rgb.lids_message.find("no depth"), std::string::npos) << rgb.lids_message;
+    EXPECT_FALSE(gaze.Read(solver.renderer(), frame, &kept, GazeOptions(), false).lids_read);
+    EXPECT_EQ(kept.delta[left], 0.f);
+  }
+  // Open eyes: nothing to read (the fit's opening shows eyeball), and a fit with the eyes shut
+  // on an open-eyed image has them opened.
+  const gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f);
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, truth, testing::test_camera());
+  gpu::FaceParameters fit = truth;
+  const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions());
+  EXPECT_FALSE(r.lids_read);
+  EXPECT_TRUE(r.lids_message.empty()) << r.lids_message;
+  EXPECT_EQ(fit.delta[left], 0.f);
+  fit.delta[left] = fit.delta[right] = 0.9f;
+  const GazeReading reopened = gaze.Read(solver.renderer(), frame, &fit, GazeOptions());
+  ASSERT_TRUE(reopened.lids_read) << reopened.lids_message;
+  EXPECT_LT(fit.delta[left], 0.1f);
+  EXPECT_LT(fit.delta[right], 0.1f);
+}
+
 TEST(Gaze, BadFramesAndModelsWithoutEyesGiveNoReading) {
   const TrackerModel sphere = testing::sphere_model();
   const GazeEstimator none(sphere);
@@ -188,6 +266,9 @@ TEST(Gaze, BadFramesAndModelsWithoutEyesGiveNoReading) {
 TEST(Gaze, TheTrackerWritesTheReadingIntoItsFits) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  // The last frame blinks: its lids are read too (the solve alone leaves them open).
+  TrackedFrame blinking;
+  const int left = arkit_blendshape_index("eyeBlinkLeft"), right = arkit_blendshape_index("eyeBlinkRight");
   auto track = [&](bool enabled) {
     TrackerOptions o;
     o.calibration_frames = 1;
@@ -204,15 +285,27 @@ TEST(Gaze, TheTrackerWritesTheReadingIntoItsFits) {
     }
     std::printf("gaze %s: eyeLookOutLeft %.3f, eyeLookInRight %.3f (reading ok %d, %.2f ms)\n", enabled ? "on" : "off",
                 weight(t.params, "eyeLookOutLeft"), weight(t.params, "eyeLookInRight"), t.gaze.ok, t.times.gaze_ms);
+    gpu::FaceParameters shut = face_looking(*model, gaze, 0.f, 0.f, 0.6f, 5);
+    shut.euler.y() += 0.08f;
+    shut.delta[left] = shut.delta[right] = 0.8f;
+    blinking = tracker.Track(RenderSyntheticFrame(tracker.cpu_solver().renderer(), *model, shut, testing::test_camera()));
+    EXPECT_TRUE(tracking_status_has_fit(blinking.status)) << blinking.message;
+    std::printf("blink 0.8, gaze %s: eyeBlinkLeft %.3f, eyeBlinkRight %.3f\n", enabled ? "on" : "off",
+                blinking.params.delta[left], blinking.params.delta[right]);
     return t;
   };
   const TrackedFrame on = track(true);
+  EXPECT_TRUE(blinking.gaze.lids_read) << blinking.gaze.lids_message;
+  EXPECT_NEAR(blinking.params.delta[left], 0.8f, 0.2f);
+  EXPECT_NEAR(blinking.params.delta[right], 0.8f, 0.2f);
   EXPECT_TRUE(on.gaze.ok) << on.gaze.message;
   EXPECT_NEAR(on.gaze.horizontal, 0.4f, 0.1f);
   EXPECT_NEAR(weight(on.params, "eyeLookOutLeft"), 0.4f, 0.1f);
   EXPECT_NEAR(weight(on.params, "eyeLookInRight"), 0.4f, 0.1f);
   EXPECT_GT(on.times.gaze_ms, 0.0);
   const TrackedFrame off = track(false);
+  EXPECT_FALSE(blinking.gaze.lids_read);
+  EXPECT_LT(blinking.params.delta[left], 0.3f);
   EXPECT_FALSE(off.gaze.ok);
   EXPECT_LT(weight(off.params, "eyeLookOutLeft"), 0.2f);
 }

@@ -306,6 +306,53 @@ TEST(TrackCli, ReadsTheGazeOfAnActorLookingAside) {
   }
 }
 
+// An actor who closes the eyes after the calibration: the lids are read from the colour around
+// the eyes (the solve alone leaves them open); --no-lids leaves them to the solve.
+TEST(TrackCli, ReadsTheLidsOfAnActorClosingTheEyes) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "lids";
+  fs::create_directories(out);
+  std::ofstream(out / "shut.json")
+      << R"({"keyframes": [
+           {"time": 0.0, "expression": {}, "head": {"yaw_deg": -6, "translation": [0, -0.02, 0.65]}},
+           {"time": 0.04, "expression": {}},
+           {"time": 0.06, "expression": {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}},
+           {"time": 0.2, "expression": {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}, "head": {"yaw_deg": 4}}]})";
+  const SubprocessResult synth = run_subprocess({cli(), "synth", "--seed", "4711", "--script", (out / "shut.json").string(),
+                                                 "--frames", "5", "--size", "640x480", "--out", (out / "rec").string(),
+                                                 "--model", model(), "--wheel", wheel_path(), "--device", "llvmpipe",
+                                                 "--quiet"});
+  ASSERT_EQ(synth.exit_code, 0) << synth.output;
+  const int left = arkit_blendshape_index("eyeBlinkLeft"), right = arkit_blendshape_index("eyeBlinkRight");
+  auto track = [&](const std::string& name, bool lids) {
+    std::vector<std::string> args = {cli(), "track", "--input", (out / "rec").string(), "--out",
+                                      (out / (name + ".jsonl")).string(), "--report", (out / (name + ".json")).string(),
+                                      "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
+    if (!lids) args.push_back("--no-lids");
+    const SubprocessResult r = run_subprocess(args);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return std::make_pair(read_json(out / (name + ".json")), read_lines(out / (name + ".jsonl")));
+  };
+  const auto [report, frames] = track("on", true);
+  EXPECT_EQ(report["lids"], true);
+  ASSERT_EQ(frames.size(), 5u);
+  for (size_t f = 2; f < frames.size(); ++f) {
+    SCOPED_TRACE(frames[f].dump());
+    ASSERT_TRUE(frames[f]["lids"].is_object());
+    EXPECT_GT(frames[f]["lids"]["blink"][0].get<double>(), 0.7);
+    EXPECT_GT(frames[f]["expression"][left].get<double>(), 0.7);
+    EXPECT_GT(frames[f]["expression"][right].get<double>(), 0.7);
+  }
+  const auto [off_report, off_frames] = track("off", false);
+  EXPECT_EQ(off_report["lids"], false);
+  EXPECT_EQ(off_report["gaze"], true);
+  ASSERT_EQ(off_frames.size(), 5u);
+  for (size_t f = 2; f < off_frames.size(); ++f) {
+    EXPECT_TRUE(off_frames[f]["lids"].is_null());
+    EXPECT_LT(off_frames[f]["expression"][left].get<double>(), 0.3);
+  }
+}
+
 // An actor who smiles through the calibration (the paper assumes a face at rest) is told so: the
 // report, the summary line and the calibrated frame's message name the smile and what to do.
 TEST(TrackCli, CalibrationWhileSmilingIsReported) {

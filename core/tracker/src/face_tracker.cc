@@ -416,7 +416,10 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
                        options_.loss.lost_landmark_error_px);
   }
   if (a.failure.empty() && options_.gaze.enabled) {
-    a.gaze = gaze_.Read(solver_.renderer(), input, &a.params, options_.gaze);
+    // The lids only on fits that place the eyes well: with depth and the calibrated identity
+    // (before the calibration, on the mean face, open eyes read 0.5-1.0 on synthetic actors).
+    a.gaze = gaze_.Read(solver_.renderer(), input, &a.params, options_.gaze,
+                        calibrated_ && (so.energy.use_point || so.energy.use_plane));
     times->gaze_ms += a.gaze.ms;
   }
   return a;

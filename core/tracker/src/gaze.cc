@@ -76,11 +76,15 @@ struct EyePixel {
   Eigen::Vector3d position;
   Eigen::Vector3d irradiance;
   Eigen::Vector3d input;
+  int i = 0, j = 0;           // in the crop
+  bool looks_like_lid = false;  // nearer the lid's colour than any colour of the eyeball
 };
+
+}  // namespace
 
 // One eye as the fitted face has it: its centre and front (the centroid of the front vertices),
 // the albedo profile around the axis from centre to front, its pixels.
-struct EyeState {
+struct GazeEstimator::EyeState {
   Eigen::Vector3d centre = Eigen::Vector3d::Zero(), front = Eigen::Vector3d::Zero();
   AlbedoProfile profile;
   std::vector<EyePixel> pixels;
@@ -88,6 +92,8 @@ struct EyeState {
   // next to the eyeball in the render).
   Eigen::Vector3d skin = Eigen::Vector3d::Zero();
 };
+
+namespace {
 
 Eigen::Vector3d vec3(const Eigen::VectorXf& v, int i) { return v.segment<3>(3 * i).cast<double>(); }
 
@@ -113,6 +119,11 @@ bool GazeOptions::IsValid(std::string* why) const {
   if (refine_steps < 1 || refine_steps > 201) return fail("gaze: refine_steps must be in [1, 201]");
   if (!(prior >= 0 && std::isfinite(prior))) return fail("gaze: prior must be finite and >= 0");
   if (!(min_improvement >= 0 && std::isfinite(min_improvement))) return fail("gaze: min_improvement must be finite and >= 0");
+  if (!(lids_below_open_fraction >= 0 && lids_below_open_fraction <= 1)) {
+    return fail("gaze: lids_below_open_fraction must be in [0, 1]");
+  }
+  if (!(lids_from_weight >= 0 && lids_from_weight <= 1)) return fail("gaze: lids_from_weight must be in [0, 1]");
+  if (lid_steps < 2 || lid_steps > 101) return fail("gaze: lid_steps must be in [2, 101]");
   return true;
 }
 
@@ -137,6 +148,8 @@ GazeEstimator::GazeEstimator(const TrackerModel& model) : model_(&model) {
       if (d.norm() > 0 && d.normalized().z() > cos_front) eye.front.push_back(v);
     }
     if (eye.front.empty()) return;
+    const int blink = arkit_blendshape_index(e == 0 ? "eyeBlinkLeft" : "eyeBlinkRight");
+    blink_[e] = blink >= 0 && blink < model.num_expression() ? blink : -1;
     // The blendshapes are linear offsets, so centre and front move linearly with each weight.
     for (int k = 0; k < 4; ++k) {
       Eigen::Vector3d all = Eigen::Vector3d::Zero(), fr = Eigen::Vector3d::Zero();
@@ -144,6 +157,13 @@ GazeEstimator::GazeEstimator(const TrackerModel& model) : model_(&model) {
       for (int v : eye.front) fr += rm.expression_basis.block(3 * v, look_[e][k], 3, 1).cast<double>();
       eye.centre_per_weight[k] = all / static_cast<double>(eye.vertices.size());
       eye.front_per_weight[k] = fr / static_cast<double>(eye.front.size());
+    }
+  }
+  // The vertices the lids move, and how far per unit weight of both eyeBlink weights.
+  if (blink_[0] >= 0 && blink_[1] >= 0) {
+    for (int v = 0; v < rm.num_vertices(); ++v) {
+      const Eigen::Vector3f d = rm.expression_basis.block(3 * v, blink_[0], 3, 1) + rm.expression_basis.block(3 * v, blink_[1], 3, 1);
+      if (d.squaredNorm() > 0) lid_vertices_.push_back({v, d});
     }
   }
   available_ = true;
@@ -163,31 +183,31 @@ std::array<GazeEstimator::Weight, 8> GazeEstimator::WeightsFor(float horizontal,
            {look_[1][3], down}}};
 }
 
-// One search: the face rendered with the gaze (h0, v0), candidates within `half` of (ch, cv).
-GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, const InputFrame& frame,
-                                          const gpu::FaceParameters& fit, float h0, float v0, double ch, double cv,
-                                          double half, const GazeOptions& options) const {
-  Pass out;
-  const TrackerModel& model = *model_;
-  const auto& rm = model.render;
-  const int w = frame.width(), h = frame.height();
-  gpu::FaceParameters at = fit;
-  const auto rendered = WeightsFor(h0, v0);
-  for (const Weight& wt : rendered) at.delta[wt.index] = wt.value;
+// The fitted face rendered at full resolution in a crop around both eyes.
+struct GazeEstimator::EyeRegion {
+  std::string message;  // why there is no render (empty: rendered)
   gpu::VertexState state;
+  gpu::PinholeCamera crop;  // the camera of the crop
+  gpu::GBuffer g;           // the crop
+  int x0 = 0, y0 = 0;       // the crop's corner in the image
+};
+
+GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& renderer, const InputFrame& frame,
+                                                        const gpu::FaceParameters& at) const {
+  EyeRegion out;
+  const int w = frame.width(), h = frame.height();
   try {
-    state = renderer.evaluate(at);
+    out.state = renderer.evaluate(at);
   } catch (const std::exception& e) {
     out.message = std::string("the fit cannot be rendered: ") + e.what();
     return out;
   }
-
   // The image region of both eyes, with a margin.
   const gpu::PinholeCamera& cam = frame.camera;
   double u0 = std::numeric_limits<double>::infinity(), vmin = u0, u1 = -u0, vmax = -u0;
   for (const Eye& eye : eyes_) {
     for (int v : eye.vertices) {
-      const Eigen::Vector3d x = vec3(state.camera_positions, v);
+      const Eigen::Vector3d x = vec3(out.state.camera_positions, v);
       if (!(x.z() > cam.near_plane)) {
         out.message = "an eye is behind the camera";
         return out;
@@ -208,118 +228,155 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
     out.message = "the eyes are outside the image";
     return out;
   }
-  gpu::PinholeCamera crop = cam;
+  gpu::PinholeCamera& crop = out.crop;
+  crop = cam;
   crop.width = x1 - x0 + 1;
   crop.height = y1 - y0 + 1;
   crop.cx -= static_cast<float>(x0);
   crop.cy -= static_cast<float>(y0);
-  gpu::GBuffer g;
-  renderer.rasterize(state, crop, kTrackedParts, &g);
+  renderer.rasterize(out.state, crop, kTrackedParts, &out.g);
+  out.x0 = x0;
+  out.y0 = y0;
+  return out;
+}
 
-  const Eigen::Matrix3d R = gpu::rotation_from_euler(fit.euler).cast<double>();
-  const Eigen::Vector3d t = fit.translation.cast<double>();
+// Eye e as the render `region` of `at` shows it: its axis and albedo profile, its pixels (each
+// marked when it looks like the lid), the lid's colour; *opening_rows: the rows its pixels span.
+// Returns an empty string, or why the eye cannot be read.
+std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& frame, const gpu::FaceParameters& at,
+                                   int e, EyeState* out, int* opening_rows) const {
+  const auto& rm = model_->render;
+  const gpu::GBuffer& g = region.g;
+  const int w = frame.width();
+  const Eigen::Matrix3d R = gpu::rotation_from_euler(at.euler).cast<double>();
+  const Eigen::Vector3d t = at.translation.cast<double>();
   // The input colour at a pixel of the crop.
   auto sample = [&](int i, int j) {
-    const size_t f = (static_cast<size_t>(j + y0) * w + (i + x0)) * 3;
+    const size_t f = (static_cast<size_t>(j + region.y0) * w + (i + region.x0)) * 3;
     return Eigen::Vector3d(frame.color[f], frame.color[f + 1], frame.color[f + 2]);
   };
+  const Eye& eye = eyes_[e];
+  EyeState& s = *out;
+  // The centre of the rendered eyeball (turned by its eyeLook weights), and its front.
+  s.centre = centroid(region.state.model_positions, eye.vertices);
+  s.front.setZero();
+  for (int v : eye.front) s.front += vec3(region.state.model_positions, v);
+  s.front /= static_cast<double>(eye.front.size());
+  if (!((s.front - s.centre).norm() > 0)) return "degenerate eyeball";
+  std::vector<double> degrees;
+  std::vector<Eigen::Vector3d> albedo;
+  const Eigen::Vector3d a = (s.front - s.centre).normalized();
+  for (int v : eye.vertices) {
+    const Eigen::Vector3d d = (vec3(region.state.model_positions, v) - s.centre).normalized();
+    degrees.push_back(std::acos(std::clamp(d.dot(a), -1.0, 1.0)) * 180.0 / M_PI);
+    albedo.push_back(vec3(region.state.albedo, v));
+  }
+  s.profile = make_profile(degrees, albedo);
+
+  int row_min = g.height, row_max = -1;
+  for (int j = 0; j < g.height; ++j) {
+    for (int i = 0; i < g.width; ++i) {
+      const size_t p = static_cast<size_t>(j) * g.width + i;
+      if (g.triangle[p] < 0) continue;
+      bool on_eye = true;
+      for (int k = 0; k < 3; ++k) on_eye = on_eye && rm.vertex_part[g.vertices[3 * p + k]] == eye.part;
+      if (!on_eye) continue;
+      const Eigen::Vector3d x(g.position[3 * p], g.position[3 * p + 1], g.position[3 * p + 2]);
+      const Eigen::Vector3d position = R.transpose() * (x - t);
+      const Eigen::Vector3f n(g.normal[3 * p], g.normal[3 * p + 1], g.normal[3 * p + 2]);
+      const auto y = gpu::sh_basis(n);
+      Eigen::Vector3d irr;
+      for (int ch3 = 0; ch3 < 3; ++ch3) {
+        double sum = 0;
+        for (int q = 0; q < gpu::kNumShCoefficients; ++q) sum += at.gamma[ch3 * 9 + q] * y[q];
+        irr[ch3] = sum;
+      }
+      const Eigen::Vector3d input = sample(i, j);
+      if (!position.allFinite() || !irr.allFinite() || !input.allFinite()) continue;
+      s.pixels.push_back({position, irr, input, i, j, false});
+      row_min = std::min(row_min, j), row_max = std::max(row_max, j);
+    }
+  }
+  *opening_rows = row_max - row_min + 1;
+  // The lids around the eyeball: face pixels within 2 px of one of its pixels.
+  std::vector<double> channel[3];
+  const int face = static_cast<int>(FacePart::Face);
+  auto part_at = [&](int i, int j) {
+    const size_t p = static_cast<size_t>(j) * g.width + i;
+    return g.triangle[p] < 0 ? -1 : static_cast<int>(rm.vertex_part[g.vertices[3 * p]]);
+  };
+  for (int j = 0; j < g.height; ++j) {
+    for (int i = 0; i < g.width; ++i) {
+      if (part_at(i, j) != face) continue;
+      bool near_eye = false;
+      for (int dj = -2; dj <= 2 && !near_eye; ++dj)
+        for (int di = -2; di <= 2 && !near_eye; ++di) {
+          const int ii = i + di, jj = j + dj;
+          near_eye = ii >= 0 && jj >= 0 && ii < g.width && jj < g.height && part_at(ii, jj) == eye.part;
+        }
+      if (!near_eye) continue;
+      const Eigen::Vector3d input = sample(i, j);
+      for (int c3 = 0; c3 < 3; ++c3)
+        if (std::isfinite(input[c3])) channel[c3].push_back(input[c3]);
+    }
+  }
+  for (int c3 = 0; c3 < 3; ++c3) {
+    auto& v = channel[c3];
+    if (v.empty()) {
+      s.skin[c3] = std::numeric_limits<double>::quiet_NaN();  // no lid seen: every pixel is eyeball
+      continue;
+    }
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    s.skin[c3] = v[v.size() / 2];
+  }
+  // A pixel the fit puts on the eyeball may show lid in the image: a squint or a blink the
+  // solve did not read (on a smiling synthetic actor the rendered openings were a third taller
+  // than the real ones). A pixel nearer the lid's colour than any colour of the eyeball (pupil,
+  // iris, sclera under that pixel's shading) looks like the lid.
+  if (s.skin.allFinite()) {
+    for (EyePixel& px : s.pixels) {
+      double eyeball = std::numeric_limits<double>::infinity();
+      for (const Eigen::Vector3d& alb : s.profile.bin)
+        eyeball = std::min(eyeball, (alb.cwiseProduct(px.irradiance) - px.input).squaredNorm());
+      px.looks_like_lid = (s.skin - px.input).squaredNorm() < eyeball;
+    }
+  }
+  return "";
+}
+
+// One search: the face rendered with the gaze (h0, v0), candidates within `half` of (ch, cv).
+GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, const InputFrame& frame,
+                                          const gpu::FaceParameters& fit, float h0, float v0, double ch, double cv,
+                                          double half, const GazeOptions& options) const {
+  Pass out;
+  gpu::FaceParameters at = fit;
+  const auto rendered = WeightsFor(h0, v0);
+  for (const Weight& wt : rendered) at.delta[wt.index] = wt.value;
+  const EyeRegion region = RenderEyeRegion(renderer, frame, at);
+  if (!region.message.empty()) {
+    out.message = region.message;
+    return out;
+  }
   std::array<EyeState, 2> eyes;
   for (int e = 0; e < 2; ++e) {
-    const Eye& eye = eyes_[e];
     EyeState& s = eyes[e];
-    // The centre of the rendered eyeball (turned by (h0, v0)), and its front.
-    s.centre = centroid(state.model_positions, eye.vertices);
-    s.front.setZero();
-    for (int v : eye.front) s.front += vec3(state.model_positions, v);
-    s.front /= static_cast<double>(eye.front.size());
-    if (!((s.front - s.centre).norm() > 0)) {
-      out.message = "degenerate eyeball";
+    int rows = 0;
+    const std::string why = ReadEye(region, frame, at, e, &s, &rows);
+    if (!why.empty()) {
+      out.message = why;
       return out;
     }
-    std::vector<double> degrees;
-    std::vector<Eigen::Vector3d> albedo;
-    const Eigen::Vector3d a = (s.front - s.centre).normalized();
-    for (int v : eye.vertices) {
-      const Eigen::Vector3d d = (vec3(state.model_positions, v) - s.centre).normalized();
-      degrees.push_back(std::acos(std::clamp(d.dot(a), -1.0, 1.0)) * 180.0 / M_PI);
-      albedo.push_back(vec3(state.albedo, v));
-    }
-    s.profile = make_profile(degrees, albedo);
-
-    int row_min = g.height, row_max = -1;
-    for (int j = 0; j < g.height; ++j) {
-      for (int i = 0; i < g.width; ++i) {
-        const size_t p = static_cast<size_t>(j) * g.width + i;
-        if (g.triangle[p] < 0) continue;
-        bool on_eye = true;
-        for (int k = 0; k < 3; ++k) on_eye = on_eye && rm.vertex_part[g.vertices[3 * p + k]] == eye.part;
-        if (!on_eye) continue;
-        const Eigen::Vector3d x(g.position[3 * p], g.position[3 * p + 1], g.position[3 * p + 2]);
-        const Eigen::Vector3d position = R.transpose() * (x - t);
-        const Eigen::Vector3f n(g.normal[3 * p], g.normal[3 * p + 1], g.normal[3 * p + 2]);
-        const auto y = gpu::sh_basis(n);
-        Eigen::Vector3d irr;
-        for (int ch3 = 0; ch3 < 3; ++ch3) {
-          double sum = 0;
-          for (int q = 0; q < gpu::kNumShCoefficients; ++q) sum += fit.gamma[ch3 * 9 + q] * y[q];
-          irr[ch3] = sum;
-        }
-        const Eigen::Vector3d input = sample(i, j);
-        if (!position.allFinite() || !irr.allFinite() || !input.allFinite()) continue;
-        s.pixels.push_back({position, irr, input});
-        row_min = std::min(row_min, j), row_max = std::max(row_max, j);
-      }
-    }
-
     const int rendered_eye_pixels = static_cast<int>(s.pixels.size());
-    out.opening_rows = std::max(out.opening_rows, row_max - row_min + 1);
-    // The lids around the eyeball: face pixels within 2 px of one of its pixels.
-    std::vector<double> channel[3];
-    const int face = static_cast<int>(FacePart::Face);
-    auto part_at = [&](int i, int j) {
-      const size_t p = static_cast<size_t>(j) * g.width + i;
-      return g.triangle[p] < 0 ? -1 : static_cast<int>(rm.vertex_part[g.vertices[3 * p]]);
-    };
-    for (int j = 0; j < g.height; ++j) {
-      for (int i = 0; i < g.width; ++i) {
-        if (part_at(i, j) != face) continue;
-        bool near_eye = false;
-        for (int dj = -2; dj <= 2 && !near_eye; ++dj)
-          for (int di = -2; di <= 2 && !near_eye; ++di) {
-            const int ii = i + di, jj = j + dj;
-            near_eye = ii >= 0 && jj >= 0 && ii < g.width && jj < g.height && part_at(ii, jj) == eye.part;
-          }
-        if (!near_eye) continue;
-        const Eigen::Vector3d input = sample(i, j);
-        for (int c3 = 0; c3 < 3; ++c3)
-          if (std::isfinite(input[c3])) channel[c3].push_back(input[c3]);
-      }
-    }
-    for (int c3 = 0; c3 < 3; ++c3) {
-      auto& v = channel[c3];
-      if (v.empty()) {
-        s.skin[c3] = std::numeric_limits<double>::quiet_NaN();  // no lid seen: every pixel is eyeball
-        continue;
-      }
-      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-      s.skin[c3] = v[v.size() / 2];
-    }
-    // A pixel the fit puts on the eyeball may show lid in the image: a squint or a blink the
-    // solve did not read (on a smiling synthetic actor the rendered openings were a third taller
-    // than the real ones). A pixel nearer the lid's colour than any colour of the eyeball (pupil,
-    // iris, sclera under that pixel's shading) is left out. Kept, such pixels read as an iris
-    // turned down into them (eyeLookDown 0.8-1.0 on every frame); costed as the lesser of eyeball
-    // and lid per candidate, they biased every vertical reading downwards.
-    if (s.skin.allFinite()) {
-      std::vector<EyePixel> kept;
-      for (const EyePixel& px : s.pixels) {
-        double eyeball = std::numeric_limits<double>::infinity();
-        for (const Eigen::Vector3d& a : s.profile.bin)
-          eyeball = std::min(eyeball, (a.cwiseProduct(px.irradiance) - px.input).squaredNorm());
-        if (!((s.skin - px.input).squaredNorm() < eyeball)) kept.push_back(px);
-      }
-      s.pixels.swap(kept);
-    }
+    out.opening_rows = std::max(out.opening_rows, rows);
+    // Pixels that look like the lid are left out. Kept, they read as an iris turned down into
+    // them (eyeLookDown 0.8-1.0 on every frame); costed as the lesser of eyeball and lid per
+    // candidate, they biased every vertical reading downwards.
+    s.pixels.erase(std::remove_if(s.pixels.begin(), s.pixels.end(), [](const EyePixel& px) { return px.looks_like_lid; }),
+                   s.pixels.end());
+    // An eye too small to say anything counts as open.
+    out.open_fraction[e] = rendered_eye_pixels >= options.min_eye_pixels
+                               ? static_cast<double>(s.pixels.size()) / rendered_eye_pixels
+                               : 1.0;
     out.rendered_pixels += rendered_eye_pixels;
     out.pixels += static_cast<int>(s.pixels.size());
   }
@@ -412,8 +469,117 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   return out;
 }
 
+bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame& frame, const gpu::FaceParameters& fit,
+                             const GazeOptions& options, GazeReading* reading) const {
+  if (blink_[0] < 0 || blink_[1] < 0) {
+    reading->lids_message = "the model has no eyeBlink blendshapes";
+    return false;
+  }
+  const auto& rm = model_->render;
+  // The eyes rendered open: each pixel of the opening looks like eyeball or like lid.
+  gpu::FaceParameters open_at = fit;
+  open_at.delta[blink_[0]] = 0.f;
+  open_at.delta[blink_[1]] = 0.f;
+  const EyeRegion open = RenderEyeRegion(renderer, frame, open_at);
+  if (!open.message.empty()) {
+    reading->lids_message = open.message;
+    return false;
+  }
+  const size_t crop_pixels = open.g.triangle.size();
+  std::array<std::vector<int8_t>, 2> seen;  // per crop pixel: -1 no eyeball open, 0 lid, 1 eyeball
+  std::array<int, 2> open_pixels{};
+  std::array<bool, 2> readable{};
+  for (int e = 0; e < 2; ++e) {
+    EyeState s;
+    int rows = 0;
+    const std::string why = ReadEye(open, frame, open_at, e, &s, &rows);
+    if (!why.empty()) {
+      reading->lids_message = why;
+      return false;
+    }
+    seen[e].assign(crop_pixels, -1);
+    int eyeball = 0;
+    for (const EyePixel& px : s.pixels) {
+      seen[e][static_cast<size_t>(px.j) * open.g.width + px.i] = px.looks_like_lid ? 0 : 1;
+      eyeball += px.looks_like_lid ? 0 : 1;
+    }
+    open_pixels[e] = static_cast<int>(s.pixels.size());
+    reading->open_fraction[e] = open_pixels[e] > 0 ? static_cast<double>(eyeball) / open_pixels[e] : 0.0;
+    // Without lid colour around it no pixel can look like lid; an eye this small says nothing.
+    readable[e] = s.skin.allFinite() && open_pixels[e] >= options.min_eye_pixels;
+  }
+  if (!readable[0] && !readable[1]) {
+    reading->lids_message = "the open eyes show too few pixels, or no lid around them";
+    return false;
+  }
+  // Per candidate weight (both lids at it), per eye: the pixels where the render and the marks
+  // disagree (the render shows eyeball where the image shows lid or the open render none, or
+  // hides eyeball the image shows), as a fraction of the open eye's pixels.
+  // The candidates move only the vertices the eyeBlink blendshapes move, and only which pixels
+  // show eyeball matters: the open render's vertices with those moved, rasterised into the same
+  // crop (no model evaluation, normals or shading).
+  // The weights are tried from 0 up while the disagreement falls for some eye (it has one
+  // minimum): an open eye the fit misplaces (a third of its pixels looking like lid is common
+  // with dlib's landmarks) is settled after the first closed candidate.
+  const int steps = options.lid_steps;
+  std::vector<std::array<double, 2>> cost(static_cast<size_t>(steps));
+  const Eigen::Matrix3f R = gpu::rotation_from_euler(open_at.euler);
+  gpu::VertexState shut = open.state;
+  gpu::GBuffer shut_g;
+  int tried = 0;
+  for (int k = 0; k < steps; ++k) {
+    if (k >= 2) {
+      bool falling = false;
+      for (int e = 0; e < 2; ++e)
+        falling = falling || (readable[e] && cost[static_cast<size_t>(k - 1)][e] <= cost[static_cast<size_t>(k - 2)][e]);
+      if (!falling) break;
+    }
+    tried = k + 1;
+    const float b = static_cast<float>(k) / static_cast<float>(steps - 1);
+    if (k > 0) {
+      for (const LidVertex& lv : lid_vertices_) {
+        const Eigen::Vector3f x = open.state.model_positions.segment<3>(3 * lv.vertex) + b * lv.offset;
+        shut.camera_positions.segment<3>(3 * lv.vertex) = R * x + open_at.translation;
+      }
+      renderer.rasterize(shut, open.crop, kTrackedParts, &shut_g);
+    }
+    const gpu::GBuffer& g = k > 0 ? shut_g : open.g;
+    for (int e = 0; e < 2; ++e) {
+      if (!readable[e]) continue;
+      const int part = eyes_[e].part;
+      int disagree = 0;
+      for (size_t p = 0; p < g.triangle.size(); ++p) {
+        bool shown = g.triangle[p] >= 0;
+        for (int q = 0; q < 3 && shown; ++q) shown = rm.vertex_part[g.vertices[3 * p + q]] == part;
+        if (shown != (seen[e][p] == 1)) ++disagree;
+      }
+      cost[static_cast<size_t>(k)][e] = static_cast<double>(disagree) / open_pixels[e];
+    }
+  }
+  for (int e = 0; e < 2; ++e) {
+    if (!readable[e]) {
+      reading->blink[e] = fit.delta[blink_[e]];
+      continue;
+    }
+    int best = 0;
+    for (int k = 1; k < tried; ++k)
+      if (cost[static_cast<size_t>(k)][e] < cost[static_cast<size_t>(best)][e]) best = k;
+    // Between the grid's weights: the vertex of the parabola through the best and its neighbours.
+    double x = best;
+    if (best > 0 && best + 1 < tried) {
+      const double c0 = cost[static_cast<size_t>(best - 1)][e], c1 = cost[static_cast<size_t>(best)][e],
+                   c2 = cost[static_cast<size_t>(best + 1)][e];
+      const double curvature = c0 - 2 * c1 + c2;
+      if (curvature > 0) x += std::clamp(0.5 * (c0 - c2) / curvature, -0.5, 0.5);
+    }
+    reading->blink[e] = static_cast<float>(std::clamp(x / (steps - 1), 0.0, 1.0));
+  }
+  reading->lids_read = true;
+  return true;
+}
+
 GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFrame& frame, gpu::FaceParameters* params,
-                                const GazeOptions& options) const {
+                                const GazeOptions& options, bool lids_fit) const {
   const auto t0 = Clock::now();
   GazeReading out;
   auto done = [&](const std::string& message) {
@@ -433,7 +599,25 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   // First over the whole range with the eyes rendered straight ahead (exactly the model's
   // spheres), then around that reading with the eyes rendered turned: the eyeLook blendshapes
   // move the lids a little too, and the second render has them where the reading puts them.
-  const Pass first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
+  Pass first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
+  // The lids first, where the fit's opening shows lid or the fit has an eye closed: the gaze is
+  // then read in the opening they leave.
+  if (options.read_lids && !frame.has_depth()) {
+    out.lids_message = "no depth: the lids are read on RGB-D frames only";
+  } else if (options.read_lids && !lids_fit) {
+    out.lids_message = "the fit does not place the eyes well enough for the lids (no depth or no calibration)";
+  } else if (options.read_lids && blink_[0] >= 0 && blink_[1] >= 0) {
+    bool look = false;
+    for (int e = 0; e < 2; ++e)
+      look = look || (first.rendered_pixels > 0 && first.open_fraction[e] < options.lids_below_open_fraction) ||
+             fit.delta[blink_[e]] > options.lids_from_weight;
+    if (look && ReadLids(renderer, frame, fit, options, &out)) {
+      fit.delta[blink_[0]] = out.blink[0];
+      fit.delta[blink_[1]] = out.blink[1];
+      params->delta = fit.delta;
+      first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
+    }
+  }
   out.pixels = first.pixels;
   out.eyeball_pixels = first.rendered_pixels;
   if (!first.ok) return done(first.message);
