@@ -93,6 +93,28 @@ std::vector<nlohmann::json> read_lines(const fs::path& p) {
   return out;
 }
 
+// A recording performed from the keyframe `script` (synth --script) into dir/rec.
+SubprocessResult synth_scripted(const fs::path& dir, const std::string& script, const std::string& seed, int frames,
+                                const std::string& size) {
+  std::ofstream(dir / "script.json") << script;
+  return run_subprocess({cli(), "synth", "--seed", seed, "--script", (dir / "script.json").string(), "--frames",
+                         std::to_string(frames), "--size", size, "--out", (dir / "rec").string(), "--model", model(),
+                         "--wheel", wheel_path(), "--device", "llvmpipe", "--quiet"});
+}
+
+// `track` of dir/rec on its stored landmarks, calibrated on 2 frames, with `extra` arguments:
+// the report and the parameter lines (files named `name`).
+std::pair<nlohmann::json, std::vector<nlohmann::json>> track_stored(const fs::path& dir, const std::string& name,
+                                                                    const std::vector<std::string>& extra) {
+  std::vector<std::string> args = {cli(), "track", "--input", (dir / "rec").string(), "--out",
+                                    (dir / (name + ".jsonl")).string(), "--report", (dir / (name + ".json")).string(),
+                                    "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
+  args.insert(args.end(), extra.begin(), extra.end());
+  const SubprocessResult r = run_subprocess(args);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  return {read_json(dir / (name + ".json")), read_lines(dir / (name + ".jsonl"))};
+}
+
 TEST(TrackCli, TracksASyntheticRecordingEndToEnd) {
   REQUIRE_FIXTURE();
   const fs::path out = fx.dir / "e2e";
@@ -265,25 +287,15 @@ TEST(TrackCli, ReadsTheGazeOfAnActorLookingAside) {
   REQUIRE_FIXTURE();
   const fs::path out = fx.dir / "gaze";
   fs::create_directories(out);
-  std::ofstream(out / "look.json")
-      << R"({"keyframes": [
+  const SubprocessResult synth = synth_scripted(out, R"({"keyframes": [
            {"time": 0.0, "expression": {"eyeLookOutLeft": 0.5, "eyeLookInRight": 0.5},
             "head": {"yaw_deg": -6, "translation": [0, -0.02, 0.65]}},
-           {"time": 0.2, "expression": {"eyeLookOutLeft": 0.5, "eyeLookInRight": 0.5}, "head": {"yaw_deg": 4}}]})";
-  const SubprocessResult synth = run_subprocess({cli(), "synth", "--seed", "4711", "--script", (out / "look.json").string(),
-                                                 "--frames", "5", "--size", "640x480", "--out", (out / "rec").string(),
-                                                 "--model", model(), "--wheel", wheel_path(), "--device", "llvmpipe",
-                                                 "--quiet"});
+           {"time": 0.2, "expression": {"eyeLookOutLeft": 0.5, "eyeLookInRight": 0.5}, "head": {"yaw_deg": 4}}]})",
+                                                "4711", 5, "640x480");
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
   const int out_left = arkit_blendshape_index("eyeLookOutLeft"), in_right = arkit_blendshape_index("eyeLookInRight");
   auto track = [&](const std::string& name, bool gaze) {
-    std::vector<std::string> args = {cli(), "track", "--input", (out / "rec").string(), "--out",
-                                      (out / (name + ".jsonl")).string(), "--report", (out / (name + ".json")).string(),
-                                      "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
-    if (!gaze) args.push_back("--no-gaze");
-    const SubprocessResult r = run_subprocess(args);
-    EXPECT_EQ(r.exit_code, 0) << r.output;
-    return std::make_pair(read_json(out / (name + ".json")), read_lines(out / (name + ".jsonl")));
+    return track_stored(out, name, gaze ? std::vector<std::string>{} : std::vector<std::string>{"--no-gaze"});
   };
   const auto [report, frames] = track("on", true);
   EXPECT_EQ(report["gaze"], true);
@@ -312,26 +324,16 @@ TEST(TrackCli, ReadsTheLidsOfAnActorClosingTheEyes) {
   REQUIRE_FIXTURE();
   const fs::path out = fx.dir / "lids";
   fs::create_directories(out);
-  std::ofstream(out / "shut.json")
-      << R"({"keyframes": [
+  const SubprocessResult synth = synth_scripted(out, R"({"keyframes": [
            {"time": 0.0, "expression": {}, "head": {"yaw_deg": -6, "translation": [0, -0.02, 0.65]}},
            {"time": 0.04, "expression": {}},
            {"time": 0.06, "expression": {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}},
-           {"time": 0.2, "expression": {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}, "head": {"yaw_deg": 4}}]})";
-  const SubprocessResult synth = run_subprocess({cli(), "synth", "--seed", "4711", "--script", (out / "shut.json").string(),
-                                                 "--frames", "5", "--size", "640x480", "--out", (out / "rec").string(),
-                                                 "--model", model(), "--wheel", wheel_path(), "--device", "llvmpipe",
-                                                 "--quiet"});
+           {"time": 0.2, "expression": {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}, "head": {"yaw_deg": 4}}]})",
+                                                "4711", 5, "640x480");
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
   const int left = arkit_blendshape_index("eyeBlinkLeft"), right = arkit_blendshape_index("eyeBlinkRight");
   auto track = [&](const std::string& name, bool lids) {
-    std::vector<std::string> args = {cli(), "track", "--input", (out / "rec").string(), "--out",
-                                      (out / (name + ".jsonl")).string(), "--report", (out / (name + ".json")).string(),
-                                      "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
-    if (!lids) args.push_back("--no-lids");
-    const SubprocessResult r = run_subprocess(args);
-    EXPECT_EQ(r.exit_code, 0) << r.output;
-    return std::make_pair(read_json(out / (name + ".json")), read_lines(out / (name + ".jsonl")));
+    return track_stored(out, name, lids ? std::vector<std::string>{} : std::vector<std::string>{"--no-lids"});
   };
   const auto [report, frames] = track("on", true);
   EXPECT_EQ(report["lids"], true);
@@ -359,16 +361,12 @@ TEST(TrackCli, CalibrationWhileSmilingIsReported) {
   REQUIRE_FIXTURE();
   const fs::path out = fx.dir / "smiling";
   fs::create_directories(out);
-  std::ofstream(out / "smile.json")
-      << R"({"keyframes": [
+  const SubprocessResult synth = synth_scripted(out, R"({"keyframes": [
            {"time": 0.0, "expression": {"mouthSmileLeft": 1, "mouthSmileRight": 1, "cheekSquintLeft": 0.5,
                                         "cheekSquintRight": 0.5}, "head": {"yaw_deg": -8}},
            {"time": 0.2, "expression": {"mouthSmileLeft": 1, "mouthSmileRight": 1, "cheekSquintLeft": 0.5,
-                                        "cheekSquintRight": 0.5}, "head": {"yaw_deg": 8}}]})";
-  const SubprocessResult synth = run_subprocess({cli(), "synth", "--seed", "7331", "--script", (out / "smile.json").string(),
-                                                 "--frames", "4", "--size", "320x240", "--out", (out / "rec").string(),
-                                                 "--model", model(), "--wheel", wheel_path(), "--device", "llvmpipe",
-                                                 "--quiet"});
+                                        "cheekSquintRight": 0.5}, "head": {"yaw_deg": 8}}]})",
+                                                "7331", 4, "320x240");
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
   const SubprocessResult r = run_subprocess({cli(), "track", "--input", (out / "rec").string(), "--out",
                                              (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
