@@ -145,15 +145,16 @@ void run_bench_track(const TrackBenchArgs& a) {
     const GazeEstimator gaze(model);
     const GazeOptions options;
     double ms = 0;
-    int readings = 0;
+    int readings = 0, lids = 0;
     for (size_t f = 1; f < frames.size(); ++f) {
       gpu::FaceParameters p = truths[f];
       const GazeReading r = gaze.Read(solver.renderer(), frames[f], &p, options);
       ms += r.ms;
       readings += r.ok;
+      lids += r.lids_read;
     }
     const double n = std::max<double>(1.0, static_cast<double>(frames.size()) - 1);
-    doc["gaze"] = {{"ms_per_frame", ms / n}, {"readings", readings}};
+    doc["gaze"] = {{"ms_per_frame", ms / n}, {"frames", frames.size() - 1}, {"readings", readings}, {"lids_readings", lids}};
   }
   add_vulkan_track_bench(model, frames, truths[0], layout, a.vulkan, &doc);
   if (a.json) {
@@ -187,8 +188,9 @@ void run_bench_track(const TrackBenchArgs& a) {
               "(synthesis %.0f, analysis %.0f)\n",
               int(c["frames"]), int(c["unknowns"]), int(c["gauss_newton"]), double(c["residuals"]), double(c["total_ms"]),
               double(c["synthesis_ms"]), double(c["analysis_ms"]));
-  std::printf("gaze (CPU, after each solve): %.2f ms per frame (%d of %d frames read)\n", double(doc["gaze"]["ms_per_frame"]),
-              int(doc["gaze"]["readings"]), a.frames);
+  std::printf("gaze and lids (CPU, after each solve): %.2f ms per frame (gaze read on %d of %d frames, lids on %d)\n",
+              double(doc["gaze"]["ms_per_frame"]), int(doc["gaze"]["readings"]), int(doc["gaze"]["frames"]),
+              int(doc["gaze"]["lids_readings"]));
   print_vulkan_track_bench(doc);
 }
 
