@@ -3,7 +3,8 @@
 // Linearisation, per pixel of the pyramid level (energy.cc: Linearize): a pixel counts when the
 // render covers it and the input has depth there (or the frame has none); it carries the
 // geometric terms when |X_S - X_I| <= max_point_distance and the plane terms also when N_I
-// exists and N_S . N_I >= min_normal_dot. Carrying pixels are compacted into items with an
+// exists and N_S . N_I >= min_normal_dot; a colour pixel gets its robust weight. Carrying pixels
+// are compacted into items with an
 // atomic counter (order is arbitrary; every later pass is order-independent up to rounding).
 layout(local_size_x = 64) in;
 #include "tracker_common.glsl"
@@ -12,8 +13,9 @@ layout(std430, set = 0, binding = 0) readonly buffer GPosition { vec4 g_position
 layout(std430, set = 0, binding = 1) readonly buffer GNormal { vec4 g_normal[]; };
 layout(std430, set = 0, binding = 2) readonly buffer GBary { vec4 g_bary[]; };
 layout(std430, set = 0, binding = 3) readonly buffer GIds { uvec4 g_ids[]; };
-layout(std430, set = 0, binding = 4) readonly buffer Input { vec4 input_data[]; };  // point, normal, colour per pixel
+layout(std430, set = 0, binding = 4) readonly buffer Input { vec4 input_data[]; };  // kInputVec4sPerPixel per pixel
 layout(std430, set = 0, binding = 5) writeonly buffer Items { uint items[]; };
+layout(std430, set = 0, binding = 7) readonly buffer GColor { vec4 g_color[]; };  // C_S, the rendered shaded colour
 layout(std430, set = 0, binding = 6) buffer Counters {
   uint pixel_count;
   uint num_point;
@@ -27,6 +29,7 @@ layout(std430, set = 0, binding = 6) buffer Counters {
 layout(push_constant) uniform Push {
   uint width, height, has_depth, use_point, use_plane, use_color;
   float max_point_distance, min_normal_dot;
+  float color_robust_threshold;  // EnergyOptions::color_robust_threshold (0 = off)
 } pc;
 
 void main() {
@@ -34,8 +37,8 @@ void main() {
   if (p >= pc.width * pc.height) return;
   const uvec4 ids = g_ids[p];
   if (ids.x == 0u) return;
-  const vec4 input_point = input_data[3 * p];
-  const vec4 input_normal = input_data[3 * p + 1];
+  const vec4 input_point = input_data[kInputVec4sPerPixel * p];
+  const vec4 input_normal = input_data[kInputVec4sPerPixel * p + 1u];
   if (pc.has_depth != 0u && input_point.w == 0.0) return;
   bool point = false, plane = false;
   const bool color = pc.use_color != 0u;
@@ -61,4 +64,12 @@ void main() {
   items[base + 5] = floatBitsToUint(b.x);
   items[base + 6] = floatBitsToUint(b.y);
   items[base + 7] = floatBitsToUint(b.z);
+  // The robust colour weight (energy.cc, RobustColorWeight), frozen for this linearisation.
+  float weight = 1.0;
+  if (color && pc.color_robust_threshold > 0.0) {
+    const vec3 d = g_color[p].xyz - input_data[kInputVec4sPerPixel * p + 2u].xyz;
+    const float difference = sqrt(dot(d, d));
+    if (difference > pc.color_robust_threshold) weight = pc.color_robust_threshold / difference;
+  }
+  items[base + 8] = floatBitsToUint(weight);
 }

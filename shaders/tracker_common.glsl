@@ -23,8 +23,13 @@ struct TrackParams {
   float pad1, pad2;
 };
 
+// The level's input per pixel (vulkan_solver.cc, prepare_level): point (w = valid depth), normal
+// (w = exists), colour, and the colour's gradient along u and along v (EnergyOptions::
+// color_follows_projection; zero when off).
+const uint kInputVec4sPerPixel = 5u;
+
 // A pixel that carries at least one term (written by tracker_classify.comp).
-const uint kPixelItemWords = 8;  // pixel, flags, v0, v1, v2, b0, b1, b2
+const uint kPixelItemWords = 9;  // pixel, flags, v0, v1, v2, b0, b1, b2, colour weight
 const uint kFlagPoint = 1u, kFlagPlane = 2u, kFlagColor = 4u;
 const uint kRowsPerPixel = 8u;
 

@@ -2,7 +2,8 @@
 #extension GL_GOOGLE_include_directive : require
 // Residuals r and (mode 1) the dense Jacobian J, one invocation per item, exactly the energy of
 // core/tracker/src/energy.cc (EvaluateResiduals) in float:
-//   items [0, P)          pixels: rows 8i..8i+7 = point (3), plane (2), colour (3); a term the
+//   items [0, P)          pixels: rows 8i..8i+7 = point (3), plane (2), colour (3, read through
+//                         the projection: EnergyOptions::color_follows_projection); a term the
 //                         pixel does not carry has zero rows (they add nothing to E, J^T J, J^T r)
 //   items [P, P + L)      landmarks: 2 rows each, after the pixel rows
 //   items [P + L, ... R)  regulariser: 1 row each (identity, albedo if shared, then expression)
@@ -118,14 +119,17 @@ void evaluate_pixel(uint item, inout float e[5]) {
     n_bar += b[k] * n_model[k];
   }
   const vec3 xs_point = r * v_bar + t;
-  const vec3 input_point = input_data[3u * pixel].xyz;
-  const vec3 input_normal = input_data[3u * pixel + 1u].xyz;
-  const vec3 input_color = input_data[3u * pixel + 2u].xyz;
+  const vec3 input_point = input_data[kInputVec4sPerPixel * pixel].xyz;
+  const vec3 input_normal = input_data[kInputVec4sPerPixel * pixel + 1u].xyz;
+  const vec3 input_color = input_data[kInputVec4sPerPixel * pixel + 2u].xyz;
+  const vec3 grad_u = input_data[kInputVec4sPerPixel * pixel + 3u].xyz;
+  const vec3 grad_v = input_data[kInputVec4sPerPixel * pixel + 4u].xyz;
   const bool has_point = (flags & kFlagPoint) != 0u, has_plane = (flags & kFlagPlane) != 0u;
   const bool has_color = (flags & kFlagColor) != 0u;
   const float sp = has_point ? params.s_point : 0.0;
   const float spl = has_plane ? params.s_plane : 0.0;
-  const float sc = has_color ? params.s_col : 0.0;
+  // The colour rows scaled by the square root of the pixel's robust weight (classify).
+  const float sc = has_color ? params.s_col * sqrt(uintBitsToFloat(items[base_word + 8u])) : 0.0;
   const vec3 diff = (has_point || has_plane) ? xs_point - input_point : vec3(0.0);
   const float n_len = length(n_bar);
   const vec3 n_m = n_len > 0.0 ? n_bar / n_len : vec3(0.0);
@@ -145,6 +149,15 @@ void evaluate_pixel(uint item, inout float e[5]) {
     }
     color += b[k] * albedo[k] * irradiance[k];
   }
+  // Colour through the projection (EnergyOptions::color_follows_projection): the input colour
+  // where X_S projects, to first order around the pixel, C_I + grad_u du + grad_v dv; the
+  // projection's 2 x 3 derivative rows dproj_u, dproj_v turn a motion of X_S into (du, dv).
+  const float iz = 1.0 / xs_point.z;
+  const vec3 dproj_u = vec3(params.fx * iz, 0.0, -params.fx * xs_point.x * iz * iz);
+  const vec3 dproj_v = vec3(0.0, params.fy * iz, -params.fy * xs_point.y * iz * iz);
+  const vec2 shift = vec2(params.fx * xs_point.x * iz + params.cx - float(pixel % params.width),
+                          params.fy * xs_point.y * iz + params.cy - float(pixel / params.width));
+  color -= grad_u * shift.x + grad_v * shift.y;
   if (!has_color) color = input_color;
 
   float rv[8];
@@ -172,7 +185,8 @@ void evaluate_pixel(uint item, inout float e[5]) {
     for (uint c = 0u; c < 3u; ++c) put(row0 + c, col, sp * dx[c]);
     put(row0 + 3u, col, spl * dot(input_normal, dx));
     put(row0 + 4u, col, spl * dot(n_s, dx));
-    for (uint c = 0u; c < 3u; ++c) put(row0 + 5u + c, col, 0.0);
+    const vec3 dmoved = -sc * (grad_u * dot(dproj_u, dx) + grad_v * dot(dproj_v, dx));
+    for (uint c = 0u; c < 3u; ++c) put(row0 + 5u + c, col, dmoved[c]);
   }
   // Albedo columns: dC_c = sum_k b_k irradiance_kc E_alb[k, c](q).
   for (uint q = 0u; q < params.k_alb; ++q) {
@@ -211,6 +225,7 @@ void evaluate_pixel(uint item, inout float e[5]) {
         dcolor[ch] += b[k] * albedo[k][ch] * d_irr;
       }
     }
+    dcolor -= grad_u * dot(dproj_u, dx) + grad_v * dot(dproj_v, dx);
     for (uint c = 0u; c < 3u; ++c) put(row0 + 5u + c, col, sc * dcolor[c]);
   }
   // Translation columns.
@@ -221,7 +236,8 @@ void evaluate_pixel(uint item, inout float e[5]) {
     for (uint c = 0u; c < 3u; ++c) put(row0 + c, col, sp * dx[c]);
     put(row0 + 3u, col, spl * input_normal[a]);
     put(row0 + 4u, col, spl * n_s[a]);
-    for (uint c = 0u; c < 3u; ++c) put(row0 + 5u + c, col, 0.0);
+    const vec3 dmoved = -sc * (grad_u * dproj_u[a] + grad_v * dproj_v[a]);
+    for (uint c = 0u; c < 3u; ++c) put(row0 + 5u + c, col, dmoved[c]);
   }
 }
 

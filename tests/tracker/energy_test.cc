@@ -271,30 +271,36 @@ TEST(TrackerGradientCheck, CatchesAWrongDerivative) {
   const GradientCheckOptions opts;
   ASSERT_TRUE(CompareWithFiniteDifferences(f, s.x, j, layout, s.lin.term_rows, opts).ok);
 
-  // 1. The shading derivative forgotten: colour residuals treated as independent of rotation
-  //    (a classic mistake). Only colour x rotation may fail.
-  JacobianMatrix wrong = j;
-  const int rot = layout.offset(Block::kRotation);
+  // The colour rows' columns of `block` zeroed: the check fails there, and only there.
   const Eigen::Index c0 = s.lin.term_rows[static_cast<int>(Term::kColor)];
   const Eigen::Index c1 = s.lin.term_rows[static_cast<int>(Term::kColor) + 1];
-  wrong.block(c0, rot, c1 - c0, 3).setZero();
-  GradientCheckResult res = CompareWithFiniteDifferences(f, s.x, wrong, layout, s.lin.term_rows, opts);
-  EXPECT_FALSE(res.ok);
-  for (int t = 0; t < kNumTerms; ++t) {
-    for (int b = 0; b < kNumBlocks; ++b) {
-      const bool culprit = t == static_cast<int>(Term::kColor) && b == static_cast<int>(Block::kRotation);
-      if (culprit) {
-        EXPECT_GT(res.worst_error[t][b], 0.5) << res.report;
-      } else {
-        EXPECT_LE(res.worst_error[t][b], opts.tolerance) << res.report;
+  auto only_colour_columns_fail = [&](Block block) {
+    JacobianMatrix wrong = j;
+    wrong.block(c0, layout.offset(block), c1 - c0, 3).setZero();
+    const GradientCheckResult res = CompareWithFiniteDifferences(f, s.x, wrong, layout, s.lin.term_rows, opts);
+    EXPECT_FALSE(res.ok);
+    for (int t = 0; t < kNumTerms; ++t) {
+      for (int b = 0; b < kNumBlocks; ++b) {
+        if (t == static_cast<int>(Term::kColor) && b == static_cast<int>(block)) {
+          EXPECT_GT(res.worst_error[t][b], 0.5) << res.report;
+        } else {
+          EXPECT_LE(res.worst_error[t][b], opts.tolerance) << res.report;
+        }
       }
     }
-  }
-  // 2. A subtle one: one expression column of the point term off by 1%.
-  wrong = j;
+  };
+  // 1. The shading derivative forgotten: colour residuals treated as independent of rotation
+  //    (a classic mistake).
+  only_colour_columns_fail(Block::kRotation);
+  // 2. The colour's derivative through the projection forgotten (EnergyOptions::
+  //    color_follows_projection): colour rows treated as independent of the translation, which
+  //    they reach only through where the surface point projects.
+  only_colour_columns_fail(Block::kTranslation);
+  // 3. A subtle one: one expression column of the point term off by 1%.
+  JacobianMatrix wrong = j;
   const int exp0 = layout.offset(Block::kExpression) + 2;
   wrong.col(exp0).segment(0, s.lin.term_rows[1]) *= 1.01;
-  res = CompareWithFiniteDifferences(f, s.x, wrong, layout, s.lin.term_rows, opts);
+  const GradientCheckResult res = CompareWithFiniteDifferences(f, s.x, wrong, layout, s.lin.term_rows, opts);
   EXPECT_FALSE(res.ok);
   EXPECT_NEAR(res.worst_error[static_cast<int>(Term::kPoint)][static_cast<int>(Block::kExpression)], 0.01, 2e-3)
       << res.report;
@@ -363,6 +369,56 @@ TEST(TrackerEnergy, ExpressionPriorRowsAreEq11PlusReweightedL1) {
     EXPECT_EQ(j(row0 + k, o_exp + k), static_cast<float>(scale));  // J is stored in float, rounded once
     EXPECT_NEAR(r[row0 + k], scale * d, 1e-12);
   }
+}
+
+// Robust colour (EnergyOptions::color_robust_threshold): a pixel whose input shows a colour the
+// model cannot (a dark patch painted over the cheek: a hand, a shadow) keeps its rows with the
+// weight threshold / difference, frozen for the step; every other pixel keeps weight 1, and
+// with the threshold 0 every pixel does. At the truth the weighted colour energy of the patch
+// is what it would be with its difference capped at the threshold.
+TEST(TrackerEnergy, UnmatchableColoursAreDownWeighted) {
+  const SphereScene s;
+  InputFrame painted = s.frame;
+  const int w = painted.width();
+  auto in_patch = [&](int i, int j) { return i >= 70 && i < 90 && j >= 50 && j < 70; };
+  for (int j = 0; j < painted.height(); ++j) {
+    for (int i = 0; i < w; ++i) {
+      if (!in_patch(i, j)) continue;
+      for (int c = 0; c < 3; ++c) painted.color[3 * (static_cast<size_t>(j) * w + i) + c] *= 0.3f;
+    }
+  }
+  EnergyOptions eo;
+  eo.color_robust_threshold = 0.02;
+  const Linearization lin = s.solver.LinearizeAt(painted, s.layout, eo, s.truth);
+  int patch = 0;
+  double expected_energy = 0;
+  for (const PixelSample& px : lin.pixels) {
+    if (!px.color) continue;
+    const Eigen::Vector3d rendered(s.frame.color[3 * (static_cast<size_t>(px.j) * w + px.i)],
+                                   s.frame.color[3 * (static_cast<size_t>(px.j) * w + px.i) + 1],
+                                   s.frame.color[3 * (static_cast<size_t>(px.j) * w + px.i) + 2]);
+    const double difference = (rendered - px.input_color).norm();
+    if (in_patch(px.i, px.j)) {
+      ++patch;
+      ASSERT_GT(difference, 0.05);
+      EXPECT_NEAR(px.color_weight, 0.02 / difference, 1e-5 / difference);
+      expected_energy += 0.02 * difference;  // weight * difference^2
+    } else {
+      EXPECT_EQ(px.color_weight, 1.0);
+    }
+  }
+  ASSERT_GT(patch, 100);
+  Eigen::VectorXd r;
+  TermEnergies e;
+  EvaluateResiduals(s.model, lin, eo, s.layout.Pack(s.truth), &r, nullptr, &e);
+  EXPECT_NEAR(e[Term::kColor], eo.w_col * expected_energy / lin.num_color, 1e-3 * e[Term::kColor]);
+  eo.color_robust_threshold = 0;
+  for (const PixelSample& px : s.solver.LinearizeAt(painted, s.layout, eo, s.truth).pixels) EXPECT_EQ(px.color_weight, 1.0);
+  EXPECT_FALSE([] {
+    EnergyOptions bad;
+    bad.color_robust_threshold = -1;
+    return bad.IsValid(nullptr);
+  }());
 }
 
 // The pixel rows split over threads: r, J and the energies are bit-identical to one thread

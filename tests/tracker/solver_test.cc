@@ -261,19 +261,45 @@ TEST_F(TrackerSolverTest, ExpressionSparsityKeepsUnusedBlendshapesAtZero) {
   EXPECT_LT(sparse.mean_abs_error, quadratic.mean_abs_error + 0.02);
 }
 
-// With the geometry fixed by the correspondences, the colour term determines the lighting
-// (its derivative reaches pose only through the shading, nearly degenerate with rotating the
-// light), so it starts from the true shape and is judged on appearance.
+// With the correspondences held in the image as well (EnergyOptions::color_follows_projection
+// off), the colour term determines the lighting: its derivative reaches the pose only through the
+// shading, nearly degenerate with rotating the light, so it starts from the true shape and is
+// judged on appearance.
 TEST_F(TrackerSolverTest, ColorTermAloneRecoversLighting) {
   gpu::FaceParameters start = truth_;
   start.gamma = gpu::ambient_sh(Eigen::Vector3f(0.6f, 0.7f, 0.9f));
   const FitError before = fit_error(solver_->renderer(), start, truth_);
-  const FitError e = fit(single_term(Term::kColor), tracking(), start);
+  SolverOptions o = single_term(Term::kColor);
+  o.energy.color_follows_projection = false;
+  const FitError e = fit(o, tracking(), start);
   // Pose is left free and drifts along the rotation/lighting near-degeneracy; what the colour
   // term determines is the appearance.
   EXPECT_LT(e.color, 0.015);
   EXPECT_LT(e.color, before.color / 5);
-  EXPECT_LT(e.translation, 1e-6);  // the colour term has no translation derivative
+  EXPECT_LT(e.translation, 1e-6);  // the colour term has no translation derivative then
+}
+
+// Read through the projection (the default), the colour term sees a face that is shifted
+// against the image: alone, from a start 5 mm (about 5 pixels) off sideways, it moves the face
+// back onto the image (pose and lighting solved, the expression held at the truth as in the
+// landmark test). The distance is the one thing colour alone cannot tell (a face slightly nearer
+// looks the same, slightly larger), so the sideways offset is what is judged. With the
+// correspondences held in the image the colour term cannot move the face at all.
+TEST_F(TrackerSolverTest, ColorThroughTheProjectionAlignsAShiftedFace) {
+  gpu::FaceParameters start = truth_;
+  start.translation += Eigen::Vector3f(0.004f, -0.003f, 0.0f);
+  auto sideways = [&](const gpu::FaceParameters& p) { return (p.translation - truth_.translation).head<2>().norm(); };
+  SolverOptions o = single_term(Term::kColor);
+  o.schedule = {{2, 10, 4}, {1, 5, 4}};
+  gpu::FaceParameters moved;
+  const FitError e = fit(o, ParameterLayout::Tracking(0), start, nullptr, &moved);
+  std::cout << "sideways offset " << sideways(start) * 1000 << " -> " << sideways(moved) * 1000 << " mm\n";
+  EXPECT_LT(sideways(moved), 0.1 * sideways(start));
+  EXPECT_LT(e.rotation, 0.01);
+  o.energy.color_follows_projection = false;
+  gpu::FaceParameters held = start;
+  solver_->Solve(frame_, ParameterLayout::Tracking(0), o, &held);
+  EXPECT_NEAR((held.translation - truth_.translation).norm(), (start.translation - truth_.translation).norm(), 1e-6);
 }
 
 TEST_F(TrackerSolverTest, CalibrationRecoversIdentityAndAlbedo) {

@@ -178,6 +178,9 @@ bool EnergyOptions::IsValid(std::string* why) const {
   if (!(max_point_distance_m > 0)) return fail(why, "energy: max_point_distance_m must be positive");
   if (!(min_normal_dot >= -1 && min_normal_dot <= 1)) return fail(why, "energy: min_normal_dot must be in [-1, 1]");
   if (!(max_depth_jump_m > 0)) return fail(why, "energy: max_depth_jump_m must be positive");
+  if (!(color_robust_threshold >= 0) || !std::isfinite(color_robust_threshold)) {
+    return fail(why, "energy: color_robust_threshold must be finite and non-negative (0 = off)");
+  }
   if (!(landmark_occlusion_m > 0) || !std::isfinite(landmark_occlusion_m)) {
     return fail(why, "energy: landmark_occlusion_m must be positive");
   }
@@ -185,6 +188,22 @@ bool EnergyOptions::IsValid(std::string* why) const {
     return fail(why, "energy: every term is switched off");
   }
   return true;
+}
+
+bool ColorFollowsProjection(const EnergyOptions& options, const InputFrame& frame) {
+  return options.use_color && options.color_follows_projection && frame.has_depth();
+}
+
+double RobustColorWeight(const gpu::GBuffer& gbuffer, size_t pixel, const Eigen::Vector3d& input_color, double threshold) {
+  if (!(threshold > 0)) return 1.0;
+  // In float, as tracker_classify.comp computes it.
+  float sq = 0.f;
+  for (int c = 0; c < 3; ++c) {
+    const float d = gbuffer.color[3 * pixel + c] - static_cast<float>(input_color[c]);
+    sq += d * d;
+  }
+  const float difference = std::sqrt(sq), k = static_cast<float>(threshold);
+  return difference > k ? static_cast<double>(k / difference) : 1.0;
 }
 
 bool LandmarkVertexVisible(const Eigen::Vector3f& x, const gpu::GBuffer& gbuffer, const gpu::PinholeCamera& camera,
@@ -217,6 +236,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   lin.layout = layout;
   lin.base = params;
   lin.camera = frame.camera;
+  lin.has_depth = frame.has_depth();
   const Eigen::Matrix3d rotation = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
   lin.model_normals.resize(3 * n);
   for (int v = 0; v < n; ++v) {
@@ -226,6 +246,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   }
 
   const bool want_geometry = frame.has_depth() && (options.use_point || options.use_plane);
+  const bool follows_projection = ColorFollowsProjection(options, frame);
   const int w = frame.width();
   for (int j = 0; j < frame.height(); ++j) {
     for (int i = 0; i < w; ++i) {
@@ -242,6 +263,10 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
       if (s.vertex[0] < 0 || s.vertex[1] < 0 || s.vertex[2] < 0) continue;
       s.input_color = Eigen::Vector3d(frame.color[3 * p], frame.color[3 * p + 1], frame.color[3 * p + 2]);
       s.color = options.use_color;
+      if (s.color && follows_projection) {
+        s.input_color_gradient = InputColorGradient(frame, i, j);
+        s.color_weight = RobustColorWeight(gbuffer, p, s.input_color, options.color_robust_threshold);
+      }
       if (want_geometry) {
         s.input_point = frame.point(i, j);
         const Eigen::Vector3d synthetic(gbuffer.position[3 * p], gbuffer.position[3 * p + 1], gbuffer.position[3 * p + 2]);
@@ -328,6 +353,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   const double s_point = lin.num_point ? std::sqrt(options.w_point / lin.num_point) / unit : 0;
   const double s_plane = lin.num_plane ? std::sqrt(options.w_plane / lin.num_plane) / unit : 0;
   const double s_col = lin.num_color ? std::sqrt(options.w_col / lin.num_color) : 0;
+  const bool follows_projection = options.color_follows_projection && lin.has_depth;
 
   // The dense terms, pixel by pixel. Every pixel writes only its own rows, so contiguous chunks
   // of pixels run on separate threads (each with its own vertex cache and scratch) and give
@@ -349,23 +375,24 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
         n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
       }
       const Eigen::Vector3d xs = R * v_bar + c.translation;
+      const bool color_moves = s.color && follows_projection;
+      if (jacobian && (s.point || s.plane || color_moves)) {
+        dx.setZero();
+        if (k_id > 0) {
+          e_id.setZero();
+          for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
+          dx.middleCols(o_id, k_id) = R * e_id;
+        }
+        if (k_exp > 0) {
+          e_exp.setZero();
+          for (int k = 0; k < 3; ++k) e_exp += s.bary[k] * rm.expression_basis.block(3 * s.vertex[k], 0, 3, k_exp).cast<double>();
+          dx.middleCols(o_exp, k_exp) = R * e_exp;
+        }
+        for (int a = 0; a < 3; ++a) dx.col(o_rot + a) = rot.d[a] * v_bar;
+        dx.middleCols<3>(o_t).setIdentity();
+      }
       if (s.point || s.plane) {
         const Eigen::Vector3d diff = xs - s.input_point;
-        if (jacobian) {
-          dx.setZero();
-          if (k_id > 0) {
-            e_id.setZero();
-            for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
-            dx.middleCols(o_id, k_id) = R * e_id;
-          }
-          if (k_exp > 0) {
-            e_exp.setZero();
-            for (int k = 0; k < 3; ++k) e_exp += s.bary[k] * rm.expression_basis.block(3 * s.vertex[k], 0, 3, k_exp).cast<double>();
-            dx.middleCols(o_exp, k_exp) = R * e_exp;
-          }
-          for (int a = 0; a < 3; ++a) dx.col(o_rot + a) = rot.d[a] * v_bar;
-          dx.middleCols<3>(o_t).setIdentity();
-        }
         if (s.point) {
           r.segment<3>(row_point) = s_point * diff;
           if (jacobian) jacobian->middleRows(row_point, 3) = (s_point * dx).cast<float>();
@@ -421,8 +448,22 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
             }
           }
         }
-        r.segment<3>(row_col) = s_col * (color - s.input_color);
-        if (jacobian) jacobian->middleRows(row_col, 3) = d_col.cast<float>();
+        if (color_moves) {
+          // The input colour where X_S projects, to first order around the pixel:
+          // C_I(p) + G (Pi(X_S) - p); its derivative is G dPi/dX dX_S/dx.
+          const auto& cam = lin.camera;
+          const double iz = 1.0 / xs.z();
+          const Eigen::Vector2d shift(cam.fx * xs.x() * iz + cam.cx - s.i, cam.fy * xs.y() * iz + cam.cy - s.j);
+          color -= s.input_color_gradient * shift;
+          if (jacobian) {
+            Eigen::Matrix<double, 2, 3> dproj;
+            dproj << cam.fx * iz, 0, -cam.fx * xs.x() * iz * iz, 0, cam.fy * iz, -cam.fy * xs.y() * iz * iz;
+            d_col.noalias() -= (s_col * s.input_color_gradient * dproj) * dx;
+          }
+        }
+        const double wsq = std::sqrt(s.color_weight);
+        r.segment<3>(row_col) = wsq * s_col * (color - s.input_color);
+        if (jacobian) jacobian->middleRows(row_col, 3) = (wsq * d_col).cast<float>();
         row_col += 3;
       }
     }

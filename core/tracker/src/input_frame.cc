@@ -164,4 +164,17 @@ bool InputNormal(const InputFrame& frame, int i, int j, float max_depth_jump, Ei
   return true;
 }
 
+Eigen::Matrix<double, 3, 2> InputColorGradient(const InputFrame& frame, int i, int j) {
+  const int w = frame.width(), h = frame.height();
+  auto at = [&](int ii, int jj, int c) { return static_cast<double>(frame.color[3 * (static_cast<size_t>(jj) * w + ii) + c]); };
+  const int i0 = std::max(i - 1, 0), i1 = std::min(i + 1, w - 1);
+  const int j0 = std::max(j - 1, 0), j1 = std::min(j + 1, h - 1);
+  Eigen::Matrix<double, 3, 2> g = Eigen::Matrix<double, 3, 2>::Zero();
+  for (int c = 0; c < 3; ++c) {
+    if (i1 > i0) g(c, 0) = (at(i1, j, c) - at(i0, j, c)) / (i1 - i0);
+    if (j1 > j0) g(c, 1) = (at(i, j1, c) - at(i, j0, c)) / (j1 - j0);
+  }
+  return g;
+}
+
 }  // namespace face_reenact::tracker

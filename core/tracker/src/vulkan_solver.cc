@@ -55,6 +55,7 @@ static_assert(sizeof(Counters) == 32, "Counters must match the shaders");
 struct ClassifyPush {
   uint32_t width, height, has_depth, use_point, use_plane, use_color;
   float max_point_distance, min_normal_dot;
+  float color_robust_threshold;
 };
 struct LandmarkPush {
   uint32_t count;
@@ -85,7 +86,10 @@ struct PcgPush {
 };
 
 constexpr uint32_t kRowsPerPixel = 8;     // tracker_common.glsl
-constexpr uint32_t kPixelItemWords = 8;
+// Per pixel of a level's input: point, normal, colour, colour gradient along u and along v
+// (tracker_common.glsl kInputVec4sPerPixel vec4s).
+constexpr size_t kInputFloatsPerPixel = 20;
+constexpr uint32_t kPixelItemWords = 9;
 constexpr uint32_t kEvaluateGroup = 64;   // tracker_evaluate.comp local size
 constexpr uint32_t kJtChunk = 256;        // tracker_jt.comp rows per workgroup
 constexpr uint32_t kJtjRowsPerChunk = 1024;
@@ -125,7 +129,7 @@ struct Analysis {
 // One pyramid level of the input, uploaded once per solve.
 struct LevelInput {
   const InputFrame* frame = nullptr;
-  gpu::Buffer data;        // per pixel: point (w = valid depth), normal (w = exists), colour
+  gpu::Buffer data;        // per pixel: point (w = valid depth), normal (w = exists), colour, its gradient
   gpu::Buffer candidates;  // landmark candidates: vertex bits, u, v, confidence
   uint32_t num_candidates = 0;
 };
@@ -170,7 +174,7 @@ struct VulkanSolver::Impl {
   gpu::Buffer vertices;  // per x slot: position, albedo per vertex
   gpu::Buffer identity_cache;  // a_id + E_id alpha | albedo of the base (tracking: identity fixed)
   bool cache_identity = false;  // the current layout solves neither identity nor albedo
-  gpu::Buffer g_position, g_normal, g_bary, g_ids, items, landmark_items, counters, counters_readback;
+  gpu::Buffer g_position, g_normal, g_bary, g_ids, g_color, items, landmark_items, counters, counters_readback;
   gpu::Buffer params, base, xs, residuals, jacobian, jacobian_columns, energy_partials, jt_partials, reduced, product;
   gpu::Buffer jtj_partials, jtj_reduced, state, readback;
   // FR_TRACKER_PROFILE=1: GPU time per analysis stage on stderr (timestamp queries).
@@ -216,7 +220,7 @@ struct VulkanSolver::Impl {
     upload(expression_columns, ex_columns.data(), ex_columns.size(), "tracker expression basis (column-major)");
     upload(albedo_columns, al_columns.data(), al_columns.size(), "tracker albedo basis (column-major)");
     namespace sh = gpu::shaders;
-    classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 7, sizeof(ClassifyPush),
+    classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 8, sizeof(ClassifyPush),
                                                        "tracker linearisation");
     landmarks = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_landmarks_comp, 5, sizeof(LandmarkPush),
                                                         "tracker landmark pruning");
@@ -253,14 +257,15 @@ struct VulkanSolver::Impl {
     li.frame = &f;
     const int w = f.width(), h = f.height();
     const size_t pixels = static_cast<size_t>(w) * h;
-    ensure(li.data, 12 * pixels * sizeof(float), gpu::BufferDomain::Upload, "tracker level input");
+    ensure(li.data, kInputFloatsPerPixel * pixels * sizeof(float), gpu::BufferDomain::Upload, "tracker level input");
     auto* data = static_cast<float*>(li.data.mapped());
+    const bool gradient = ColorFollowsProjection(energy, f);
     constexpr int kRowsPerItem = 16;
     ParallelFor((h + kRowsPerItem - 1) / kRowsPerItem, ResolvedThreadCount(threads), [&](int item) {
       for (int j = item * kRowsPerItem; j < std::min(h, (item + 1) * kRowsPerItem); ++j) {
         for (int i = 0; i < w; ++i) {
           const size_t p = static_cast<size_t>(j) * w + i;
-          float d[12] = {};
+          float d[kInputFloatsPerPixel] = {};
           if (f.has_depth() && f.depth_valid(i, j)) {
             const Eigen::Vector3d x = f.point(i, j);
             d[0] = static_cast<float>(x.x());
@@ -277,7 +282,14 @@ struct VulkanSolver::Impl {
           }
           for (int c = 0; c < 3; ++c) d[8 + c] = f.color[3 * p + c];
           d[11] = 1.f;
-          std::memcpy(data + 12 * p, d, sizeof(d));  // whole pixels: the mapping may be write-combined
+          if (gradient) {
+            const Eigen::Matrix<double, 3, 2> g = InputColorGradient(f, i, j);
+            for (int c = 0; c < 3; ++c) {
+              d[12 + c] = static_cast<float>(g(c, 0));
+              d[16 + c] = static_cast<float>(g(c, 1));
+            }
+          }
+          std::memcpy(data + kInputFloatsPerPixel * p, d, sizeof(d));  // whole pixels: the mapping may be write-combined
         }
       }
     });
@@ -319,6 +331,7 @@ struct VulkanSolver::Impl {
     ensure(g_normal, plane, gpu::BufferDomain::Device, "tracker G-buffer normals");
     ensure(g_bary, plane, gpu::BufferDomain::Device, "tracker G-buffer barycentrics");
     ensure(g_ids, plane, gpu::BufferDomain::Device, "tracker G-buffer ids");
+    ensure(g_color, plane, gpu::BufferDomain::Device, "tracker G-buffer colours");
     ensure(items, VkDeviceSize{w} * h * kPixelItemWords * 4, gpu::BufferDomain::Device, "tracker pixel items");
     const gpu::GBufferTargets& targets = renderer.targets();
     const EnergyOptions& e = o.energy;
@@ -337,13 +350,14 @@ struct VulkanSolver::Impl {
                              VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
           const std::pair<const gpu::Image*, const gpu::Buffer*> copies[] = {
               {&targets.position, &g_position}, {&targets.normal, &g_normal}, {&targets.barycentric, &g_bary},
-              {&targets.ids, &g_ids}};
+              {&targets.ids, &g_ids}, {&targets.color, &g_color}};
+          constexpr uint32_t kCopies = 5;
           // GENERAL -> TRANSFER_SRC for the copies and back, so the renderer's bookkeeping
           // (Image::layout == GENERAL after render) stays true.
           auto transition = [&](VkImageLayout from, VkImageLayout to, VkPipelineStageFlags2 src_stage,
                                 VkAccessFlags2 src_access, VkPipelineStageFlags2 dst_stage, VkAccessFlags2 dst_access) {
-            VkImageMemoryBarrier2 barriers[4];
-            for (int k = 0; k < 4; ++k) {
+            VkImageMemoryBarrier2 barriers[kCopies];
+            for (uint32_t k = 0; k < kCopies; ++k) {
               barriers[k] = {VK_STRUCTURE_TYPE_IMAGE_MEMORY_BARRIER_2};
               barriers[k].srcStageMask = src_stage;
               barriers[k].srcAccessMask = src_access;
@@ -357,7 +371,7 @@ struct VulkanSolver::Impl {
               barriers[k].subresourceRange = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
             }
             VkDependencyInfo dep{VK_STRUCTURE_TYPE_DEPENDENCY_INFO};
-            dep.imageMemoryBarrierCount = 4;
+            dep.imageMemoryBarrierCount = kCopies;
             dep.pImageMemoryBarriers = barriers;
             vkCmdPipelineBarrier2(cmd, &dep);
           };
@@ -377,12 +391,13 @@ struct VulkanSolver::Impl {
                              VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
           if (cache_identity) record_vertices(rec, 0, 1, 1);
           rec.bind(*classify);
-          const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids, &li.data, &items, &counters};
-          for (uint32_t i = 0; i < 7; ++i) rec.set_storage_buffer(i, *cb[i]);
+          const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids, &li.data, &items, &counters, &g_color};
+          for (uint32_t i = 0; i < 8; ++i) rec.set_storage_buffer(i, *cb[i]);
           const bool geometry = f.has_depth() && (e.use_point || e.use_plane);
           rec.push_constants(ClassifyPush{w, h, f.has_depth() ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
                                           geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
-                                          static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot)});
+                                          static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot),
+                                          ColorFollowsProjection(e, f) ? static_cast<float>(e.color_robust_threshold) : 0.f});
           rec.dispatch_1d(w * h, 64);
           rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                              VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,

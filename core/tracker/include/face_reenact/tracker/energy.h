@@ -71,6 +71,24 @@ struct EnergyOptions {
   double w_expression_sparsity = 0.0;
   double expression_sparsity_epsilon = 0.05;
 
+  // E_col's derivative through the projection Pi (Sec. 5.3, "Analytical Partial Derivatives"):
+  // the input colour a pixel is compared with is read where the pixel's surface point projects,
+  // C_I(p) + grad C_I(p) (Pi(X_S) - p), so a motion of the face that moves its colours against
+  // the image's has a derivative. Without it the correspondences are held in the image too and
+  // E_col sees the geometry only through the shading of the normals. On frames with depth only:
+  // without depth the face's distance is barely observed, and on RGB-only input with dlib's
+  // landmarks the term moved it further off (docs/tracker.md, "Colour through the projection").
+  bool color_follows_projection = true;
+  // Robust colour read through the projection (Huber, as iteratively reweighted least squares):
+  // a pixel whose rendered colour differs from the input by more than this (linear RGB,
+  // Euclidean) at the linearisation point counts with weight threshold / difference, frozen for
+  // the step like the L1 prior's weights. Faces carry colour the model's albedo cannot: brows,
+  // lips, stubble, make-up, highlights, a hand or glasses in front; read through the projection,
+  // a colour that cannot be matched would pull the geometry towards aligning it anyway. Applies
+  // where color_follows_projection does; 0 = plain least squares (docs/tracker.md, "Colour
+  // through the projection").
+  double color_robust_threshold = 0.02;
+
   double geometry_unit_m = 0.01;            // E_point/E_plane distances are in these units
   double landmark_reference_width = 640.0;  // landmark offsets in pixels of an image this wide
   // Correspondence pruning (per linearisation): a pixel carries the geometric terms only when
@@ -108,17 +126,28 @@ inline bool LeftOutUnlessAllInner(int ibug_index) { return ibug_index == 33 || (
 bool LandmarkVertexVisible(const Eigen::Vector3f& x, const gpu::GBuffer& gbuffer, const gpu::PinholeCamera& camera,
                            float occlusion_m);
 
+// Whether E_col of `frame` is read through the projection (EnergyOptions::color_follows_projection:
+// on frames with depth).
+bool ColorFollowsProjection(const EnergyOptions& options, const InputFrame& frame);
+
+// EnergyOptions::color_robust_threshold's weight of pixel `pixel`: 1 while the rendered colour
+// (gbuffer.color) is within `threshold` of the input colour, threshold / difference beyond.
+double RobustColorWeight(const gpu::GBuffer& gbuffer, size_t pixel, const Eigen::Vector3d& input_color, double threshold);
+
 // One pixel that is valid in both the synthetic and the input image.
 struct PixelSample {
   int32_t i = 0, j = 0;
   std::array<int32_t, 3> vertex{};
   std::array<double, 3> bary{};
   Eigen::Vector3d input_color = Eigen::Vector3d::Zero();
+  // d C_I / d(u, v) at the pixel (zero unless EnergyOptions::color_follows_projection).
+  Eigen::Matrix<double, 3, 2> input_color_gradient = Eigen::Matrix<double, 3, 2>::Zero();
   Eigen::Vector3d input_point = Eigen::Vector3d::Zero();
   Eigen::Vector3d input_normal = Eigen::Vector3d::Zero();
   bool point = false;  // carries E_point (3 residuals)
   bool plane = false;  // carries E_plane (2 residuals)
   bool color = false;  // carries E_col (3 residuals)
+  double color_weight = 1.0;  // EnergyOptions::color_robust_threshold's weight of the colour rows
 };
 
 struct LandmarkSample {
@@ -143,6 +172,7 @@ struct Linearization {
   ParameterLayout layout;
   gpu::FaceParameters base;     // parameters at the linearisation point (supplies fixed blocks)
   gpu::PinholeCamera camera;    // of the pyramid level
+  bool has_depth = false;       // the level frame has a depth map (ColorFollowsProjection)
   std::vector<PixelSample> pixels;
   std::vector<LandmarkSample> landmarks;
   Eigen::VectorXd model_normals;  // 3N, model frame, unit (frozen for this step)

@@ -58,4 +58,9 @@ std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptio
 // than `max_depth_jump` metres.
 bool InputNormal(const InputFrame& frame, int i, int j, float max_depth_jump, Eigen::Vector3d* normal);
 
+// The gradient of the input colour at pixel (i, j): column 0 is d/du (along i), column 1 d/dv
+// (along j), one row per channel, per pixel. Central differences, one-sided at the image border.
+// The colour term's derivative through the projection (energy.h) reads it.
+Eigen::Matrix<double, 3, 2> InputColorGradient(const InputFrame& frame, int i, int j);
+
 }  // namespace face_reenact::tracker
