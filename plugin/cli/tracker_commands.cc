@@ -116,29 +116,17 @@ void run_bench_track(const TrackBenchArgs& a) {
         [&](const InputFrame& frame, gpu::FaceParameters* p) { return solver.Solve(frame, layout, options, p); },
         frames, truths[0]);
   }
+  CalibrationBench calibration;
   {
-    // Calibration (Sec. 6.3) as FaceTracker runs it: identity and albedo shared over the first
-    // frames, expression, lighting and pose per frame, the tracker's calibration schedule,
-    // started from the mean face at the true poses.
-    const TrackerOptions tracker_defaults;
     const int n = std::min(a.calibration_frames, static_cast<int>(frames.size()));
-    const std::vector<InputFrame> calib(frames.begin(), frames.begin() + n);
-    std::vector<gpu::FaceParameters> starts(truths.begin(), truths.begin() + n);
-    const ParameterLayout cl =
-        ParameterLayout::Calibration(model.num_identity(), model.num_albedo(), model.num_expression());
-    const SolverSummary s = solver.SolveFrames(calib, cl, tracker_defaults.calibration_solver, &starts);
-    double residuals = 0;
-    for (const auto& it : s.iterations) residuals += static_cast<double>(it.residuals);
-    const int shared = cl.num_identity + cl.num_albedo;
-    doc["calibration"] = {{"frames", n},
-                          {"unknowns", shared + n * (cl.num_parameters() - shared)},
-                          {"gauss_newton", s.iterations.size()},
-                          {"residuals", s.iterations.empty() ? 0.0 : residuals / s.iterations.size()},
-                          {"pyramid_ms", s.pyramid_ms},
-                          {"synthesis_ms", s.synthesis_ms},
-                          {"analysis_ms", s.analysis_ms},
-                          {"total_ms", s.total_ms},
-                          {"termination", termination_name(s.termination)}};
+    calibration.frames.assign(frames.begin(), frames.begin() + n);
+    calibration.starts.assign(truths.begin(), truths.begin() + n);
+    calibration.layout = ParameterLayout::Calibration(model.num_identity(), model.num_albedo(), model.num_expression());
+    calibration.options = TrackerOptions{}.calibration_solver;
+    doc["calibration"] = time_calibration(
+        [&](const std::vector<InputFrame>& f, const ParameterLayout& l, const SolverOptions& o,
+            std::vector<gpu::FaceParameters>* p) { return solver.SolveFrames(f, l, o, p); },
+        calibration);
   }
   {
     // The gaze reading that follows each tracked frame's solve (gaze.h), on the true fits.
@@ -156,7 +144,7 @@ void run_bench_track(const TrackBenchArgs& a) {
     const double n = std::max<double>(1.0, static_cast<double>(frames.size()) - 1);
     doc["gaze"] = {{"ms_per_frame", ms / n}, {"frames", frames.size() - 1}, {"readings", readings}, {"lids_readings", lids}};
   }
-  add_vulkan_track_bench(model, frames, truths[0], layout, a.vulkan, &doc);
+  add_vulkan_track_bench(model, frames, truths[0], layout, calibration, a.vulkan, &doc);
   if (a.json) {
     std::printf("%s\n", doc.dump(2).c_str());
     return;
@@ -184,10 +172,7 @@ void run_bench_track(const TrackBenchArgs& a) {
                     double(doc["solvers"]["cpu_matrix_free"]["total_ms_per_frame"]));
   }
   const auto& c = doc["calibration"];
-  std::printf("calibration (CPU): %d frames, %d unknowns, %d GN iterations, %.0f residuals per iteration: %.0f ms "
-              "(synthesis %.0f, analysis %.0f)\n",
-              int(c["frames"]), int(c["unknowns"]), int(c["gauss_newton"]), double(c["residuals"]), double(c["total_ms"]),
-              double(c["synthesis_ms"]), double(c["analysis_ms"]));
+  print_calibration_bench("CPU", c);
   std::printf("gaze and lids (CPU, after each solve): %.2f ms per frame (gaze read on %d of %d frames, lids on %d)\n",
               double(doc["gaze"]["ms_per_frame"]), int(doc["gaze"]["readings"]), int(doc["gaze"]["frames"]),
               int(doc["gaze"]["lids_readings"]));
@@ -372,6 +357,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   if (!parse_solver_backend(a.solver, &backend)) throw Error("track: --solver must be auto, cpu or vulkan");
   const TrackingSolverChoice solver = ChooseTrackingSolver(backend, model, a.device);
   tracker.SetTrackingSolver(solver.solve);
+  tracker.SetCalibrationSolver(solver.calibrate);
   const gpu::CpuRenderer renderer(model.render);
 
   std::ofstream params_file;
@@ -691,6 +677,33 @@ void add_tracker_commands(CLI::App& app) {
 }
 
 }  // namespace
+
+nlohmann::json time_calibration(const FramesSolveFunction& calibrate, const CalibrationBench& bench) {
+  std::vector<gpu::FaceParameters> p = bench.starts;
+  const SolverSummary s = calibrate(bench.frames, bench.layout, bench.options, &p);
+  double residuals = 0;
+  for (const auto& it : s.iterations) residuals += static_cast<double>(it.residuals);
+  const int n = static_cast<int>(bench.frames.size());
+  const int shared = bench.layout.num_identity + bench.layout.num_albedo;
+  return {{"frames", n},
+          {"unknowns", shared + n * (bench.layout.num_parameters() - shared)},
+          {"gauss_newton", s.iterations.size()},
+          {"residuals", s.iterations.empty() ? 0.0 : residuals / s.iterations.size()},
+          {"pyramid_ms", s.pyramid_ms},
+          {"input_ms", s.input_ms},
+          {"synthesis_ms", s.synthesis_ms},
+          {"analysis_ms", s.analysis_ms},
+          {"total_ms", s.total_ms},
+          {"final_energy", s.final_energy.total()},
+          {"termination", termination_name(s.termination)}};
+}
+
+void print_calibration_bench(const char* who, const nlohmann::json& c) {
+  std::printf("calibration (%s): %d frames, %d unknowns, %d GN iterations, %.0f residuals per iteration: %.0f ms "
+              "(synthesis %.0f, analysis %.0f), final energy %.4g\n",
+              who, int(c["frames"]), int(c["unknowns"]), int(c["gauss_newton"]), double(c["residuals"]),
+              double(c["total_ms"]), double(c["synthesis_ms"]), double(c["analysis_ms"]), double(c["final_energy"]));
+}
 
 nlohmann::json time_track_solver(const BenchSolveFunction& solve, const std::vector<InputFrame>& frames,
                                  gpu::FaceParameters start) {

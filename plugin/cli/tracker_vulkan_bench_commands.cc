@@ -1,6 +1,6 @@
 // The Vulkan columns of `face-reenact bench track` (registered in tracker_commands.cc): the same
 // frames, warm start and schedule as the CPU reference, tracked by tracker::VulkanSolver with
-// each strategy, reported per level like the paper's Table 1.
+// each strategy, reported per level like the paper's Table 1, and the same calibration.
 #include <cstdio>
 #include <map>
 #include <memory>
@@ -39,7 +39,7 @@ std::string json_name(const std::string& strategy) {
 
 void add_vulkan_track_bench(const TrackerModel& model, const std::vector<InputFrame>& frames,
                             const gpu::FaceParameters& start, const ParameterLayout& layout,
-                            const VulkanTrackBenchArgs& args, nlohmann::json* doc) {
+                            const CalibrationBench& calibration, const VulkanTrackBenchArgs& args, nlohmann::json* doc) {
   const auto strategies = strategies_of(args.strategies);
   nlohmann::json& v = (*doc)["vulkan"];
   v = nlohmann::json::object();
@@ -74,6 +74,13 @@ void add_vulkan_track_bench(const TrackerModel& model, const std::vector<InputFr
                           {"residuals", c.residuals}};
     }
   }
+  v["calibration"] = time_calibration(
+      [&](const std::vector<InputFrame>& f, const ParameterLayout& l, const SolverOptions& o,
+          std::vector<gpu::FaceParameters>* p) { return solver.SolveFrames(f, l, o, p); },
+      calibration);
+  if (doc->contains("calibration") && double((*doc)["calibration"]["total_ms"]) > 0) {
+    v["calibration_ratio_to_cpu"] = double(v["calibration"]["total_ms"]) / double((*doc)["calibration"]["total_ms"]);
+  }
   // Ratios of the per-frame totals to the CPU reference's matrix-free solver (> 1: slower).
   const auto& solvers = (*doc)["solvers"];
   if (solvers.contains("cpu_matrix_free")) {
@@ -106,6 +113,12 @@ void print_vulkan_track_bench(const nlohmann::json& doc) {
   }
   if (v.contains("assembled_over_matrix_free")) {
     std::printf("  assembled / matrix-free on the device: %.2f\n", double(v["assembled_over_matrix_free"]));
+  }
+  if (v.contains("calibration")) {
+    print_calibration_bench("Vulkan", v["calibration"]);
+    if (v.contains("calibration_ratio_to_cpu")) {
+      std::printf("  calibration on the device: %.2fx the CPU reference's time\n", double(v["calibration_ratio_to_cpu"]));
+    }
   }
   if (v.contains("auto_choice")) {
     const auto& c = v["auto_choice"];

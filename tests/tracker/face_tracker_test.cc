@@ -622,6 +622,41 @@ TEST(FaceTracker, UsesAReplacementSolver) {
   EXPECT_TRUE(failed.has_parameters);
 }
 
+// The calibration's joint solve can be replaced too (the Vulkan solver's SolveFrames in `track`):
+// the replacement is called once per calibration with the calibration layout, its result is the
+// identity, a failure (throw) leaves the tracker uncalibrated with a message, and an empty
+// function restores the CPU's.
+TEST(FaceTracker, UsesAReplacementCalibrationSolver) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  FaceTracker tracker(*model, fast_options(2));
+  const CpuSolver& cpu = tracker.cpu_solver();
+  int calls = 0;
+  tracker.SetCalibrationSolver([&](const std::vector<InputFrame>& frames, const ParameterLayout& layout,
+                                   const SolverOptions& options, std::vector<gpu::FaceParameters>* params) {
+    ++calls;
+    EXPECT_EQ(frames.size(), 2u);
+    EXPECT_GT(layout.num_identity, 0);
+    return cpu.SolveFrames(frames, layout, options, params);
+  });
+  tracker.Track(render_frame(cpu, sequence_parameters(*model, 0)));
+  TrackedFrame t = tracker.Track(render_frame(cpu, sequence_parameters(*model, 1)));
+  EXPECT_EQ(t.status, TrackingStatus::kCalibrated) << t.message;
+  EXPECT_EQ(calls, 1);
+  EXPECT_GT(tracker.neutral().alpha.norm(), 0.f);
+
+  FaceTracker failing(*model, fast_options(2));
+  failing.SetCalibrationSolver([](const std::vector<InputFrame>&, const ParameterLayout&, const SolverOptions&,
+                                  std::vector<gpu::FaceParameters>*) -> SolverSummary { throw Error("device lost"); });
+  failing.Track(render_frame(cpu, sequence_parameters(*model, 0)));
+  t = failing.Track(render_frame(cpu, sequence_parameters(*model, 1)));
+  EXPECT_FALSE(failing.calibrated());
+  EXPECT_NE(t.message.find("device lost"), std::string::npos) << t.message;
+  failing.SetCalibrationSolver({});
+  for (int f = 2; f < 4 && !failing.calibrated(); ++f) failing.Track(render_frame(cpu, sequence_parameters(*model, f)));
+  EXPECT_TRUE(failing.calibrated());
+}
+
 // A live session shutting down requests its stop while a Track() call is under way (here: from
 // inside the per-frame solve, just before the calibration solve of the same call): the
 // calibration ends before its first iteration and is not applied, and the frames stay collected.

@@ -177,6 +177,54 @@ TEST_F(VulkanSolverTest, SolveReachesTheCpuResultWithBothStrategies) {
   solver().set_strategy(VulkanStrategy::kAuto);
 }
 
+// The calibration's joint solve (Sec. 6.3) on the device: three views of one face (frontal,
+// turned either way), identity and albedo shared, the rest per frame, from the mean face. Each
+// frame's J^T J is assembled on the device and the joint system solved on the host: the same
+// steps as CpuSolver::SolveFrames in float, so the same identity, poses and energy, with the
+// shared prior counted once (a prior counted per frame would not give the CPU's energy).
+TEST_F(VulkanSolverTest, CalibrationReachesTheCpuResult) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const int n_id = std::min(model.num_identity(), 20), n_alb = std::min(model.num_albedo(), 5);
+  const ParameterLayout layout = ParameterLayout::Calibration(n_id, n_alb, model.num_expression());
+  std::vector<InputFrame> frames;
+  std::vector<gpu::FaceParameters> starts;
+  for (const float yaw : {-0.25f, 0.0f, 0.25f}) {
+    gpu::FaceParameters t = truth;
+    t.euler.y() += yaw;
+    frames.push_back(RenderSyntheticFrame(cpu().renderer(), model, t, test_camera(160, 120)));
+    gpu::FaceParameters s = start_for_tests(t);
+    s.alpha.setZero();
+    s.beta.setZero();
+    starts.push_back(s);
+  }
+  SolverOptions options;
+  options.schedule = {{1, 6, 4}, {0, 2, 4}};
+  std::vector<gpu::FaceParameters> cpu_fit = starts, fit = starts;
+  const SolverSummary cpu_summary = cpu().SolveFrames(frames, layout, options, &cpu_fit);
+  const SolverSummary s = solver().SolveFrames(frames, layout, options, &fit);
+  std::cout << "vulkan: " << s.BriefReport() << "\n" << s.message << "\n  cpu: " << cpu_summary.BriefReport() << "\n";
+  ASSERT_EQ(cpu_summary.termination, Termination::kScheduleDone) << cpu_summary.FullReport();
+  EXPECT_EQ(s.termination, Termination::kScheduleDone) << s.FullReport();
+  EXPECT_EQ(s.iterations.size(), cpu_summary.iterations.size());
+  EXPECT_NEAR(s.initial_energy.total(), cpu_summary.initial_energy.total(), 1e-4 * cpu_summary.initial_energy.total());
+  EXPECT_NEAR(s.final_energy.total(), cpu_summary.final_energy.total(), 2e-3 * cpu_summary.final_energy.total());
+  EXPECT_LT(s.final_energy.total(), 0.2 * s.initial_energy.total());
+  EXPECT_EQ(fit[0].alpha, fit[2].alpha);  // shared
+  EXPECT_EQ(fit[0].beta, fit[1].beta);
+  const Eigen::VectorXf id_scale = model.identity_sigma.head(n_id);
+  EXPECT_LT(((fit[0].alpha.head(n_id) - cpu_fit[0].alpha.head(n_id)).cwiseQuotient(id_scale)).cwiseAbs().maxCoeff(), 0.02);
+  for (size_t f = 0; f < frames.size(); ++f) {
+    EXPECT_LT(rotation_error(fit[f], cpu_fit[f]), 0.05 * M_PI / 180) << "frame " << f;
+    EXPECT_LT((fit[f].translation - cpu_fit[f].translation).norm(), 1e-4) << "frame " << f;
+    EXPECT_LT((fit[f].delta - cpu_fit[f].delta).cwiseAbs().maxCoeff(), 5e-3) << "frame " << f;
+  }
+  // What the CPU's joint solve refuses, this one refuses too.
+  std::vector<gpu::FaceParameters> too_few(2, starts[0]);
+  EXPECT_THROW(solver().SolveFrames(frames, layout, options, &too_few), Error);
+  EXPECT_THROW(solver().SolveFrames({}, layout, options, &too_few), Error);
+}
+
 // The solver keeps each level's input buffers from frame to frame (allocating them per frame
 // cost a real GPU more than the level's analysis). A frame after a larger one, with fewer
 // landmarks and another pose, must solve exactly as on a solver that never saw the first.
@@ -388,6 +436,14 @@ TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
   }
   const std::string chosen = doc["vulkan"]["auto_choice"]["chosen"];
   EXPECT_TRUE(chosen == "matrix-free" || chosen == "assembled") << chosen;
+  // The calibration row on the device: the same joint solve as the CPU's, to the same energy.
+  const auto& calibration = doc["vulkan"]["calibration"];
+  ASSERT_TRUE(calibration.is_object()) << doc["vulkan"].dump();
+  EXPECT_EQ(calibration["unknowns"], doc["calibration"]["unknowns"]);
+  EXPECT_GT(int(calibration["gauss_newton"]), 0);
+  EXPECT_NEAR(double(calibration["final_energy"]), double(doc["calibration"]["final_energy"]),
+              2e-3 * double(doc["calibration"]["final_energy"]));
+  EXPECT_GT(double(doc["vulkan"]["calibration_ratio_to_cpu"]), 0.0);
 
   testing::run_shell_command(std::string(cli) + " bench track --model " + model + " --frames 1 --vulkan sideways 2>&1", &status);
   EXPECT_NE(status, 0);

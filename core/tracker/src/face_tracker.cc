@@ -349,6 +349,8 @@ void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
 
 void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) { tracking_solve_ = std::move(solve); }
 
+void FaceTracker::SetCalibrationSolver(FramesSolveFunction solve) { calibration_solve_ = std::move(solve); }
+
 TrackedFrame FaceTracker::Track(const InputFrame& frame, double landmarks_ms) {
   const auto start = Clock::now();
   TrackedFrame out;
@@ -657,7 +659,7 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     *p = starts;
     if (start == CalibrationStart::kNeutral)
       for (auto& f : *p) f.delta.setZero();
-    return solver_.SolveFrames(inputs, layout, so, p);
+    return calibration_solve_ ? calibration_solve_(inputs, layout, so, p) : solver_.SolveFrames(inputs, layout, so, p);
   };
   // A solve that found no valid residuals or went non-finite leaves no identity to keep.
   auto failed = [](const SolverSummary& s) {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <string>
 
+#include "face_reenact/common/error.h"
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker::internal {
@@ -19,6 +20,67 @@ bool EndIfStopRequested(const SolverOptions& options, int level, int iteration, 
 }
 
 }  // namespace
+
+JointUnknowns::JointUnknowns(const ParameterLayout& layout, int frames)
+    : layout_(layout),
+      shared_(layout.num_identity + layout.num_albedo),
+      own_(layout.num_parameters() - shared_),
+      frames_(frames) {}
+
+Eigen::VectorXd JointUnknowns::Pack(const std::vector<gpu::FaceParameters>& params) const {
+  Eigen::VectorXd x(size());
+  x.head(shared_) = layout_.Pack(params[0]).head(shared_);
+  for (int f = 0; f < frames_; ++f) x.segment(shared_ + f * own_, own_) = layout_.Pack(params[f]).tail(own_);
+  return x;
+}
+
+Eigen::VectorXd JointUnknowns::FrameX(const Eigen::VectorXd& x, int f) const {
+  Eigen::VectorXd out(shared_ + own_);
+  out.head(shared_) = x.head(shared_);
+  out.tail(own_) = x.segment(shared_ + f * own_, own_);
+  return out;
+}
+
+std::vector<ExpressionSpan> JointUnknowns::ExpressionSpans() const {
+  std::vector<ExpressionSpan> spans;
+  for (int f = 0; f < frames_; ++f) spans.push_back({Global(layout_.offset(Block::kExpression), f), layout_.num_expression});
+  return spans;
+}
+
+FramePyramids BuildFramePyramids(const std::vector<InputFrame>& frames, const SolverOptions& options) {
+  const auto start = Clock::now();
+  FramePyramids out;
+  out.pyramids.reserve(frames.size());
+  for (const InputFrame& f : frames) out.pyramids.push_back(BuildPyramid(f, options.pyramid, options.ResolvedThreads()));
+  for (const auto& p : out.pyramids) out.pointers.push_back(&p);
+  out.ms = ms_since(start);
+  return out;
+}
+
+void CheckJointSolve(const TrackerModel& model, const ParameterLayout& layout, const SolverOptions& options,
+                     const std::vector<const std::vector<InputFrame>*>& pyramids,
+                     const std::vector<gpu::FaceParameters>& params) {
+  std::string why;
+  if (!options.IsValid(&why)) throw Error(why);
+  if (!layout.IsValid(&why, model.num_identity(), model.num_albedo(), model.num_expression())) throw Error(why);
+  if (pyramids.empty()) throw Error("calibration: no frames");
+  if (params.size() != pyramids.size()) {
+    throw Error("calibration: " + std::to_string(pyramids.size()) + " frames but " + std::to_string(params.size()) +
+                " parameter sets");
+  }
+  const int num_frames = static_cast<int>(pyramids.size());
+  for (int f = 0; f < num_frames; ++f) {
+    if (!params[f].IsValid(&why, model.num_identity(), model.num_expression(), model.num_albedo())) {
+      throw Error("tracker start parameters" + (num_frames > 1 ? " of frame " + std::to_string(f) : std::string()) + ": " + why);
+    }
+    for (const auto& level : options.schedule) {
+      if (level.level >= static_cast<int>(pyramids[f]->size())) {
+        throw Error("solver: the pyramid has fewer levels than the schedule uses");
+      }
+      if (!(*pyramids[f])[level.level].IsValid(&why)) throw Error(why);
+    }
+  }
+}
 
 SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, int frames,
                              GaussNewtonBackend* backend, Eigen::VectorXd* x) {

@@ -40,11 +40,52 @@ class GaussNewtonBackend {
   virtual double TakeUnusedStepMs() { return 0; }
 };
 
+
 // Where x holds expression weights, clamped to [0, 1] when options.clamp_expression.
 struct ExpressionSpan {
   int offset = 0;
   int count = 0;
 };
+
+// The unknowns of a joint solve over several frames (calibration, Sec. 6.3), as both solvers
+// lay them out: x = [shared identity/albedo (S) | frame 0's own (P) | frame 1's own | ...], each
+// frame's own being its expression, lighting and pose; with one frame exactly the layout's x.
+class JointUnknowns {
+ public:
+  JointUnknowns(const ParameterLayout& layout, int frames);
+  int shared() const { return shared_; }
+  int own() const { return own_; }
+  int frames() const { return frames_; }
+  int size() const { return shared_ + frames_ * own_; }
+  // x from the frames' parameters (the shared blocks from frame 0's).
+  Eigen::VectorXd Pack(const std::vector<gpu::FaceParameters>& params) const;
+  // Frame f's unknowns in the layout's order (shared, then its own).
+  Eigen::VectorXd FrameX(const Eigen::VectorXd& x, int f) const;
+  // Where frame f's local unknown `local` (layout order) sits in x.
+  int Global(int local, int f) const { return local < shared_ ? local : shared_ + f * own_ + (local - shared_); }
+  // Each frame's expression weights in x (clamped to [0, 1] by the loop).
+  std::vector<ExpressionSpan> ExpressionSpans() const;
+
+ private:
+  ParameterLayout layout_;
+  int shared_, own_, frames_;
+};
+
+// Every frame's pyramid (BuildPyramid with options.pyramid and its threads), pointers to them in
+// frame order, and the time it took. Throws face_reenact::Error on a frame BuildPyramid refuses.
+struct FramePyramids {
+  std::vector<std::vector<InputFrame>> pyramids;
+  std::vector<const std::vector<InputFrame>*> pointers;
+  double ms = 0;
+};
+FramePyramids BuildFramePyramids(const std::vector<InputFrame>& frames, const SolverOptions& options);
+
+// The checks every joint solve makes before it starts, with the CPU solver's messages: valid
+// options and layout, one start per frame, valid start parameters, and every scheduled level
+// present and valid in every frame's pyramid. Throws face_reenact::Error.
+void CheckJointSolve(const TrackerModel& model, const ParameterLayout& layout, const SolverOptions& options,
+                     const std::vector<const std::vector<InputFrame>*>& pyramids,
+                     const std::vector<gpu::FaceParameters>& params);
 
 // Runs options.schedule from *x (validated by the caller) and leaves the parameters of the
 // last accepted step in *x. `frames` > 1 only changes the wording of a face-less frame.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <utility>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/parallel.h"
@@ -206,7 +207,9 @@ void MatrixFreeNormalOperator::Apply(const Eigen::VectorXd& x, Eigen::VectorXd* 
 }
 
 AssembledNormalOperator::AssembledNormalOperator(const StackedJacobian& jacobian, double damping)
-    : matrix_(jacobian.Gram()) {
+    : AssembledNormalOperator(jacobian.Gram(), damping) {}
+
+AssembledNormalOperator::AssembledNormalOperator(Eigen::MatrixXd gram, double damping) : matrix_(std::move(gram)) {
   diagonal_ = matrix_.diagonal() * (1.0 + damping);
   matrix_.diagonal() = diagonal_;
 }

@@ -46,22 +46,12 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
         options_(options),
         pyramids_(pyramids),
         bases_(bases),
-        shared_(layout.num_identity + layout.num_albedo),
-        own_(layout.num_parameters() - shared_),
+        unknowns_(layout, static_cast<int>(pyramids.size())),
         threads_(options.ResolvedThreads()),
         states_(pyramids.size()),
         fixed_(pyramids.size()) {
-    const int n = shared_ + static_cast<int>(pyramids.size()) * own_;
-    scratch_.Resize(n);
-    b_.resize(n);
-  }
-
-  // Frame f's parameter vector in the layout's order.
-  Eigen::VectorXd FrameX(const Eigen::VectorXd& global, int f) const {
-    Eigen::VectorXd out(shared_ + own_);
-    out.head(shared_) = global.head(shared_);
-    out.tail(own_) = global.segment(shared_ + f * own_, own_);
-    return out;
+    scratch_.Resize(unknowns_.size());
+    b_.resize(unknowns_.size());
   }
 
   // When a step follows, r and J are evaluated in one pass here (the step's time, booked by
@@ -72,7 +62,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
     out.has_data = true;
     for (size_t f = 0; f < states_.size(); ++f) {
       const InputFrame& frame = (*pyramids_[f])[level.level];
-      const Eigen::VectorXd xf = FrameX(x, static_cast<int>(f));
+      const Eigen::VectorXd xf = unknowns_.FrameX(x, static_cast<int>(f));
       const auto t0 = Clock::now();
       const gpu::FaceParameters p = layout_.Unpack(xf, bases_[f]);
       const gpu::VertexState vs = renderer_.evaluate(p, nullptr, threads_);
@@ -141,7 +131,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
     double total = 0;
     for (size_t f = 0; f < states_.size(); ++f) {
       TermEnergies e;
-      EvaluateResiduals(model_, states_[f].lin, options_.energy, FrameX(x_try, static_cast<int>(f)), &trial_r_, nullptr,
+      EvaluateResiduals(model_, states_[f].lin, options_.energy, unknowns_.FrameX(x_try, static_cast<int>(f)), &trial_r_, nullptr,
                         &e, threads_);
       total += e.total();
     }
@@ -158,7 +148,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       j.SetThreads(threads_);
       return j;
     }
-    StackedJacobian j(shared_, own_);
+    StackedJacobian j(unknowns_.shared(), unknowns_.own());
     j.SetThreads(threads_);
     Eigen::Index rows = 0;
     for (const FrameState& st : states_) rows += st.r.size();
@@ -179,7 +169,8 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
   const SolverOptions& options_;
   const std::vector<const std::vector<InputFrame>*>& pyramids_;
   const std::vector<gpu::FaceParameters>& bases_;
-  const int shared_, own_, threads_;
+  const internal::JointUnknowns unknowns_;
+  const int threads_;
   std::vector<FrameState> states_;
   // Per frame, made on its first linearisation when the layout solves neither identity nor albedo.
   std::vector<std::shared_ptr<const FixedModelParts>> fixed_;
@@ -299,57 +290,24 @@ SolverSummary CpuSolver::SolveFrames(const std::vector<InputFrame>& frames, cons
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   if (frames.empty()) throw Error("calibration: no frames");
-  if (params->size() != frames.size()) {
-    throw Error("calibration: " + std::to_string(frames.size()) + " frames but " + std::to_string(params->size()) +
-                " parameter sets");
-  }
-  const auto start = Clock::now();
-  std::vector<std::vector<InputFrame>> pyramids;
-  pyramids.reserve(frames.size());
-  for (const InputFrame& f : frames) pyramids.push_back(BuildPyramid(f, options.pyramid, options.ResolvedThreads()));
-  const double pyramid_ms = ms_since(start);
-  std::vector<const std::vector<InputFrame>*> pointers;
-  for (const auto& p : pyramids) pointers.push_back(&p);
-  SolverSummary s = SolvePyramids(pointers, layout, options, params);
-  s.pyramid_ms = pyramid_ms;
-  s.total_ms += pyramid_ms;
+  const internal::FramePyramids pyramids = internal::BuildFramePyramids(frames, options);
+  SolverSummary s = SolvePyramids(pyramids.pointers, layout, options, params);
+  s.pyramid_ms = pyramids.ms;
+  s.total_ms += pyramids.ms;
   return s;
 }
 
 SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<InputFrame>*>& pyramids,
                                        const ParameterLayout& layout, const SolverOptions& options,
                                        std::vector<gpu::FaceParameters>* params) const {
-  std::string why;
-  if (!options.IsValid(&why)) throw Error(why);
-  if (!layout.IsValid(&why, model_.num_identity(), model_.num_albedo(), model_.num_expression())) throw Error(why);
-  const int num_frames = static_cast<int>(pyramids.size());
-  for (int f = 0; f < num_frames; ++f) {
-    if (!(*params)[f].IsValid(&why, model_.num_identity(), model_.num_expression(), model_.num_albedo())) {
-      throw Error("tracker start parameters" + (num_frames > 1 ? " of frame " + std::to_string(f) : std::string()) + ": " + why);
-    }
-    for (const auto& level : options.schedule) {
-      if (level.level >= static_cast<int>(pyramids[f]->size())) {
-        throw Error("solver: the pyramid has fewer levels than the schedule uses");
-      }
-      if (!(*pyramids[f])[level.level].IsValid(&why)) throw Error(why);
-    }
-  }
+  internal::CheckJointSolve(model_, layout, options, pyramids, *params);
   const auto start = Clock::now();
-  // Unknowns: [shared identity/albedo (S) | frame 0's own (P) | frame 1's own | ...]; with one
-  // frame this is exactly the layout's x.
-  const int shared = layout.num_identity + layout.num_albedo;
-  const int own = layout.num_parameters() - shared;
+  const internal::JointUnknowns unknowns(layout, static_cast<int>(pyramids.size()));
   const std::vector<gpu::FaceParameters> bases = *params;
-  Eigen::VectorXd x(shared + num_frames * own);
-  x.head(shared) = layout.Pack(bases[0]).head(shared);
-  for (int f = 0; f < num_frames; ++f) x.segment(shared + f * own, own) = layout.Pack(bases[f]).tail(own);
-  std::vector<internal::ExpressionSpan> expressions;
-  for (int f = 0; f < num_frames; ++f) {
-    expressions.push_back({shared + f * own + layout.offset(Block::kExpression) - shared, layout.num_expression});
-  }
+  Eigen::VectorXd x = unknowns.Pack(bases);
   CpuGaussNewton backend(model_, renderer_, layout, options, pyramids, bases);
-  SolverSummary summary = internal::RunGaussNewton(options, expressions, num_frames, &backend, &x);
-  for (int f = 0; f < num_frames; ++f) (*params)[f] = layout.Unpack(backend.FrameX(x, f), bases[f]);
+  SolverSummary summary = internal::RunGaussNewton(options, unknowns.ExpressionSpans(), unknowns.frames(), &backend, &x);
+  for (int f = 0; f < unknowns.frames(); ++f) (*params)[f] = layout.Unpack(unknowns.FrameX(x, f), bases[f]);
   summary.total_ms = ms_since(start);
   return summary;
 }

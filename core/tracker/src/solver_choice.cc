@@ -66,6 +66,10 @@ TrackingSolverChoice ChooseTrackingSolver(SolverBackend backend, const TrackerMo
                           const SolverOptions& options, gpu::FaceParameters* params) {
     return vulkan->solver->Solve(pyramid, layout, options, params);
   };
+  choice.calibrate = [vulkan](const std::vector<InputFrame>& frames, const ParameterLayout& layout,
+                              const SolverOptions& options, std::vector<gpu::FaceParameters>* params) {
+    return vulkan->solver->SolveFrames(frames, layout, options, params);
+  };
   return choice;
 }
 

@@ -318,8 +318,10 @@ struct VulkanSolver::Impl {
   }
 
   // Renders `p` for the level and runs the linearisation pass; returns its counts.
+  // `regularize_shared` false: a calibration frame after the first, whose identity/albedo prior
+  // rows the first frame carries (energy.h, Linearization::regularize_shared).
   Counts linearize(LevelInput& li, const ParameterLayout& l, const gpu::FaceParameters& p, const SolverOptions& o,
-                   double* synthesis_ms, double* analysis_ms) {
+                   double* synthesis_ms, double* analysis_ms, bool regularize_shared = true) {
     const InputFrame& f = *li.frame;
     const auto t0 = Clock::now();
     renderer.render(p, f.camera, o.render);
@@ -338,16 +340,13 @@ struct VulkanSolver::Impl {
     // Model sizes and base coefficients now (the identity cache pass reads them); the counts
     // and scales follow once the linearisation has run.
     cache_identity = l.num_identity == 0 && l.num_albedo == 0;
-    write_params(Counts{}, l, p, e, f.camera);
+    write_params(Counts{}, l, p, e, f.camera, regularize_shared);
     ensure(xs, static_cast<VkDeviceSize>(l.num_parameters()) * 4, gpu::BufferDomain::Upload, "tracker parameter vectors");
     ensure(vertices, static_cast<VkDeviceSize>(model.num_vertices()) * 24, gpu::BufferDomain::Device, "tracker vertices");
     context.submit_and_wait(
         [&](VkCommandBuffer cmd) {
           gpu::CommandRecorder rec(context, cmd);
-          // Everything before (the render, earlier passes) is complete and visible.
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                             VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+          record_after_everything_before(rec);
           const std::pair<const gpu::Image*, const gpu::Buffer*> copies[] = {
               {&targets.position, &g_position}, {&targets.normal, &g_normal}, {&targets.barycentric, &g_bary},
               {&targets.ids, &g_ids}, {&targets.color, &g_color}};
@@ -428,14 +427,17 @@ struct VulkanSolver::Impl {
     out.num_color = c.num_color;
     out.landmarks = c.landmark_count;
     out.landmark_weight = c.landmark_weight;
-    out.regularizer = e.use_regularizer ? static_cast<uint32_t>(l.num_identity + l.num_albedo + l.num_expression) : 0;
-    write_params(out, l, p, e, f.camera);
+    out.regularizer =
+        e.use_regularizer
+            ? static_cast<uint32_t>((regularize_shared ? l.num_identity + l.num_albedo : 0) + l.num_expression)
+            : 0;
+    write_params(out, l, p, e, f.camera, regularize_shared);
     *analysis_ms += ms_since(t1);
     return out;
   }
 
   void write_params(const Counts& c, const ParameterLayout& l, const gpu::FaceParameters& p, const EnergyOptions& e,
-                    const gpu::PinholeCamera& cam) {
+                    const gpu::PinholeCamera& cam, bool regularize_shared) {
     counts = c;
     layout = l;
     n = static_cast<uint32_t>(l.num_parameters());
@@ -458,7 +460,7 @@ struct VulkanSolver::Impl {
     t.model_exp = model.num_expression();
     t.num_vertices = model.num_vertices();
     t.width = cam.width;
-    t.regularize_shared = 1;
+    t.regularize_shared = regularize_shared ? 1u : 0u;
     t.rows = static_cast<uint32_t>((c.rows() + 3) / 4 * 4);  // column stride of the column-major J
     const double unit = e.geometry_unit_m;
     t.s_point = c.num_point ? static_cast<float>(std::sqrt(e.w_point / c.num_point) / unit) : 0.f;
@@ -603,6 +605,121 @@ struct VulkanSolver::Impl {
     ensure(jtj_reduced, VkDeviceSize{entry_count()} * 4, gpu::BufferDomain::Device, "tracker J^T J | J^T r");
   }
 
+  // A submission's first barrier: everything before it (the render, earlier passes, host
+  // writes) is complete and visible.
+  static void record_after_everything_before(gpu::CommandRecorder& rec) {
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+  }
+
+  // After the compute passes: `first` (its first `first_bytes`, when given) into the readback
+  // buffer's start and the energy partials (`partial_bytes`) after it, visible to the host.
+  void record_readback(gpu::CommandRecorder& rec, VkCommandBuffer cmd, const gpu::Buffer* first,
+                       VkDeviceSize first_bytes, VkDeviceSize partial_bytes) const {
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+    const VkBufferCopy copies[2] = {{0, 0, first_bytes}, {0, first_bytes, partial_bytes}};
+    if (first) vkCmdCopyBuffer(cmd, first->handle(), readback.handle(), 1, &copies[0]);
+    if (partial_bytes > 0) vkCmdCopyBuffer(cmd, energy_partials.handle(), readback.handle(), 1, &copies[1]);
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                       VK_ACCESS_2_HOST_READ_BIT);
+  }
+
+  // Uploads the x slots [0, points.size()) (float).
+  void write_points(const std::vector<const Eigen::VectorXd*>& points) {
+    std::vector<float> xf(points.size() * n);
+    for (size_t k = 0; k < points.size(); ++k) {
+      for (uint32_t i = 0; i < n; ++i) xf[k * n + i] = static_cast<float>((*points[k])[i]);
+    }
+    xs.write(xf.data(), xf.size() * sizeof(float));
+  }
+
+  // The per-term energies of x slot `slot` (summed in double) from the per-workgroup partials.
+  static TermEnergies slot_energy(const std::vector<float>& partials, uint32_t slot, uint32_t groups) {
+    TermEnergies e;
+    for (uint32_t g = 0; g < groups; ++g) {
+      for (int t = 0; t < kNumTerms; ++t) e.value[t] += partials[(static_cast<size_t>(slot) * groups + g) * 5 + t];
+    }
+    return e;
+  }
+
+  // [J^T J | J^T r] as tracker_jtj.comp packs it (n rows of n + 1) into the undamped J^T J, J^T r.
+  void unpack_normal_equations(const std::vector<float>& packed, Eigen::MatrixXd* jtj, Eigen::VectorXd* jtr) const {
+    jtj->resize(n, n);
+    jtr->resize(n);
+    for (uint32_t a = 0; a < n; ++a) {
+      for (uint32_t b = 0; b < n; ++b) (*jtj)(a, b) = packed[static_cast<size_t>(a) * (n + 1) + b];
+      (*jtr)[a] = packed[static_cast<size_t>(a) * (n + 1) + n];
+    }
+  }
+
+  // The current linearisation's J^T J and J^T r at x, assembled on the device and read back (a
+  // joint calibration sums them over its frames on the host), with the energy at x.
+  struct NormalEquations {
+    TermEnergies energy;
+    Eigen::MatrixXd jtj;  // undamped
+    Eigen::VectorXd jtr;
+    double wall_ms = 0;
+  };
+  NormalEquations assemble(const Eigen::VectorXd& x) {
+    const auto start = Clock::now();
+    ensure_system_buffers(true, 1);
+    ensure_assembled_buffers();
+    write_points({&x});
+    const uint32_t groups = evaluate_groups();
+    const VkDeviceSize system_bytes = VkDeviceSize{entry_count()} * 4, partial_bytes = VkDeviceSize{groups} * 5 * 4;
+    ensure(readback, system_bytes + partial_bytes, gpu::BufferDomain::Readback, "tracker readback");
+    const bool rows = counts.rows() > 0;
+    context.submit_and_wait(
+        [&](VkCommandBuffer cmd) {
+          gpu::CommandRecorder rec(context, cmd);
+          record_after_everything_before(rec);
+          record_evaluate(rec, 0, 1u);
+          if (rows) {
+            compute_barrier(rec);
+            record_jtj(rec);
+            compute_barrier(rec);
+            record_reduce(rec, jtj_partials, jtj_reduced, entry_count(), jtj_chunks());
+          }
+          record_readback(rec, cmd, rows ? &jtj_reduced : nullptr, system_bytes, partial_bytes);
+        },
+        "tracker J^T J of one calibration frame");
+    NormalEquations out;
+    std::vector<float> packed(entry_count(), 0.f), partials(static_cast<size_t>(groups) * 5);
+    if (rows) readback.read(packed.data(), packed.size() * sizeof(float));
+    if (groups > 0) readback.read(partials.data(), partials.size() * sizeof(float), system_bytes);
+    unpack_normal_equations(packed, &out.jtj, &out.jtr);
+    out.energy = slot_energy(partials, 0, groups);
+    out.wall_ms = ms_since(start);
+    return out;
+  }
+
+  // The energies of the current linearisation (its correspondences held) at each of `points`,
+  // in one submission.
+  std::vector<TermEnergies> energies_at(const std::vector<Eigen::VectorXd>& points) {
+    const uint32_t slots = static_cast<uint32_t>(points.size());
+    ensure_system_buffers(false, slots);
+    std::vector<const Eigen::VectorXd*> pointers;
+    for (const Eigen::VectorXd& p : points) pointers.push_back(&p);
+    write_points(pointers);
+    const uint32_t groups = evaluate_groups();
+    const VkDeviceSize partial_bytes = VkDeviceSize{slots} * groups * 5 * 4;
+    ensure(readback, partial_bytes, gpu::BufferDomain::Readback, "tracker readback");
+    context.submit_and_wait(
+        [&](VkCommandBuffer cmd) {
+          gpu::CommandRecorder rec(context, cmd);
+          record_after_everything_before(rec);
+          record_evaluate(rec, 0, 0u, slots);
+          record_readback(rec, cmd, nullptr, 0, partial_bytes);
+        },
+        "tracker energies");
+    std::vector<float> partials(static_cast<size_t>(slots) * groups * 5);
+    if (groups > 0) readback.read(partials.data(), partials.size() * sizeof(float));
+    std::vector<TermEnergies> out;
+    for (uint32_t k = 0; k < slots; ++k) out.push_back(slot_energy(partials, k, groups));
+    return out;
+  }
+
   // Energy at x and, when `solve`, the PCG step and the energies of its trial scalings, in one
   // submission. Reads back only the energies, dx and the PCG summary.
   Analysis analyze(const Eigen::VectorXd& x, bool solve, VulkanStrategy strategy, const SolverOptions& o,
@@ -613,9 +730,7 @@ struct VulkanSolver::Impl {
     ensure_system_buffers(solve, slots);
     const bool assembled = strategy == VulkanStrategy::kAssembled;
     if (solve && assembled) ensure_assembled_buffers();
-    std::vector<float> xf(n);
-    for (uint32_t i = 0; i < n; ++i) xf[i] = static_cast<float>(x[i]);
-    xs.write(xf.data(), n * sizeof(float));
+    write_points({&x});
     const uint32_t groups = evaluate_groups();
     const VkDeviceSize partial_bytes = VkDeviceSize{slots} * groups * 5 * 4;
     const VkDeviceSize state_bytes = (kStateX + n) * 4;
@@ -623,9 +738,7 @@ struct VulkanSolver::Impl {
     context.submit_and_wait(
         [&](VkCommandBuffer cmd) {
           gpu::CommandRecorder rec(context, cmd);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                             VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+          record_after_everything_before(rec);
           if (profile) {
             profile->reset(cmd);
             profile->write(cmd, 0);
@@ -659,13 +772,7 @@ struct VulkanSolver::Impl {
             record_evaluate(rec, 1, 0u, trials);
           }
           if (profile) profile->write(cmd, 3);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
-          VkBufferCopy copies[2] = {{0, 0, state_bytes}, {0, state_bytes, partial_bytes}};
-          if (solve) vkCmdCopyBuffer(cmd, state.handle(), readback.handle(), 1, &copies[0]);
-          if (groups > 0) vkCmdCopyBuffer(cmd, energy_partials.handle(), readback.handle(), 1, &copies[1]);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
-                             VK_ACCESS_2_HOST_READ_BIT);
+          record_readback(rec, cmd, solve ? &state : nullptr, state_bytes, partial_bytes);
         },
         solve ? "tracker analysis + PCG" : "tracker energy");
     if (profile) {
@@ -678,13 +785,7 @@ struct VulkanSolver::Impl {
     Analysis a;
     std::vector<float> partials(static_cast<size_t>(slots) * groups * 5);
     if (groups > 0) readback.read(partials.data(), partials.size() * sizeof(float), state_bytes);
-    auto energy_of = [&](uint32_t slot) {
-      TermEnergies e;
-      for (uint32_t g = 0; g < groups; ++g) {
-        for (int t = 0; t < kNumTerms; ++t) e.value[t] += partials[(static_cast<size_t>(slot) * groups + g) * 5 + t];
-      }
-      return e;
-    };
+    auto energy_of = [&](uint32_t slot) { return slot_energy(partials, slot, groups); };
     a.energy = energy_of(0);
     if (solve) {
       std::vector<float> st(kStateX + n);
@@ -729,6 +830,7 @@ struct VulkanSolver::Impl {
   std::unordered_map<int, LevelInput> level_inputs;
 
   class GaussNewton;
+  class JointGaussNewton;
 };
 
 // The Gauss-Newton loop's work on the device (one frame). A linearisation that a step follows
@@ -779,6 +881,143 @@ class VulkanSolver::Impl::GaussNewton final : public internal::GaussNewtonBacken
   std::unordered_map<int, LevelInput>& inputs_;
   const gpu::FaceParameters& base_;
   Analysis analysis_;
+  double step_ms_ = 0;
+};
+
+// The Gauss-Newton loop's work on the device for several frames solved jointly (calibration,
+// Sec. 6.3). Per frame the device renders, linearises, evaluates J and assembles J^T J and J^T r
+// over the frame's local unknowns (shared identity/albedo, then its own); the host sums them into
+// the joint system, which is small (90 + 85 unknowns per frame with the default layout), and
+// solves it with the CPU's Jacobi PCG (pcg.h). The matrix-free strategy would need every frame's
+// J resident on the device at once. The step's trial energies (correspondences held) are
+// evaluated on the device: each frame is rendered and linearised again at the step's start (the
+// same render, so the same correspondences) and all halvings are evaluated in one submission.
+class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonBackend {
+ public:
+  JointGaussNewton(Impl& m, const ParameterLayout& layout, const SolverOptions& options,
+                   const internal::JointUnknowns& unknowns, std::vector<std::unordered_map<int, LevelInput>>& inputs,
+                   const std::vector<gpu::FaceParameters>& bases)
+      : m_(m), layout_(layout), options_(options), unknowns_(unknowns), inputs_(inputs), bases_(bases) {
+    scratch_.Resize(unknowns.size());
+  }
+
+  internal::Linearized Linearize(const LevelSchedule& level, const Eigen::VectorXd& x, bool step_follows,
+                                 double* synthesis_ms, double* analysis_ms) override {
+    level_ = level.level;
+    x_ = x;
+    systems_.clear();
+    trial_points_.clear();
+    trial_energies_.clear();
+    internal::Linearized out;
+    out.has_data = true;
+    for (int f = 0; f < unknowns_.frames(); ++f) {
+      const Eigen::VectorXd xf = unknowns_.FrameX(x, f);
+      const Counts counts = linearize_frame(f, xf, synthesis_ms, analysis_ms);
+      out.has_data = out.has_data && counts.has_data();
+      out.residuals += counts.residuals();
+      TermEnergies e;
+      if (step_follows) {
+        NormalEquations ne = m_.assemble(xf);
+        step_ms_ += ne.wall_ms;  // the step's time, booked by SolveStep (as the CPU's J)
+        e = ne.energy;
+        systems_.push_back(std::move(ne));
+      } else {
+        const auto t0 = Clock::now();
+        e = m_.energies_at({xf}).front();
+        *analysis_ms += ms_since(t0);
+      }
+      for (int t = 0; t < kNumTerms; ++t) out.energy.value[t] += e.value[t];
+    }
+    m_.current_input = nullptr;
+    return out;
+  }
+
+  void SolveStep(const LevelSchedule& level, const Eigen::VectorXd& x, Eigen::VectorXd* dx,
+                 IterationRecord* rec) override {
+    if (static_cast<int>(systems_.size()) != unknowns_.frames() || x.size() != unknowns_.size()) {
+      throw Error("Vulkan solver: a step was asked for that no linearisation prepared");
+    }
+    const auto start = Clock::now();
+    rec->analysis_ms += TakeUnusedStepMs();
+    const int n = unknowns_.size(), local = unknowns_.shared() + unknowns_.own();
+    Eigen::MatrixXd jtj = Eigen::MatrixXd::Zero(n, n);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
+    for (int f = 0; f < unknowns_.frames(); ++f) {
+      const NormalEquations& ne = systems_[static_cast<size_t>(f)];
+      for (int a = 0; a < local; ++a) {
+        const int ga = unknowns_.Global(a, f);
+        b[ga] -= ne.jtr[a];
+        for (int c = 0; c < local; ++c) jtj(ga, unknowns_.Global(c, f)) += ne.jtj(a, c);
+      }
+    }
+    const AssembledNormalOperator op(std::move(jtj), options_.damping);
+    dx->setZero(n);
+    const PcgSummary ps = Pcg(op, b, PcgOptions{level.pcg_iterations, options_.pcg_relative_tolerance}, &scratch_, dx);
+    dx_ = *dx;
+    rec->analysis_ms += ms_since(start);
+    rec->pcg_iterations = ps.iterations;
+    rec->pcg_relative_residual = ps.initial_residual_norm > 0 ? ps.final_residual_norm / ps.initial_residual_norm : 0;
+  }
+
+  // Every halving's trial point is formed as the loop forms it (x + 2^-h dx, expression clamped),
+  // and all are evaluated the first time one is asked for.
+  double TrialEnergy(int halving, const Eigen::VectorXd& x_try) override {
+    if (trial_points_.empty()) {
+      double scale = 1.0;
+      for (int h = 0; h <= options_.max_step_halvings; ++h, scale *= 0.5) {
+        Eigen::VectorXd p = x_ + scale * dx_;
+        if (options_.clamp_expression) {
+          for (const internal::ExpressionSpan& span : unknowns_.ExpressionSpans()) {
+            for (int q = 0; q < span.count; ++q) p[span.offset + q] = std::clamp(p[span.offset + q], 0.0, 1.0);
+          }
+        }
+        trial_points_.push_back(std::move(p));
+      }
+      trial_energies_ = Evaluate(trial_points_);
+    }
+    if (halving < static_cast<int>(trial_points_.size()) && trial_points_[static_cast<size_t>(halving)] == x_try) {
+      return trial_energies_[static_cast<size_t>(halving)];
+    }
+    return Evaluate({x_try}).front();  // a point the loop formed otherwise (not expected)
+  }
+
+  double TakeUnusedStepMs() override { return std::exchange(step_ms_, 0.0); }
+
+ private:
+  Counts linearize_frame(int f, const Eigen::VectorXd& xf, double* synthesis_ms, double* analysis_ms) {
+    LevelInput& li = inputs_[static_cast<size_t>(f)].at(level_);
+    m_.current_input = &li.data;
+    return m_.linearize(li, layout_, layout_.Unpack(xf, bases_[static_cast<size_t>(f)]), options_, synthesis_ms,
+                        analysis_ms, /*regularize_shared=*/f == 0);
+  }
+
+  // Total energies at joint points, each frame linearised again at the step's start.
+  std::vector<double> Evaluate(const std::vector<Eigen::VectorXd>& points) {
+    std::vector<double> totals(points.size(), 0.0);
+    double unused = 0;
+    for (int f = 0; f < unknowns_.frames(); ++f) {
+      linearize_frame(f, unknowns_.FrameX(x_, f), &unused, &unused);
+      std::vector<Eigen::VectorXd> local;
+      for (const Eigen::VectorXd& p : points) local.push_back(unknowns_.FrameX(p, f));
+      const std::vector<TermEnergies> e = m_.energies_at(local);
+      for (size_t k = 0; k < points.size(); ++k) totals[k] += e[k].total();
+    }
+    m_.current_input = nullptr;
+    return totals;
+  }
+
+  Impl& m_;
+  const ParameterLayout& layout_;
+  const SolverOptions& options_;
+  const internal::JointUnknowns& unknowns_;
+  std::vector<std::unordered_map<int, LevelInput>>& inputs_;
+  const std::vector<gpu::FaceParameters>& bases_;
+  PcgScratch scratch_;
+  int level_ = 0;
+  Eigen::VectorXd x_, dx_;  // the last linearisation point and the step solved there
+  std::vector<NormalEquations> systems_;
+  std::vector<Eigen::VectorXd> trial_points_;
+  std::vector<double> trial_energies_;
   double step_ms_ = 0;
 };
 
@@ -851,6 +1090,45 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
   return summary;
 }
 
+SolverSummary VulkanSolver::SolveFrames(const std::vector<InputFrame>& frames, const ParameterLayout& layout,
+                                        const SolverOptions& options, std::vector<gpu::FaceParameters>* params) {
+  Impl& m = *impl_;
+  std::string why;
+  if (!params) throw Error("Vulkan solver: no parameters given");
+  if (!options.IsValid(&why)) throw Error(why);
+  if (frames.empty()) throw Error("calibration: no frames");
+  if (layout.num_parameters() > static_cast<int>(kMaxUnknowns)) {
+    throw Error("Vulkan solver: " + std::to_string(layout.num_parameters()) +
+                " unknowns per frame, the device passes support at most " + std::to_string(kMaxUnknowns));
+  }
+  const auto start = Clock::now();
+  const internal::FramePyramids pyramids = internal::BuildFramePyramids(frames, options);
+  internal::CheckJointSolve(m.model, layout, options, pyramids.pointers, *params);
+  const auto solve_start = Clock::now();
+  // Each frame's levels, uploaded once for the whole calibration.
+  std::vector<std::unordered_map<int, LevelInput>> inputs(frames.size());
+  for (size_t f = 0; f < frames.size(); ++f) {
+    for (const auto& level : options.schedule) {
+      if (inputs[f].count(level.level)) continue;
+      m.prepare_level(pyramids.pyramids[f][static_cast<size_t>(level.level)], options.energy, options.threads,
+                      &inputs[f][level.level]);
+    }
+  }
+  const double input_ms = ms_since(solve_start);
+  const internal::JointUnknowns unknowns(layout, static_cast<int>(frames.size()));
+  const std::vector<gpu::FaceParameters> bases = *params;
+  Eigen::VectorXd x = unknowns.Pack(bases);
+  Impl::JointGaussNewton backend(m, layout, options, unknowns, inputs, bases);
+  SolverSummary summary = internal::RunGaussNewton(options, unknowns.ExpressionSpans(), unknowns.frames(), &backend, &x);
+  summary.message += std::string("; Vulkan (") + m.context.device_info().name +
+                     ", J^T J per frame on the device, the joint system on the host)";
+  for (int f = 0; f < unknowns.frames(); ++f) (*params)[static_cast<size_t>(f)] = layout.Unpack(unknowns.FrameX(x, f), bases[static_cast<size_t>(f)]);
+  summary.pyramid_ms = pyramids.ms;
+  summary.input_ms = input_ms;
+  summary.total_ms = ms_since(start);
+  return summary;
+}
+
 VulkanLinearSystem VulkanSolver::Inspect(const InputFrame& level_frame, const ParameterLayout& layout,
                                          const EnergyOptions& energy, const gpu::FaceParameters& params,
                                          const Eigen::VectorXd& v, const gpu::RenderOptions& render) {
@@ -890,8 +1168,7 @@ VulkanLinearSystem VulkanSolver::Inspect(const InputFrame& level_frame, const Pa
   m.context.submit_and_wait(
       [&](VkCommandBuffer cmd) {
         gpu::CommandRecorder rec(m.context, cmd);
-        rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
-                           VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+        Impl::record_after_everything_before(rec);
         m.record_evaluate(rec, 0, 2u);
         m.compute_barrier(rec);
         m.record_jtj(rec);
@@ -948,12 +1225,7 @@ VulkanLinearSystem VulkanSolver::Inspect(const InputFrame& level_frame, const Pa
   }
   const uint64_t after_pixels = uint64_t{kRowsPerPixel} * counts.pixels;
   for (uint64_t k = 0; k < 2ull * counts.landmarks + counts.regularizer; ++k) copy_row(after_pixels + k, out.term_rows[3] + Eigen::Index(k));
-  out.jtj.resize(n, n);
-  out.jtr.resize(n);
-  for (uint32_t a2 = 0; a2 < n; ++a2) {
-    for (uint32_t b2 = 0; b2 < n; ++b2) out.jtj(a2, b2) = jtj[a2 * (n + 1) + b2];
-    out.jtr[a2] = jtj[a2 * (n + 1) + n];
-  }
+  m.unpack_normal_equations(jtj, &out.jtj, &out.jtr);
   out.jtr_matrix_free.resize(n);
   out.normal_product.resize(n);
   for (uint32_t i = 0; i < n; ++i) {

@@ -3,8 +3,8 @@
 //
 //  1. Calibration: the first `calibration_frames` usable frames (a face with enough landmarks)
 //     are collected; then identity alpha, albedo beta and, per frame, expression, lighting and
-//     pose are optimised jointly over all of them (CpuSolver::SolveFrames with the calibration
-//     layout). Identity and albedo are then fixed, and the actor's neutral expression is the
+//     pose are optimised jointly over all of them (CpuSolver::SolveFrames, or the solver given to
+//     SetCalibrationSolver, with the calibration layout). Identity and albedo are then fixed, and the actor's neutral expression is the
 //     mean expression over the calibration frames as tracking reads them (the transfer of Eq. 15
 //     subtracts it).
 //  2. Tracking: every frame solves expression, lighting and pose (tracking layout), warm-started
@@ -289,6 +289,11 @@ struct TrackedFrame {
 using PyramidSolveFunction =
     std::function<SolverSummary(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
                                 const SolverOptions& options, gpu::FaceParameters* params)>;
+// Solve function with CpuSolver::SolveFrames' signature (the joint calibration over frames); lets
+// a caller put the Vulkan solver behind the calibration.
+using FramesSolveFunction =
+    std::function<SolverSummary(const std::vector<InputFrame>& frames, const ParameterLayout& layout,
+                                const SolverOptions& options, std::vector<gpu::FaceParameters>* params)>;
 
 class FaceTracker {
  public:
@@ -340,8 +345,10 @@ class FaceTracker {
   const CpuSolver& cpu_solver() const { return solver_; }
 
   // Replace the per-frame (tracking and recovery) solver, e.g. by the Vulkan solver; an empty
-  // function restores the CPU solver. Calibration always uses the CPU multi-frame solver.
+  // function restores the CPU solver.
   void SetTrackingSolver(PyramidSolveFunction solve);
+  // Replace the calibration's joint solver likewise (VulkanSolver::SolveFrames); empty = the CPU's.
+  void SetCalibrationSolver(FramesSolveFunction solve);
 
  private:
   // One solve of one frame (warm-started or from a landmark re-initialisation).
@@ -371,6 +378,7 @@ class FaceTracker {
   CpuSolver solver_;
   GazeEstimator gaze_;  // reads solver_'s model
   PyramidSolveFunction tracking_solve_;
+  FramesSolveFunction calibration_solve_;
   std::atomic<bool> calibration_requested_{false};
   bool calibrated_ = false;
   bool collecting_ = true;  // gathering calibration frames (first calibration or requested)

@@ -105,6 +105,8 @@ class MatrixFreeNormalOperator final : public NormalOperator {
 class AssembledNormalOperator final : public NormalOperator {
  public:
   AssembledNormalOperator(const StackedJacobian& jacobian, double damping);
+  // From J^T J already formed (the Vulkan calibration sums it over frames).
+  AssembledNormalOperator(Eigen::MatrixXd gram, double damping);
   AssembledNormalOperator(const JacobianMatrix& jacobian, double damping)
       : AssembledNormalOperator(StackedJacobian(jacobian), damping) {}
   Eigen::Index size() const override { return matrix_.cols(); }

@@ -1,10 +1,11 @@
 #pragma once
-// Which solver runs the per-frame Gauss-Newton of the tracking loop: the CPU reference or the
-// Vulkan compute solver, and on which device. `kAuto` takes the Vulkan solver on a real GPU and
-// the CPU solver when the only Vulkan device is a CPU implementation (Mesa's lavapipe), where
-// `face-reenact bench track` measured the Vulkan solver 5-6x slower than the CPU reference
-// (docs/tracker.md, "Vulkan solver"). Either can be forced. Within the Vulkan solver, the
-// J/J^T-versus-J^T J strategy is timed and chosen by the solver itself (VulkanStrategy::kAuto).
+// Which solver runs the Gauss-Newton solves of the tracking loop (per frame and the calibration):
+// the CPU reference or the Vulkan compute solver, and on which device. `kAuto` takes the Vulkan
+// solver on a real GPU and the CPU solver when the only Vulkan device is a CPU implementation
+// (Mesa's lavapipe), where `face-reenact bench track` measured the Vulkan solver 5-6x slower than
+// the CPU reference (docs/tracker.md, "Vulkan solver"). Either can be forced. Within the Vulkan
+// solver, the J/J^T-versus-J^T J strategy is timed and chosen by the solver itself
+// (VulkanStrategy::kAuto).
 #include <string>
 
 #include "face_reenact/tracker/face_tracker.h"
@@ -22,6 +23,8 @@ struct TrackingSolverChoice {
   // For FaceTracker::SetTrackingSolver; empty = the tracker's own CPU solver. A Vulkan choice
   // owns its device context and solver (shared by copies of the function).
   PyramidSolveFunction solve;
+  // For FaceTracker::SetCalibrationSolver, from the same device and solver (empty for the CPU).
+  FramesSolveFunction calibrate;
   std::string description;  // "vulkan on NVIDIA ... (auto: a GPU)", "cpu (auto: only a CPU Vulkan device)"
 };
 

@@ -93,6 +93,14 @@ class VulkanSolver {
   SolverSummary Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
                       const SolverOptions& options, gpu::FaceParameters* params);
 
+  // Calibration over several frames (CpuSolver::SolveFrames' problem, options and result): every
+  // frame's synthesis and analysis on the device, where each frame's J^T J and J^T r are
+  // assembled and read back; the host sums them into the joint system (identity and albedo
+  // shared, the rest per frame) and solves it with the CPU's Jacobi PCG. The step's trial
+  // energies are evaluated on the device. The layout may have at most 255 unknowns per frame.
+  SolverSummary SolveFrames(const std::vector<InputFrame>& frames, const ParameterLayout& layout,
+                            const SolverOptions& options, std::vector<gpu::FaceParameters>* params);
+
   // Renders `params` for `level_frame`, linearises and evaluates r and J on the device, forms
   // J^T J and J^T r with the assembled path and J^T (J v) with the matrix-free path, and reads
   // everything back (slow; for tests and tools). `v` must have layout.num_parameters() entries.
