@@ -3,9 +3,9 @@
 // Linearisation, per pixel of the pyramid level (energy.cc: Linearize): a pixel counts when the
 // render covers it and the input has depth there (or the frame has none); it carries the
 // geometric terms when |X_S - X_I| <= max_point_distance and the plane terms also when N_I
-// exists and N_S . N_I >= min_normal_dot; a colour pixel gets its robust weight. Carrying pixels
-// are compacted into items with an
-// atomic counter (order is arbitrary; every later pass is order-independent up to rounding).
+// exists and N_S . N_I >= min_normal_dot; the colour term when its triangle is in the colour
+// parts, with its robust weight. Carrying pixels are compacted into items with an atomic counter
+// (order is arbitrary; every later pass is order-independent up to rounding).
 layout(local_size_x = 64) in;
 #include "tracker_common.glsl"
 
@@ -16,6 +16,7 @@ layout(std430, set = 0, binding = 3) readonly buffer GIds { uvec4 g_ids[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Input { vec4 input_data[]; };  // kInputVec4sPerPixel per pixel
 layout(std430, set = 0, binding = 5) writeonly buffer Items { uint items[]; };
 layout(std430, set = 0, binding = 7) readonly buffer GColor { vec4 g_color[]; };  // C_S, the rendered shaded colour
+layout(std430, set = 0, binding = 8) readonly buffer VertexParts { uint vertex_part[]; };  // FacePart per vertex
 layout(std430, set = 0, binding = 6) buffer Counters {
   uint pixel_count;
   uint num_point;
@@ -30,6 +31,7 @@ layout(push_constant) uniform Push {
   uint width, height, has_depth, use_point, use_plane, use_color;
   float max_point_distance, min_normal_dot;
   float color_robust_threshold;  // EnergyOptions::color_robust_threshold (0 = off)
+  uint color_parts;              // EnergyOptions::color_parts (bit per FacePart)
 } pc;
 
 void main() {
@@ -41,7 +43,8 @@ void main() {
   const vec4 input_normal = input_data[kInputVec4sPerPixel * p + 1u];
   if (pc.has_depth != 0u && input_point.w == 0.0) return;
   bool point = false, plane = false;
-  const bool color = pc.use_color != 0u;
+  const bool color = pc.use_color != 0u && ((pc.color_parts >> vertex_part[ids.y]) & 1u) != 0u &&
+                     ((pc.color_parts >> vertex_part[ids.z]) & 1u) != 0u && ((pc.color_parts >> vertex_part[ids.w]) & 1u) != 0u;
   if (pc.has_depth != 0u && (pc.use_point != 0u || pc.use_plane != 0u)) {
     const bool near = length(g_position[p].xyz - input_point.xyz) <= pc.max_point_distance;
     point = pc.use_point != 0u && near;

@@ -421,6 +421,40 @@ TEST(TrackerEnergy, UnmatchableColoursAreDownWeighted) {
   }());
 }
 
+// EnergyOptions::color_parts: by default no colour rows on the scalp, ears or neck (hair,
+// collars, shadow: colour the albedo model paints as skin), while the geometric terms keep them.
+TEST(TrackerEnergy, ColourCoversTheFaceNotTheScalpEarsOrNeck) {
+  const TrackerModel* model = real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  gpu::FaceParameters p = true_parameters(*model, 0.5f, 3);
+  p.euler.y() += 0.5f;  // turned, so an ear and the side of the head are in view
+  const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, p, test_camera(320, 240));
+  const ParameterLayout layout = ParameterLayout::Tracking(model->num_expression());
+  auto in_parts = [&](const PixelSample& px, gpu::PartMask parts) {
+    for (int k = 0; k < 3; ++k) {
+      if (!((parts >> model->render.vertex_part[px.vertex[k]]) & 1u)) return false;
+    }
+    return true;
+  };
+  const gpu::PartMask excluded = gpu::kAllParts & ~kColorParts;
+  EnergyOptions eo;
+  int colour = 0, geometry_outside = 0;
+  for (const PixelSample& px : solver.LinearizeAt(frame, layout, eo, p).pixels) {
+    EXPECT_FALSE(px.color && !in_parts(px, kColorParts)) << "colour at pixel " << px.i << "," << px.j;
+    colour += px.color;
+    geometry_outside += (px.point || px.plane) && in_parts(px, excluded);
+  }
+  EXPECT_GT(colour, 1000);
+  EXPECT_GT(geometry_outside, 100);
+  eo.color_parts = gpu::kAllParts;
+  int colour_outside = 0;
+  for (const PixelSample& px : solver.LinearizeAt(frame, layout, eo, p).pixels) colour_outside += px.color && in_parts(px, excluded);
+  EXPECT_GT(colour_outside, 100);
+  eo.color_parts = 0;
+  EXPECT_FALSE(eo.IsValid(nullptr));
+}
+
 // The pixel rows split over threads: r, J and the energies are bit-identical to one thread
 // (each pixel writes only its own rows), for thread counts that do and do not divide the pixels.
 // J is not zeroed as a whole (energy.cc writes every row it owns): a buffer that held anything

@@ -271,6 +271,7 @@ TEST_F(TrackerSolverTest, ColorTermAloneRecoversLighting) {
   const FitError before = fit_error(solver_->renderer(), start, truth_);
   SolverOptions o = single_term(Term::kColor);
   o.energy.color_follows_projection = false;
+  o.energy.color_parts = gpu::kAllParts;  // the render's colour is the model's albedo everywhere
   const FitError e = fit(o, tracking(), start);
   // Pose is left free and drifts along the rotation/lighting near-degeneracy; what the colour
   // term determines is the appearance.
@@ -291,6 +292,7 @@ TEST_F(TrackerSolverTest, ColorThroughTheProjectionAlignsAShiftedFace) {
   auto sideways = [&](const gpu::FaceParameters& p) { return (p.translation - truth_.translation).head<2>().norm(); };
   SolverOptions o = single_term(Term::kColor);
   o.schedule = {{2, 10, 4}, {1, 5, 4}};
+  o.energy.color_parts = gpu::kAllParts;  // the render's colour is the model's albedo everywhere
   gpu::FaceParameters moved;
   const FitError e = fit(o, ParameterLayout::Tracking(0), start, nullptr, &moved);
   std::cout << "sideways offset " << sideways(start) * 1000 << " -> " << sideways(moved) * 1000 << " mm\n";

@@ -178,6 +178,7 @@ bool EnergyOptions::IsValid(std::string* why) const {
   if (!(max_point_distance_m > 0)) return fail(why, "energy: max_point_distance_m must be positive");
   if (!(min_normal_dot >= -1 && min_normal_dot <= 1)) return fail(why, "energy: min_normal_dot must be in [-1, 1]");
   if (!(max_depth_jump_m > 0)) return fail(why, "energy: max_depth_jump_m must be positive");
+  if (use_color && (color_parts & gpu::kAllParts) == 0) return fail(why, "energy: color_parts selects no part");
   if (!(color_robust_threshold >= 0) || !std::isfinite(color_robust_threshold)) {
     return fail(why, "energy: color_robust_threshold must be finite and non-negative (0 = off)");
   }
@@ -245,6 +246,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
     lin.model_normals.segment<3>(3 * v) = len > 0 ? Eigen::Vector3d(m / len) : Eigen::Vector3d::Zero();
   }
 
+  const std::vector<uint8_t>& vertex_part = model.render.vertex_part;
   const bool want_geometry = frame.has_depth() && (options.use_point || options.use_plane);
   const bool follows_projection = ColorFollowsProjection(options, frame);
   const int w = frame.width();
@@ -263,6 +265,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
       if (s.vertex[0] < 0 || s.vertex[1] < 0 || s.vertex[2] < 0) continue;
       s.input_color = Eigen::Vector3d(frame.color[3 * p], frame.color[3 * p + 1], frame.color[3 * p + 2]);
       s.color = options.use_color;
+      for (int k = 0; k < 3; ++k) s.color = s.color && ((options.color_parts >> vertex_part[s.vertex[k]]) & 1u);
       if (s.color && follows_projection) {
         s.input_color_gradient = InputColorGradient(frame, i, j);
         s.color_weight = RobustColorWeight(gbuffer, p, s.input_color, options.color_robust_threshold);

@@ -56,6 +56,7 @@ struct ClassifyPush {
   uint32_t width, height, has_depth, use_point, use_plane, use_color;
   float max_point_distance, min_normal_dot;
   float color_robust_threshold;
+  uint32_t color_parts;
 };
 struct LandmarkPush {
   uint32_t count;
@@ -170,6 +171,7 @@ struct VulkanSolver::Impl {
 
   std::unique_ptr<gpu::ComputePipeline> classify, landmarks, vertices_pass, evaluate, jt, reduce, jtj, pcg;
   gpu::Buffer mean_shape, identity_basis, expression_basis, mean_albedo, albedo_basis;  // row-major
+  gpu::Buffer vertex_parts;  // per vertex its FacePart, one uint each (classify: EnergyOptions::color_parts)
   gpu::Buffer identity_columns, expression_columns, albedo_columns;  // column-major (tracker_vertices.comp)
   gpu::Buffer vertices;  // per x slot: position, albedo per vertex
   gpu::Buffer identity_cache;  // a_id + E_id alpha | albedo of the base (tracking: identity fixed)
@@ -219,8 +221,12 @@ struct VulkanSolver::Impl {
     upload(identity_columns, id_columns.data(), id_columns.size(), "tracker identity basis (column-major)");
     upload(expression_columns, ex_columns.data(), ex_columns.size(), "tracker expression basis (column-major)");
     upload(albedo_columns, al_columns.data(), al_columns.size(), "tracker albedo basis (column-major)");
+    const std::vector<uint32_t> parts(r.vertex_part.begin(), r.vertex_part.end());
+    vertex_parts = gpu::Buffer(context, std::max<size_t>(parts.size() * 4, 16), kStorage, gpu::BufferDomain::Device,
+                               "tracker vertex parts");
+    if (!parts.empty()) vertex_parts.write(parts.data(), parts.size() * 4);
     namespace sh = gpu::shaders;
-    classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 8, sizeof(ClassifyPush),
+    classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 9, sizeof(ClassifyPush),
                                                        "tracker linearisation");
     landmarks = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_landmarks_comp, 5, sizeof(LandmarkPush),
                                                         "tracker landmark pruning");
@@ -390,13 +396,15 @@ struct VulkanSolver::Impl {
                              VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
           if (cache_identity) record_vertices(rec, 0, 1, 1);
           rec.bind(*classify);
-          const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids, &li.data, &items, &counters, &g_color};
-          for (uint32_t i = 0; i < 8; ++i) rec.set_storage_buffer(i, *cb[i]);
+          const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids,   &li.data,
+                                     &items,      &counters, &g_color, &vertex_parts};
+          for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *cb[i]);
           const bool geometry = f.has_depth() && (e.use_point || e.use_plane);
           rec.push_constants(ClassifyPush{w, h, f.has_depth() ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
                                           geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
                                           static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot),
-                                          ColorFollowsProjection(e, f) ? static_cast<float>(e.color_robust_threshold) : 0.f});
+                                          ColorFollowsProjection(e, f) ? static_cast<float>(e.color_robust_threshold) : 0.f,
+                                          e.color_parts});
           rec.dispatch_1d(w * h, 64);
           rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                              VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,

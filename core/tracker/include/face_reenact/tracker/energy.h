@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/parameter_layout.h"
 #include "face_reenact/tracker/tracker_model.h"
@@ -38,6 +39,11 @@ namespace face_reenact::tracker {
 // kept as a correspondence, and those few pixels outweighed all the others: a calibration
 // started at the true parameters slid 4 mm nearer (docs/tracker.md, "What is drawn").
 inline constexpr gpu::RenderOptions kTrackedParts{gpu::kAllParts, true};
+
+// EnergyOptions::color_parts' default: every part but the scalp, ears and neck.
+inline constexpr gpu::PartMask kColorParts =
+    gpu::kAllParts & ~((1u << static_cast<int>(FacePart::Scalp)) | (1u << static_cast<int>(FacePart::Ear)) |
+                       (1u << static_cast<int>(FacePart::Neck)));
 
 enum class Term { kPoint = 0, kPlane, kColor, kLandmark, kRegularizer };
 inline constexpr int kNumTerms = 5;
@@ -79,6 +85,12 @@ struct EnergyOptions {
   // without depth the face's distance is barely observed, and on RGB-only input with dlib's
   // landmarks the term moved it further off (docs/tracker.md, "Colour through the projection").
   bool color_follows_projection = true;
+  // The parts E_col covers (a pixel counts when its triangle's three vertices are in them): the
+  // face, eyes, teeth and tongue, whose colour the albedo model describes. The paper's model is a
+  // face mask; the scalp is under hair on most people, the ears often too, the neck under a
+  // collar or in the chin's shadow, and the model paints all three as skin. The geometric terms
+  // still fit every part drawn (docs/tracker.md, "Colour through the projection").
+  gpu::PartMask color_parts = kColorParts;
   // Robust colour read through the projection (Huber, as iteratively reweighted least squares):
   // a pixel whose rendered colour differs from the input by more than this (linear RGB,
   // Euclidean) at the linearisation point counts with weight threshold / difference, frozen for
