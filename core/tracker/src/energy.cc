@@ -237,7 +237,6 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   lin.layout = layout;
   lin.base = params;
   lin.camera = frame.camera;
-  lin.has_depth = frame.has_depth();
   const Eigen::Matrix3d rotation = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
   lin.model_normals.resize(3 * n);
   for (int v = 0; v < n; ++v) {
@@ -249,6 +248,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   const std::vector<uint8_t>& vertex_part = model.render.vertex_part;
   const bool want_geometry = frame.has_depth() && (options.use_point || options.use_plane);
   const bool follows_projection = ColorFollowsProjection(options, frame);
+  lin.color_follows_projection = follows_projection;
   const int w = frame.width();
   for (int j = 0; j < frame.height(); ++j) {
     for (int i = 0; i < w; ++i) {
@@ -356,7 +356,6 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   const double s_point = lin.num_point ? std::sqrt(options.w_point / lin.num_point) / unit : 0;
   const double s_plane = lin.num_plane ? std::sqrt(options.w_plane / lin.num_plane) / unit : 0;
   const double s_col = lin.num_color ? std::sqrt(options.w_col / lin.num_color) : 0;
-  const bool follows_projection = options.color_follows_projection && lin.has_depth;
 
   // The dense terms, pixel by pixel. Every pixel writes only its own rows, so contiguous chunks
   // of pixels run on separate threads (each with its own vertex cache and scratch) and give
@@ -378,7 +377,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
         n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
       }
       const Eigen::Vector3d xs = R * v_bar + c.translation;
-      const bool color_moves = s.color && follows_projection;
+      const bool color_moves = s.color && lin.color_follows_projection;
       if (jacobian && (s.point || s.plane || color_moves)) {
         dx.setZero();
         if (k_id > 0) {

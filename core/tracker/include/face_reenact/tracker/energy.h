@@ -184,7 +184,7 @@ struct Linearization {
   ParameterLayout layout;
   gpu::FaceParameters base;     // parameters at the linearisation point (supplies fixed blocks)
   gpu::PinholeCamera camera;    // of the pyramid level
-  bool has_depth = false;       // the level frame has a depth map (ColorFollowsProjection)
+  bool color_follows_projection = false;  // ColorFollowsProjection for this frame and options
   std::vector<PixelSample> pixels;
   std::vector<LandmarkSample> landmarks;
   Eigen::VectorXd model_normals;  // 3N, model frame, unit (frozen for this step)
