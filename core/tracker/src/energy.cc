@@ -308,7 +308,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   }
   lin.regularize_shared = regularize_shared;
   if (options.use_regularizer) {
-    lin.num_regularizer = (regularize_shared ? layout.num_identity + layout.num_albedo : 0) + layout.num_expression;
+    lin.num_regularizer = RegularizerRows(layout, regularize_shared);
   }
 
   lin.term_rows[0] = 0;

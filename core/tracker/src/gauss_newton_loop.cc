@@ -21,6 +21,16 @@ bool EndIfStopRequested(const SolverOptions& options, int level, int iteration, 
 
 }  // namespace
 
+void ClampExpressions(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, Eigen::VectorXd* x) {
+  if (!options.clamp_expression) return;
+  for (const ExpressionSpan& span : expressions) {
+    for (int q = 0; q < span.count; ++q) {
+      double& d = (*x)[span.offset + q];
+      d = std::clamp(d, 0.0, 1.0);
+    }
+  }
+}
+
 JointUnknowns::JointUnknowns(const ParameterLayout& layout, int frames)
     : layout_(layout),
       shared_(layout.num_identity + layout.num_albedo),
@@ -85,15 +95,6 @@ void CheckJointSolve(const TrackerModel& model, const ParameterLayout& layout, c
 SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, int frames,
                              GaussNewtonBackend* backend, Eigen::VectorXd* x) {
   SolverSummary summary;
-  auto clamp = [&](Eigen::VectorXd* v) {
-    if (!options.clamp_expression) return;
-    for (const ExpressionSpan& span : expressions) {
-      for (int q = 0; q < span.count; ++q) {
-        double& d = (*v)[span.offset + q];
-        d = std::clamp(d, 0.0, 1.0);
-      }
-    }
-  };
   auto keep = [&](const IterationRecord& rec) {
     summary.iterations.push_back(rec);
     summary.synthesis_ms += rec.synthesis_ms;
@@ -146,7 +147,7 @@ SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<Exp
       const auto t_control = Clock::now();
       for (int h = 0; h <= options.max_step_halvings; ++h, scale *= 0.5) {
         x_try = *x + scale * dx;
-        clamp(&x_try);
+        ClampExpressions(options, expressions, &x_try);
         linear_energy = backend->TrialEnergy(h, x_try);
         rec.step_halvings = h;
         if ((std::isfinite(linear_energy) && linear_energy <= before) || options.max_step_halvings == 0) {

@@ -47,6 +47,10 @@ struct ExpressionSpan {
   int count = 0;
 };
 
+// Projects the expression weights of x onto [0, 1] when options.clamp_expression: the loop does
+// it to every trial point, and a backend forming the loop's trial points ahead does the same.
+void ClampExpressions(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, Eigen::VectorXd* x);
+
 // The unknowns of a joint solve over several frames (calibration, Sec. 6.3), as both solvers
 // lay them out: x = [shared identity/albedo (S) | frame 0's own (P) | frame 1's own | ...], each
 // frame's own being its expression, lighting and pose; with one frame exactly the layout's x.

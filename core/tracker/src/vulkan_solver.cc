@@ -435,10 +435,7 @@ struct VulkanSolver::Impl {
     out.num_color = c.num_color;
     out.landmarks = c.landmark_count;
     out.landmark_weight = c.landmark_weight;
-    out.regularizer =
-        e.use_regularizer
-            ? static_cast<uint32_t>((regularize_shared ? l.num_identity + l.num_albedo : 0) + l.num_expression)
-            : 0;
+    out.regularizer = e.use_regularizer ? static_cast<uint32_t>(RegularizerRows(l, regularize_shared)) : 0;
     write_params(out, l, p, e, f.camera, regularize_shared);
     *analysis_ms += ms_since(t1);
     return out;
@@ -974,11 +971,7 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
       double scale = 1.0;
       for (int h = 0; h <= options_.max_step_halvings; ++h, scale *= 0.5) {
         Eigen::VectorXd p = x_ + scale * dx_;
-        if (options_.clamp_expression) {
-          for (const internal::ExpressionSpan& span : unknowns_.ExpressionSpans()) {
-            for (int q = 0; q < span.count; ++q) p[span.offset + q] = std::clamp(p[span.offset + q], 0.0, 1.0);
-          }
-        }
+        internal::ClampExpressions(options_, unknowns_.ExpressionSpans(), &p);
         trial_points_.push_back(std::move(p));
       }
       trial_energies_ = Evaluate(trial_points_);

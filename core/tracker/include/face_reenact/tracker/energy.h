@@ -205,6 +205,12 @@ struct Linearization {
   Eigen::Index num_residuals() const { return term_rows[kNumTerms]; }
 };
 
+// E_reg's rows for a layout: identity and albedo (unless another frame of a joint solve carries
+// them: Linearization::regularize_shared false), then the expression.
+inline int RegularizerRows(const ParameterLayout& layout, bool regularize_shared) {
+  return (regularize_shared ? layout.num_identity + layout.num_albedo : 0) + layout.num_expression;
+}
+
 // Builds the linearisation at parameters `params` from their render (`state` from
 // CpuRenderer::evaluate or the GPU twin, `gbuffer` rendered with `level_frame.camera`).
 Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout, const gpu::FaceParameters& params,
