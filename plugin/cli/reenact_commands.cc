@@ -9,6 +9,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <sstream>
@@ -21,6 +23,8 @@
 #include <opencv2/videoio.hpp>
 
 #include "command_registry.h"
+#include "report_json.h"
+#include "video_output.h"
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/capture/synth.h"
 #include "face_reenact/common/error.h"
@@ -59,7 +63,8 @@ reenact::ReenactMode parse_mode(const std::string& s) {
   if (s == "reenact") return reenact::ReenactMode::kReenact;
   if (s == "pass-through") return reenact::ReenactMode::kPassThrough;
   if (s == "off") return reenact::ReenactMode::kOff;
-  throw Error("--mode '" + s + "': expected 'reenact', 'pass-through' or 'off'");
+  if (s == "overlay") return reenact::ReenactMode::kOverlay;
+  throw Error("--mode '" + s + "': expected 'reenact', 'pass-through', 'overlay' or 'off'");
 }
 
 // "udp://PORT" or "udp://ADDRESS:PORT"; nullopt when `source` is not a udp:// URL.
@@ -72,28 +77,6 @@ std::optional<stream::ListenSpec> parse_udp_source(const std::string& source) {
   if (spec.port == 0) throw Error("--source '" + source + "': the port must be 1-65535");
   return spec;
 }
-
-// Writes mp4 with the first codec this OpenCV/FFmpeg build can open.
-class Mp4Writer {
- public:
-  Mp4Writer(const std::string& path, double fps, cv::Size size) : path_(path) {
-    for (const char* code : {"avc1", "mp4v"}) {
-      writer_.open(path, cv::CAP_FFMPEG, cv::VideoWriter::fourcc(code[0], code[1], code[2], code[3]), fps, size);
-      if (writer_.isOpened()) {
-        codec_ = code;
-        return;
-      }
-    }
-    throw Error("cannot write video '" + path + "': no mp4 encoder (avc1, mp4v) is available in OpenCV's FFmpeg");
-  }
-  void write(const cv::Mat& bgr) { writer_.write(bgr); }
-  void close() { writer_.release(); }
-  const std::string& codec() const { return codec_; }
-
- private:
-  std::string path_, codec_;
-  cv::VideoWriter writer_;
-};
 
 void check_output_file(const std::string& path, const char* what) {
   const fs::path p = fs::path(path).lexically_normal();
@@ -195,13 +178,71 @@ reenact::Appearance parse_appearance(const std::string& s) {
 struct ReenactArgs {
   std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu",
                                  appearance = "frame-texture";
+  std::string report, status_log;  // --report FILE.json, --status-log FILE.jsonl
   int frames = 0;
+  int calibration_window = 0;      // as `track --calibration-window`, for both actors
+  double fov_deg = 60.0;           // horizontal field of view assumed for video files
+  double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
+  double target_rest_s = -1;       // the same for the target
   bool quiet = false;
+};
+
+// Source frames paired with target frames by time: each target frame takes the newest source
+// frame at or before its own time (both measured from each file's first frame), so a 30 fps
+// source on a 15 fps target plays at its own speed (every other source frame is skipped) and a
+// 15 fps source on a 30 fps target holds each expression for two output frames.
+class SourceByTime {
+ public:
+  explicit SourceByTime(capture::FrameSource* source) : source_(source) {}
+  // The newest source frame at or before `target_time_s` into *frame; true when it is a frame not
+  // given before. False with *ended when the source has run out (its last frame is over).
+  bool advance(double target_time_s, capture::RgbdFrame* frame, bool* ended) {
+    *ended = false;
+    bool fresh = false;
+    for (;;) {
+      if (!pending_valid_) {
+        if (!source_->read_next(&pending_)) {
+          exhausted_ = true;
+          break;
+        }
+        pending_valid_ = true;
+        if (std::isnan(first_s_)) first_s_ = pending_.timestamp_s;
+      }
+      const double t = pending_.timestamp_s - first_s_;
+      if (given_ && t > target_time_s + 1e-6) break;
+      if (fresh) ++skipped_;  // a newer one replaces the one found in this call: never tracked
+      last_time_s_ = t;
+      *frame = std::move(pending_);
+      pending_valid_ = false;
+      given_ = true;
+      fresh = true;
+    }
+    // The last source frame lasts one frame interval; past that the source has ended.
+    const double interval = 1.0 / std::max(1.0, source_->info().fps);
+    if (!fresh && exhausted_ && target_time_s > last_time_s_ + interval + 1e-6) *ended = true;
+    if (!given_) *ended = true;
+    return fresh;
+  }
+  int skipped() const { return skipped_; }
+  double time_s() const { return last_time_s_; }  // the newest frame's time into the source
+
+ private:
+  capture::FrameSource* source_;
+  capture::RgbdFrame pending_;
+  bool pending_valid_ = false, given_ = false, exhausted_ = false;
+  double first_s_ = std::numeric_limits<double>::quiet_NaN();
+  double last_time_s_ = 0;
+  int skipped_ = 0;
 };
 
 void run_reenact(const ReenactArgs& a) {
   check_output_file(a.out, "--out");
   if (fs::path(a.out).extension() != ".mp4") throw Error("--out '" + a.out + "': must end in .mp4");
+  if (!a.report.empty()) check_output_file(a.report, "--report");
+  if (!a.status_log.empty()) check_output_file(a.status_log, "--status-log");
+  if (a.calibration_window > 0 && a.calibration_window < tracker::TrackerOptions{}.calibration_frames)
+    throw Error("--calibration-window must be at least the calibration's " +
+                std::to_string(tracker::TrackerOptions{}.calibration_frames) + " frames");
   if (!a.frames_dir.empty()) {
     std::error_code ec;
     fs::create_directories(a.frames_dir, ec);
@@ -215,15 +256,23 @@ void run_reenact(const ReenactArgs& a) {
   const reenact::RendererKind renderer = parse_renderer(a.renderer);
   const reenact::Appearance appearance = parse_appearance(a.appearance);
 
-  std::unique_ptr<capture::FrameSource> target = capture::open_frame_source(a.target);
+  capture::VideoReader::Options video;
+  video.horizontal_fov_deg = a.fov_deg;
+  std::unique_ptr<capture::FrameSource> target = capture::open_frame_source(a.target, video);
   std::unique_ptr<capture::FrameSource> source_rec;
   std::unique_ptr<stream::ExpressionReceiver> receiver;
   if (udp) {
+    if (a.source_rest_s >= 0) throw Error("--source-rest is for a source actor tracked from a file, not a udp:// stream");
     stream::ExpressionReceiver::Options ro;
     ro.listen = *udp;
     receiver = std::make_unique<stream::ExpressionReceiver>(stream::load_key_file(a.key), ro);
   } else {
-    source_rec = capture::open_frame_source(a.source);
+    source_rec = capture::open_frame_source(a.source, video);
+  }
+  std::ofstream status_log;
+  if (!a.status_log.empty()) {
+    status_log.open(a.status_log, std::ios::binary | std::ios::trunc);
+    if (!status_log) throw Error("--status-log '" + a.status_log + "': cannot write");
   }
   const FaceModel model = load_face_model(resolve_model_path(a.model));
 
@@ -233,13 +282,14 @@ void run_reenact(const ReenactArgs& a) {
   ro.appearance = appearance;
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
+  ro.tracker.calibration_window_frames = a.calibration_window;
   reenact::ReenactmentPipeline pipeline(model, ro);
   std::unique_ptr<TrackedSource> source_tracker;
   if (source_rec) source_tracker = std::make_unique<TrackedSource>(model, ro.tracker, ro.input);
+  SourceByTime source_by_time(source_rec.get());
 
   const capture::RecordingInfo& info = target->info();
   int total = info.frame_count > 0 ? info.frame_count : 0;
-  if (source_rec && source_rec->info().frame_count > 0) total = total > 0 ? std::min(total, source_rec->info().frame_count) : source_rec->info().frame_count;
   if (a.frames > 0) total = total > 0 ? std::min(total, a.frames) : a.frames;
   const double fps = info.fps > 0 ? info.fps : 30.0;
   Mp4Writer writer(a.out, fps, cv::Size(info.camera.width, info.camera.height));
@@ -247,13 +297,35 @@ void run_reenact(const ReenactArgs& a) {
 
   const auto start = Clock::now();
   int done = 0;
+  double target_first_s = std::numeric_limits<double>::quiet_NaN();
+  bool source_rest_requested = false, target_rest_requested = false;
   capture::RgbdFrame tf, sf;
+  tracker::TrackedFrame st;  // the source's newest tracked frame
+  std::map<std::string, int> source_statuses, lost_reasons;
+  std::map<std::string, std::string> lost_examples;
+  tracker::FitAgreementTally agreement;
   while ((total <= 0 || done < total) && target->read_next(&tf)) {
+    if (std::isnan(target_first_s)) target_first_s = tf.timestamp_s;
+    const double target_time_s = tf.timestamp_s - target_first_s;
+    if (a.target_rest_s >= 0 && !target_rest_requested && target_time_s >= a.target_rest_s) {
+      pipeline.RequestCalibration();  // the target's identity from the frames where it is at rest
+      target_rest_requested = true;
+    }
     reenact::SourceExpression expr;
     const reenact::SourceExpression* src = nullptr;
+    bool source_fresh = false;
     if (source_rec) {
-      if (!source_rec->read_next(&sf)) break;
-      const tracker::TrackedFrame st = source_tracker->Track(sf);
+      bool ended = false;
+      source_fresh = source_by_time.advance(target_time_s, &sf, &ended);
+      if (ended) break;  // the source's performance is over
+      if (source_fresh) {
+        if (a.source_rest_s >= 0 && !source_rest_requested && source_by_time.time_s() >= a.source_rest_s) {
+          source_tracker->tracker->RequestCalibration();
+          source_rest_requested = true;
+        }
+        st = source_tracker->Track(sf);
+        ++source_statuses[tracker::tracking_status_name(st.status)];
+      }
       expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
       src = &expr;
     } else {
@@ -273,6 +345,35 @@ void run_reenact(const ReenactArgs& a) {
       if (!cv::imwrite((fs::path(a.frames_dir) / name).string(), out.bgr))
         throw Error("cannot write '" + (fs::path(a.frames_dir) / name).string() + "'");
     }
+    const bool fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
+    agreement.Add(tf.index, fit, out.tracked.fit_refused(), out.tracked.agreement, out.tracked.message);
+    if (out.status == reenact::TrackingStatus::kLost) {
+      // Why, by the tracker's status (no_face, lost, bad_input) or the pipeline's reason.
+      const std::string why = out.message.rfind("bad input", 0) == 0 || out.message.rfind("reenactment failed", 0) == 0
+                                  ? out.message.substr(0, out.message.find(':'))
+                                  : tracker::tracking_status_name(out.tracked.status);
+      if (lost_reasons[why]++ == 0) lost_examples[why] = out.message;
+    }
+    if (status_log.is_open()) {
+      nlohmann::json line = {{"frame", done},
+                             {"target_frame", tf.index},
+                             {"target_time_s", target_time_s},
+                             {"status", reenact::tracking_status_name(out.status)},
+                             {"tracker_status", tracker::tracking_status_name(out.tracked.status)},
+                             {"reenacted", out.reenacted},
+                             {"mouth", out.mouth_drawn},
+                             {"message", out.message}};
+      if (source_rec) {
+        line["source_frame"] = sf.index;
+        line["source_fresh"] = source_fresh;
+        line["source_status"] = tracker::tracking_status_name(st.status);
+        line["source_weight"] = expr.blend_weight;
+      } else {
+        line["source_weight"] = expr.blend_weight;
+      }
+      status_log << line.dump() << '\n';
+      if (!status_log) throw Error("--status-log '" + a.status_log + "': writing failed (disk full?)");
+    }
     ++done;
     bar.update(done, std::string(reenact::tracking_status_name(out.status)) +
                          (out.reenacted ? (out.mouth_drawn ? " (mouth)" : "") : ": " + out.message));
@@ -281,14 +382,54 @@ void run_reenact(const ReenactArgs& a) {
   if (done == 0) throw Error("target '" + a.target + "': no frames");
   const double seconds = ms_since(start) / 1000.0;
   const reenact::PipelineSummary s = pipeline.summary();
+  const double source_ms = source_tracker ? source_tracker->track_ms_sum / std::max(1, source_tracker->frames) : 0.0;
   std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s\n", a.out.c_str(), writer.codec().c_str(), done,
               info.camera.width, info.camera.height, seconds);
   std::printf("%s\n", s.BriefReport().c_str());
-  std::printf("%s\n", stage_report(s, source_tracker ? source_tracker->track_ms_sum / std::max(1, source_tracker->frames) : 0.0).c_str());
+  std::printf("%s\n", stage_report(s, source_ms).c_str());
+  if (source_rec && source_by_time.skipped() > 0)
+    std::printf("source: %d frames tracked, %d skipped to keep its timing\n", source_tracker->frames, source_by_time.skipped());
   if (receiver) {
     const stream::ReceiverStatistics st = receiver->statistics();
     std::printf("stream: %llu datagrams applied, %llu rejected\n", static_cast<unsigned long long>(st.applied),
                 static_cast<unsigned long long>(st.rejected_total()));
+  }
+  if (!a.report.empty()) {
+    auto warning = [](const std::string& w) { return w.empty() ? nlohmann::json() : nlohmann::json(w); };
+    nlohmann::json lost = nlohmann::json::object();
+    for (const auto& [why, n] : lost_reasons) lost[why] = {{"frames", n}, {"example", lost_examples[why]}};
+    nlohmann::json r = {
+        {"target", a.target},
+        {"source", a.source},
+        {"mode", reenact::reenact_mode_name(mode)},
+        {"frames", done},
+        {"fps", fps},
+        {"wall_s", seconds},
+        {"output_fps", done / std::max(seconds, 1e-9)},
+        {"statuses", {{"reenacted", s.reenacted_frames}, {"calibrating", s.calibrating_frames}, {"lost", s.lost_frames},
+                      {"tracked_not_drawn", s.frames - s.reenacted_frames - s.calibrating_frames - s.lost_frames}}},
+        {"lost_reasons", lost},
+        {"target_calibration_warning", warning(pipeline.calibration_warning())},
+        {"stage_ms", {{"source_track", source_ms}, {"target_track", s.mean_times.track_ms},
+                      {"transfer", s.mean_times.transfer_ms}, {"render", s.mean_times.render_ms},
+                      {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
+                      {"target_total", s.mean_times.total_ms}}},
+        {"renderer", s.renderer},
+        {"intrinsics", "recordings: their own; videos: principal point at the centre, " + std::to_string(a.fov_deg) +
+                           " degrees horizontal field of view"},
+        {"calibration_window_frames", a.calibration_window},
+        {"agreement", agreement_json(agreement.summary())}};
+    if (source_tracker) {
+      r["source_calibration_warning"] = warning(source_tracker->tracker->calibration_warning());
+      r["source_frames"] = {{"tracked", source_tracker->frames}, {"skipped", source_by_time.skipped()},
+                            {"statuses", source_statuses}};
+    } else {
+      const stream::ReceiverStatistics rs = receiver->statistics();
+      r["stream"] = {{"applied", rs.applied}, {"rejected", rs.rejected_total()}};
+    }
+    std::ofstream f(a.report, std::ios::binary | std::ios::trunc);
+    f << r.dump(2) << '\n';
+    if (!f) throw Error("--report '" + a.report + "': cannot write");
   }
 }
 
@@ -721,12 +862,28 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--frames-dir", args->frames_dir, "Also write every output frame as PNG into this folder");
     c->add_option("--key", args->key, "Stream key file (for a udp:// source)");
     c->add_option("--frames", args->frames, "At most this many frames (default: all)")->check(CLI::Range(1, 10000000));
-    c->add_option("--mode", args->mode, "reenact (default), pass-through (the target's own expression), off");
+    c->add_option("--mode", args->mode, "reenact (default), pass-through (the target's own expression), overlay (the target's fit drawn over it), off");
     c->add_option("--landmarks", args->landmarks, "detector (default: dlib on every frame) or recording (stored landmarks)");
     c->add_option("--renderer", args->renderer, "cpu (default) or vulkan: the rasteriser of the re-rendered face");
     c->add_option("--appearance", args->appearance,
                   "frame-texture (default: the target frame's own colours, re-shaded) or albedo-map (the learned "
                   "per-vertex albedo only)");
+    c->add_option("--report", args->report,
+                  "JSON report: frames reenacted / calibrating / lost and why, both actors' calibration warnings, "
+                  "stage times, the target fit's agreement with its landmarks");
+    c->add_option("--status-log", args->status_log, "One JSON line per output frame: its status, message and source frame");
+    c->add_option("--fov", args->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
+        ->check(CLI::Range(10.0, 170.0));
+    c->add_option("--calibration-window", args->calibration_window,
+                  "Calibrate each actor on the most varied head poses among this many frames (as track; default 0: the "
+                  "first frames)")
+        ->check(CLI::Range(0, 100000));
+    c->add_option("--source-rest", args->source_rest_s,
+                  "The source actor is at rest (relaxed face, mouth closed) from this time on (seconds into the source): "
+                  "its calibration is taken again there")
+        ->check(CLI::Range(0.0, 1e6));
+    c->add_option("--target-rest", args->target_rest_s, "The same for the target actor (seconds into the target)")
+        ->check(CLI::Range(0.0, 1e6));
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_flag("--quiet", args->quiet, "No progress bar");
     c->callback([args] { run_reenact(*args); });

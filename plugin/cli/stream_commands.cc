@@ -87,6 +87,10 @@ std::unique_ptr<fs::ExpressionFrameSource> make_tracked_source(const SendArgs& a
   o.grabber.input = live::parse_target_spec(a.input, "--input");
   o.grabber.loop = a.loop;
   if (a.calibration_frames >= 0) o.tracker.calibration_frames = a.calibration_frames;
+  // A camera keeps delivering while the calibration solves (seconds): the solve runs on its own
+  // thread and the newest frames are tracked as soon as it is done. A recording is read frame by
+  // frame, so there the calibration stays in line and the result does not depend on timing.
+  o.tracker.background_calibration = o.grabber.input.kind != live::InputKind::kRecording;
   o.input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
   o.send_pose = !a.no_pose;
   const FaceModel model = load_face_model(resolve_model_path(a.model));

@@ -26,6 +26,8 @@
 #include <vector>
 
 #include "command_registry.h"
+#include "report_json.h"
+#include "video_output.h"
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
@@ -33,8 +35,10 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/mesh_export.h"
 #include "face_reenact/model/model_file.h"
+#include "face_reenact/reenact/fit_overlay.h"
 #include "face_reenact/tracker/evaluation.h"
 #include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/rgbd_input.h"
 #include "face_reenact/tracker/solver.h"
 #include "face_reenact/tracker/solver_choice.h"
@@ -188,6 +192,7 @@ struct TrackArgs {
   std::string out;
   std::string report;
   std::string export_mesh;
+  std::string overlay;  // OUT.mp4 or a folder: the fit drawn over each frame
   std::string landmarks = "detector";
   std::string model;
   bool ablation = false;
@@ -202,6 +207,7 @@ struct TrackArgs {
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
   double fov_deg = 60.0;
+  bool no_agreement_check = false;
   std::string solver = "auto";
   std::string device;
   bool quiet = false;
@@ -232,6 +238,12 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.min_face_width_px = a.min_face_width;
   o.calibration_min_face_width_px = a.calibration_min_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
+  if (a.no_agreement_check) {
+    // Measured and reported still (the report's "agreement"), but no fit is refused for it.
+    o.loss.agreement.max_pose_disagreement_deg = 0;
+    o.loss.agreement.max_landmark_nme = 0;
+    o.loss.agreement.max_rotation_speed_deg_s = 0;
+  }
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
     // The depth terms a solver uses (the calibration has no point term), when there is depth.
     const bool depth = config.depth && depth_available;
@@ -291,6 +303,18 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   j["lids"] = t.gaze.lids_read ? nlohmann::json{{"blink", {t.gaze.blink[0], t.gaze.blink[1]}},
                                                {"open_fraction", {t.gaze.open_fraction[0], t.gaze.open_fraction[1]}}}
                                : nlohmann::json();
+  // The fit against the frame's landmarks (fit_agreement.h; null where not measured).
+  auto measure = [](double v) { return std::isnan(v) ? nlohmann::json() : nlohmann::json(v); };
+  j["agreement"] = {{"pose_disagreement_deg", measure(t.agreement.pose_disagreement_deg)},
+                    {"landmark_nme", measure(t.agreement.landmark_nme)},
+                    {"landmark_nme_by_part", {measure(t.agreement.nme_brows), measure(t.agreement.nme_nose),
+                                              measure(t.agreement.nme_eyes), measure(t.agreement.nme_mouth)}},
+                    {"landmark_pose_error_px", measure(t.agreement.landmark_pose_error_px)},
+                    {"fit_error_px", measure(t.agreement.fit_error_px)},
+                    {"eye_distance_px", measure(t.agreement.eye_distance_px)},
+                    {"rotation_change_deg", measure(t.agreement.rotation_change_deg)},
+                    {"rotation_speed_deg_s", measure(t.agreement.rotation_speed_deg_s)},
+                    {"refused", t.disagreement.empty() ? nlohmann::json() : nlohmann::json(t.disagreement)}};
   j["times_ms"] = {{"landmarks", t.times.landmarks_ms}, {"pose_init", t.times.pose_init_ms},
                    {"pyramid", t.times.pyramid_ms},     {"synthesis", t.times.synthesis_ms},
                    {"analysis", t.times.analysis_ms},   {"gaze", t.times.gaze_ms},
@@ -325,13 +349,14 @@ struct RunTotals {
   // Recovery: frames from the first frame with a face after a no-face/lost stretch to a fit.
   int recoveries = 0;
   int max_frames_to_recover = 0;
+  FitAgreementTally agreement;
 };
 
 // Runs the tracker over the whole input with one energy configuration. Writes the parameter
 // file and meshes when their paths are given. Returns the report section of this run.
 nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const TrackerModel& model,
                          const EnergyConfig& config, const std::string& params_path, const std::string& mesh_dir,
-                         const std::string& label) {
+                         const std::string& overlay_path, const std::string& label) {
   std::unique_ptr<capture::FrameSource> source;
   std::error_code ec;
   const bool is_recording = std::filesystem::is_directory(a.input, ec);
@@ -367,6 +392,8 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     params_file.open(params_partial, std::ios::binary | std::ios::trunc);
     if (!params_file) throw Error("track: cannot write '" + params_partial + "'");
   }
+  std::unique_ptr<FrameOutput> overlay;
+  if (!overlay_path.empty()) overlay = std::make_unique<FrameOutput>(overlay_path, info.fps, cv::Size(info.camera.width, info.camera.height));
   const std::vector<FacePart> skin = {FacePart::Face, FacePart::Scalp, FacePart::Ear, FacePart::Neck};
   const bool tty = isatty(2) != 0;
   const int total_frames = a.frames > 0 ? (info.frame_count > 0 ? std::min(a.frames, info.frame_count) : a.frames)
@@ -399,6 +426,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     r.total_ms += t.times.total_ms - t.times.calibration_ms;
     ++r.tracked_frames;
     const bool fit = tracking_status_has_fit(t.status);
+    r.agreement.Add(frame.index, fit, t.fit_refused(), t.agreement, t.message);
     if (!fit && no_face_run_start < 0 && f > 0) no_face_run_start = f;
     if (fit && no_face_run_start >= 0) {
       ++r.recoveries;
@@ -439,6 +467,15 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
       params_file << line.dump() << '\n';
       if (!params_file) throw Error("track: writing '" + params_partial + "' failed (disk full?)");
     }
+    if (overlay) {
+      cv::Mat drawn = frame.color.clone();
+      // The status and the measures; the reasons are in the parameter file's lines.
+      reenact::DrawFitOverlay(&drawn, model, renderer, frame.camera, fit ? &t.params : nullptr, in.landmarks,
+                              reenact::OverlayStatusLine("frame " + std::to_string(frame.index) + ": " +
+                                                             tracking_status_name(t.status),
+                                                         t.agreement.pose_disagreement_deg, t.agreement.landmark_nme));
+      overlay->write(drawn, frame.index);
+    }
     if (!mesh_dir.empty() && t.has_parameters && fit) {
       char name[64];
       std::snprintf(name, sizeof(name), "frame_%06d.ply", frame.index);
@@ -450,6 +487,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     }
   }
   if (!a.quiet && tty) std::fprintf(stderr, "\n");
+  if (overlay) overlay->close();
   if (r.frames == 0) throw Error("track: '" + a.input + "' has no frames");
   if (params_file.is_open()) {
     params_file.close();
@@ -491,6 +529,8 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["statuses"] = r.statuses;
   j["recoveries"] = r.recoveries;
   j["max_frames_to_recover"] = r.max_frames_to_recover;
+  j["agreement"] = agreement_json(r.agreement.summary());
+  j["agreement_check"] = !a.no_agreement_check;
   j["energy_terms"] = {{"landmark", true}, {"regularizer", true}, {"color", config.colour},
                        {"point", config.depth && depth}, {"plane", config.depth && depth}};
   j["depth_used"] = depth && config.depth;
@@ -537,6 +577,9 @@ void run_track_command(const TrackArgs& a) {
   if (!std::filesystem::exists(a.input, ec)) throw Error("track: '" + a.input + "': no such file or folder");
   const auto out_parent = std::filesystem::absolute(a.out).parent_path();
   if (!std::filesystem::is_directory(out_parent, ec)) throw Error("track: the folder of --out '" + a.out + "' does not exist");
+  if (!a.overlay.empty() && std::filesystem::path(a.overlay).extension() == ".mp4" &&
+      !std::filesystem::is_directory(std::filesystem::absolute(a.overlay).parent_path(), ec))
+    throw Error("track: the folder of --overlay '" + a.overlay + "' does not exist");
   if (!a.export_mesh.empty()) {
     std::filesystem::create_directories(a.export_mesh, ec);
     if (ec || !std::filesystem::is_directory(a.export_mesh)) {
@@ -547,7 +590,7 @@ void run_track_command(const TrackArgs& a) {
   const FaceModel face_model = load_face_model(model_path);
   const TrackerModel model = TrackerModel::FromFaceModel(face_model);
   const auto start = Clock::now();
-  nlohmann::json report = run_track(a, face_model, model, kAllTerms, a.out, a.export_mesh, "");
+  nlohmann::json report = run_track(a, face_model, model, kAllTerms, a.out, a.export_mesh, a.overlay, "");
   report["input"] = a.input;
   report["model"] = model_path;
   if (a.ablation) {
@@ -562,7 +605,7 @@ void run_track_command(const TrackArgs& a) {
         ab[c.name] = "skipped: the input has no depth";
         continue;
       }
-      nlohmann::json r = run_track(a, face_model, model, c, "", "", std::string(" [") + c.name + "]");
+      nlohmann::json r = run_track(a, face_model, model, c, "", "", "", std::string(" [") + c.name + "]");
       r.erase("neutral");
       ab[c.name] = r;
     }
@@ -581,6 +624,14 @@ void run_track_command(const TrackArgs& a) {
                 report["landmark_source"].get<std::string>().c_str(), report["depth_used"].get<bool>() ? "yes" : "no");
     if (report["calibration_warning"].is_string())
       std::printf("  warning: %s\n", report["calibration_warning"].get<std::string>().c_str());
+    const nlohmann::json& ag = report["agreement"];
+    std::printf("  against the landmarks (%d frames with a fit): pose %.1f deg median, %.1f p95, %.1f max; inner points "
+                "%.1f%% of the eye distance median, %.1f%% max; %d/%d beyond 15 deg / 5%%; %d fits refused%s\n",
+                ag["fit_frames"].get<int>(), num(ag["pose_disagreement_deg"]["median"]), num(ag["pose_disagreement_deg"]["p95"]),
+                num(ag["pose_disagreement_deg"]["max"]), 100 * num(ag["landmark_nme"]["median"]),
+                100 * num(ag["landmark_nme"]["max"]), ag["fit_frames_beyond"]["pose"].get<int>(),
+                ag["fit_frames_beyond"]["landmarks"].get<int>(), ag["refused_frames"].get<int>(),
+                report["agreement_check"].get<bool>() ? "" : " (check off)");
     if (report["ground_truth"].get<bool>()) {
       std::printf("  vs ground truth (%d frames after calibration): surface %.2f mm mean, %.2f mm max; 2D %.2f px; "
                   "rotation %.2f deg; translation %.2f mm; expression %.3f\n",
@@ -627,6 +678,9 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--input", targs->input, "Recording folder (face-reenact-rgbd) or video file (mp4, avi, wmv: RGB only)")->required();
   tc->add_option("--out", targs->out, "Per-frame parameters, JSON Lines (replayable with 'send --replay')")->required();
   tc->add_option("--report", targs->report, "JSON report: times per stage and, with ground truth, the errors");
+  tc->add_option("--overlay", targs->overlay,
+                 "The fit drawn over each frame (visible mesh edges, detector landmarks green, the fit's red, status "
+                 "and agreement): OUT.mp4, or a folder for one PNG per frame");
   tc->add_option("--export-mesh", targs->export_mesh, "Folder for the fitted mesh per frame (PLY, camera frame, metres) and neutral.ply");
   tc->add_option("--landmarks", targs->landmarks, "Landmark source: 'detector' (default) or 'recording' (stored ground-truth landmarks)");
   tc->add_flag("--ablation", targs->ablation, "Also track with feature only, feature+colour, feature+depth (paper Fig. 12) and report each");
@@ -667,6 +721,10 @@ void add_tracker_commands(CLI::App& app) {
       ->check(CLI::Range(-1, 4096));
   tc->add_option("--fov", targs->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
       ->check(CLI::Range(10.0, 170.0));
+  tc->add_flag("--no-agreement-check", targs->no_agreement_check,
+              "Keep fits that disagree with the landmarks (pose beyond 15 degrees of the landmarks', inner points "
+              "beyond 5% of the eye distance, a head turning faster than 600 degrees/s) instead of re-solving or "
+              "losing them; the report's \"agreement\" still measures them");
   tc->add_option("--model", targs->model, "Face model file (default: the installed/generated face-model.frm)");
   tc->add_option("--solver", targs->solver,
                  "Per-frame solver: auto (Vulkan on a GPU, the CPU reference when Vulkan is a CPU driver), cpu, vulkan")

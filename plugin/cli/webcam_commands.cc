@@ -83,7 +83,7 @@ void run_webcam(const WebcamArgs& args) {
     live_options.key_file = args.key_file;
     live_options.model_path = args.model;
     if (!live::parse_output_mode(args.mode, &live_options.mode))
-      throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, raw");
+      throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, overlay, raw");
     parse_size(args.camera_size, &live_options.camera_width, &live_options.camera_height);
     live_options.camera_fps = rate->fps();
     live::LiveSession::CheckInputs(live_options);  // a missing recording / key / model: exit 1 now
@@ -175,7 +175,7 @@ void add_webcam_command(CLI::App& app) {
                   "with --target: the expression source, udp://PORT (needs --key), a camera/recording actor, or none")
       ->capture_default_str();
   cmd->add_option("--key", args->key_file, "with --source udp://PORT: the stream key file (face-reenact keygen)");
-  cmd->add_option("--mode", args->mode, "with --target: reenact, passthrough (target re-rendered) or raw (unchanged)")
+  cmd->add_option("--mode", args->mode, "with --target: reenact, passthrough (target re-rendered), overlay (the fit drawn over the target) or raw (unchanged)")
       ->capture_default_str();
   cmd->add_option("--model", args->model, "with --target: face model file (default: the installed/generated one)");
   cmd->add_option("--camera-size", args->camera_size, "with a camera --target: capture size WIDTHxHEIGHT")
@@ -232,7 +232,7 @@ void add_webcam_command(CLI::App& app) {
   bench_live->add_option("--source", live_args->source, "expression source (none, udp://PORT, camera, recording)")
       ->capture_default_str();
   bench_live->add_option("--key", live_args->key_file, "stream key file for udp://");
-  bench_live->add_option("--mode", live_args->mode, "reenact, passthrough or raw")->capture_default_str();
+  bench_live->add_option("--mode", live_args->mode, "reenact, passthrough, overlay or raw")->capture_default_str();
   bench_live->add_option("--model", live_args->model, "face model file");
   bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame")->capture_default_str();
   bench_live->callback([live_args, live_seconds] {
@@ -243,7 +243,7 @@ void add_webcam_command(CLI::App& app) {
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
     if (!live::parse_output_mode(live_args->mode, &o.mode))
-      throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, raw");
+      throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, raw");
     live::LiveSession::CheckInputs(o);
     live::LiveSession session(o);
     live::LiveFrame frame;

@@ -50,6 +50,16 @@ LiveStatus wait_status(const LiveSession& session, std::chrono::milliseconds tim
     if (var.empty()) GTEST_SKIP() << "no test recording: " << why_;             \
   }
 
+// A session running the pipeline (model from FR_MODEL) on `target`.
+LiveSession::Options pipeline_options(const std::string& target, OutputMode mode) {
+  const char* model = std::getenv("FR_MODEL");
+  LiveSession::Options o;
+  o.target = target;
+  o.mode = mode;
+  o.model_path = model ? model : "";
+  return o;
+}
+
 uint16_t free_udp_port() {
   int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
   sockaddr_in a{};
@@ -163,6 +173,84 @@ TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
   EXPECT_EQ(s.Headline(), "Tracking (calibrated while the face was not at rest: calibrate again with a relaxed face) | 30.0 fps");
   s.tracking = TrackingState::kCalibrating;
   EXPECT_EQ(s.Headline().find("not at rest"), std::string::npos) << s.Headline();
+}
+
+// While calibrating, the line says what to do and how far it is; the state line that front-ends
+// log on change leaves out what moves on its own (rates, progress, a lost frame's measurements).
+TEST(LiveStatusTest, CalibratingSaysHoldStillAndTheStateLineLeavesOutTheNumbers) {
+  LiveStatus s;
+  s.target_open = true;
+  s.pipeline_ready = true;
+  s.tracking = TrackingState::kCalibrating;
+  s.calibration_progress = "3 of 5 frames";
+  s.pipeline_message = "calibrating: 3 of 5 frames; tracking: E 0.0123, landmarks 2.1 px";
+  s.output_fps = 29.5;
+  EXPECT_EQ(s.Headline(), "Calibrating: hold still (3 of 5 frames) | 29.5 fps");
+  EXPECT_EQ(s.StateLine(), "Calibrating: hold still");
+  LiveStatus later = s;
+  later.calibration_progress = "fitting the identity over 5 frames, 1.2 s";
+  later.pipeline_message = "calibrating: fitting the identity over 5 frames, 1.2 s; hold still";
+  later.output_fps = 30;
+  EXPECT_EQ(later.Headline(), "Calibrating: hold still (fitting the identity over 5 frames, 1.2 s) | 30.0 fps");
+  EXPECT_EQ(later.StateLine(), s.StateLine());
+
+  s.source_description = "recording 'actor.mp4'";
+  s.source = SourceState::kCalibrating;
+  s.source_detail = "2 of 5 frames";
+  EXPECT_EQ(s.Headline(),
+            "Calibrating: hold still (3 of 5 frames) | source actor calibrating: hold still (2 of 5 frames) | 29.5 fps");
+  s.source = SourceState::kWaiting;
+  s.source_detail = "waiting for the face model";
+  EXPECT_EQ(s.StateLine(), "Calibrating: hold still | source actor: waiting for the face model");
+  s.source_detail.clear();
+  EXPECT_EQ(s.StateLine(), "Calibrating: hold still | waiting for recording 'actor.mp4'");
+  s.tracking = TrackingState::kLost;
+  s.pipeline_message = "no face: 3 usable landmarks, 8 needed";
+  s.source = SourceState::kLive;
+  s.packets_per_second = 25;
+  EXPECT_EQ(s.Headline(), "No face (no face: 3 usable landmarks, 8 needed) | source actor live 25 fps | 29.5 fps");
+  EXPECT_EQ(s.StateLine(), "No face | source actor live");
+}
+
+// The joint calibration takes seconds (more under the sanitizers, 20 s in OBS on a real webcam).
+// It runs on a thread of its own ("fr-calibrate"), so the picture keeps moving: the session
+// publishes frames (the input unchanged) while the status says "Calibrating: hold still (fitting
+// the identity ...)", then tracks. Before, the worker ran the solve itself and published nothing
+// until it was done. 320x240: a face the landmark detector finds, so the calibration runs.
+TEST(LiveSessionTest, CalibrationSolvesBesideTheFramesInsteadOfFreezingThem) {
+  std::string why;
+  const std::string dir = test::make_test_recording({"recording-320", 320, 240, 60, 7}, &why);
+  if (dir.empty()) GTEST_SKIP() << "no test recording: " << why;
+  LiveSession session(pipeline_options(dir, OutputMode::kPassThrough));
+  int64_t frames_at_first = -1, frames_at_last = -1;
+  Clock::time_point solve_first{}, solve_last{};
+  bool tracked = false;
+  LiveStatus s;
+  const Clock::time_point end = Clock::now() + 280s;
+  while (Clock::now() < end) {
+    s = session.status();
+    const Clock::time_point now = Clock::now();
+    if (s.tracking == TrackingState::kCalibrating && s.calibration_progress.rfind("fitting the identity", 0) == 0) {
+      if (frames_at_first < 0) {
+        frames_at_first = s.frames_out;
+        solve_first = now;
+        std::cout << "while solving: " << s.Headline() << "\n";
+      }
+      frames_at_last = s.frames_out;
+      solve_last = now;
+    }
+    if (s.tracking == TrackingState::kTracking) {
+      tracked = true;
+      break;
+    }
+    std::this_thread::sleep_for(10ms);
+  }
+  ASSERT_GE(frames_at_first, 0) << "the calibration's solve was never seen; last status: " << s.Headline();
+  const double solve_s = std::chrono::duration<double>(solve_last - solve_first).count();
+  std::cout << "frames published while the identity was fitted: " << frames_at_last - frames_at_first << " in " << solve_s
+            << " s\n";
+  EXPECT_GE(frames_at_last - frames_at_first, 2) << "the picture froze while calibrating (" << solve_s << " s)";
+  EXPECT_TRUE(tracked) << s.Headline();
 }
 
 TEST(LiveSessionTest, RawModeDeliversTheRecordingFramesInALoop) {
@@ -420,12 +508,7 @@ TEST(LiveSessionTest, StopIsPromptIdempotentAndLeavesNoThreads) {
 
 TEST(LiveSessionTest, ReenactModeRunsThePipelineOnTheRecording) {
   REQUIRE_RECORDING(dir);
-  const char* model = std::getenv("FR_MODEL");
-  LiveSession::Options o;
-  o.target = dir;
-  o.mode = OutputMode::kReenact;
-  o.model_path = model ? model : "";
-  LiveSession session(o);
+  LiveSession session(pipeline_options(dir, OutputMode::kReenact));
   LiveFrame frame;
   // The camera shows at once: frames pass unchanged while the pipeline loads on its own thread
   // (the face model and dlib's 100 MB shape predictor take about a second, the first frame
@@ -467,8 +550,10 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
     // tracked yet) or, if it was tracked, live; never "none" or an error.
     EXPECT_TRUE(s.source == SourceState::kWaiting || s.source == SourceState::kLive || s.source == SourceState::kLost)
         << s.Headline();
+    // Waiting says for what: the recording is open, so it is the face model or a face, never
+    // "waiting for recording" (which read as if the file were missing).
     if (s.source == SourceState::kWaiting)
-      EXPECT_NE(s.Headline().find("waiting for recording '" + dir + "'"), std::string::npos) << s.Headline();
+      EXPECT_NE(s.Headline().find("source actor: "), std::string::npos) << s.Headline();
     else
       EXPECT_NE(s.Headline().find("source actor"), std::string::npos) << s.Headline();
   }

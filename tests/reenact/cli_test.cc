@@ -127,6 +127,75 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   EXPECT_EQ(pngs, 8);
 }
 
+// `reenact` pairs the actors by time, not by frame number: a 30 fps source on a 15 fps target
+// plays at its own speed (every other source frame is skipped, the output keeps the target's 15
+// fps), and a 15 fps source on a 30 fps target holds each of its expressions for two output
+// frames. The report and the status log say what happened to every frame.
+TEST(ReenactCliTest, PairsSourceAndTargetByTimeAndReportsEveryFrame) {
+  ASSERT_TRUE(fs::exists(cli())) << "FR_CLI='" << cli() << "'";
+  const char* model = std::getenv("FR_MODEL");
+  if (!model || !fs::exists(model)) GTEST_SKIP() << "FR_MODEL is not set to a built face model";
+  const face_reenact::testing::TempDir scratch("fr-reenact-time");
+  const fs::path dir = scratch.path();
+  auto synth = [&](const std::string& name, const std::string& seed, int frames, int fps) {
+    const SubprocessResult r = run_cli({"synth", "--seed", seed, "--frames", std::to_string(frames), "--fps",
+                                        std::to_string(fps), "--size", "160x120", "--out", (dir / name).string(),
+                                        "--model", model, "--quiet"});
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+  };
+  synth("fast", "21", 12, 30);  // 0.4 s
+  synth("slow", "22", 6, 15);   // 0.4 s
+  auto reenact = [&](const std::string& source, const std::string& target, const std::string& name) {
+    const SubprocessResult r =
+        run_cli({"reenact", "--source", (dir / source).string(), "--target", (dir / target).string(), "--out",
+                 (dir / (name + ".mp4")).string(), "--report", (dir / (name + ".json")).string(), "--status-log",
+                 (dir / (name + ".jsonl")).string(), "--landmarks", "recording", "--model", model, "--quiet"});
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    std::ifstream in(dir / (name + ".json"));
+    std::vector<nlohmann::json> lines;
+    std::ifstream log(dir / (name + ".jsonl"));
+    for (std::string line; std::getline(log, line);) lines.push_back(nlohmann::json::parse(line));
+    return std::make_pair(nlohmann::json::parse(in), lines);
+  };
+
+  const auto [down, down_lines] = reenact("fast", "slow", "down");
+  EXPECT_EQ(down.at("frames"), 6) << down.dump(2);
+  EXPECT_EQ(down.at("fps"), 15.0);
+  EXPECT_EQ(down.at("source_frames").at("tracked"), 6);
+  EXPECT_EQ(down.at("source_frames").at("skipped"), 5);
+  ASSERT_EQ(down_lines.size(), 6u);
+  for (int k = 0; k < 6; ++k) {
+    EXPECT_EQ(down_lines[static_cast<size_t>(k)].at("source_frame"), 2 * k) << down_lines[static_cast<size_t>(k)].dump();
+    EXPECT_EQ(down_lines[static_cast<size_t>(k)].at("target_frame"), k);
+  }
+  const nlohmann::json& st = down.at("statuses");
+  EXPECT_EQ(st.at("reenacted").get<int>() + st.at("calibrating").get<int>() + st.at("lost").get<int>() +
+                st.at("tracked_not_drawn").get<int>(),
+            6);
+  EXPECT_GE(st.at("calibrating").get<int>(), 4);  // the target calibrates over its first 5 frames
+  for (const char* key : {"target_track", "source_track", "render", "composite"})
+    EXPECT_TRUE(down.at("stage_ms").at(key).is_number()) << key;
+  EXPECT_TRUE(down.at("agreement").at("fit_frames").is_number());
+  EXPECT_TRUE(down.contains("target_calibration_warning") && down.contains("source_calibration_warning"));
+
+  const auto [up, up_lines] = reenact("slow", "fast", "up");
+  EXPECT_EQ(up.at("frames"), 12) << up.dump(2);
+  EXPECT_EQ(up.at("fps"), 30.0);
+  EXPECT_EQ(up.at("source_frames").at("tracked"), 6);
+  EXPECT_EQ(up.at("source_frames").at("skipped"), 0);
+  ASSERT_EQ(up_lines.size(), 12u);
+  for (int k = 0; k < 12; ++k) {
+    EXPECT_EQ(up_lines[static_cast<size_t>(k)].at("source_frame"), k / 2) << up_lines[static_cast<size_t>(k)].dump();
+    EXPECT_EQ(up_lines[static_cast<size_t>(k)].at("source_fresh"), k % 2 == 0);
+  }
+  // Bad arguments are refused before any work.
+  const SubprocessResult bad = run_cli({"reenact", "--source", (dir / "fast").string(), "--target", (dir / "slow").string(),
+                                        "--out", (dir / "x.mp4").string(), "--report", (dir / "no" / "r.json").string(),
+                                        "--model", model});
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("--report"), std::string::npos) << bad.output;
+}
+
 // A UDP port on 127.0.0.1 that nothing listens on (the kernel's pick, released again), as the
 // stream CLI tests take one.
 int free_udp_port() {

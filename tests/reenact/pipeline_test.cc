@@ -192,5 +192,58 @@ TEST(ReenactPipelineTest, TrackedStaticTargetIsStableFrameToFrame) {
   EXPECT_EQ(c.status, TrackingStatus::kCalibrating);
 }
 
+// The overlay mode (OBS, the webcam, `reenact --mode overlay`): the target is tracked and its
+// fit drawn over it instead of re-rendered: the fitted landmarks (red) sit on the frame's own
+// (green), the mesh's edges change pixels only around the face, and nothing is reenacted.
+TEST(ReenactPipelineTest, OverlayModeDrawsTheFitOverTheTarget) {
+  FR_REQUIRE_MODEL();
+  ReenactmentOptions o = recording_landmarks();
+  o.mode = ReenactMode::kOverlay;
+  ReenactmentPipeline pipeline(*test_model(), o);
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters p = test_face(0.4f);
+  const capture::RgbdFrame f = make_frame(p, cam, 0);
+  ReenactedFrame out;
+  for (int i = 0; i < 4; ++i) {
+    capture::RgbdFrame fi = f;
+    fi.index = i;
+    out = pipeline.Process(fi, nullptr);
+  }
+  ASSERT_EQ(out.status, TrackingStatus::kTracking) << out.message;
+  EXPECT_FALSE(out.reenacted);
+  ASSERT_EQ(out.bgr.size(), f.color.size());
+  // Where the overlay drew: a box around the face's landmarks (the mesh reaches the scalp and
+  // the neck beyond them), nowhere far from it.
+  cv::Mat diff, changed;
+  cv::absdiff(out.bgr, f.color, diff);
+  cv::cvtColor(diff, changed, cv::COLOR_BGR2GRAY);
+  cv::Rect face_box;
+  {
+    std::vector<cv::Point> pts;
+    for (const auto& l : *f.ground_truth.landmarks)
+      if (l.visible) pts.emplace_back(static_cast<int>(l.pixel.x()), static_cast<int>(l.pixel.y()));
+    face_box = cv::boundingRect(pts);
+  }
+  const int grow = face_box.width;  // the head around the face
+  const cv::Rect head(face_box.x - grow, face_box.y - grow, face_box.width + 2 * grow, face_box.height + 2 * grow);
+  cv::Mat outside = changed.clone();
+  outside(head & cv::Rect(0, 0, cam.width, cam.height)).setTo(0);
+  outside(cv::Rect(0, 0, cam.width, 30)).setTo(0);  // the status line
+  EXPECT_EQ(cv::countNonZero(outside > 8), 0);
+  EXPECT_GT(cv::countNonZero(changed(face_box) > 8), face_box.area() / 10);  // edges and dots on the face
+  // A fitted landmark (red ring) around each detected one (green dot): the nose tip's pixel is
+  // green, and red is drawn within 3 px of it.
+  const Eigen::Vector2f nose = (*f.ground_truth.landmarks)[30].pixel;
+  const cv::Vec3b c = out.bgr.at<cv::Vec3b>(static_cast<int>(std::lround(nose.y())), static_cast<int>(std::lround(nose.x())));
+  EXPECT_GT(c[1], c[0] + 60) << "not green at the nose tip: " << c;
+  int red = 0;
+  for (int dj = -3; dj <= 3; ++dj)
+    for (int di = -3; di <= 3; ++di) {
+      const cv::Vec3b q = out.bgr.at<cv::Vec3b>(static_cast<int>(std::lround(nose.y())) + dj, static_cast<int>(std::lround(nose.x())) + di);
+      red += q[2] > q[1] + 60 && q[2] > q[0] + 60;
+    }
+  EXPECT_GT(red, 0);
+}
+
 }  // namespace
 }  // namespace face_reenact::reenact

@@ -12,6 +12,8 @@
 #include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <string>
 #include <vector>
 
@@ -446,6 +448,53 @@ TEST(TrackCli, BlankAndDepthlessFramesGetAStatusAndRecover) {
   EXPECT_EQ(report["recoveries"], 1);
   EXPECT_EQ(report["max_frames_to_recover"], 2);  // two frames without a face, fitted again at once
   EXPECT_EQ(stream::load_parameter_file((out / "p.jsonl").string()).size(), 10u);
+}
+
+// The fit against the frame's own landmarks (fit_agreement.h), per frame and over the run, and the
+// overlay a person looks at: on a noise-free recording the fit agrees (pose within a few degrees of
+// the landmarks' pose, inner points within 3 % of the eye distance, nothing beyond the limits), and
+// the overlay has one drawn picture per frame.
+TEST(TrackCli, TheReportMeasuresTheFitAgainstTheLandmarksAndTheOverlayShowsIt) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "agreement";
+  fs::create_directories(out);
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                             (out / "p.jsonl").string(), "--report", (out / "r.json").string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2", "--frames", "5",
+                                             "--overlay", (out / "overlay").string(), "--model", model()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("against the landmarks"), std::string::npos) << r.output;
+  const nlohmann::json a = read_json(out / "r.json")["agreement"];
+  EXPECT_EQ(a["fit_frames"], 5) << a.dump();
+  EXPECT_LT(a["pose_disagreement_deg"]["max"].get<double>(), 5.0) << a.dump();
+  EXPECT_LT(a["landmark_nme"]["median"].get<double>(), 0.03) << a.dump();
+  EXPECT_EQ(a["fit_frames_beyond"]["pose"], 0);
+  EXPECT_EQ(a["fit_frames_beyond"]["landmarks"], 0);
+  EXPECT_EQ(a["refused_frames"], 0);
+  EXPECT_EQ(a["limits"]["pose_disagreement_deg"], 15.0);
+  for (const char* part : {"brows", "nose", "eyes", "mouth"}) EXPECT_TRUE(a["landmark_nme_by_part"][part]["median"].is_number()) << part;
+  for (const nlohmann::json& line : read_lines(out / "p.jsonl")) {
+    EXPECT_TRUE(line["agreement"]["pose_disagreement_deg"].is_number()) << line["agreement"].dump();
+    EXPECT_TRUE(line["agreement"]["refused"].is_null());
+  }
+  for (int f = 0; f < 5; ++f) {
+    char name[32], input_name[32];
+    std::snprintf(name, sizeof name, "frame_%06d.png", f);
+    std::snprintf(input_name, sizeof input_name, "%06d.png", f);
+    const cv::Mat drawn = cv::imread((out / "overlay" / name).string());
+    const cv::Mat input = cv::imread((fx.recording / "color" / input_name).string());
+    ASSERT_FALSE(drawn.empty()) << name;
+    ASSERT_EQ(drawn.size(), input.size());
+    cv::Mat diff;
+    cv::absdiff(drawn, input, diff);
+    EXPECT_GT(cv::mean(diff)[1], 0.5) << name << ": nothing drawn";
+  }
+  // An .mp4 in a folder that does not exist is refused before any work.
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                               (out / "q.jsonl").string(), "--overlay", (out / "no" / "o.mp4").string(),
+                                               "--model", model()});
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("--overlay"), std::string::npos) << bad.output;
 }
 
 TEST(TrackCli, VideoFilesAreTrackedWithoutDepth) {

@@ -437,13 +437,13 @@ bool VideoReader::read_next(RgbdFrame* frame) {
   return true;
 }
 
-std::unique_ptr<FrameSource> open_frame_source(const std::string& path) {
+std::unique_ptr<FrameSource> open_frame_source(const std::string& path, const VideoReader::Options& video_options) {
   std::error_code ec;
   if (fs::is_directory(path, ec)) return std::make_unique<RecordingReader>(path);
   if (!fs::exists(path, ec)) throw Error("'" + path + "': no such file or folder");
   if (lower_case_extension(path) == ".oni")
     throw Error("'" + path + "': OpenNI .oni files are not supported yet; convert them to a recording folder");
-  return std::make_unique<VideoReader>(path);
+  return std::make_unique<VideoReader>(path, video_options);
 }
 
 std::string ground_truth_to_json(const GroundTruth& truth) { return ground_truth_json(truth).dump(); }

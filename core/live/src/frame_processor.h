@@ -24,6 +24,9 @@ struct ProcessedFrame {
   std::string calibration_warning;  // LiveStatus::calibration_warning
   bool actor_tracked = false; // the actor frame given was tracked and now drives the expression
   bool actor_lost = false;    // the actor frame given had no trackable face
+  bool actor_calibrating = false;  // the actor frame given went to the actor's calibration
+  std::string actor_calibration_progress;  // then: its progress (CalibrationProgress::Brief())
+  std::string calibration_progress;        // the target's, while calibrating (LiveStatus::calibration_progress)
 };
 
 class FrameProcessor {

@@ -9,6 +9,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <deque>
 #include <filesystem>
 #include <future>
 
@@ -42,6 +43,7 @@ const char* output_mode_name(OutputMode mode) {
     case OutputMode::kReenact: return "reenact";
     case OutputMode::kPassThrough: return "passthrough";
     case OutputMode::kRaw: return "raw";
+    case OutputMode::kOverlay: return "overlay";
   }
   return "?";
 }
@@ -50,6 +52,7 @@ bool parse_output_mode(const std::string& text, OutputMode* mode) {
   if (text == "reenact") *mode = OutputMode::kReenact;
   else if (text == "passthrough" || text == "pass-through") *mode = OutputMode::kPassThrough;
   else if (text == "raw" || text == "off") *mode = OutputMode::kRaw;
+  else if (text == "overlay") *mode = OutputMode::kOverlay;
   else return false;
   return true;
 }
@@ -68,6 +71,7 @@ const char* source_state_name(SourceState state) {
   switch (state) {
     case SourceState::kNone: return "none";
     case SourceState::kWaiting: return "waiting";
+    case SourceState::kCalibrating: return "calibrating";
     case SourceState::kLive: return "live";
     case SourceState::kLost: return "lost";
     case SourceState::kError: return "error";
@@ -75,41 +79,64 @@ const char* source_state_name(SourceState state) {
   return "?";
 }
 
-std::string LiveStatus::Headline() const {
-  if (!target_open) {
-    bool camera = target.rfind("camera", 0) == 0 || target.rfind("OpenNI", 0) == 0;
-    if (target_error == "end of recording") return "Recording ended";
-    if (target_error.empty() || target_error == "opening") return "Starting: opening " + target;
-    return std::string(camera ? "No camera: " : "No input: ") + target_error + " (retrying)";
+namespace {
+
+// LiveStatus::Headline (numbers true) and StateLine (false): one wording in one place.
+std::string status_line(const LiveStatus& s, bool numbers) {
+  if (!s.target_open) {
+    bool camera = s.target.rfind("camera", 0) == 0 || s.target.rfind("OpenNI", 0) == 0;
+    if (s.target_error == "end of recording") return "Recording ended";
+    if (s.target_error.empty() || s.target_error == "opening") return "Starting: opening " + s.target;
+    return std::string(camera ? "No camera: " : "No input: ") + s.target_error + " (retrying)";
   }
   std::string line;
-  if (mode == OutputMode::kRaw) {
+  if (s.mode == OutputMode::kRaw) {
     line = "Raw input (tracking off)";
-  } else if (!pipeline_ready) {
-    line = "Unchanged: " + (pipeline_message.empty() ? std::string("loading the face model") : pipeline_message);
+  } else if (!s.pipeline_ready) {
+    line = "Unchanged: " + (s.pipeline_message.empty() ? std::string("loading the face model") : s.pipeline_message);
   } else {
-    switch (tracking) {
-      case TrackingState::kCalibrating: line = "Calibrating"; break;
+    switch (s.tracking) {
+      case TrackingState::kCalibrating: line = "Calibrating: hold still"; break;
       case TrackingState::kTracking: line = "Tracking"; break;
       case TrackingState::kLost: line = "No face"; break;
       case TrackingState::kOff: line = "Starting"; break;
     }
-    if (tracking != TrackingState::kTracking && !pipeline_message.empty()) line += " (" + pipeline_message + ")";
-    if (tracking == TrackingState::kTracking && !calibration_warning.empty())
+    if (s.tracking == TrackingState::kCalibrating) {
+      if (numbers && !s.calibration_progress.empty()) line += " (" + s.calibration_progress + ")";
+    } else if (s.tracking != TrackingState::kTracking && numbers && !s.pipeline_message.empty()) {
+      line += " (" + s.pipeline_message + ")";  // a per-frame reason, with its measurements
+    }
+    if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty())
       line += " (calibrated while the face was not at rest: calibrate again with a relaxed face)";
   }
-  bool stream = source_description.rfind("udp", 0) == 0;
+  bool stream = s.source_description.rfind("udp", 0) == 0;
   std::string what = stream ? "stream" : "source actor";
-  switch (source) {
+  switch (s.source) {
     case SourceState::kNone: break;
-    case SourceState::kWaiting: line += " | waiting for " + (stream ? "stream on " + source_description : source_description); break;
-    case SourceState::kLive: line += " | " + what + " live " + fixed(packets_per_second, 0) + (stream ? " pkt/s" : " fps"); break;
-    case SourceState::kLost: line += " | " + what + " lost" + (source_error.empty() ? "" : ": " + source_error); break;
-    case SourceState::kError: line += " | " + what + " error: " + source_error; break;
+    case SourceState::kWaiting:
+      if (stream) line += " | waiting for stream on " + s.source_description;
+      else if (!s.source_detail.empty()) line += " | source actor: " + s.source_detail;
+      else line += " | waiting for " + s.source_description;
+      break;
+    case SourceState::kCalibrating:
+      line += " | source actor calibrating: hold still";
+      if (numbers && !s.source_detail.empty()) line += " (" + s.source_detail + ")";
+      break;
+    case SourceState::kLive:
+      line += " | " + what + " live";
+      if (numbers) line += " " + fixed(s.packets_per_second, 0) + (stream ? " pkt/s" : " fps");
+      break;
+    case SourceState::kLost: line += " | " + what + " lost" + (s.source_error.empty() ? "" : ": " + s.source_error); break;
+    case SourceState::kError: line += " | " + what + " error: " + s.source_error; break;
   }
-  line += " | " + fixed(output_fps, 1) + " fps";
+  if (numbers) line += " | " + fixed(s.output_fps, 1) + " fps";
   return line;
 }
+
+}  // namespace
+
+std::string LiveStatus::Headline() const { return status_line(*this, true); }
+std::string LiveStatus::StateLine() const { return status_line(*this, false); }
 
 bool LiveSession::Options::IsValid(std::string* why) const {
   auto fail = [&](const std::string& m) {
@@ -327,13 +354,14 @@ void LiveSession::run() {
   uint64_t target_seq = 0, actor_seq = 0, out_seq = 0;
   capture::RgbdFrame frame, actor_frame;
   Clock::time_point window_start = Clock::now();
-  int64_t window_frames = 0, window_actor = 0;
+  int64_t window_frames = 0;
   double window_ms = 0;
-  bool actor_ever_tracked = false;
+  bool actor_ever_tracked = false, actor_calibrating = false;
   Clock::time_point actor_last_tracked{};
+  std::deque<Clock::time_point> actor_tracked_times;  // the last second's, for the actor's rate
   TrackingState tracking = TrackingState::kOff;
-  std::string frame_message, calibration_warning;
-  double output_fps = 0, process_ms = 0, actor_rate = 0;
+  std::string frame_message, calibration_warning, calibration_progress, actor_progress;
+  double output_fps = 0, process_ms = 0;
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
@@ -366,10 +394,15 @@ void LiveSession::run() {
       tracking = out.tracking;
       frame_message = out.message;
       calibration_warning = out.calibration_warning;
+      calibration_progress = out.calibration_progress;
+      if (input.actor_frame) {
+        actor_calibrating = out.actor_calibrating;
+        actor_progress = out.actor_calibration_progress;
+      }
       if (out.actor_tracked) {
         actor_ever_tracked = true;
         actor_last_tracked = Clock::now();
-        ++window_actor;
+        actor_tracked_times.push_back(actor_last_tracked);
       }
       LiveFrame published;
       published.bgr = out.bgr;
@@ -401,8 +434,7 @@ void LiveSession::run() {
     if (window_s >= 1.0) {
       output_fps = window_frames / window_s;
       process_ms = window_frames > 0 ? window_ms / window_frames : 0;
-      actor_rate = window_actor / window_s;
-      window_frames = window_actor = 0;
+      window_frames = 0;
       window_ms = 0;
       window_start = now;
     }
@@ -421,6 +453,7 @@ void LiveSession::run() {
     s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
     s.calibration_warning = pipeline_ready ? calibration_warning : "";
+    s.calibration_progress = pipeline_ready && tracking == TrackingState::kCalibrating ? calibration_progress : "";
     s.output_fps = ts.open ? output_fps : 0;
     s.process_ms = process_ms;
     if (source_spec_.kind == InputKind::kUdp) {
@@ -442,15 +475,33 @@ void LiveSession::run() {
       }
     } else if (actor) {
       GrabberStatus as = actor->status();
+      // The rate is the tracked frames of the last second, so "live" never shows 0 fps.
+      while (!actor_tracked_times.empty() && now - actor_tracked_times.front() > std::chrono::seconds(1))
+        actor_tracked_times.pop_front();
       bool recent = actor_ever_tracked && now - actor_last_tracked < std::chrono::milliseconds(500);
-      s.packets_per_second = recent ? actor_rate : 0;
+      s.packets_per_second = recent ? static_cast<double>(actor_tracked_times.size()) : 0;
       s.source_weight = recent ? 1 : 0;
+      s.source_error.clear();
+      s.source_detail.clear();
       if (!as.open) {
         s.source = actor_ever_tracked ? SourceState::kLost : (as.error == "opening" ? SourceState::kWaiting : SourceState::kError);
         s.source_error = as.error;
+      } else if (recent) {
+        s.source = SourceState::kLive;
+      } else if (!pipeline_ready) {
+        // The actor's frames are there; what they wait for is the pipeline (its error, if any,
+        // is the target's line).
+        s.source = SourceState::kWaiting;
+        s.source_detail = "waiting for the face model";
+      } else if (actor_calibrating) {
+        s.source = SourceState::kCalibrating;
+        s.source_detail = actor_progress;
+      } else if (actor_ever_tracked) {
+        s.source = SourceState::kLost;
+        s.source_error = "no face";
       } else {
-        s.source = recent ? SourceState::kLive : actor_ever_tracked ? SourceState::kLost : SourceState::kWaiting;
-        s.source_error = pipeline_ready ? (s.source == SourceState::kLost ? "no face" : "") : pipeline_error;
+        s.source = SourceState::kWaiting;
+        s.source_detail = "no face found yet";
       }
     }
     bool ended = ts.ended && !options_.loop;

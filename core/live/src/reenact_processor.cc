@@ -28,7 +28,12 @@ class ReenactProcessor : public FrameProcessor {
     check_stop();
     reenact::ReenactmentOptions options;
     options.tracker.stop = stop;
-    options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough : reenact::ReenactMode::kReenact;
+    // The joint calibration solve takes seconds; on a thread of its own the worker keeps
+    // publishing the input meanwhile instead of freezing the picture.
+    options.tracker.background_calibration = true;
+    options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough
+                   : mode == OutputMode::kOverlay   ? reenact::ReenactMode::kOverlay
+                                                    : reenact::ReenactMode::kReenact;
     options.renderer = use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
     target_ = std::make_unique<reenact::ReenactmentPipeline>(model_, options);
     if (with_actor) {
@@ -51,6 +56,8 @@ class ReenactProcessor : public FrameProcessor {
         out.actor_tracked = true;
       } else {
         out.actor_lost = actor.status == reenact::TrackingStatus::kLost;
+        out.actor_calibrating = actor.status == reenact::TrackingStatus::kCalibrating;
+        if (out.actor_calibrating) out.actor_calibration_progress = actor_->calibration_progress().Brief();
       }
     }
     reenact::SourceExpression remote;
@@ -66,6 +73,8 @@ class ReenactProcessor : public FrameProcessor {
     out.tracking = tracking_from(result.status);
     out.message = result.message;
     out.calibration_warning = target_->calibration_warning();
+    if (result.status == reenact::TrackingStatus::kCalibrating)
+      out.calibration_progress = target_->calibration_progress().Brief();
     if (actor_ && !actor_->calibration_warning().empty())
       out.calibration_warning += (out.calibration_warning.empty() ? "" : "; ") + ("source actor: " + actor_->calibration_warning());
     return out;

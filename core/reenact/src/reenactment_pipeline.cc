@@ -10,6 +10,7 @@
 #include "face_reenact/common/timing.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/reenact/face_compositor.h"
+#include "face_reenact/reenact/fit_overlay.h"
 #include "face_reenact/reenact/transfer.h"
 
 namespace face_reenact::reenact {
@@ -52,7 +53,8 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
     if (why) *why = m;
     return false;
   };
-  if (mode != ReenactMode::kReenact && mode != ReenactMode::kPassThrough && mode != ReenactMode::kOff)
+  if (mode != ReenactMode::kReenact && mode != ReenactMode::kPassThrough && mode != ReenactMode::kOff &&
+      mode != ReenactMode::kOverlay)
     return fail("unknown reenactment mode");
   if (renderer != RendererKind::kCpu && renderer != RendererKind::kVulkan) return fail("unknown renderer kind");
   if (appearance != Appearance::kFrameTexture && appearance != Appearance::kAlbedoMap)
@@ -157,6 +159,10 @@ std::string ReenactmentPipeline::calibration_warning() const {
   return impl_->tracker ? impl_->tracker->calibration_warning() : std::string();
 }
 
+tracker::FaceTracker::CalibrationProgress ReenactmentPipeline::calibration_progress() const {
+  return impl_->tracker ? impl_->tracker->calibration_progress() : tracker::FaceTracker::CalibrationProgress();
+}
+
 PipelineSummary ReenactmentPipeline::summary() const {
   PipelineSummary s = impl_->summary;
   s.renderer = impl_->compositor.renderer_description();
@@ -226,6 +232,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
   // --- track the target.
   auto t0 = Clock::now();
   gpu::FaceParameters target_params;
+  std::vector<tracker::InputLandmark> detected;  // the detector's, for the overlay
   if (im.options.use_ground_truth_target) {
     if (!target.ground_truth.params) {
       out.times.track_ms = ms_since(t0);
@@ -244,6 +251,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
       out.times.track_ms = ms_since(t0);
       return pass_through(TrackingStatus::kLost, std::string("bad input: ") + e.what());
     }
+    detected = frame.landmarks;
     out.tracked = im.tracker->Track(frame, info.landmarks_ms);
     const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
     im.input->SetTrackedPose(out.tracked.params, has_fit);
@@ -260,6 +268,23 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
     target_params = out.tracked.params;
   }
   out.times.track_ms = ms_since(t0);
+  if (im.options.mode == ReenactMode::kOverlay && im.tracker) {
+    // The fit over the input, whatever the status (a lost frame shows its landmarks and why).
+    const auto to = Clock::now();
+    const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
+    std::string status = tracker::tracking_status_name(out.tracked.status);
+    if (out.status == TrackingStatus::kCalibrating) {
+      const std::string progress = im.tracker->calibration_progress().Brief();
+      if (!progress.empty()) status += " (" + progress + ")";
+    }
+    DrawFitOverlay(&out.bgr, im.tracker->model(), im.tracker->cpu_solver().renderer(), target.camera,
+                   has_fit ? &out.tracked.params : nullptr, detected,
+                   OverlayStatusLine(status, out.tracked.agreement.pose_disagreement_deg, out.tracked.agreement.landmark_nme));
+    out.times.render_ms = ms_since(to);
+    out.target_params = out.tracked.params;
+    out.message = out.tracked.message;
+    return finish(out);
+  }
   if (out.status != TrackingStatus::kTracking) {
     return pass_through(out.status, out.tracked.message.empty() ? std::string(tracking_status_name(out.status))
                                                                 : out.tracked.message);

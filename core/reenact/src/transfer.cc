@@ -108,6 +108,7 @@ const char* reenact_mode_name(ReenactMode mode) {
     case ReenactMode::kReenact: return "reenact";
     case ReenactMode::kPassThrough: return "pass-through";
     case ReenactMode::kOff: return "off";
+    case ReenactMode::kOverlay: return "overlay";
   }
   return "unknown";
 }

@@ -1,11 +1,15 @@
 #include "face_reenact/tracker/face_tracker.h"
 
+#include <pthread.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
+#include <functional>
 #include <limits>
+#include <thread>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
@@ -131,6 +135,68 @@ double median(std::vector<double> v) {
 }
 
 }  // namespace
+
+struct FaceTracker::CalibrationOutcome {
+  // The set, as collected.
+  std::vector<InputFrame> inputs;
+  std::vector<gpu::FaceParameters> starts;  // the joint solve's starts (per-frame fits or landmark poses)
+  std::vector<int64_t> frame_indices;
+  // What the solve found.
+  std::vector<gpu::FaceParameters> params;  // the joint fit of each frame
+  SolverSummary summary;
+  CalibrationStartReport report;
+  Eigen::VectorXf neutral_delta;  // the neutral expression (TrackerOptions::neutral_from_tracking)
+  double solve_ms = 0;            // the joint solve(s)
+  StageTimes reread_times;        // the neutral's re-reads
+};
+
+// One calibration on a thread of its own. The tracking thread polls done() at each Track() and
+// then takes the outcome; destroying it (a new request, Reset, the tracker going away) stops the
+// solve within one Gauss-Newton iteration and joins the thread.
+class FaceTracker::BackgroundCalibration {
+ public:
+  BackgroundCalibration(const FaceTracker& tracker, CalibrationOutcome outcome, const std::stop_token& owner_stop)
+      : outcome_(std::move(outcome)),
+        frames_(static_cast<int>(outcome_.inputs.size())),
+        started_(Clock::now()),
+        owner_link_(owner_stop, [this] { stop_.request_stop(); }) {
+    thread_ = std::thread([this, &tracker] {
+      pthread_setname_np(pthread_self(), "fr-calibrate");
+      try {
+        tracker.SolveCalibration(&outcome_, stop_.get_token());
+      } catch (const std::exception& e) {
+        error_ = e.what();
+      }
+      done_.store(true, std::memory_order_release);
+    });
+  }
+  ~BackgroundCalibration() {
+    stop_.request_stop();
+    if (thread_.joinable()) thread_.join();
+  }
+  BackgroundCalibration(const BackgroundCalibration&) = delete;
+  BackgroundCalibration& operator=(const BackgroundCalibration&) = delete;
+
+  bool done() const { return done_.load(std::memory_order_acquire); }
+  int frames() const { return frames_; }
+  double seconds() const { return std::chrono::duration<double>(Clock::now() - started_).count(); }
+  // Once done(): the outcome, or the solve's exception as an Error.
+  CalibrationOutcome Take() {
+    thread_.join();
+    if (!error_.empty()) throw Error(error_);
+    return std::move(outcome_);
+  }
+
+ private:
+  CalibrationOutcome outcome_;
+  const int frames_;
+  const Clock::time_point started_;
+  std::string error_;
+  std::atomic<bool> done_{false};
+  std::stop_source stop_;
+  std::stop_callback<std::function<void()>> owner_link_;  // the owner's stop stops the solve too
+  std::thread thread_;  // last: starts once everything above exists
+};
 
 SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_width_px, int min_face_width_px) {
   if (min_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty()) return options;
@@ -267,6 +333,8 @@ bool LossDetectionOptions::IsValid(std::string* why) const {
     return fail(why, "tracker: loss.min_reference_energy must be finite and non-negative");
   }
   if (min_dense_pixels < 0) return fail(why, "tracker: loss.min_dense_pixels must be non-negative");
+  std::string inner;
+  if (!agreement.IsValid(&inner)) return fail(why, "tracker: loss." + inner);
   return true;
 }
 
@@ -325,6 +393,7 @@ FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
 FaceTracker::~FaceTracker() = default;
 
 void FaceTracker::Reset() {
+  CancelBackgroundCalibration();
   const TrackerModel& m = solver_.model();
   neutral_ = gpu::frontal_pose(options_.default_face_distance_m);
   neutral_.alpha = Eigen::VectorXf::Zero(m.num_identity());
@@ -343,13 +412,29 @@ void FaceTracker::Reset() {
   have_fit_ = false;
   energy_history_.clear();
   frames_seen_ = 0;
+  unresolved_disagreement_deg_ = std::numeric_limits<double>::quiet_NaN();
+  unresolved_landmark_nme_ = std::numeric_limits<double>::quiet_NaN();
 }
 
 void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
 
-void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) { tracking_solve_ = std::move(solve); }
+// A background calibration reads both solvers: it is ended (not applied; its frames are collected
+// again) before either changes.
+void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) {
+  if (background_) {
+    CancelBackgroundCalibration();
+    ClearCalibrationFrames();
+  }
+  tracking_solve_ = std::move(solve);
+}
 
-void FaceTracker::SetCalibrationSolver(FramesSolveFunction solve) { calibration_solve_ = std::move(solve); }
+void FaceTracker::SetCalibrationSolver(FramesSolveFunction solve) {
+  if (background_) {
+    CancelBackgroundCalibration();
+    ClearCalibrationFrames();
+  }
+  calibration_solve_ = std::move(solve);
+}
 
 TrackedFrame FaceTracker::Track(const InputFrame& frame, double landmarks_ms) {
   const auto start = Clock::now();
@@ -375,7 +460,7 @@ TrackedFrame FaceTracker::Track(const InputFrame& frame, double landmarks_ms) {
 }
 
 FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit,
-                                        StageTimes* times) const {
+                                        StageTimes* times, const std::stop_token& stop) const {
   Attempt a;
   a.reinit = reinit;
   const TrackerModel& m = solver_.model();
@@ -398,7 +483,8 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
   }
   const SolverOptions so = WithStop(
       AdaptScheduleToFaceSize(reinit ? options_.recovery_solver : options_.tracking_solver,
-                              LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px));
+                              LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px),
+      stop);
   const auto t_pyr = Clock::now();
   const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid, so.ResolvedThreads());
   times->pyramid_ms += ms_since(t_pyr);
@@ -431,6 +517,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   TrackedFrame out;
   out.frame_index = frames_seen_++;
   if (calibration_requested_.exchange(false)) {
+    CancelBackgroundCalibration();
     collecting_ = true;
     ClearCalibrationFrames();
   }
@@ -472,6 +559,33 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     input = &no_depth;
   }
 
+  // A calibration in the background: frames are held until it has finished, then the first one
+  // applies it and is tracked with the new identity from the last calibration frame's fit.
+  std::string calibration_note;
+  bool just_calibrated = false;
+  if (background_) {
+    if (!background_->done())
+      return hold(TrackingStatus::kCalibrating, "calibrating: " + calibration_progress().Brief() + "; hold still");
+    try {
+      CalibrationOutcome o = background_->Take();
+      background_.reset();
+      // The frame the set was completed on is the set's newest (with a window, the last one kept).
+      size_t newest = 0;
+      for (size_t f = 1; f < o.frame_indices.size(); ++f)
+        if (o.frame_indices[f] > o.frame_indices[newest]) newest = f;
+      gpu::FaceParameters from = o.params.empty() ? previous_.params : o.params[newest];
+      just_calibrated = ApplyCalibration(&o, &calibration_note);
+      if (just_calibrated) {
+        from.alpha = identity_.alpha;
+        from.beta = identity_.beta;
+        previous_.params = from;
+      }
+    } catch (const std::exception& e) {
+      background_.reset();
+      calibration_note = std::string("calibration failed (") + e.what() + "); collecting new frames";
+    }
+  }
+
   if (collecting_ && !options_.track_while_calibrating) {
     // Calibration frames without a per-frame solve: the landmark pose is the joint solve's start.
     gpu::FaceParameters start = identity_;
@@ -493,11 +607,17 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     out.status = TrackingStatus::kCalibrating;
     out.pose_reinitialized = true;
     OfferCalibrationFrame(*input, start, out.frame_index);
-    out.message = CalibrationProgress() + " (" + pose.message + "; not fitted yet)";
-    if (CalibrationReady()) {
+    out.message = CalibrationProgressMessage() + " (" + pose.message + "; not fitted yet)";
+    if (!calibration_note.empty()) out.message = calibration_note + "; " + out.message;
+    if (CalibrationReady() && options_.background_calibration) {
+      StartBackgroundCalibration();
+      out.message = "calibrating: " + calibration_progress().Brief() + " (started; hold still)";
+    } else if (CalibrationReady()) {
       Calibrate(*input, start, &out);
       if (out.status == TrackingStatus::kCalibrated) {
         have_fit_ = true;
+        out.agreement = MeasureFitAgreement(m, *input, out.params, options_.loss.agreement);
+        previous_timestamp_s_ = frame.timestamp_s;
         previous_ = out;
         last_good_ = out;
       }
@@ -524,7 +644,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     start.gamma = last_good_.has_parameters ? last_good_.params.gamma : initial_lighting(m, *input);
   }
 
-  Attempt a = Solve(*input, start, reinit, &out.times);
+  Attempt a = Solve(*input, start, reinit, &out.times, options_.stop);
   // Energy jump: far above the recent level of this track.
   auto check_energy = [&](Attempt* at) {
     if (!at->failure.empty() || depth_dropped) return;
@@ -535,16 +655,70 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       at->failure = format("energy %.4g is %.1fx the recent median %.4g", e, e / ref, ref);
     }
   };
+  // The fit against the landmarks: its pose, its inner points, and (warm-started) how fast the
+  // head would have turned since the previous fit.
+  // The fit against the landmarks: its pose, its inner points, and (warm-started) how fast the
+  // head would have turned since the previous fit. Only this check's failures are marked
+  // `disagrees`: the others (energy, landmark distance, the solve) stay failures whatever happens.
+  auto check_agreement = [&](Attempt* at) {
+    const bool warm = !at->reinit && have_fit_;
+    const double dt = warm && frame.timestamp_s > previous_timestamp_s_ ? frame.timestamp_s - previous_timestamp_s_ : 0.0;
+    at->agreement = MeasureFitAgreement(m, *input, at->params, options_.loss.agreement, warm ? &previous_.params : nullptr, dt);
+    if (at->failure.empty() && !at->agreement.agrees()) {
+      at->failure = at->agreement.failure;
+      at->disagrees = true;
+    }
+  };
   check_energy(&a);
-  if (!a.failure.empty() && !reinit) {
-    const std::string first_failure = a.failure;
+  check_agreement(&a);
+  const std::string first_disagreement = !a.agreement.agrees() ? a.agreement.failure : a.agreement.landmark_warning;
+  if (!first_disagreement.empty()) out.disagreement = first_disagreement;
+  // A disagreement that the last frames could not resolve (below) and that has not grown since is
+  // the same one: no new re-solve for it (each costs about three tracking solves; on a small face
+  // with noisy points every frame would pay it).
+  const bool same_as_before = a.disagrees && std::isfinite(unresolved_disagreement_deg_) &&
+                              std::abs(a.agreement.pose_disagreement_deg - unresolved_disagreement_deg_) < 5.0;
+  const bool points_as_before = a.failure.empty() && !a.agreement.landmark_warning.empty() &&
+                                a.agreement.landmark_nme < unresolved_landmark_nme_ + 0.01;
+  std::string kept_note;
+  bool landmark_pose_left = false;  // a solve from the landmarks' pose ended away from it too
+  if ((!a.failure.empty() || !a.agreement.landmark_warning.empty()) && !reinit && !same_as_before && !points_as_before) {
+    // A failed fit, or one whose pose or points stray from the landmarks (a drift the warm start
+    // keeps): solved again from the landmarks' pose; a failure keeps whichever passes or sits
+    // closer to the landmarks, a stray fit the re-solve only when that passes and strays less.
+    const std::string first_failure = a.failure.empty() ? a.agreement.landmark_warning : a.failure;
     start.delta = neutral_.delta;
-    Attempt b = Solve(*input, start, true, &out.times);
+    Attempt b = Solve(*input, start, true, &out.times, options_.stop);
     check_energy(&b);
+    check_agreement(&b);
     reinit_reason = first_failure;
-    if (b.failure.empty() || (b.landmark_error_px >= 0 && b.landmark_error_px < a.landmark_error_px)) a = std::move(b);
+    landmark_pose_left = b.disagrees;
+    const bool take_b = !a.failure.empty()
+                            ? (b.failure.empty() || (b.landmark_error_px >= 0 && b.landmark_error_px < a.landmark_error_px))
+                            : (b.failure.empty() && b.agreement.landmark_nme < a.agreement.landmark_nme);
+    if (take_b) a = std::move(b);
+    else if (a.failure.empty()) out.disagreement.clear();  // the warm fit stays: nothing was refused
     reinit = a.reinit;
   }
+  if (a.disagrees && (a.reinit || same_as_before || landmark_pose_left) &&
+      a.agreement.explains_landmarks_as_well(options_.loss.agreement.pose_tie_nme)) {
+    // Solved from the landmarks' own pose, the fit still left it (or it is the disagreement the
+    // last re-solve could not resolve), and it explains the landmarks almost as well as that pose
+    // does (FitAgreementOptions::pose_tie_nme): the landmarks do not fix the pose (a small face,
+    // noisy points), so the fit is kept and flagged rather than lost.
+    kept_note = "; " + a.agreement.failure + (same_as_before ? ", as on the previous frames" : ", and from the landmarks' pose too") +
+                ": kept (the landmarks do not fix the pose)";
+    a.failure.clear();
+    a.disagrees = false;
+    unresolved_disagreement_deg_ = a.agreement.pose_disagreement_deg;
+  } else if (a.failure.empty()) {
+    unresolved_disagreement_deg_ = std::numeric_limits<double>::quiet_NaN();
+  }
+  // The points' stray that this frame leaves (NaN when none): the next frames re-solve only when it
+  // grows by more than 1 % of the eye distance.
+  unresolved_landmark_nme_ = a.failure.empty() && !a.agreement.landmark_warning.empty()
+                                 ? a.agreement.landmark_nme
+                                 : std::numeric_limits<double>::quiet_NaN();
   out.params = a.params;
   out.has_parameters = true;
   out.energy = a.summary.final_energy;
@@ -553,11 +727,13 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   out.pose_reinitialized = a.reinit;
   out.solver_termination = a.summary.termination;
   out.gaze = a.gaze;
+  out.agreement = a.agreement;
   const std::string depth_note = depth_dropped ? "; no valid depth at the face: fitted colour and landmarks only" : "";
+  const std::string note_prefix = calibration_note.empty() ? "" : calibration_note + "; ";
   if (!a.failure.empty()) {
     have_fit_ = false;
     out.status = TrackingStatus::kLost;
-    out.message = "lost: " + a.failure + depth_note;
+    out.message = note_prefix + "lost: " + a.failure + depth_note;
     return out;
   }
   have_fit_ = true;
@@ -569,18 +745,33 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     out.status = TrackingStatus::kTracking;
     out.message = "tracking: " + out.message;
   }
-  out.message += depth_note;
+  out.message += depth_note + kept_note;
+  if (!a.agreement.landmark_warning.empty()) out.message += "; " + a.agreement.landmark_warning;
   if (!depth_dropped) {
     energy_history_.push_back(out.energy.total());
     if (static_cast<int>(energy_history_.size()) > options_.loss.energy_history) energy_history_.erase(energy_history_.begin());
   }
 
-  if (collecting_) {
+  previous_timestamp_s_ = frame.timestamp_s;
+  if (just_calibrated) {
+    out.status = TrackingStatus::kCalibrated;
+    out.message = note_prefix + out.message;
+  } else if (collecting_) {
     const std::string fit_message = out.message;
     out.status = TrackingStatus::kCalibrating;
     OfferCalibrationFrame(*input, out.params, out.frame_index);
-    out.message = CalibrationProgress() + "; " + fit_message;
-    if (CalibrationReady()) Calibrate(*input, out.params, &out);
+    out.message = note_prefix + CalibrationProgressMessage() + "; " + fit_message;
+    if (CalibrationReady() && options_.background_calibration) {
+      StartBackgroundCalibration();
+      out.message = note_prefix + "calibrating: " + calibration_progress().Brief() + " (started; hold still); " + fit_message;
+    } else if (CalibrationReady()) {
+      Calibrate(*input, out.params, &out);
+      // The frame's parameters are now the joint fit's (or a solve with the new identity).
+      if (out.status == TrackingStatus::kCalibrated)
+        out.agreement = MeasureFitAgreement(m, *input, out.params, options_.loss.agreement);
+    }
+  } else {
+    out.message = note_prefix + out.message;
   }
   previous_ = out;
   last_good_ = out;
@@ -624,7 +815,7 @@ void FaceTracker::ClearCalibrationFrames() {
   calibration_frames_seen_ = 0;
 }
 
-std::string FaceTracker::CalibrationProgress() const {
+std::string FaceTracker::CalibrationProgressMessage() const {
   std::string m = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
                   std::to_string(options_.calibration_frames) + " frames";
   if (options_.calibration_window_frames > 0)
@@ -633,27 +824,58 @@ std::string FaceTracker::CalibrationProgress() const {
   return m;
 }
 
-SolverOptions FaceTracker::WithStop(SolverOptions options) const {
-  if (options_.stop.stop_possible()) options.stop = options_.stop;
+SolverOptions FaceTracker::WithStop(SolverOptions options, const std::stop_token& stop) const {
+  if (stop.stop_possible()) options.stop = stop;
   return options;
 }
 
-void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out) {
+std::string FaceTracker::CalibrationProgress::Brief() const {
+  if (solving) return "fitting the identity over " + std::to_string(frames_collected) + " frames, " + format("%.1f s", solving_s);
+  if (!collecting) return "";
+  return std::to_string(frames_collected) + " of " + std::to_string(frames_needed) + " frames";
+}
+
+FaceTracker::CalibrationProgress FaceTracker::calibration_progress() const {
+  CalibrationProgress p;
+  p.collecting = collecting_;
+  p.frames_needed = options_.calibration_frames;
+  p.frames_collected = static_cast<int>(calibration_inputs_.size());
+  if (background_) {
+    p.solving = true;
+    p.frames_collected = background_->frames();
+    p.solving_s = background_->seconds();
+  }
+  return p;
+}
+
+FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames() {
+  // Taken out first, so that a solve that throws (caught in Track) starts a fresh collection
+  // instead of retrying the same set on every frame.
+  CalibrationOutcome o;
+  o.inputs = std::move(calibration_inputs_);
+  o.starts = std::move(calibration_starts_);
+  o.frame_indices = std::move(calibration_frame_indices_);
+  ClearCalibrationFrames();
+  return o;
+}
+
+void FaceTracker::StartBackgroundCalibration() {
+  background_ = std::make_unique<BackgroundCalibration>(*this, TakeCalibrationFrames(), options_.stop);
+}
+
+void FaceTracker::CancelBackgroundCalibration() { background_.reset(); }
+
+void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token& stop) const {
   const TrackerModel& m = solver_.model();
   const int n_id = options_.calibration_identity_components < 0 ? m.num_identity() : options_.calibration_identity_components;
   const int n_alb = options_.calibration_albedo_components < 0 ? m.num_albedo() : options_.calibration_albedo_components;
   const ParameterLayout layout = ParameterLayout::Calibration(n_id, n_alb, m.num_expression());
-  // Take the collected frames out first, so that a solve that throws (caught in Track) starts a
-  // fresh collection instead of retrying the same set on every frame.
-  std::vector<InputFrame> inputs = std::move(calibration_inputs_);
-  std::vector<gpu::FaceParameters> params = std::move(calibration_starts_);
-  const std::vector<int64_t> frame_indices = std::move(calibration_frame_indices_);
-  ClearCalibrationFrames();
+  const std::vector<InputFrame>& inputs = o->inputs;
+  const std::vector<gpu::FaceParameters>& starts = o->starts;
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
-  const SolverOptions so =
-      WithStop(AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()));
-  const std::vector<gpu::FaceParameters> starts = params;
+  const SolverOptions so = WithStop(
+      AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()), stop);
   // One joint solve from the per-frame fits' expressions or from neutral, into `*p`.
   auto solve_from = [&](CalibrationStart start, std::vector<gpu::FaceParameters>* p) {
     *p = starts;
@@ -666,11 +888,13 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     return s.termination == Termination::kNoValidResiduals || s.termination == Termination::kNonFinite;
   };
   auto usable = [&](const SolverSummary& s) { return s.termination != Termination::kStopped && !failed(s); };
-  CalibrationStartReport report;
+  CalibrationStartReport& report = o->report;
   report.kept = options_.calibration_start == CalibrationStart::kPerFrameFits ? CalibrationStart::kPerFrameFits
                                                                              : CalibrationStart::kNeutral;
+  std::vector<gpu::FaceParameters>& params = o->params;
   const auto t0 = Clock::now();
-  SolverSummary summary = solve_from(report.kept, &params);
+  SolverSummary& summary = o->summary;
+  summary = solve_from(report.kept, &params);
   const double nan = std::numeric_limits<double>::quiet_NaN();
   (report.kept == CalibrationStart::kNeutral ? report.neutral_energy : report.per_frame_fits_energy) =
       usable(summary) ? summary.final_energy.total() : nan;
@@ -693,92 +917,112 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
       report.kept = CalibrationStart::kPerFrameFits;
     }
   }
-  out->times.calibration_ms = ms_since(t0);
-  const int frames = static_cast<int>(inputs.size());
-  if (summary.termination == Termination::kStopped) {
-    // Half a calibration is not an identity: keep the old one and the collected frames.
-    out->message = "calibration over " + std::to_string(frames) + " frames stopped before it finished (" + summary.message + ")";
-    calibration_inputs_ = std::move(inputs);
-    calibration_starts_ = starts;
-    calibration_frame_indices_ = frame_indices;
-    calibration_frames_seen_ = options_.calibration_window_frames;
-    calibration_summary_ = std::move(summary);
-    return;
-  }
-  if (failed(summary)) {
-    // Keep the previous identity and collect a fresh set of frames.
-    out->message = "calibration over " + std::to_string(frames) + " frames failed (" + summary.message +
-                   "); collecting new frames";
-    calibration_summary_ = std::move(summary);
-    return;
-  }
-  identity_.alpha = params[0].alpha;
-  identity_.beta = params[0].beta;
-  neutral_ = params[0];
-  Eigen::VectorXf mean_delta = Eigen::VectorXf::Zero(m.num_expression());
+  o->solve_ms = ms_since(t0);
+  if (!usable(summary)) return;  // ApplyCalibration says why
+
+  Eigen::VectorXf& neutral = o->neutral_delta;
+  neutral = Eigen::VectorXf::Zero(m.num_expression());
   for (const auto& p : params) {
-    Eigen::VectorXf d = Eigen::VectorXf::Zero(m.num_expression());
-    d.head(std::min<Eigen::Index>(p.delta.size(), d.size())) = p.delta.head(std::min<Eigen::Index>(p.delta.size(), d.size()));
-    mean_delta += d;
+    const Eigen::Index k = std::min<Eigen::Index>(p.delta.size(), neutral.size());
+    neutral.head(k) += p.delta.head(k);
   }
-  neutral_.delta = mean_delta / static_cast<float>(params.size());
-  // A tracking solve of `input` (identity fixed at the new one), warm-started from `start`.
-  auto track_with_new_identity = [&](const InputFrame& input, gpu::FaceParameters start) {
-    start.alpha = identity_.alpha;
-    start.beta = identity_.beta;
-    return Solve(input, start, /*reinit=*/false, &out->times);
-  };
+  neutral /= static_cast<float>(params.size());
   if (options_.neutral_from_tracking) {
-    // Re-read each calibration frame the way tracking reads frames (identity fixed, tracking
-    // prior, warm start from the joint solve), so Eq. 15 subtracts a neutral in the same terms
-    // as the expressions it is subtracted from. Frames whose fit fails keep no say.
+    // Re-read each calibration frame the way tracking reads frames (identity fixed at the new
+    // one, tracking prior, warm start from the joint solve), so Eq. 15 subtracts a neutral in the
+    // same terms as the expressions it is subtracted from. Frames whose fit fails keep no say.
     Eigen::VectorXf sum = Eigen::VectorXf::Zero(m.num_expression());
     int fitted = 0;
     for (size_t f = 0; f < inputs.size(); ++f) {
-      const Attempt a = track_with_new_identity(inputs[f], params[f]);
+      gpu::FaceParameters start = params[f];
+      start.alpha = params[0].alpha;
+      start.beta = params[0].beta;
+      const Attempt a = Solve(inputs[f], start, /*reinit=*/false, &o->reread_times, stop);
       if (!a.failure.empty() || a.summary.termination == Termination::kStopped) continue;
       const Eigen::Index k = std::min<Eigen::Index>(a.params.delta.size(), sum.size());
       sum.head(k) += a.params.delta.head(k);
       ++fitted;
     }
-    if (fitted > 0) neutral_.delta = sum / static_cast<float>(fitted);
+    if (fitted > 0) neutral = sum / static_cast<float>(fitted);
   }
   // Gaze is absolute: the rest of the eyes is looking straight ahead, whatever the actor looked at
   // while calibrating. Eq. 15 subtracts the neutral, so a neutral that kept a glance aside would
   // turn the reenacted eyes away whenever the source looked straight at the camera; and gaze does
   // not enter the identity, so it is no sign of a calibration not at rest either.
-  if (gaze_.available() && neutral_.delta.size() >= m.num_expression()) {
-    for (const GazeEstimator::Weight& w : gaze_.WeightsFor(0.f, 0.f)) neutral_.delta[w.index] = 0.f;
+  if (gaze_.available() && neutral.size() >= m.num_expression()) {
+    for (const GazeEstimator::Weight& w : gaze_.WeightsFor(0.f, 0.f)) neutral[w.index] = 0.f;
   }
+}
+
+bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) {
+  const TrackerModel& m = solver_.model();
+  const int frames = static_cast<int>(o->inputs.size());
+  const Termination termination = o->summary.termination;
+  if (termination == Termination::kStopped) {
+    // Half a calibration is not an identity: keep the old one and the collected frames.
+    *message = "calibration over " + std::to_string(frames) + " frames stopped before it finished (" + o->summary.message + ")";
+    calibration_inputs_ = std::move(o->inputs);
+    calibration_starts_ = std::move(o->starts);
+    calibration_frame_indices_ = std::move(o->frame_indices);
+    calibration_frames_seen_ = options_.calibration_window_frames;
+    calibration_summary_ = std::move(o->summary);
+    return false;
+  }
+  if (termination == Termination::kNoValidResiduals || termination == Termination::kNonFinite) {
+    // Keep the previous identity and collect a fresh set of frames.
+    *message = "calibration over " + std::to_string(frames) + " frames failed (" + o->summary.message +
+               "); collecting new frames";
+    calibration_summary_ = std::move(o->summary);
+    return false;
+  }
+  identity_.alpha = o->params[0].alpha;
+  identity_.beta = o->params[0].beta;
+  neutral_ = o->params[0];
+  neutral_.delta = o->neutral_delta;
   calibrated_ = true;
   collecting_ = false;
-  calibration_start_report_ = report;
+  calibration_start_report_ = o->report;
   energy_history_.clear();  // energies with the new identity are not comparable to the old
+  const CalibrationStartReport& report = o->report;
+  std::string start_note = std::string("from the ") + (report.kept == CalibrationStart::kNeutral ? "neutral" : "per-frame fits'") +
+                           " expressions";
+  if (!std::isnan(report.neutral_energy) && !std::isnan(report.per_frame_fits_energy))
+    start_note += format(", E %.4g against %.4g", o->summary.final_energy.total(),
+                         report.kept == CalibrationStart::kNeutral ? report.per_frame_fits_energy : report.neutral_energy) +
+                  (report.kept == CalibrationStart::kNeutral ? " from the per-frame fits'" : " from neutral");
+  *message = "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + o->summary.BriefReport() + ")";
+  calibration_warning_ = NotAtRestWarning(m, neutral_.delta, options_.rest_warning_weight);
+  if (!calibration_warning_.empty()) *message += "; " + calibration_warning_;
+  calibration_summary_ = o->summary;
+  return true;
+}
+
+void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out) {
+  CalibrationOutcome o = TakeCalibrationFrames();
+  SolveCalibration(&o, options_.stop);
+  out->times.calibration_ms = o.solve_ms;
+  for (double StageTimes::*t : {&StageTimes::pyramid_ms, &StageTimes::synthesis_ms, &StageTimes::analysis_ms,
+                                &StageTimes::pose_init_ms, &StageTimes::gaze_ms})
+    out->times.*t += o.reread_times.*t;
+  if (!ApplyCalibration(&o, &out->message)) return;
   // This frame's parameters: its joint fit when it is a calibration frame (always, without a
   // window: it completed the set), else a tracking solve with the new identity.
-  const auto in_set = std::find(frame_indices.begin(), frame_indices.end(), out->frame_index);
-  if (in_set != frame_indices.end()) {
-    out->params = params[static_cast<size_t>(in_set - frame_indices.begin())];
+  const auto in_set = std::find(o.frame_indices.begin(), o.frame_indices.end(), out->frame_index);
+  if (in_set != o.frame_indices.end()) {
+    out->params = o.params[static_cast<size_t>(in_set - o.frame_indices.begin())];
   } else {
-    const Attempt a = track_with_new_identity(current, current_start);
+    gpu::FaceParameters start = current_start;
+    start.alpha = identity_.alpha;
+    start.beta = identity_.beta;
+    const Attempt a = Solve(current, start, /*reinit=*/false, &out->times, options_.stop);
     out->params = a.failure.empty() ? a.params : current_start;
   }
   out->params.alpha = identity_.alpha;
   out->params.beta = identity_.beta;
-  out->landmark_error_px = LandmarkReprojectionError(m, current, out->params, options_.loss.min_landmark_confidence,
+  out->landmark_error_px = LandmarkReprojectionError(solver_.model(), current, out->params, options_.loss.min_landmark_confidence,
                                                      options_.calibration_solver.energy.inner_landmarks_only);
   out->has_parameters = true;
   out->status = TrackingStatus::kCalibrated;
-  std::string start_note = std::string("from the ") + (report.kept == CalibrationStart::kNeutral ? "neutral" : "per-frame fits'") +
-                           " expressions";
-  if (!std::isnan(report.neutral_energy) && !std::isnan(report.per_frame_fits_energy))
-    start_note += format(", E %.4g against %.4g", summary.final_energy.total(),
-                         report.kept == CalibrationStart::kNeutral ? report.per_frame_fits_energy : report.neutral_energy) +
-                  (report.kept == CalibrationStart::kNeutral ? " from the per-frame fits'" : " from neutral");
-  out->message = "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + summary.BriefReport() + ")";
-  calibration_warning_ = NotAtRestWarning(m, neutral_.delta, options_.rest_warning_weight);
-  if (!calibration_warning_.empty()) out->message += "; " + calibration_warning_;
-  calibration_summary_ = std::move(summary);
 }
 
 }  // namespace face_reenact::tracker

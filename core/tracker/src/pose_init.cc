@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -10,6 +11,7 @@
 
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/fit_agreement.h"
 #include "math_internal.h"
 #include "tracker_internal.h"
 
@@ -244,7 +246,7 @@ PoseInitResult InitializePoseFromLandmarks(const TrackerModel& model, const Inpu
   // background), and frontal poses turned by -40..40 degrees of yaw at the distance that
   // matches the landmarks' image spread.
   std::vector<std::pair<Eigen::Matrix3d, Eigen::Vector3d>> starts;
-  if (frame.has_depth()) {
+  if (frame.has_depth() && options.use_depth) {
     std::vector<Eigen::Vector3d> from, to;
     std::vector<double> w;
     for (auto& c : cs) {
@@ -339,6 +341,119 @@ PoseInitResult InitializePoseFromLandmarks(const TrackerModel& model, const Inpu
                 result.used_depth ? " (3D start from depth)" : "", result.mean_error_px);
   result.message = buf;
   return result;
+}
+
+bool FitAgreementOptions::IsValid(std::string* why) const {
+  auto off_or_positive = [](double v) { return std::isfinite(v) && v >= 0; };
+  if (!off_or_positive(max_pose_disagreement_deg) || max_pose_disagreement_deg > 180)
+    return fail(why, "fit agreement: max_pose_disagreement_deg must be in [0, 180] (0: off)");
+  if (!off_or_positive(max_landmark_nme) || max_landmark_nme > 10)
+    return fail(why, "fit agreement: max_landmark_nme must be in [0, 10] (0: off)");
+  if (!off_or_positive(max_rotation_speed_deg_s) || max_rotation_speed_deg_s > 1e5)
+    return fail(why, "fit agreement: max_rotation_speed_deg_s must be in [0, 100000] (0: off)");
+  if (!(min_landmark_confidence >= 0.f && min_landmark_confidence < 1.f))
+    return fail(why, "fit agreement: min_landmark_confidence must be in [0, 1)");
+  if (!off_or_positive(pose_tie_nme) || pose_tie_nme > 10) return fail(why, "fit agreement: pose_tie_nme must be in [0, 10]");
+  return true;
+}
+
+double RotationAngleDeg(const Eigen::Vector3f& euler_a, const Eigen::Vector3f& euler_b) {
+  const Eigen::Matrix3d a = internal::rotation_with_derivatives(euler_a.cast<double>()).r;
+  const Eigen::Matrix3d b = internal::rotation_with_derivatives(euler_b.cast<double>()).r;
+  const double c = std::clamp(((a.transpose() * b).trace() - 1.0) / 2.0, -1.0, 1.0);
+  return std::acos(c) * 180.0 / kPi;
+}
+
+FitAgreement MeasureFitAgreement(const TrackerModel& model, const InputFrame& frame, const gpu::FaceParameters& params,
+                                 const FitAgreementOptions& options, const gpu::FaceParameters* previous,
+                                 double seconds_since_previous) {
+  FitAgreement out;
+  if (!options.IsValid(&out.failure)) return out;
+  if (!params.euler.allFinite() || !params.translation.allFinite()) {
+    out.failure = "the fitted pose is not finite";
+    return out;
+  }
+  char buf[200];
+  // The inner 51 points (brows, nose, eyes, mouth) of the fit against the detector's.
+  std::array<const InputLandmark*, 68> detected{};
+  for (const auto& in : frame.landmarks) {
+    if (in.ibug_index >= 0 && in.ibug_index < 68 && in.confidence > options.min_landmark_confidence &&
+        in.position.allFinite())
+      detected[static_cast<size_t>(in.ibug_index)] = &in;
+  }
+  if (detected[36] && detected[45]) {
+    const double iod = (detected[36]->position - detected[45]->position).cast<double>().norm();
+    out.eye_distance_px = iod;
+    const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
+    const Eigen::Vector3d t = params.translation.cast<double>();
+    double sum = 0;
+    std::array<double, 4> part_sum{};
+    std::array<int, 4> part_count{};
+    for (const auto& l : model.landmarks) {
+      if (l.ibug_index < 17 || l.ibug_index >= 68 || !detected[static_cast<size_t>(l.ibug_index)]) continue;
+      const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
+      const Eigen::Vector2d p = x.z() > frame.camera.near_plane ? project(frame.camera, x) : Eigen::Vector2d(1e9, 1e9);
+      const double d = std::min((p - detected[static_cast<size_t>(l.ibug_index)]->position.cast<double>()).norm(), 1e9);
+      sum += d;
+      ++out.landmarks_used;
+      const size_t part = l.ibug_index < 27 ? 0 : l.ibug_index < 36 ? 1 : l.ibug_index < 48 ? 2 : 3;
+      part_sum[part] += d;
+      ++part_count[part];
+    }
+    if (out.landmarks_used > 0 && iod > 1.0) {
+      out.landmark_nme = sum / out.landmarks_used / iod;
+      double* parts[4] = {&out.nme_brows, &out.nme_nose, &out.nme_eyes, &out.nme_mouth};
+      for (size_t k = 0; k < 4; ++k)
+        if (part_count[k] > 0) *parts[k] = part_sum[k] / part_count[k] / iod;
+    }
+  }
+  // The head pose the landmarks give by themselves, with this fit's shape.
+  PoseInitOptions po;
+  po.min_confidence = options.min_landmark_confidence;
+  po.inner_landmarks_only = true;  // the jaw line's points slide along the silhouette
+  // The landmarks alone: depth sampled at a landmark's pixel is the surface seen there (a lid, a
+  // lip, the background past a turned cheek), not the landmark vertex's, and turned a perfect fit
+  // of a synthetic frame 3 degrees away.
+  po.use_depth = false;
+  po.default_distance_m = std::max(0.1f, std::min(params.translation.z(), 20.f));
+  const PoseInitResult pnp = InitializePoseFromLandmarks(model, frame, params, po);
+  if (pnp.ok) {
+    out.pose_disagreement_deg = RotationAngleDeg(params.euler, pnp.euler);
+    out.landmark_pose_error_px = pnp.mean_error_px;
+    const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
+    const Eigen::Vector3d t = params.translation.cast<double>();
+    double sum = 0;
+    int n = 0;
+    for (const auto& l : model.landmarks) {
+      if (!(l.flags & kLandmarkInner) || l.ibug_index < 0 || l.ibug_index >= 68 || !detected[static_cast<size_t>(l.ibug_index)])
+        continue;
+      const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
+      if (!(x.z() > frame.camera.near_plane)) continue;
+      sum += (project(frame.camera, x) - detected[static_cast<size_t>(l.ibug_index)]->position.cast<double>()).norm();
+      ++n;
+    }
+    if (n > 0) out.fit_error_px = sum / n;
+  }
+  if (previous && previous->euler.allFinite() && seconds_since_previous > 0) {
+    out.rotation_change_deg = RotationAngleDeg(params.euler, previous->euler);
+    out.rotation_speed_deg_s = out.rotation_change_deg / seconds_since_previous;
+  }
+
+  if (options.max_landmark_nme > 0 && out.landmark_nme > options.max_landmark_nme) {
+    std::snprintf(buf, sizeof buf, "inner landmarks %.1f%% of the eye distance from the detector's (limit %.1f%%)",
+                  100 * out.landmark_nme, 100 * options.max_landmark_nme);
+    out.landmark_warning = buf;
+  }
+  if (options.max_pose_disagreement_deg > 0 && out.pose_disagreement_deg > options.max_pose_disagreement_deg) {
+    std::snprintf(buf, sizeof buf, "head pose %.1f degrees from the landmarks' (limit %.0f)", out.pose_disagreement_deg,
+                  options.max_pose_disagreement_deg);
+    out.failure = buf;
+  } else if (options.max_rotation_speed_deg_s > 0 && out.rotation_speed_deg_s > options.max_rotation_speed_deg_s) {
+    std::snprintf(buf, sizeof buf, "head turned %.1f degrees in %.0f ms (limit %.0f degrees/s)", out.rotation_change_deg,
+                  1000 * seconds_since_previous, options.max_rotation_speed_deg_s);
+    out.failure = buf;
+  }
+  return out;
 }
 
 }  // namespace face_reenact::tracker

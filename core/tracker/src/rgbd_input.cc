@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/srgb.h"
@@ -33,6 +34,7 @@ bool RgbdInputOptions::IsValid(std::string* why) const {
 InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_depth) {
   InputFrame in;
   in.camera = frame.camera;
+  in.timestamp_s = std::isfinite(frame.timestamp_s) ? frame.timestamp_s : std::numeric_limits<double>::quiet_NaN();
   std::string why;
   if (!in.camera.IsValid(&why)) throw Error("frame " + std::to_string(frame.index) + ": " + why);
   const int w = in.camera.width, h = in.camera.height;

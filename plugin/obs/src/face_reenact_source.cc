@@ -16,14 +16,6 @@ bool same_inputs(const live::LiveSession::Options& a, const live::LiveSession::O
          a.mode == b.mode && a.camera_width == b.camera_width && a.camera_height == b.camera_height;
 }
 
-// What makes the status worth a log line and a properties refresh: the states and messages,
-// not the rates (those change every second).
-std::string state_key(const live::LiveStatus& s) {
-  return std::to_string(s.target_open) + s.target_error + "|" + live::tracking_state_name(s.tracking) + "|" +
-         std::to_string(s.pipeline_ready) + s.pipeline_message + "|" + live::source_state_name(s.source) + s.source_error +
-         "|" + s.calibration_warning;
-}
-
 }  // namespace
 
 FaceReenactSource::FaceReenactSource(obs_data_t* settings, obs_source_t* source) : source_(source) {
@@ -146,7 +138,9 @@ void FaceReenactSource::video_tick() {
   next_status_check_ = now + std::chrono::milliseconds(500);
   bool has_session = false;
   live::LiveStatus status = live_status(&has_session);
-  std::string key = has_session ? state_key(status) : status_line();
+  // A log line and a properties refresh when what the line says changes, not its numbers (rates,
+  // the calibration's progress, a lost frame's measurements): one line per change of state.
+  std::string key = has_session ? status.StateLine() : status_line();
   bool changed = key != last_state_key_;
   if (changed) {
     last_state_key_ = key;

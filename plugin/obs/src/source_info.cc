@@ -74,6 +74,7 @@ obs_properties_t* make_properties(FaceReenactSource* source) {
   p = obs_properties_add_list(props, kMode, text("Mode"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);
   obs_property_list_add_string(p, text("Mode.Reenact"), "reenact");
   obs_property_list_add_string(p, text("Mode.PassThrough"), "passthrough");
+  obs_property_list_add_string(p, text("Mode.Overlay"), "overlay");
   obs_property_list_add_string(p, text("Mode.Raw"), "raw");
   obs_properties_add_button(props, kCalibrate, text("Calibrate"), [](obs_properties_t*, obs_property_t*, void* data) {
     if (data) self(data)->calibrate();

@@ -153,8 +153,10 @@ class VideoReader : public FrameSource {
 // A camera with the principal point at the image centre and the given horizontal field of view.
 gpu::PinholeCamera camera_from_fov(int width, int height, double horizontal_fov_deg);
 
-// Opens a recording folder, or a video file, by what `path` is.
-std::unique_ptr<FrameSource> open_frame_source(const std::string& path);
+// Opens a recording folder, or a video file, by what `path` is; a video file with
+// `video_options` (its assumed intrinsics).
+std::unique_ptr<FrameSource> open_frame_source(const std::string& path,
+                                               const VideoReader::Options& video_options = VideoReader::Options());
 
 // JSON helpers shared by the recording, script and identity readers (exposed for tests).
 // Ground truth to/from the JSON object stored per frame. `what` names the place in errors.

@@ -33,13 +33,15 @@ enum class OutputMode {
   kReenact,      // the source's expression on the target (Eq. 15)
   kPassThrough,  // the target tracked and re-rendered with its own expression
   kRaw,          // the target's frames unchanged (tracking off): checks the camera set-up
+  kOverlay,      // the target tracked, with the fit drawn over it (mesh, landmarks, agreement)
 };
 const char* output_mode_name(OutputMode mode);                          // "reenact", ...
 bool parse_output_mode(const std::string& text, OutputMode* mode);      // also "pass-through"
 
 enum class TrackingState {
   kOff,          // no tracking (raw mode, or the pipeline is unavailable: see pipeline_message)
-  kCalibrating,  // calibrating the target's identity (output = input)
+  kCalibrating,  // calibrating the target's identity (output = input, at the input's rate: the
+                 // joint solve runs on a thread of its own, "fr-calibrate")
   kTracking,     // face tracked; output reenacted / re-rendered
   kLost,         // no face in the current frame (output = input)
 };
@@ -47,7 +49,8 @@ const char* tracking_state_name(TrackingState state);
 
 enum class SourceState {
   kNone,     // no expression source configured
-  kWaiting,  // configured, nothing received / tracked yet
+  kWaiting,  // configured, nothing received / tracked yet (source_detail says what it waits for)
+  kCalibrating,  // a source actor (camera / recording) is being calibrated: hold still
   kLive,     // delivering
   kLost,     // was delivering, now silent (the target's own expression fades back in)
   kError,    // cannot be set up (port in use, key file unreadable, input missing): see source_error
@@ -70,10 +73,16 @@ struct LiveStatus {
   // Non-empty when the last calibration saw a face that was not at rest (smiling, talking): part
   // of that expression is in the fitted identity; a new calibration with a relaxed face fixes it.
   std::string calibration_warning;
+  // While tracking == kCalibrating: "3 of 5 frames", "fitting the identity over 5 frames, 1.2 s"
+  // (tracker::FaceTracker::CalibrationProgress::Brief()).
+  std::string calibration_progress;
   // Expression source.
   SourceState source = SourceState::kNone;
   std::string source_description;  // "udp port 9000", "recording 'actor'"
   std::string source_error;
+  // A source actor not live yet: what it waits for ("loading the face model", "no face found
+  // yet") or, while kCalibrating, the actor's calibration progress.
+  std::string source_detail;
   double packets_per_second = 0;   // UDP: applied datagrams per second; actor: tracked frames per second
   double source_weight = 0;        // cross-fade weight of the remote expression in [0, 1]
   // Output.
@@ -81,9 +90,13 @@ struct LiveStatus {
   double output_fps = 0;
   double process_ms = 0;           // mean time of one pipeline call over the last second
 
-  // One line for status bars: "Tracking | stream live 60 pkt/s | 29.8 fps" or
+  // One line for status bars: "Tracking | stream live 60 pkt/s | 29.8 fps",
+  // "Calibrating: hold still (3 of 5 frames) | 30.0 fps" or
   // "No camera: camera /dev/video0: no such device (retrying)".
   std::string Headline() const;
+  // The same line without what changes while nothing happens (rates, calibration progress): a
+  // front-end logs the status when this changes, not every time a number moves.
+  std::string StateLine() const;
 };
 
 struct LiveFrame {

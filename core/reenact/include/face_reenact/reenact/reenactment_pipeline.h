@@ -73,6 +73,7 @@ enum class ReenactMode {
   kReenact,      // the source's expression on the target (Eq. 15)
   kPassThrough,  // the target re-rendered with its own tracked expression (checks the pipeline)
   kOff,          // the input frame unchanged (tracking still runs, for status)
+  kOverlay,      // the input with the fit drawn over it (fit_overlay.h): is the tracking right?
 };
 const char* reenact_mode_name(ReenactMode mode);
 
@@ -217,6 +218,9 @@ class ReenactmentPipeline {
   // Non-empty when the target's last calibration saw a face not at rest
   // (tracker::FaceTracker::calibration_warning()): the front-end should ask for a new one.
   std::string calibration_warning() const;
+  // Where the target's calibration stands (tracker::FaceTracker::calibration_progress(): frames
+  // collected, a background solve running); nothing collecting or solving with ground truth.
+  tracker::FaceTracker::CalibrationProgress calibration_progress() const;
   PipelineSummary summary() const;
 
  private:

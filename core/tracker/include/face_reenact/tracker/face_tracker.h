@@ -34,6 +34,7 @@
 
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/tracker/energy.h"
+#include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/gaze.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/parameter_layout.h"
@@ -77,6 +78,11 @@ struct LossDetectionOptions {
   // Fewer pixels carrying the dense terms on the finest solved level than this counts as "no
   // valid residuals" (e.g. all-invalid depth where the face should be) for RGB-D input.
   int min_dense_pixels = 30;
+  // The fit against the frame's own evidence (fit_agreement.h): its head pose against the
+  // landmarks' pose, its inner landmarks against the detector's, its rotation speed. A fit that
+  // disagrees is re-solved from a landmark re-initialisation, and lost if that disagrees too; so
+  // no frame is reported tracked with its head turned away from the face.
+  FitAgreementOptions agreement;
 
   bool IsValid(std::string* why) const;
 };
@@ -224,6 +230,16 @@ struct TrackerOptions {
   // one Gauss-Newton iteration of the request. A stopped calibration is not applied; its frames
   // are kept for the next Track() call.
   std::stop_token stop;
+  // Run the joint calibration solve (and the neutral's re-reads) on a thread of its own
+  // ("fr-calibrate"), so that Track() keeps returning at the frame rate while it runs: the frames
+  // meanwhile are kCalibrating without a new fit (the last fit held, message "calibrating:
+  // fitting the identity ..."), and the first Track() after the solve has finished applies the
+  // identity and tracks that frame with it (kCalibrated). The identity is the one the same frames
+  // give in the foreground. For live use (the OBS source, the virtual webcam, `send`), where a
+  // picture frozen for the seconds of a calibration is worse than a few frames more of
+  // calibrating; off for files, where which frame is the first calibrated one must not depend on
+  // the machine's speed.
+  bool background_calibration = false;
 
   bool IsValid(std::string* why) const;
   // calibration_min_face_width_px with -1 resolved.
@@ -281,7 +297,21 @@ struct TrackedFrame {
   // The gaze reading of this frame's fit (ok false: none, and why; the eyeLook weights are then
   // the solve's).
   GazeReading gaze;
+  // The fit against the frame's landmarks (measured on every frame with parameters of its own;
+  // a disagreement made the frame kLost or, re-initialised, kRecovered).
+  FitAgreement agreement;
+  // Non-empty when this frame's first fit disagreed with the landmarks (the reason): it was then
+  // solved again from the landmarks' pose (pose_reinitialized, kRecovered), or kept because that
+  // solve left the landmarks' pose too (the message says so, "kept (the landmarks do not fix the
+  // pose)"), or the frame was lost.
+  std::string disagreement;
   StageTimes times;
+
+  // This frame's first fit disagreed with the landmarks and was not kept: the solve from the
+  // landmarks' pose replaced it, or the frame was lost.
+  bool fit_refused() const {
+    return !disagreement.empty() && (pose_reinitialized || status == TrackingStatus::kLost);
+  }
 };
 
 // Solve function with CpuSolver::Solve's pyramid signature; lets a caller put another solver
@@ -337,6 +367,17 @@ class FaceTracker {
   // The fit of the last frame with a trustworthy fit (has_parameters false before any).
   const TrackedFrame& last_good() const { return last_good_; }
   int calibration_frames_collected() const { return static_cast<int>(calibration_inputs_.size()); }
+  // Where a calibration stands, for status lines ("Calibrating: hold still (3 of 5 frames)").
+  struct CalibrationProgress {
+    bool collecting = false;  // gathering calibration frames (the first calibration, or one requested)
+    int frames_collected = 0;
+    int frames_needed = 0;
+    bool solving = false;     // the joint solve is running in the background (background_calibration)
+    double solving_s = 0;     // for this many seconds
+    // "3 of 5 frames", "fitting the identity over 5 frames, 1.2 s", or "" when not calibrating.
+    std::string Brief() const;
+  };
+  CalibrationProgress calibration_progress() const;
   // Frame indices (TrackedFrame::frame_index) of the frames collected so far.
   const std::vector<int64_t>& calibration_frame_indices() const { return calibration_frame_indices_; }
 
@@ -359,20 +400,39 @@ class FaceTracker {
     bool reinit = false;
     std::string pose_message;
     std::string failure;  // empty: passed the loss checks
+    bool disagrees = false;  // `failure` is the fit-agreement check's (pose or rotation speed)
     GazeReading gaze;
+    FitAgreement agreement;
   };
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
-  Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times) const;
+  Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times,
+                const std::stop_token& stop) const;
+  // A joint calibration over a set of frames: its inputs and what it found (face_tracker.cc).
+  struct CalibrationOutcome;
+  // The thread running one calibration in the background (TrackerOptions::background_calibration).
+  class BackgroundCalibration;
   // Calibrates on the collected frames; `current` (frame out->frame_index, fitted from
   // `current_start` when the set does not hold it) gets the new identity's fit.
   void Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out);
+  // The collected frames, taken out of the set (which starts afresh), ready for SolveCalibration.
+  CalibrationOutcome TakeCalibrationFrames();
+  // The joint solve(s) and the neutral's re-reads over `o`'s frames; changes no member, so it can
+  // run on the background thread while the tracking thread only holds frames. `stop` ends it.
+  void SolveCalibration(CalibrationOutcome* o, const std::stop_token& stop) const;
+  // Takes a finished calibration's identity and neutral (true), or keeps the old ones: a stopped
+  // solve puts its frames back, a failed one leaves a fresh collection (false). *message says which.
+  bool ApplyCalibration(CalibrationOutcome* o, std::string* message);
+  void StartBackgroundCalibration();
+  // Ends a background calibration under way (a request, a reset, a new solver) without applying it.
+  void CancelBackgroundCalibration();
   // Offers a usable frame (with its fit or landmark pose as the joint solve's start) to the
   // calibration set; CalibrationReady says when the set is complete.
   void OfferCalibrationFrame(const InputFrame& input, const gpu::FaceParameters& start, int64_t frame_index);
   bool CalibrationReady() const;
   void ClearCalibrationFrames();
-  std::string CalibrationProgress() const;  // "calibrating: 3 of 5 frames ..."
-  SolverOptions WithStop(SolverOptions options) const;  // options_.stop given to a solve
+  std::string CalibrationProgressMessage() const;  // "calibrating: 3 of 5 frames ..."
+  // `stop` (options_.stop, or a background calibration's own) given to a solve.
+  SolverOptions WithStop(SolverOptions options, const std::stop_token& stop) const;
 
   TrackerOptions options_;
   CpuSolver solver_;
@@ -397,6 +457,14 @@ class FaceTracker {
   bool have_fit_ = false;  // previous_ holds a usable warm start
   std::vector<double> energy_history_;
   int64_t frames_seen_ = 0;
+  double previous_timestamp_s_ = std::numeric_limits<double>::quiet_NaN();  // previous_'s frame
+  // The pose disagreement a re-solve from the landmarks' pose could not resolve on the last frame
+  // (NaN: none): while it stays within 5 degrees of it, no new re-solve is tried.
+  double unresolved_disagreement_deg_ = std::numeric_limits<double>::quiet_NaN();
+  // Likewise the inner points' distance (FitAgreement::landmark_nme) a frame was kept with.
+  double unresolved_landmark_nme_ = std::numeric_limits<double>::quiet_NaN();
+  // Last member: destroyed first, so its thread ends before anything it reads goes away.
+  std::unique_ptr<BackgroundCalibration> background_;
 };
 
 // Pose from landmarks alone (the recovery initialisation): fits the rotation and translation
@@ -412,6 +480,7 @@ struct PoseInitOptions {
   int max_iterations = 30;
   float default_distance_m = 0.6f;
   bool inner_landmarks_only = false;  // jaw-line points help the rigid fit (no expression)
+  bool use_depth = true;              // the frame's depth at the landmarks (false: landmarks alone)
   bool IsValid(std::string* why) const;
 };
 struct PoseInitResult {

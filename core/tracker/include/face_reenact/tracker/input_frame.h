@@ -4,6 +4,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <string>
+#include <limits>
 #include <vector>
 
 #include "face_reenact/gpu/image_formation.h"
@@ -22,6 +23,9 @@ struct InputFrame {
   std::vector<float> depth;          // 1 per pixel, metres along +z; 0 or NaN = no measurement;
                                      // empty = the frame has no depth at all (colour-only)
   std::vector<InputLandmark> landmarks;
+  // When the frame was captured (seconds, any origin); NaN = unknown. The tracker's rotation
+  // speed check (FitAgreementOptions::max_rotation_speed_deg_s) needs it.
+  double timestamp_s = std::numeric_limits<double>::quiet_NaN();
 
   int width() const { return camera.width; }
   int height() const { return camera.height; }

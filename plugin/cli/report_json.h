@@ -1,0 +1,36 @@
+#pragma once
+// Report sections that several commands write (`track --report`, `reenact --report`): one
+// wording of each yardstick.
+#include <cmath>
+
+#include <nlohmann/json.hpp>
+
+#include "face_reenact/tracker/fit_agreement.h"
+
+namespace face_reenact::cli {
+
+// The report's "agreement" section (FitAgreementTally::Summary).
+inline nlohmann::json agreement_json(const tracker::FitAgreementTally::Summary& s) {
+  auto num = [](double v) { return std::isnan(v) ? nlohmann::json() : nlohmann::json(v); };
+  auto dist = [&](const tracker::Distribution& d) {
+    return nlohmann::json{{"frames", d.count}, {"mean", num(d.mean)}, {"median", num(d.median)}, {"p95", num(d.p95)},
+                          {"max", num(d.max)}};
+  };
+  nlohmann::json listed = nlohmann::json::array();
+  for (const auto& b : s.beyond) listed.push_back({{"frame", b.frame}, {"what", b.what}, {"value", b.value}, {"message", b.message}});
+  return {{"limits", {{"pose_disagreement_deg", s.yardstick.max_pose_disagreement_deg},
+                      {"landmark_nme", s.yardstick.max_landmark_nme},
+                      {"rotation_speed_deg_s", s.yardstick.max_rotation_speed_deg_s}}},
+          {"fit_frames", s.fit_frames},
+          {"pose_disagreement_deg", dist(s.pose_disagreement_deg)},
+          {"landmark_nme", dist(s.landmark_nme)},
+          {"rotation_speed_deg_s", dist(s.rotation_speed_deg_s)},
+          {"landmark_nme_by_part", {{"brows", dist(s.nme_brows)}, {"nose", dist(s.nme_nose)},
+                                    {"eyes", dist(s.nme_eyes)}, {"mouth", dist(s.nme_mouth)}}},
+          {"fit_frames_beyond", {{"pose", s.beyond_pose}, {"landmarks", s.beyond_landmarks},
+                                 {"rotation_speed", s.beyond_rotation_speed}}},
+          {"beyond", listed},
+          {"refused_frames", s.refused_frames}};
+}
+
+}  // namespace face_reenact::cli

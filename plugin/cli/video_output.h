@@ -1,0 +1,72 @@
+#pragma once
+// Video files the commands write (reenact, demo, track --overlay): one writer, one codec choice.
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "face_reenact/common/error.h"
+
+namespace face_reenact::cli {
+
+// Writes mp4 with the first codec this OpenCV/FFmpeg build can open.
+class Mp4Writer {
+ public:
+  Mp4Writer(const std::string& path, double fps, cv::Size size) : path_(path) {
+    for (const char* code : {"avc1", "mp4v"}) {
+      writer_.open(path, cv::CAP_FFMPEG, cv::VideoWriter::fourcc(code[0], code[1], code[2], code[3]), fps, size);
+      if (writer_.isOpened()) {
+        codec_ = code;
+        return;
+      }
+    }
+    throw face_reenact::Error("cannot write video '" + path + "': no mp4 encoder (avc1, mp4v) is available in OpenCV's FFmpeg");
+  }
+  void write(const cv::Mat& bgr) { writer_.write(bgr); }
+  void close() { writer_.release(); }
+  const std::string& codec() const { return codec_; }
+
+ private:
+  std::string path_, codec_;
+  cv::VideoWriter writer_;
+};
+
+// An output named by the user as `OUT.mp4` (one video) or a folder (one PNG per frame,
+// frame_NNNNNN.png by the frame's index): `track --overlay`.
+class FrameOutput {
+ public:
+  FrameOutput(const std::string& path, double fps, cv::Size size) : path_(path) {
+    std::error_code ec;
+    if (std::filesystem::path(path).extension() == ".mp4") {
+      video_ = std::make_unique<Mp4Writer>(path, fps, size);
+    } else {
+      std::filesystem::create_directories(path, ec);
+      if (ec || !std::filesystem::is_directory(path))
+        throw face_reenact::Error("cannot create the folder '" + path + "' (give a folder or a file ending in .mp4)");
+    }
+  }
+  void write(const cv::Mat& bgr, int64_t index) {
+    if (video_) {
+      video_->write(bgr);
+      return;
+    }
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%06lld.png", static_cast<long long>(index));
+    const std::string file = (std::filesystem::path(path_) / name).string();
+    if (!cv::imwrite(file, bgr)) throw face_reenact::Error("cannot write '" + file + "' (disk full?)");
+  }
+  void close() {
+    if (video_) video_->close();
+  }
+
+ private:
+  std::string path_;
+  std::unique_ptr<Mp4Writer> video_;
+};
+
+}  // namespace face_reenact::cli
