@@ -31,6 +31,7 @@
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/context.h"
+#include "face_reenact/live/frame_grabber.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/model/wheel_archive.h"
@@ -258,7 +259,7 @@ void run_reenact(const ReenactArgs& a) {
 
   capture::VideoReader::Options video;
   video.horizontal_fov_deg = a.fov_deg;
-  std::unique_ptr<capture::FrameSource> target = capture::open_frame_source(a.target, video);
+  std::unique_ptr<capture::FrameSource> target = live::open_offline_source(a.target, "--target", video);
   std::unique_ptr<capture::FrameSource> source_rec;
   std::unique_ptr<stream::ExpressionReceiver> receiver;
   if (udp) {
@@ -267,7 +268,7 @@ void run_reenact(const ReenactArgs& a) {
     ro.listen = *udp;
     receiver = std::make_unique<stream::ExpressionReceiver>(stream::load_key_file(a.key), ro);
   } else {
-    source_rec = capture::open_frame_source(a.source, video);
+    source_rec = live::open_offline_source(a.source, "--source", video);
   }
   std::ofstream status_log;
   if (!a.status_log.empty()) {

@@ -32,6 +32,8 @@
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
+#include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/live/input_spec.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/mesh_export.h"
 #include "face_reenact/model/model_file.h"
@@ -357,21 +359,16 @@ struct RunTotals {
 nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const TrackerModel& model,
                          const EnergyConfig& config, const std::string& params_path, const std::string& mesh_dir,
                          const std::string& overlay_path, const std::string& label) {
-  std::unique_ptr<capture::FrameSource> source;
   std::error_code ec;
   const bool is_recording = std::filesystem::is_directory(a.input, ec);
-  if (is_recording) {
-    source = std::make_unique<capture::RecordingReader>(a.input);
-  } else {
-    if (!std::filesystem::exists(a.input, ec)) throw Error("track: '" + a.input + "': no such file or folder");
-    capture::VideoReader::Options vo;
-    vo.horizontal_fov_deg = a.fov_deg;
-    source = std::make_unique<capture::VideoReader>(a.input, vo);
-  }
+  capture::VideoReader::Options vo;
+  vo.horizontal_fov_deg = a.fov_deg;
+  // A recording, a video, or an OpenNI device / .oni file (every frame in order).
+  std::unique_ptr<capture::FrameSource> source = live::open_offline_source(a.input, "track: --input", vo);
   const capture::RecordingInfo info = source->info();
   const bool depth = info.has_depth;
   if (a.landmarks == "recording" && !is_recording) {
-    throw Error("track: --landmarks recording needs a recording folder; '" + a.input + "' is a video file");
+    throw Error("track: --landmarks recording needs a recording folder; '" + a.input + "' is not one");
   }
   RgbdInputOptions io;
   io.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
@@ -482,8 +479,9 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
       export_mesh(face_model, mesh_of(renderer, t.params, true), skin, (std::filesystem::path(mesh_dir) / name).string());
     }
     if (!a.quiet && (tty || f % 10 == 0)) {
-      std::fprintf(stderr, "%strack%s: frame %d/%d %-11s %6.0f ms%s", tty ? "\r" : "", label.c_str(), f + 1,
-                   total_frames, tracking_status_name(t.status), t.times.total_ms, tty ? "   " : "\n");
+      const std::string of = total_frames > 0 ? "/" + std::to_string(total_frames) : "";  // unknown for devices
+      std::fprintf(stderr, "%strack%s: frame %d%s %-11s %6.0f ms%s", tty ? "\r" : "", label.c_str(), f + 1, of.c_str(),
+                   tracking_status_name(t.status), t.times.total_ms, tty ? "   " : "\n");
     }
   }
   if (!a.quiet && tty) std::fprintf(stderr, "\n");
@@ -496,8 +494,13 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     if (ec) throw Error("track: cannot move '" + params_partial + "' to '" + params_path + "': " + ec.message());
   }
   if (!mesh_dir.empty() && tracker.calibrated()) {
+    // neutral.ply: the actor's identity with no expression at all; the calibrated rest expression
+    // (what Eq. 15 subtracts: a resting face is rarely all zeros) goes to its own file.
+    gpu::FaceParameters identity = tracker.neutral();
+    identity.delta.setZero();
+    export_mesh(face_model, mesh_of(renderer, identity, false), skin, (std::filesystem::path(mesh_dir) / "neutral.ply").string());
     export_mesh(face_model, mesh_of(renderer, tracker.neutral(), false), skin,
-                (std::filesystem::path(mesh_dir) / "neutral.ply").string());
+                (std::filesystem::path(mesh_dir) / "calibrated_rest_expression.ply").string());
   }
 
   nlohmann::json j;
@@ -542,8 +545,11 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
-  j["intrinsics"] = is_recording ? "recording" : "default: principal point at the centre, " +
-                                                     std::to_string(a.fov_deg) + " degrees horizontal field of view";
+  const bool device = info.source.rfind("OpenNI", 0) == 0 || info.source.rfind("camera", 0) == 0;
+  j["intrinsics"] = is_recording ? "recording"
+                    : device     ? "the device's (" + info.source + ")"
+                                 : "default: principal point at the centre, " + std::to_string(a.fov_deg) +
+                                   " degrees horizontal field of view";
   j["camera"] = {{"fx", info.camera.fx}, {"fy", info.camera.fy}, {"cx", info.camera.cx}, {"cy", info.camera.cy},
                  {"width", info.camera.width}, {"height", info.camera.height}};
   const bool truth = r.evaluated > 0;
@@ -574,7 +580,9 @@ void run_track_command(const TrackArgs& a) {
     throw Error("track: --landmarks must be 'detector' or 'recording', not '" + a.landmarks + "'");
   }
   std::error_code ec;
-  if (!std::filesystem::exists(a.input, ec)) throw Error("track: '" + a.input + "': no such file or folder");
+  const live::InputSpec input_spec = live::parse_target_spec(a.input, "track: --input");
+  if (input_spec.kind == live::InputKind::kRecording && !std::filesystem::exists(a.input, ec))
+    throw Error("track: '" + a.input + "': no such file or folder");
   const auto out_parent = std::filesystem::absolute(a.out).parent_path();
   if (!std::filesystem::is_directory(out_parent, ec)) throw Error("track: the folder of --out '" + a.out + "' does not exist");
   if (!a.overlay.empty() && std::filesystem::path(a.overlay).extension() == ".mp4" &&

@@ -21,6 +21,7 @@
 #include "face_reenact/stream/stream_state.h"
 #include "face_reenact/stream/udp.h"
 #include "live_test_support.h"
+#include "support/openni_fixture.h"
 #include "support/temp_dir.h"
 
 namespace face_reenact::live {
@@ -577,16 +578,7 @@ TEST(FrameGrabberTest, InvalidOptionsThrowAndStatusesDescribeTheInput) {
 }
 
 TEST(FrameGrabberTest, OpenNiFileDriverPlaysTheSharedRecording) {
-  const char* shared = std::getenv("FR_SHARED_DATA");
-  std::string oni = std::string(shared ? shared : "") + "/rgbd/openni1_room_test.oni";
-  if (!shared || !fs::exists(oni)) GTEST_SKIP() << "no " << oni << " (FR_SHARED_DATA)";
-#if defined(__has_feature)
-#if __has_feature(address_sanitizer)
-  // OpenNI2 unloads its drivers at shutdown; LeakSanitizer then sees their allocations with
-  // "<unknown module>" frames that no suppression can name. The release build runs this test.
-  GTEST_SKIP() << "OpenNI2's unloaded drivers defeat LeakSanitizer's attribution (run in the release build)";
-#endif
-#endif
+  FR_REQUIRE_ONI_FIXTURE(oni);
   GrabberOptions o;
   o.input = parse_target_spec("openni:" + oni, "t");
   FrameGrabber grabber(o);

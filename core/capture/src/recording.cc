@@ -442,7 +442,8 @@ std::unique_ptr<FrameSource> open_frame_source(const std::string& path, const Vi
   if (fs::is_directory(path, ec)) return std::make_unique<RecordingReader>(path);
   if (!fs::exists(path, ec)) throw Error("'" + path + "': no such file or folder");
   if (lower_case_extension(path) == ".oni")
-    throw Error("'" + path + "': OpenNI .oni files are not supported yet; convert them to a recording folder");
+    throw Error("'" + path + "': an OpenNI recording: the commands and the live inputs read it as openni:" + path +
+                " (through OpenNI2)");
   return std::make_unique<VideoReader>(path, video_options);
 }
 

@@ -284,4 +284,59 @@ void FrameGrabber::run() {
   }
 }
 
+namespace {
+
+// A live input device read in order (InputDevice::read) as a capture::FrameSource.
+class DeviceFrameSource : public capture::FrameSource {
+ public:
+  DeviceFrameSource(std::unique_ptr<InputDevice> device, const std::string& what) : device_(std::move(device)) {
+    // The first frame says what the input is (size, intrinsics, depth).
+    if (!device_->read(&first_)) throw Error(what + ": " + device_->describe() + " delivered no frame");
+    have_first_ = true;
+    info_.camera = first_.camera;
+    info_.has_depth = !first_.depth.empty();
+    info_.fps = 30;
+    info_.frame_count = -1;  // unknown until the end
+    info_.source = device_->describe();
+  }
+  const capture::RecordingInfo& info() const override { return info_; }
+  bool read_next(capture::RgbdFrame* frame) override {
+    if (have_first_) {
+      *frame = std::move(first_);
+      have_first_ = false;
+      return true;
+    }
+    return device_->read(frame);
+  }
+
+ private:
+  std::unique_ptr<InputDevice> device_;
+  capture::RgbdFrame first_;
+  bool have_first_ = false;
+  capture::RecordingInfo info_;
+};
+
+}  // namespace
+
+std::unique_ptr<capture::FrameSource> open_offline_source(const std::string& text, const std::string& what,
+                                                          const capture::VideoReader::Options& video) {
+  std::string spec_text = text;
+  // An .oni file given as a plain path is an OpenNI recording.
+  if (spec_text.size() > 4 && spec_text.rfind("openni", 0) != 0) {
+    std::string ext = spec_text.substr(spec_text.size() - 4);
+    for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (ext == ".oni") spec_text = "openni:" + spec_text;
+  }
+  const InputSpec spec = parse_target_spec(spec_text, what);
+  if (spec.kind == InputKind::kRecording) return capture::open_frame_source(spec.path, video);
+  GrabberOptions o;
+  o.input = spec;
+  o.loop = false;
+  o.every_frame = true;
+  o.camera_fov_deg = video.horizontal_fov_deg;
+  std::string why;
+  if (!o.IsValid(&why)) throw Error(what + " '" + text + "': " + why);
+  return std::make_unique<DeviceFrameSource>(open_input_device(o), what + " '" + text + "'");
+}
+
 }  // namespace face_reenact::live

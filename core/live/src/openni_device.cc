@@ -30,7 +30,8 @@ void release_openni() {
 
 class OpenNiDevice : public InputDevice {
  public:
-  explicit OpenNiDevice(const GrabberOptions& options) : uri_(options.input.device_path), loop_(options.loop) {
+  explicit OpenNiDevice(const GrabberOptions& options)
+      : uri_(options.input.device_path), loop_(options.loop), every_frame_(options.every_frame) {
     acquire_openni();
     try {
       open();
@@ -48,8 +49,10 @@ class OpenNiDevice : public InputDevice {
   bool read(capture::RgbdFrame* frame) override {
     openni::VideoStream* streams[] = {&color_};
     int ready = -1;
-    if (openni::OpenNI::waitForAnyStream(streams, 1, &ready, 2000) != openni::STATUS_OK)
+    if (openni::OpenNI::waitForAnyStream(streams, 1, &ready, 2000) != openni::STATUS_OK) {
+      if (playback_ && !loop_ && index_ > 0) return false;  // a file played to its end
       throw Error(what() + ": no colour frame within 2 s (unplugged?)");
+    }
     openni::VideoFrameRef color_frame;
     if (color_.readFrame(&color_frame) != openni::STATUS_OK || !color_frame.isValid())
       throw Error(what() + ": reading a colour frame failed: " + openni::OpenNI::getExtendedError());
@@ -108,7 +111,8 @@ class OpenNiDevice : public InputDevice {
     playback_ = device_.getPlaybackControl();
     if (playback_) {
       playback_->setRepeatEnabled(loop_);
-      playback_->setSpeed(1.0f);
+      // -1: the driver hands out the next frame when it is asked for one (OpenNI2's manual mode).
+      playback_->setSpeed(every_frame_ ? -1.0f : 1.0f);
     }
     const openni::VideoMode mode = color_.getVideoMode();
     description_ = what() + " " + std::to_string(mode.getResolutionX()) + "x" + std::to_string(mode.getResolutionY()) +
@@ -128,6 +132,7 @@ class OpenNiDevice : public InputDevice {
 
   std::string uri_;
   bool loop_;
+  bool every_frame_;
   openni::Device device_;
   openni::VideoStream color_, depth_;
   openni::PlaybackControl* playback_ = nullptr;

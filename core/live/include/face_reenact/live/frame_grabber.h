@@ -24,6 +24,10 @@ struct GrabberOptions {
   double camera_fps = 30;
   double camera_fov_deg = 60;        // horizontal field of view assumed for V4L2 cameras
   bool loop = true;                  // recordings: start again at the end (else: end of input)
+  // Files read by an offline command (`track`, `reenact`): every frame in order, as fast as they
+  // are asked for, instead of at the file's own speed (an .oni's driver would skip the frames a
+  // slow reader misses, as a camera does).
+  bool every_frame = false;
   std::chrono::milliseconds reopen_interval{1000};
   std::string thread_name = "fr-live-grab";  // at most 15 characters (Linux limit)
 
@@ -55,6 +59,14 @@ class InputDevice {
 
 // Opens the input (throws face_reenact::Error saying what failed).
 std::unique_ptr<InputDevice> open_input_device(const GrabberOptions& options);
+
+// Any input as a capture::FrameSource for the offline commands (`track`, `reenact`): a recording
+// folder or a video file (capture::open_frame_source, videos with `video`'s intrinsics), an
+// OpenNI device or `.oni` file (`openni`, `openni:URI`, or a path ending in .oni: depth registered
+// to colour by the driver, every frame of a file in order), or a camera (`/dev/videoN`: it never
+// ends; give the command a frame count). Throws face_reenact::Error saying what failed.
+std::unique_ptr<capture::FrameSource> open_offline_source(const std::string& text, const std::string& what,
+                                                          const capture::VideoReader::Options& video = {});
 
 class FrameGrabber {
  public:
