@@ -531,6 +531,13 @@ TEST(TrackCli, OpenNiRecordingsAreReadLikeAnyInput) {
     if (frames_read >= 0) EXPECT_EQ(report["frames"].get<int>(), frames_read);  // the same file, the same frames
     frames_read = report["frames"].get<int>();
   }
+  // A file that is not an OpenNI recording: one clear line, exit 1.
+  std::ofstream(out / "garbage.oni") << "not an oni file";
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", (out / "garbage.oni").string(), "--out",
+                                               (out / "q.jsonl").string(), "--model", model()});
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("cannot open"), std::string::npos) << bad.output;
+  EXPECT_FALSE(fs::exists(out / "q.jsonl"));
 }
 
 TEST(TrackCli, VideoFilesAreTrackedWithoutDepth) {

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <mutex>
+#include <string>
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
@@ -16,10 +17,19 @@ namespace {
 std::mutex g_openni_mu;
 int g_openni_users = 0;
 
+// OpenNI2's last error as one line (it comes with tabs and a trailing newline).
+std::string extended_error() {
+  std::string e = openni::OpenNI::getExtendedError();
+  for (char& c : e)
+    if (c == '\n' || c == '\t' || c == '\r') c = ' ';
+  const size_t b = e.find_first_not_of(' '), t = e.find_last_not_of(' ');
+  return b == std::string::npos ? std::string("no detail") : e.substr(b, t - b + 1);
+}
+
 void acquire_openni() {
   std::lock_guard lock(g_openni_mu);
   if (g_openni_users == 0 && openni::OpenNI::initialize() != openni::STATUS_OK)
-    throw Error(std::string("OpenNI2 failed to initialise: ") + openni::OpenNI::getExtendedError());
+    throw Error(std::string("OpenNI2 failed to initialise: ") + extended_error());
   ++g_openni_users;
 }
 
@@ -55,7 +65,7 @@ class OpenNiDevice : public InputDevice {
     }
     openni::VideoFrameRef color_frame;
     if (color_.readFrame(&color_frame) != openni::STATUS_OK || !color_frame.isValid())
-      throw Error(what() + ": reading a colour frame failed: " + openni::OpenNI::getExtendedError());
+      throw Error(what() + ": reading a colour frame failed: " + extended_error());
     if (playback_ && !loop_ && color_frame.getFrameIndex() < last_index_) return false;  // wrapped
     last_index_ = color_frame.getFrameIndex();
     const int w = color_frame.getWidth(), h = color_frame.getHeight();
@@ -95,10 +105,10 @@ class OpenNiDevice : public InputDevice {
   void open() {
     const char* uri = uri_.empty() ? openni::ANY_DEVICE : uri_.c_str();
     if (device_.open(uri) != openni::STATUS_OK)
-      throw Error(what() + ": cannot open (" + std::string(openni::OpenNI::getExtendedError()) +
+      throw Error(what() + ": cannot open (" + std::string(extended_error()) +
                   "); is an RGB-D camera plugged in, or is the .oni path right?");
     if (color_.create(device_, openni::SENSOR_COLOR) != openni::STATUS_OK || color_.start() != openni::STATUS_OK)
-      throw Error(what() + ": no colour stream: " + openni::OpenNI::getExtendedError());
+      throw Error(what() + ": no colour stream: " + extended_error());
     if (color_.getVideoMode().getPixelFormat() != openni::PIXEL_FORMAT_RGB888)
       throw Error(what() + ": the colour stream is not RGB888");
     if (device_.hasSensor(openni::SENSOR_DEPTH) && depth_.create(device_, openni::SENSOR_DEPTH) == openni::STATUS_OK) {

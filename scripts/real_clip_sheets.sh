@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Contact sheets on the shared real clips (../shared/data/videos), for a person to look at:
+#   - the fit drawn over each clip (`track --overlay`), three frames side by side;
+#   - a reenactment (`reenact`: source | target | output, and the output's face zoomed), with the
+#     report and the per-frame statuses beside it.
+# Usage: scripts/real_clip_sheets.sh OUT_DIR [FRAMES]   (needs ffmpeg; run from the repository)
+set -euo pipefail
+OUT="${1:?usage: $0 OUT_DIR [FRAMES]}"
+FRAMES="${2:-150}"
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+FR="${FR_CLI:-$ROOT/build/bin/face-reenact}"
+VIDEOS="$ROOT/../shared/data/videos"
+[ -d "$VIDEOS" ] || { echo "no $VIDEOS: the shared real clips are not beside this clone" >&2; exit 1; }
+mkdir -p "$OUT"
+
+# Three frames of a video, side by side (half size), into a PNG.
+sheet() {  # sheet VIDEO OUT.png FRAME FRAME FRAME
+  local video="$1" png="$2"
+  ffmpeg -loglevel error -y -i "$video" \
+    -vf "select='eq(n\,$3)+eq(n\,$4)+eq(n\,$5)',scale=iw/2:ih/2,tile=3x1" -frames:v 1 "$png"
+}
+
+for clip in webcam_talking_640x480.wmv liveportrait_d14.mp4 liveportrait_d12.mp4 multi_face.avi; do
+  name="${clip%.*}"
+  "$FR" track --input "$VIDEOS/$clip" --frames "$FRAMES" --out "$OUT/$name.params.jsonl" \
+        --report "$OUT/$name.track.json" --overlay "$OUT/$name.overlay.mp4" --quiet
+  sheet "$OUT/$name.overlay.mp4" "$OUT/$name.overlay.png" $((FRAMES / 5)) $((FRAMES / 2)) $((FRAMES - 5))
+done
+
+# The reenactment: a LivePortrait driving clip onto the webcam clip (paired by time).
+src="$VIDEOS/liveportrait_d14.mp4" tgt="$VIDEOS/webcam_talking_640x480.wmv"
+"$FR" reenact --source "$src" --target "$tgt" --frames "$FRAMES" --out "$OUT/reenact.mp4" \
+      --report "$OUT/reenact.json" --status-log "$OUT/reenact.status.jsonl" --quiet
+for n in $((FRAMES / 3)) $((2 * FRAMES / 3)) $((FRAMES - 5)); do
+  t=$(python3 -c "import json; print([json.loads(l) for l in open('$OUT/reenact.status.jsonl')][$n]['target_time_s'])")
+  ffmpeg -loglevel error -y -ss "$t" -i "$src" -frames:v 1 -vf "scale=-2:240" "$OUT/s_$n.png"
+  ffmpeg -loglevel error -y -i "$tgt" -vf "select='eq(n\,$n)',scale=-2:240" -frames:v 1 "$OUT/t_$n.png"
+  ffmpeg -loglevel error -y -i "$OUT/reenact.mp4" -vf "select='eq(n\,$n)',scale=-2:240" -frames:v 1 "$OUT/o_$n.png"
+  # The face of the output, twice the size (the middle of the frame, where the webcam clip's face is).
+  ffmpeg -loglevel error -y -i "$OUT/reenact.mp4" -vf "select='eq(n\,$n)',crop=iw/2:ih/2:iw/4:ih/8,scale=-2:240" \
+         -frames:v 1 "$OUT/z_$n.png"
+  ffmpeg -loglevel error -y -i "$OUT/s_$n.png" -i "$OUT/t_$n.png" -i "$OUT/o_$n.png" -i "$OUT/z_$n.png" \
+         -filter_complex hstack=inputs=4 "$OUT/reenact_$n.png"
+  rm -f "$OUT/s_$n.png" "$OUT/t_$n.png" "$OUT/o_$n.png" "$OUT/z_$n.png"
+done
+echo "sheets in $OUT: *.overlay.png (fit over the clip), reenact_N.png (source | target | output | output's face)"
