@@ -79,14 +79,6 @@ std::optional<stream::ListenSpec> parse_udp_source(const std::string& source) {
   return spec;
 }
 
-void check_output_file(const std::string& path, const char* what) {
-  const fs::path p = fs::path(path).lexically_normal();
-  const fs::path parent = p.has_parent_path() ? p.parent_path() : fs::path(".");
-  std::error_code ec;
-  if (!fs::is_directory(parent, ec)) throw Error(std::string(what) + " '" + path + "': folder '" + parent.string() + "' does not exist");
-  if (fs::is_directory(p, ec)) throw Error(std::string(what) + " '" + path + "' is a folder");
-}
-
 class ProgressBar {
  public:
   ProgressBar(int total, bool enabled) : total_(total), enabled_(enabled), terminal_(::isatty(2) == 1) {}
@@ -241,9 +233,6 @@ void run_reenact(const ReenactArgs& a) {
   if (fs::path(a.out).extension() != ".mp4") throw Error("--out '" + a.out + "': must end in .mp4");
   if (!a.report.empty()) check_output_file(a.report, "--report");
   if (!a.status_log.empty()) check_output_file(a.status_log, "--status-log");
-  if (a.calibration_window > 0 && a.calibration_window < tracker::TrackerOptions{}.calibration_frames)
-    throw Error("--calibration-window must be at least the calibration's " +
-                std::to_string(tracker::TrackerOptions{}.calibration_frames) + " frames");
   if (!a.frames_dir.empty()) {
     std::error_code ec;
     fs::create_directories(a.frames_dir, ec);
@@ -257,6 +246,16 @@ void run_reenact(const ReenactArgs& a) {
   const reenact::RendererKind renderer = parse_renderer(a.renderer);
   const reenact::Appearance appearance = parse_appearance(a.appearance);
 
+  reenact::ReenactmentOptions ro;
+  ro.mode = mode;
+  ro.renderer = renderer;
+  ro.appearance = appearance;
+  ro.input.landmark_source = landmarks;
+  ro.tracker.landmark_source = landmarks;
+  ro.tracker.calibration_window_frames = a.calibration_window;
+  // The options are checked before anything is opened (a bad --calibration-window says so at once).
+  std::string why;
+  if (!ro.IsValid(&why)) throw Error("reenact: " + why);
   capture::VideoReader::Options video;
   video.horizontal_fov_deg = a.fov_deg;
   std::unique_ptr<capture::FrameSource> target = live::open_offline_source(a.target, "--target", video);
@@ -264,9 +263,9 @@ void run_reenact(const ReenactArgs& a) {
   std::unique_ptr<stream::ExpressionReceiver> receiver;
   if (udp) {
     if (a.source_rest_s >= 0) throw Error("--source-rest is for a source actor tracked from a file, not a udp:// stream");
-    stream::ExpressionReceiver::Options ro;
-    ro.listen = *udp;
-    receiver = std::make_unique<stream::ExpressionReceiver>(stream::load_key_file(a.key), ro);
+    stream::ExpressionReceiver::Options listen;
+    listen.listen = *udp;
+    receiver = std::make_unique<stream::ExpressionReceiver>(stream::load_key_file(a.key), listen);
   } else {
     source_rec = live::open_offline_source(a.source, "--source", video);
   }
@@ -276,14 +275,6 @@ void run_reenact(const ReenactArgs& a) {
     if (!status_log) throw Error("--status-log '" + a.status_log + "': cannot write");
   }
   const FaceModel model = load_face_model(resolve_model_path(a.model));
-
-  reenact::ReenactmentOptions ro;
-  ro.mode = mode;
-  ro.renderer = renderer;
-  ro.appearance = appearance;
-  ro.input.landmark_source = landmarks;
-  ro.tracker.landmark_source = landmarks;
-  ro.tracker.calibration_window_frames = a.calibration_window;
   reenact::ReenactmentPipeline pipeline(model, ro);
   std::unique_ptr<TrackedSource> source_tracker;
   if (source_rec) source_tracker = std::make_unique<TrackedSource>(model, ro.tracker, ro.input);
@@ -364,13 +355,11 @@ void run_reenact(const ReenactArgs& a) {
                              {"reenacted", out.reenacted},
                              {"mouth", out.mouth_drawn},
                              {"message", out.message}};
+      line["source_weight"] = expr.blend_weight;
       if (source_rec) {
         line["source_frame"] = sf.index;
         line["source_fresh"] = source_fresh;
         line["source_status"] = tracker::tracking_status_name(st.status);
-        line["source_weight"] = expr.blend_weight;
-      } else {
-        line["source_weight"] = expr.blend_weight;
       }
       status_log << line.dump() << '\n';
       if (!status_log) throw Error("--status-log '" + a.status_log + "': writing failed (disk full?)");
@@ -416,8 +405,9 @@ void run_reenact(const ReenactArgs& a) {
                       {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
                       {"target_total", s.mean_times.total_ms}}},
         {"renderer", s.renderer},
-        {"intrinsics", "recordings: their own; videos: principal point at the centre, " + std::to_string(a.fov_deg) +
-                           " degrees horizontal field of view"},
+        {"intrinsics", {{"target", intrinsics_description(a.target, info, a.fov_deg)},
+                        {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), a.fov_deg))
+                                              : nlohmann::json()}}},
         {"calibration_window_frames", a.calibration_window},
         {"agreement", agreement_json(agreement.summary())}};
     if (source_tracker) {

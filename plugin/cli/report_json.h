@@ -2,12 +2,24 @@
 // Report sections that several commands write (`track --report`, `reenact --report`): one
 // wording of each yardstick.
 #include <cmath>
+#include <filesystem>
+#include <string>
 
 #include <nlohmann/json.hpp>
 
+#include "face_reenact/capture/recording.h"
 #include "face_reenact/tracker/fit_agreement.h"
 
 namespace face_reenact::cli {
+
+// Which intrinsics an input's frames carry, for the reports: a recording's own, an OpenNI device's
+// or camera's, or the pinhole assumed for a video file.
+inline std::string intrinsics_description(const std::string& input, const capture::RecordingInfo& info, double fov_deg) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(input, ec)) return "recording";
+  if (info.source.rfind("OpenNI", 0) == 0 || info.source.rfind("camera", 0) == 0) return "the device's (" + info.source + ")";
+  return "default: principal point at the centre, " + std::to_string(fov_deg) + " degrees horizontal field of view";
+}
 
 // The report's "agreement" section (FitAgreementTally::Summary).
 inline nlohmann::json agreement_json(const tracker::FitAgreementTally::Summary& s) {

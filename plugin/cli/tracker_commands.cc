@@ -545,11 +545,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
-  const bool device = info.source.rfind("OpenNI", 0) == 0 || info.source.rfind("camera", 0) == 0;
-  j["intrinsics"] = is_recording ? "recording"
-                    : device     ? "the device's (" + info.source + ")"
-                                 : "default: principal point at the centre, " + std::to_string(a.fov_deg) +
-                                   " degrees horizontal field of view";
+  j["intrinsics"] = intrinsics_description(a.input, info, a.fov_deg);
   j["camera"] = {{"fx", info.camera.fx}, {"fy", info.camera.fy}, {"cx", info.camera.cx}, {"cy", info.camera.cy},
                  {"width", info.camera.width}, {"height", info.camera.height}};
   const bool truth = r.evaluated > 0;
@@ -585,9 +581,7 @@ void run_track_command(const TrackArgs& a) {
     throw Error("track: '" + a.input + "': no such file or folder");
   const auto out_parent = std::filesystem::absolute(a.out).parent_path();
   if (!std::filesystem::is_directory(out_parent, ec)) throw Error("track: the folder of --out '" + a.out + "' does not exist");
-  if (!a.overlay.empty() && std::filesystem::path(a.overlay).extension() == ".mp4" &&
-      !std::filesystem::is_directory(std::filesystem::absolute(a.overlay).parent_path(), ec))
-    throw Error("track: the folder of --overlay '" + a.overlay + "' does not exist");
+  if (!a.overlay.empty() && std::filesystem::path(a.overlay).extension() == ".mp4") check_output_file(a.overlay, "--overlay");
   if (!a.export_mesh.empty()) {
     std::filesystem::create_directories(a.export_mesh, ec);
     if (ec || !std::filesystem::is_directory(a.export_mesh)) {
@@ -634,11 +628,12 @@ void run_track_command(const TrackArgs& a) {
       std::printf("  warning: %s\n", report["calibration_warning"].get<std::string>().c_str());
     const nlohmann::json& ag = report["agreement"];
     std::printf("  against the landmarks (%d frames with a fit): pose %.1f deg median, %.1f p95, %.1f max; inner points "
-                "%.1f%% of the eye distance median, %.1f%% max; %d/%d beyond 15 deg / 5%%; %d fits refused%s\n",
+                "%.1f%% of the eye distance median, %.1f%% max; %d/%d beyond %.0f deg / %.0f%%; %d fits refused%s\n",
                 ag["fit_frames"].get<int>(), num(ag["pose_disagreement_deg"]["median"]), num(ag["pose_disagreement_deg"]["p95"]),
                 num(ag["pose_disagreement_deg"]["max"]), 100 * num(ag["landmark_nme"]["median"]),
                 100 * num(ag["landmark_nme"]["max"]), ag["fit_frames_beyond"]["pose"].get<int>(),
-                ag["fit_frames_beyond"]["landmarks"].get<int>(), ag["refused_frames"].get<int>(),
+                ag["fit_frames_beyond"]["landmarks"].get<int>(), num(ag["limits"]["pose_disagreement_deg"]),
+                100 * num(ag["limits"]["landmark_nme"]), ag["refused_frames"].get<int>(),
                 report["agreement_check"].get<bool>() ? "" : " (check off)");
     if (report["ground_truth"].get<bool>()) {
       std::printf("  vs ground truth (%d frames after calibration): surface %.2f mm mean, %.2f mm max; 2D %.2f px; "
@@ -683,7 +678,10 @@ void add_tracker_commands(CLI::App& app) {
 
   auto targs = std::make_shared<TrackArgs>();
   CLI::App* tc = app.add_subcommand("track", "Track a face in a recording or video: calibration, per-frame parameters, report");
-  tc->add_option("--input", targs->input, "Recording folder (face-reenact-rgbd) or video file (mp4, avi, wmv: RGB only)")->required();
+  tc->add_option("--input", targs->input,
+                 "Recording folder (face-reenact-rgbd), video file (mp4, avi, wmv: RGB only), or an OpenNI device or "
+                 ".oni file (openni, openni:FILE.oni)")
+      ->required();
   tc->add_option("--out", targs->out, "Per-frame parameters, JSON Lines (replayable with 'send --replay')")->required();
   tc->add_option("--report", targs->report, "JSON report: times per stage and, with ground truth, the errors");
   tc->add_option("--overlay", targs->overlay,

@@ -1,5 +1,6 @@
 #pragma once
-// Video files the commands write (reenact, demo, track --overlay): one writer, one codec choice.
+// Files the commands write (reenact, demo, track --overlay): the checks before any work, one video
+// writer and its codec choice, and the video-or-PNG-folder output.
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
@@ -13,6 +14,18 @@
 #include "face_reenact/common/error.h"
 
 namespace face_reenact::cli {
+
+// A file a command will write: its folder must exist and the path must not be a folder (checked
+// before any work, so a typo costs nothing).
+inline void check_output_file(const std::string& path, const char* what) {
+  namespace fs = std::filesystem;
+  const fs::path p = fs::path(path).lexically_normal();
+  const fs::path parent = p.has_parent_path() ? p.parent_path() : fs::path(".");
+  std::error_code ec;
+  if (!fs::is_directory(parent, ec))
+    throw face_reenact::Error(std::string(what) + " '" + path + "': folder '" + parent.string() + "' does not exist");
+  if (fs::is_directory(p, ec)) throw face_reenact::Error(std::string(what) + " '" + path + "' is a folder");
+}
 
 // Writes mp4 with the first codec this OpenCV/FFmpeg build can open.
 class Mp4Writer {

@@ -251,7 +251,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
       out.times.track_ms = ms_since(t0);
       return pass_through(TrackingStatus::kLost, std::string("bad input: ") + e.what());
     }
-    detected = frame.landmarks;
+    if (im.options.mode == ReenactMode::kOverlay) detected = frame.landmarks;
     out.tracked = im.tracker->Track(frame, info.landmarks_ms);
     const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
     im.input->SetTrackedPose(out.tracked.params, has_fit);

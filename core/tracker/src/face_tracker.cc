@@ -418,21 +418,15 @@ void FaceTracker::Reset() {
 
 void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
 
-// A background calibration reads both solvers: it is ended (not applied; its frames are collected
-// again) before either changes.
+// A background calibration reads both solvers: it is ended (not applied) before either changes;
+// its set was taken out when it started, so the collection starts afresh.
 void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) {
-  if (background_) {
-    CancelBackgroundCalibration();
-    ClearCalibrationFrames();
-  }
+  CancelBackgroundCalibration();
   tracking_solve_ = std::move(solve);
 }
 
 void FaceTracker::SetCalibrationSolver(FramesSolveFunction solve) {
-  if (background_) {
-    CancelBackgroundCalibration();
-    ClearCalibrationFrames();
-  }
+  CancelBackgroundCalibration();
   calibration_solve_ = std::move(solve);
 }
 
@@ -565,20 +559,18 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   bool just_calibrated = false;
   if (background_) {
     if (!background_->done())
-      return hold(TrackingStatus::kCalibrating, "calibrating: " + calibration_progress().Brief() + "; hold still");
+      return hold(TrackingStatus::kCalibrating, CalibrationProgressMessage() + "; hold still");
     try {
       CalibrationOutcome o = background_->Take();
       background_.reset();
-      // The frame the set was completed on is the set's newest (with a window, the last one kept).
-      size_t newest = 0;
-      for (size_t f = 1; f < o.frame_indices.size(); ++f)
-        if (o.frame_indices[f] > o.frame_indices[newest]) newest = f;
-      gpu::FaceParameters from = o.params.empty() ? previous_.params : o.params[newest];
       just_calibrated = ApplyCalibration(&o, &calibration_note);
       if (just_calibrated) {
-        from.alpha = identity_.alpha;
-        from.beta = identity_.beta;
-        previous_.params = from;
+        // This frame starts from the set's newest frame's joint fit (the frame that completed the
+        // set; with a window, the last one kept).
+        const auto newest = std::max_element(o.frame_indices.begin(), o.frame_indices.end());
+        previous_.params = o.params[static_cast<size_t>(newest - o.frame_indices.begin())];
+        previous_.params.alpha = identity_.alpha;
+        previous_.params.beta = identity_.beta;
       }
     } catch (const std::exception& e) {
       background_.reset();
@@ -608,10 +600,9 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     out.pose_reinitialized = true;
     OfferCalibrationFrame(*input, start, out.frame_index);
     out.message = CalibrationProgressMessage() + " (" + pose.message + "; not fitted yet)";
-    if (!calibration_note.empty()) out.message = calibration_note + "; " + out.message;
     if (CalibrationReady() && options_.background_calibration) {
       StartBackgroundCalibration();
-      out.message = "calibrating: " + calibration_progress().Brief() + " (started; hold still)";
+      out.message = CalibrationProgressMessage() + " (started; hold still)";
     } else if (CalibrationReady()) {
       Calibrate(*input, start, &out);
       if (out.status == TrackingStatus::kCalibrated) {
@@ -622,6 +613,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
         last_good_ = out;
       }
     }
+    if (!calibration_note.empty()) out.message = calibration_note + "; " + out.message;
     return out;
   }
 
@@ -655,8 +647,6 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       at->failure = format("energy %.4g is %.1fx the recent median %.4g", e, e / ref, ref);
     }
   };
-  // The fit against the landmarks: its pose, its inner points, and (warm-started) how fast the
-  // head would have turned since the previous fit.
   // The fit against the landmarks: its pose, its inner points, and (warm-started) how fast the
   // head would have turned since the previous fit. Only this check's failures are marked
   // `disagrees`: the others (energy, landmark distance, the solve) stay failures whatever happens.
@@ -755,24 +745,22 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   previous_timestamp_s_ = frame.timestamp_s;
   if (just_calibrated) {
     out.status = TrackingStatus::kCalibrated;
-    out.message = note_prefix + out.message;
   } else if (collecting_) {
     const std::string fit_message = out.message;
     out.status = TrackingStatus::kCalibrating;
     OfferCalibrationFrame(*input, out.params, out.frame_index);
-    out.message = note_prefix + CalibrationProgressMessage() + "; " + fit_message;
+    out.message = CalibrationProgressMessage() + "; " + fit_message;
     if (CalibrationReady() && options_.background_calibration) {
       StartBackgroundCalibration();
-      out.message = note_prefix + "calibrating: " + calibration_progress().Brief() + " (started; hold still); " + fit_message;
+      out.message = CalibrationProgressMessage() + " (started; hold still); " + fit_message;
     } else if (CalibrationReady()) {
       Calibrate(*input, out.params, &out);
       // The frame's parameters are now the joint fit's (or a solve with the new identity).
       if (out.status == TrackingStatus::kCalibrated)
         out.agreement = MeasureFitAgreement(m, *input, out.params, options_.loss.agreement);
     }
-  } else {
-    out.message = note_prefix + out.message;
   }
+  out.message = note_prefix + out.message;  // a background calibration that ended on this frame
   previous_ = out;
   last_good_ = out;
   return out;
@@ -816,9 +804,8 @@ void FaceTracker::ClearCalibrationFrames() {
 }
 
 std::string FaceTracker::CalibrationProgressMessage() const {
-  std::string m = "calibrating: " + std::to_string(calibration_inputs_.size()) + " of " +
-                  std::to_string(options_.calibration_frames) + " frames";
-  if (options_.calibration_window_frames > 0)
+  std::string m = "calibrating: " + calibration_progress().Brief();
+  if (options_.calibration_window_frames > 0 && !background_)
     m += " (watching " + std::to_string(std::min(calibration_frames_seen_, options_.calibration_window_frames)) + " of " +
          std::to_string(options_.calibration_window_frames) + ": turn your head slowly left and right)";
   return m;

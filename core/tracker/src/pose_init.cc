@@ -9,6 +9,7 @@
 #include <limits>
 #include <unordered_map>
 
+#include "face_reenact/landmarks/evaluation.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "face_reenact/tracker/fit_agreement.h"
@@ -374,37 +375,45 @@ FitAgreement MeasureFitAgreement(const TrackerModel& model, const InputFrame& fr
     return out;
   }
   char buf[200];
-  // The inner 51 points (brows, nose, eyes, mouth) of the fit against the detector's.
-  std::array<const InputLandmark*, 68> detected{};
+  // The inner 51 points (brows, nose, eyes, mouth) of the fit against the detector's, in the
+  // normalisation of `landmarks --eval` (landmarks::nme_outer_eye), overall and per part.
+  landmarks::Shape68 fitted{}, detected{};
+  std::array<bool, 68> seen{};
   for (const auto& in : frame.landmarks) {
     if (in.ibug_index >= 0 && in.ibug_index < 68 && in.confidence > options.min_landmark_confidence &&
-        in.position.allFinite())
-      detected[static_cast<size_t>(in.ibug_index)] = &in;
+        in.position.allFinite()) {
+      detected[static_cast<size_t>(in.ibug_index)] = in.position;
+      seen[static_cast<size_t>(in.ibug_index)] = true;
+    }
   }
-  if (detected[36] && detected[45]) {
-    const double iod = (detected[36]->position - detected[45]->position).cast<double>().norm();
+  if (seen[36] && seen[45]) {
+    const double iod = (detected[36] - detected[45]).cast<double>().norm();
     out.eye_distance_px = iod;
     const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
     const Eigen::Vector3d t = params.translation.cast<double>();
-    double sum = 0;
-    std::array<double, 4> part_sum{};
-    std::array<int, 4> part_count{};
+    std::array<bool, 68> inner{};
+    std::array<std::array<bool, 68>, 4> part{};  // brows 17-26, nose 27-35, eyes 36-47, mouth 48-67
     for (const auto& l : model.landmarks) {
-      if (l.ibug_index < 17 || l.ibug_index >= 68 || !detected[static_cast<size_t>(l.ibug_index)]) continue;
+      const size_t k = static_cast<size_t>(l.ibug_index);
+      if (l.ibug_index < 17 || l.ibug_index >= 68 || !seen[k]) continue;
       const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
-      const Eigen::Vector2d p = x.z() > frame.camera.near_plane ? project(frame.camera, x) : Eigen::Vector2d(1e9, 1e9);
-      const double d = std::min((p - detected[static_cast<size_t>(l.ibug_index)]->position.cast<double>()).norm(), 1e9);
-      sum += d;
+      // A point behind the camera is as far off as it gets.
+      fitted[k] = x.z() > frame.camera.near_plane ? project(frame.camera, x).cast<float>() : Eigen::Vector2f(1e9f, 1e9f);
+      inner[k] = true;
+      part[l.ibug_index < 27 ? 0 : l.ibug_index < 36 ? 1 : l.ibug_index < 48 ? 2 : 3][k] = true;
       ++out.landmarks_used;
-      const size_t part = l.ibug_index < 27 ? 0 : l.ibug_index < 36 ? 1 : l.ibug_index < 48 ? 2 : 3;
-      part_sum[part] += d;
-      ++part_count[part];
     }
+    // NaN where no point was compared (nme_outer_eye gives infinity).
+    auto nme = [&](const std::array<bool, 68>& use) {
+      const double v = landmarks::nme_outer_eye(fitted, detected, use);
+      return std::isfinite(v) ? v : FitAgreement::kNaN;
+    };
     if (out.landmarks_used > 0 && iod > 1.0) {
-      out.landmark_nme = sum / out.landmarks_used / iod;
-      double* parts[4] = {&out.nme_brows, &out.nme_nose, &out.nme_eyes, &out.nme_mouth};
-      for (size_t k = 0; k < 4; ++k)
-        if (part_count[k] > 0) *parts[k] = part_sum[k] / part_count[k] / iod;
+      out.landmark_nme = nme(inner);
+      out.nme_brows = nme(part[0]);
+      out.nme_nose = nme(part[1]);
+      out.nme_eyes = nme(part[2]);
+      out.nme_mouth = nme(part[3]);
     }
   }
   // The head pose the landmarks give by themselves, with this fit's shape.
@@ -420,19 +429,10 @@ FitAgreement MeasureFitAgreement(const TrackerModel& model, const InputFrame& fr
   if (pnp.ok) {
     out.pose_disagreement_deg = RotationAngleDeg(params.euler, pnp.euler);
     out.landmark_pose_error_px = pnp.mean_error_px;
-    const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
-    const Eigen::Vector3d t = params.translation.cast<double>();
-    double sum = 0;
-    int n = 0;
-    for (const auto& l : model.landmarks) {
-      if (!(l.flags & kLandmarkInner) || l.ibug_index < 0 || l.ibug_index >= 68 || !detected[static_cast<size_t>(l.ibug_index)])
-        continue;
-      const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
-      if (!(x.z() > frame.camera.near_plane)) continue;
-      sum += (project(frame.camera, x) - detected[static_cast<size_t>(l.ibug_index)]->position.cast<double>()).norm();
-      ++n;
-    }
-    if (n > 0) out.fit_error_px = sum / n;
+    // The fit on the same points, in the same unit (the frame's pixels).
+    const double fit_error = LandmarkReprojectionError(model, frame, params, options.min_landmark_confidence,
+                                                       /*inner_only=*/true);
+    if (fit_error >= 0) out.fit_error_px = fit_error * frame.camera.width / 640.0;
   }
   if (previous && previous->euler.allFinite() && seconds_since_previous > 0) {
     out.rotation_change_deg = RotationAngleDeg(params.euler, previous->euler);
