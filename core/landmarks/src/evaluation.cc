@@ -168,32 +168,46 @@ double percentile(std::vector<double> v, double q) {
 
 }  // namespace
 
-EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector* detector) {
+std::vector<std::string> list_annotated_images(const std::string& folder) {
   std::error_code ec;
   if (!fs::is_directory(folder, ec)) throw Error("evaluation folder '" + folder + "': not a folder");
-  std::vector<fs::path> images;
+  std::vector<std::string> images;
   for (fs::recursive_directory_iterator it(folder, fs::directory_options::skip_permission_denied, ec), end;
        !ec && it != end; it.increment(ec)) {
     if (!it->is_regular_file(ec)) continue;
-    const fs::path& p = it->path();
-    if (!capture::has_still_image_extension(p.string())) continue;
-    fs::path pts = p;
-    pts.replace_extension(".pts");
-    if (fs::is_regular_file(pts, ec)) images.push_back(p);
+    const std::string p = it->path().string();
+    if (!capture::has_still_image_extension(p)) continue;
+    if (fs::is_regular_file(annotation_path(p), ec)) images.push_back(p);
   }
   std::sort(images.begin(), images.end());
   if (images.empty()) throw Error("evaluation folder '" + folder + "': no image with a .pts annotation beside it");
+  return images;
+}
 
+std::string annotation_path(const std::string& image_path) {
+  return fs::path(image_path).replace_extension(".pts").string();
+}
+
+TrackingHint annotated_face_hint(const Shape68& truth) {
+  TrackingHint hint;
+  Eigen::Vector2f lo = truth[0], hi = truth[0];
+  for (const auto& p : truth) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  hint.previous_box = Box{lo.x(), lo.y(), hi.x() - lo.x(), hi.y() - lo.y()};
+  return hint;
+}
+
+EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector* detector) {
   EvalAccumulator accumulator(folder, "image");
-  for (const fs::path& p : images) {
+  for (const std::string& path : list_annotated_images(folder)) {
     EvalImage e;
-    e.path = p.string();
-    fs::path pts = p;
-    pts.replace_extension(".pts");
-    const Shape68 truth = read_pts(pts.string());
+    e.path = path;
+    const Shape68 truth = read_pts(annotation_path(path));
     Image image;
     try {
-      image = load_image(p.string());
+      image = load_image(path);
     } catch (const Error& err) {
       e.status = DetectionStatus::kInvalidInput;
       e.reason = err.what();
@@ -202,15 +216,7 @@ EvalReport evaluate_annotated_folder(const std::string& folder, LandmarkDetector
     }
     const auto t0 = std::chrono::steady_clock::now();
     // 300-W protocol: when the photo shows several people, score the face that was annotated.
-    // The annotation only picks among the detector's boxes; the fit never sees it.
-    TrackingHint hint;
-    Eigen::Vector2f lo = truth[0], hi = truth[0];
-    for (const auto& p : truth) {
-      lo = lo.cwiseMin(p);
-      hi = hi.cwiseMax(p);
-    }
-    hint.previous_box = Box{lo.x(), lo.y(), hi.x() - lo.x(), hi.y() - lo.y()};
-    const LandmarkResult r = detector->Detect(image.view(), hint);
+    const LandmarkResult r = detector->Detect(image.view(), annotated_face_hint(truth));
     e.milliseconds = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     accumulator.Add(std::move(e), r, truth);
   }

@@ -365,6 +365,21 @@ double RotationAngleDeg(const Eigen::Vector3f& euler_a, const Eigen::Vector3f& e
   return std::acos(c) * 180.0 / kPi;
 }
 
+ProjectedLandmarks ProjectModelLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
+                                         const gpu::PinholeCamera& camera) {
+  ProjectedLandmarks out;
+  const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
+  const Eigen::Vector3d t = params.translation.cast<double>();
+  for (const auto& l : model.landmarks) {
+    if (l.ibug_index < 0 || l.ibug_index >= landmarks::kNumLandmarks) continue;
+    const size_t k = static_cast<size_t>(l.ibug_index);
+    const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
+    out.points[k] = x.z() > camera.near_plane ? project(camera, x).cast<float>() : Eigen::Vector2f(1e9f, 1e9f);
+    out.bound[k] = true;
+  }
+  return out;
+}
+
 FitAgreement MeasureFitAgreement(const TrackerModel& model, const InputFrame& frame, const gpu::FaceParameters& params,
                                  const FitAgreementOptions& options, const gpu::FaceParameters* previous,
                                  double seconds_since_previous) {
@@ -389,18 +404,15 @@ FitAgreement MeasureFitAgreement(const TrackerModel& model, const InputFrame& fr
   if (seen[36] && seen[45]) {
     const double iod = (detected[36] - detected[45]).cast<double>().norm();
     out.eye_distance_px = iod;
-    const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
-    const Eigen::Vector3d t = params.translation.cast<double>();
+    const ProjectedLandmarks projected = ProjectModelLandmarks(model, params, frame.camera);
+    fitted = projected.points;
     std::array<bool, 68> inner{};
     std::array<std::array<bool, 68>, 4> part{};  // brows 17-26, nose 27-35, eyes 36-47, mouth 48-67
-    for (const auto& l : model.landmarks) {
-      const size_t k = static_cast<size_t>(l.ibug_index);
-      if (l.ibug_index < 17 || l.ibug_index >= 68 || !seen[k]) continue;
-      const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
-      // A point behind the camera is as far off as it gets.
-      fitted[k] = x.z() > frame.camera.near_plane ? project(frame.camera, x).cast<float>() : Eigen::Vector2f(1e9f, 1e9f);
+    for (int i = 17; i < 68; ++i) {
+      const size_t k = static_cast<size_t>(i);
+      if (!projected.bound[k] || !seen[k]) continue;
       inner[k] = true;
-      part[l.ibug_index < 27 ? 0 : l.ibug_index < 36 ? 1 : l.ibug_index < 48 ? 2 : 3][k] = true;
+      part[i < 27 ? 0 : i < 36 ? 1 : i < 48 ? 2 : 3][k] = true;
       ++out.landmarks_used;
     }
     // NaN where no point was compared (nme_outer_eye gives infinity).

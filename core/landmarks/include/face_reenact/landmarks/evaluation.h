@@ -56,6 +56,16 @@ struct EvalReport {
   nlohmann::json ToJson() const;
 };
 
+// The images with a sibling .pts file under `folder` (recursive), sorted; the .pts path of each
+// is the image's with the extension replaced. Throws face_reenact::Error when the folder is
+// missing or holds no annotated image.
+std::vector<std::string> list_annotated_images(const std::string& folder);
+std::string annotation_path(const std::string& image_path);
+// The 300-W protocol's choice among a photo's faces: the detection overlapping the annotated
+// face (its points' bounding box). The annotation only picks among the detector's boxes; the
+// landmarks are never started from it.
+TrackingHint annotated_face_hint(const Shape68& truth);
+
 // Every image with a sibling .pts file under `folder` (recursive). As in 300-W, where a photo
 // shows several faces the detection overlapping the annotated face is scored (the annotation
 // only chooses among detector boxes). Throws face_reenact::Error

@@ -5,12 +5,14 @@
 // face looking at the camera sat in a valley of low energy and was reported as tracking. The
 // landmarks, and a head pose fitted to them alone, cannot be fooled that way. One yardstick for
 // the tracker's loss checks, `track --report`, `reenact` and the live session.
+#include <array>
 #include <cmath>
 #include <limits>
 #include <string>
 #include <vector>
 
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/landmarks/landmark_detector.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/tracker_model.h"
 
@@ -80,6 +82,17 @@ struct FitAgreement {
   std::string landmark_warning;
   bool agrees() const { return failure.empty(); }
 };
+
+// The fit's own 68 landmarks: the model's landmark vertices (TrackerModel::landmarks) of `params`
+// projected into `camera`, in pixels. bound[k] is false where the model binds no vertex to iBUG
+// point k; a bound vertex behind the camera is put at (1e9, 1e9), as far off as it gets, so that
+// an error measured on it says so.
+struct ProjectedLandmarks {
+  landmarks::Shape68 points{};
+  std::array<bool, landmarks::kNumLandmarks> bound{};
+};
+ProjectedLandmarks ProjectModelLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
+                                         const gpu::PinholeCamera& camera);
 
 // Measures `params` (the fit of `frame`) against the frame's landmarks. With `previous` (the
 // previous frame's fit) and `seconds_since_previous` > 0, also the rotation speed. Never throws.

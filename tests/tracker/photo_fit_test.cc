@@ -1,0 +1,218 @@
+// The model fitted to one photo and the annotated-photo yardstick (photo_fit.h), and
+// `face-reenact eval fit` end to end: the error measure on shapes with known offsets, the fit's
+// own landmarks, real photos of ../shared/data/faces-68 (skipped when that folder is absent), and
+// bad input (a malformed or short .pts, a photo without a face, a file that is not an image).
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <string>
+#include <vector>
+
+#include "face_reenact/common/subprocess.h"
+#include "face_reenact/landmarks/evaluation.h"
+#include "face_reenact/tracker/photo_fit.h"
+#include "support/temp_dir.h"
+#include "tracker_test_support.h"
+
+namespace face_reenact::tracker {
+namespace {
+
+namespace fs = std::filesystem;
+using landmarks::Shape68;
+
+std::string shared_faces() {
+  const char* s = std::getenv("FR_SHARED_DATA");
+  const std::string dir = std::string(s ? s : "") + "/faces-68";
+  return s && fs::is_directory(dir) ? dir : "";
+}
+
+std::string cli() {
+  const char* c = std::getenv("FR_CLI");
+  return c ? c : "";
+}
+
+Shape68 square_shape() {
+  Shape68 s{};
+  for (int i = 0; i < 68; ++i) s[static_cast<size_t>(i)] = {10.f * (i % 9), 10.f * (i / 9)};
+  s[36] = {0.f, 0.f};
+  s[45] = {100.f, 0.f};  // eye distance 100 px
+  return s;
+}
+
+void write_text(const fs::path& path, const std::string& text) { std::ofstream(path) << text; }
+
+std::string pts_text(const Shape68& s, int points) {
+  std::string t = "version: 1\nn_points: " + std::to_string(points) + "\n{\n";
+  for (int i = 0; i < points; ++i) {
+    // 1-based, the 300-W convention read_pts undoes.
+    t += std::to_string(s[static_cast<size_t>(i % 68)].x() + 1) + " " + std::to_string(s[static_cast<size_t>(i % 68)].y() + 1) + "\n";
+  }
+  return t + "}\n";
+}
+
+TEST(ShapeErrors, AreTheMeanOffsetOverTheEyeDistancePerPart) {
+  const Shape68 truth = square_shape();
+  Shape68 moved = truth;
+  // Jaw points 5 px off, brows 10, nose 20, eyes 0, mouth 30 (eye distance 100 px).
+  for (int i = 0; i < 68; ++i) {
+    const float d = i < 17 ? 5.f : i < 27 ? 10.f : i < 36 ? 20.f : i < 48 ? 0.f : 30.f;
+    moved[static_cast<size_t>(i)].y() += d;
+  }
+  const ShapeErrors e = MeasureShapeErrors(moved, truth);
+  EXPECT_NEAR(e.jaw, 0.05, 1e-6);
+  EXPECT_NEAR(e.brows, 0.10, 1e-6);
+  EXPECT_NEAR(e.nose, 0.20, 1e-6);
+  EXPECT_NEAR(e.eyes, 0.0, 1e-6);
+  EXPECT_NEAR(e.mouth, 0.30, 1e-6);
+  EXPECT_NEAR(e.inner, (10 * 0.1 + 9 * 0.2 + 12 * 0.0 + 20 * 0.3) / 51, 1e-6);
+  EXPECT_NEAR(e.all, (17 * 0.05 + 10 * 0.1 + 9 * 0.2 + 20 * 0.3) / 68, 1e-6);
+}
+
+TEST(ProjectModelLandmarks, AreTheLandmarkVerticesThroughTheCamera) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const gpu::PinholeCamera camera = testing::test_camera();
+  const gpu::FaceParameters p = testing::true_parameters(*model, 0.6f, 11);
+  const ProjectedLandmarks projected = ProjectModelLandmarks(*model, p, camera);
+  int bound = 0;
+  for (bool b : projected.bound) bound += b;
+  EXPECT_EQ(bound, static_cast<int>(model->landmarks.size()));
+  // The nose tip (30) of a face 0.6 m in front of the camera lies inside the image, between the
+  // eye corners horizontally.
+  const Eigen::Vector2f tip = projected.points[30];
+  EXPECT_GT(tip.x(), 0.f);
+  EXPECT_LT(tip.x(), camera.width);
+  EXPECT_GT(tip.y(), 0.f);
+  EXPECT_LT(tip.y(), camera.height);
+  EXPECT_GT(tip.x(), std::min(projected.points[36].x(), projected.points[45].x()));
+  EXPECT_LT(tip.x(), std::max(projected.points[36].x(), projected.points[45].x()));
+  // A face behind the camera: every point as far off as it gets, so an error measured says so.
+  gpu::FaceParameters behind = p;
+  behind.translation.z() = -0.6f;
+  for (const auto& q : ProjectModelLandmarks(*model, behind, camera).points) EXPECT_GE(q.x(), 1e8f);
+}
+
+TEST(PhotoFitOptions, RefuseWhatIsNotOnePhoto) {
+  PhotoFitOptions o;
+  std::string why;
+  EXPECT_TRUE(o.IsValid(&why)) << why;
+  o.tracker.calibration_frames = 5;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("calibration"), std::string::npos) << why;
+  o = PhotoFitOptions();
+  o.horizontal_fov_deg = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+}
+
+// A folder with every kind of bad input beside one real photo (when the shared data is there).
+struct BadFolder {
+  face_reenact::testing::TempDir dir{"fr-photo-fit"};
+  bool has_real = false;
+  BadFolder() {
+    const fs::path d = dir.path();
+    const Shape68 s = square_shape();
+    // A photo without a face: a flat grey image, well annotated.
+    cv::imwrite((d / "grey.png").string(), cv::Mat(240, 320, CV_8UC3, cv::Scalar(128, 128, 128)));
+    write_text(d / "grey.pts", pts_text(s, 68));
+    // A malformed annotation (a line that is not two numbers).
+    cv::imwrite((d / "malformed.png").string(), cv::Mat(240, 320, CV_8UC3, cv::Scalar(90, 90, 90)));
+    write_text(d / "malformed.pts", "version: 1\nn_points: 68\n{\n1 2\nthree four\n}\n");
+    // Another point count (the 49-point convention).
+    cv::imwrite((d / "short.png").string(), cv::Mat(240, 320, CV_8UC3, cv::Scalar(60, 60, 60)));
+    write_text(d / "short.pts", pts_text(s, 49));
+    // Not an image at all.
+    write_text(d / "broken.jpg", "this is not a JPEG");
+    write_text(d / "broken.pts", pts_text(s, 68));
+    const std::string faces = shared_faces();
+    if (!faces.empty()) {
+      fs::copy_file(faces + "/takeo.ppm", d / "takeo.ppm");
+      fs::copy_file(faces + "/takeo.pts", d / "takeo.pts");
+      has_real = true;
+    }
+  }
+};
+
+const FitEvalImage* entry(const FitEvalReport& r, const std::string& name) {
+  for (const FitEvalImage& e : r.per_image) {
+    if (fs::path(e.path).filename() == name) return &e;
+  }
+  return nullptr;
+}
+
+TEST(EvaluateFitOnAnnotatedPhotos, SaysWhatIsWrongWithEachBadPhotoAndGoesOn) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  BadFolder folder;
+  PhotoFitter fitter(*model, PhotoFitOptions());
+  landmarks::LandmarkDetector detector;
+  const FitEvalReport r = EvaluateFitOnAnnotatedPhotos(folder.dir.path(), &fitter, &detector);
+  EXPECT_EQ(r.images, folder.has_real ? 5 : 4);
+  EXPECT_EQ(r.bad_annotation, 2);
+  EXPECT_EQ(r.unreadable, 1);
+  EXPECT_EQ(r.no_face, 1);
+  ASSERT_NE(entry(r, "malformed.png"), nullptr);
+  EXPECT_EQ(entry(r, "malformed.png")->status, "bad annotation");
+  EXPECT_NE(entry(r, "malformed.png")->reason.find("malformed.pts"), std::string::npos) << entry(r, "malformed.png")->reason;
+  EXPECT_EQ(entry(r, "short.png")->status, "bad annotation");
+  EXPECT_NE(entry(r, "short.png")->reason.find("49"), std::string::npos) << entry(r, "short.png")->reason;
+  EXPECT_EQ(entry(r, "broken.jpg")->status, "unreadable image");
+  EXPECT_EQ(entry(r, "grey.png")->status, "no face");
+  if (!folder.has_real) GTEST_SKIP() << "no ../shared/data/faces-68 (FR_SHARED_DATA): the real photo was not fitted";
+  // takeo.ppm, a frontal face: the fit's landmarks land near the annotation. The bounds guard the
+  // figures measured at this commit (all 0.094, inner 0.049, eyes 0.015, mouth 0.032; the
+  // detector 0.035 / 0.030; the whole folder's eyes were 0.077 without the eye points), not the
+  // issue's bar, which the jaw line and the brows miss (docs/tracking-pipeline.md, "A yardstick on real photos").
+  const FitEvalImage* takeo = entry(r, "takeo.ppm");
+  ASSERT_NE(takeo, nullptr);
+  ASSERT_EQ(takeo->status, "fitted") << takeo->reason;
+  EXPECT_EQ(r.scored, 1);
+  EXPECT_LT(takeo->detector.all, 0.05);
+  EXPECT_LT(takeo->fit.inner, 0.06);
+  EXPECT_LT(takeo->fit.eyes, 0.04);
+  EXPECT_LT(takeo->fit.mouth, 0.05);
+  EXPECT_LT(takeo->fit.all, 0.13);
+  EXPECT_LT(takeo->pose_disagreement_deg, 15.0);
+  const nlohmann::json j = r.ToJson();
+  EXPECT_EQ(j["scored"], 1);
+  EXPECT_TRUE(j["fit_nme"]["inner"]["mean"].is_number());
+  EXPECT_EQ(j["fit_nme_per_point_mean"].size(), 68u);
+}
+
+TEST(EvalFitCli, ReportsAFolderAndRefusesWhatIsNotOne) {
+  if (cli().empty()) GTEST_SKIP() << "FR_CLI not set";
+  if (!testing::real_model()) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  BadFolder folder;
+  face_reenact::testing::TempDir out("fr-eval-fit-out");
+  const std::string json = out.path() + "/report.json";
+  const std::string draw = out.path() + "/drawn";
+  const SubprocessResult run = run_subprocess({cli(), "eval", "fit", folder.dir.path(), "--out", json, "--draw", draw});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("bad annotation"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("no face"), std::string::npos) << run.output;
+  std::ifstream in(json);
+  const nlohmann::json report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["bad_annotation"], 2);
+  EXPECT_EQ(report["per_image"].size(), folder.has_real ? 5u : 4u);
+  EXPECT_TRUE(fs::exists(draw + "/grey.png"));
+  EXPECT_TRUE(fs::exists(draw + "/sheet.png"));
+  if (folder.has_real) {
+    EXPECT_TRUE(fs::exists(draw + "/takeo.png"));
+    EXPECT_NE(run.output.find("bar: fit <= detector"), std::string::npos) << run.output;
+  }
+
+  const SubprocessResult missing = run_subprocess({cli(), "eval", "fit", out.path() + "/nothing-here"});
+  EXPECT_EQ(missing.exit_code, 1) << missing.output;
+  EXPECT_NE(missing.output.find("is not a folder"), std::string::npos) << missing.output;
+  fs::create_directories(out.path() + "/empty");
+  const SubprocessResult empty = run_subprocess({cli(), "eval", "fit", out.path() + "/empty"});
+  EXPECT_EQ(empty.exit_code, 1) << empty.output;
+  EXPECT_NE(empty.output.find("no image with a .pts annotation"), std::string::npos) << empty.output;
+}
+
+}  // namespace
+}  // namespace face_reenact::tracker
