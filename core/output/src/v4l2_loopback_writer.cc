@@ -15,7 +15,10 @@ namespace face_reenact::output {
 namespace {
 
 constexpr const char* kLoopbackDriver = "v4l2 loopback";
-constexpr const char* kModprobeHint = "sudo modprobe v4l2loopback exclusive_caps=1 card_label=\"Face Reenact\"";
+// The options the face-reenact package installs in /etc/modprobe.d/face-reenact.conf
+// (packaging/modprobe.conf) and the docs use: one device, /dev/video10.
+constexpr const char* kModprobeHint =
+    "sudo modprobe v4l2loopback devices=1 video_nr=10 card_label=\"Face Reenact\" exclusive_caps=1";
 
 int xioctl(int fd, unsigned long request, void* arg) {
   int r;
@@ -87,8 +90,8 @@ void V4l2LoopbackWriter::open() {
   if (::stat(dev.c_str(), &st) != 0) {
     int err = errno;
     if (err == ENOENT)
-      throw Error("device '" + dev + "' does not exist. Load the loopback module (" + kModprobeHint +
-                  "), then list devices with 'v4l2-ctl --list-devices'");
+      throw Error("device '" + dev + "' does not exist. Load the loopback module (package v4l2loopback-dkms): " +
+                  kModprobeHint + ", then list devices with 'v4l2-ctl --list-devices'");
     if (err == EACCES)
       throw Error("cannot access '" + dev + "': permission denied");
     throw Error("cannot access '" + dev + "': " + errno_text(err));
@@ -107,7 +110,7 @@ void V4l2LoopbackWriter::open() {
     if (err == EBUSY)
       throw Error("device '" + dev + "' is busy: it accepts no more openers (v4l2loopback's max_openers limit, 10 by "
                   "default, or a program holding it exclusively). Close programs that use it, or use another loopback "
-                  "device (sudo modprobe v4l2loopback devices=2 exclusive_caps=1,1)");
+                  "device (sudo modprobe v4l2loopback devices=2 video_nr=10,11 exclusive_caps=1,1)");
     if (err == ENODEV || err == ENXIO)
       throw Error("device '" + dev + "' exists but has no driver behind it (" + errno_text(err) +
                   "); reload the module: " + kModprobeHint);
