@@ -34,7 +34,7 @@ PACKAGES=(
   # the OBS source (plugin/obs) and its tests with the real obs under a virtual X server
   libobs-dev obs-studio obs-plugins xvfb
 )
-# Only for the package modes: lintian checks the packages, mmdebstrap makes the clean root.
+# For the package modes and the test suite: lintian checks the packages, mmdebstrap makes the clean root.
 PACKAGE_TOOLS=(lintian)
 PACKAGE_TEST_TOOLS=(lintian mmdebstrap)
 
@@ -155,7 +155,8 @@ esac
 
 case "$MODE" in
   package) install_packages "${PACKAGES[@]}" "${PACKAGE_TOOLS[@]}" ;;
-  package-test) install_packages "${PACKAGES[@]}" "${PACKAGE_TEST_TOOLS[@]}" ;;
+  # The test suite checks the packages too (lintian; the clean-root install with mmdebstrap).
+  package-test|test) install_packages "${PACKAGES[@]}" "${PACKAGE_TEST_TOOLS[@]}" ;;
   *) install_packages "${PACKAGES[@]}" ;;
 esac
 configure_and_build "$BUILD"

@@ -82,6 +82,11 @@ TEST(InputSpecTest, TargetsAreCamerasOpenNiOrRecordings) {
   InputSpec oni = parse_target_spec("openni:/data/room.oni", "t");
   EXPECT_EQ(oni.kind, InputKind::kOpenNi);
   EXPECT_EQ(oni.device_path, "/data/room.oni");
+  // A plain .oni path is the same OpenNI recording (any case), in the live inputs as in track.
+  const InputSpec plain_oni = parse_target_spec("/data/Room.ONI", "t");
+  EXPECT_EQ(plain_oni.kind, InputKind::kOpenNi);
+  EXPECT_EQ(plain_oni.device_path, "/data/Room.ONI");
+  EXPECT_EQ(parse_target_spec(".oni", "t").kind, InputKind::kRecording);  // a name, not an extension
   InputSpec rec = parse_target_spec("/data/actor", "t");
   EXPECT_EQ(rec.kind, InputKind::kRecording);
   EXPECT_EQ(rec.path, "/data/actor");
@@ -580,7 +585,9 @@ TEST(FrameGrabberTest, InvalidOptionsThrowAndStatusesDescribeTheInput) {
 TEST(FrameGrabberTest, OpenNiFileDriverPlaysTheSharedRecording) {
   FR_REQUIRE_ONI_FIXTURE(oni);
   GrabberOptions o;
-  o.input = parse_target_spec("openni:" + oni, "t");
+  // The plain path, as a user picks the file in OBS's recording field (openni: is the same).
+  o.input = parse_target_spec(oni, "t");
+  ASSERT_EQ(o.input.kind, InputKind::kOpenNi);
   FrameGrabber grabber(o);
   capture::RgbdFrame frame;
   uint64_t seq = 0;

@@ -320,14 +320,7 @@ class DeviceFrameSource : public capture::FrameSource {
 
 std::unique_ptr<capture::FrameSource> open_offline_source(const std::string& text, const std::string& what,
                                                           const capture::VideoReader::Options& video) {
-  std::string spec_text = text;
-  // An .oni file given as a plain path is an OpenNI recording.
-  if (spec_text.size() > 4 && spec_text.rfind("openni", 0) != 0) {
-    std::string ext = spec_text.substr(spec_text.size() - 4);
-    for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    if (ext == ".oni") spec_text = "openni:" + spec_text;
-  }
-  const InputSpec spec = parse_target_spec(spec_text, what);
+  const InputSpec spec = parse_target_spec(text, what);
   if (spec.kind == InputKind::kRecording) return capture::open_frame_source(spec.path, video);
   GrabberOptions o;
   o.input = spec;

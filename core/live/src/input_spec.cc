@@ -21,6 +21,13 @@ std::string trim(const std::string& s) {
   return s.substr(b, e - b + 1);
 }
 
+bool has_oni_extension(const std::string& text) {
+  if (text.size() <= 4) return false;
+  std::string ext = text.substr(text.size() - 4);
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext == ".oni";
+}
+
 // Camera, OpenNI or recording; nullopt-like kNone when the text is none of these.
 InputSpec parse_capture(const std::string& text) {
   InputSpec spec;
@@ -39,6 +46,10 @@ InputSpec parse_capture(const std::string& text) {
   } else if (text.rfind("openni:", 0) == 0) {
     spec.kind = InputKind::kOpenNi;
     spec.device_path = text.substr(7);
+  } else if (has_oni_extension(text)) {
+    // An .oni file given as a plain path is an OpenNI recording (OpenNI2's file driver plays it).
+    spec.kind = InputKind::kOpenNi;
+    spec.device_path = text;
   } else {
     spec.kind = InputKind::kRecording;
     spec.path = text;

@@ -5,6 +5,7 @@
 //   /dev/video2, video2, 2        a V4L2 camera (OpenCV's V4L2 backend)
 //   openni, openni:URI            an OpenNI2 RGB-D device (the first one, or by URI; a .oni
 //                                 recording plays through OpenNI's file driver)
+//   FILE.oni                      the same as openni:FILE.oni
 //   udp://PORT, udp://ADDR:PORT   the expression stream (expression sources only; needs a key)
 //   none, (empty)                 no input (expression sources only)
 //   anything else                 a recording folder (docs/recording-format.md) or a video file
