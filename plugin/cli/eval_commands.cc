@@ -21,6 +21,11 @@
 #include "face_reenact/landmarks/drawing.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/reenact/fit_overlay.h"
+#include "face_reenact/capture/recording.h"
+#include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/landmark_binding.h"
 #include "face_reenact/tracker/photo_fit.h"
 #include "face_reenact/tracker/rgbd_input.h"
 #include "face_reenact/tracker/solver.h"
@@ -38,6 +43,7 @@ struct EvalFitArgs {
   int max_images = 0;
   bool json = false;
   bool tracker_landmarks = false;
+  int contour_rounds = -1;
 };
 
 lm::Image image_of(const cv::Mat& bgr) {
@@ -103,8 +109,10 @@ void run_eval_fit(const EvalFitArgs& a) {
     for (SolverOptions* s : {&options.tracker.tracking_solver, &options.tracker.recovery_solver,
                              &options.tracker.calibration_solver}) {
       s->energy.all_inner_landmarks = false;
+      s->energy.use_brow_landmarks = false;
     }
   }
+  if (a.contour_rounds >= 0) options.contour_rounds = a.contour_rounds;
   std::string why;
   if (!options.IsValid(&why)) throw Error("eval fit: " + why);
 
@@ -140,7 +148,7 @@ void run_eval_fit(const EvalFitArgs& a) {
       std::snprintf(status, sizeof status, "%s", e.status.c_str());
     }
     reenact::DrawFitOverlay(&drawn, fitter.model(), *renderer, fit.camera,
-                            e.scored ? &fit.tracked.params : nullptr, detected, status);
+                            e.scored ? &fit.params : nullptr, detected, status);
     const std::string name = fs::path(e.path).stem().string() + ".png";
     if (!cv::imwrite((fs::path(a.draw) / name).string(), drawn)) throw Error("eval fit: cannot write '" + name + "' in " + a.draw);
     tiles.push_back(image_of(drawn));
@@ -165,6 +173,89 @@ void run_eval_fit(const EvalFitArgs& a) {
   }
 }
 
+struct EvalBindingsArgs {
+  std::vector<std::string> inputs;
+  std::string points = "17-29", out, model;
+  int frames = 0;
+  double fov_deg = 60.0;
+  double radius_mm = 25.0;
+  bool all_inner_landmarks = false, brow_landmarks = false;
+};
+
+// "17-29,31" -> {17, ..., 29, 31}.
+std::vector<int> parse_points(const std::string& text) {
+  std::vector<int> out;
+  size_t pos = 0;
+  while (pos < text.size()) {
+    const size_t comma = std::min(text.find(',', pos), text.size());
+    const std::string part = text.substr(pos, comma - pos);
+    const size_t dash = part.find('-');
+    try {
+      const int a = std::stoi(part.substr(0, dash));
+      const int b = dash == std::string::npos ? a : std::stoi(part.substr(dash + 1));
+      if (a < 0 || b > 67 || a > b) throw std::out_of_range("range");
+      for (int i = a; i <= b; ++i) out.push_back(i);
+    } catch (const std::exception&) {
+      throw Error("eval bindings: --points '" + text + "': give iBUG indices 0..67 like 17-29,31");
+    }
+    pos = comma + 1;
+  }
+  return out;
+}
+
+void run_eval_bindings(const EvalBindingsArgs& a) {
+  if (!a.out.empty() && !fs::is_directory(fs::absolute(a.out).parent_path())) {
+    throw Error("eval bindings: the folder of --out '" + a.out + "' does not exist");
+  }
+  const FaceModel face_model = load_face_model(resolve_model_path(a.model));
+  const tracker::TrackerModel model = tracker::TrackerModel::FromFaceModel(face_model);
+  tracker::BindingSearchOptions so;
+  so.points = parse_points(a.points);
+  so.radius_m = a.radius_mm / 1000.0;
+  tracker::LandmarkBindingSearch search(model, face_model.mirror_vertex, so);
+  for (const std::string& input : a.inputs) {
+    capture::VideoReader::Options vo;
+    vo.horizontal_fov_deg = a.fov_deg;
+    std::unique_ptr<capture::FrameSource> source = live::open_offline_source(input, "eval bindings: --input", vo);
+    tracker::RgbdInput rgbd{tracker::RgbdInputOptions()};
+    tracker::TrackerOptions to;
+    for (SolverOptions* s : {&to.calibration_solver, &to.tracking_solver, &to.recovery_solver}) {
+      s->energy.all_inner_landmarks = a.all_inner_landmarks;
+      s->energy.use_brow_landmarks = a.brow_landmarks;
+    }
+    tracker::FaceTracker tracker(model, to);
+    capture::RgbdFrame frame;
+    int read = 0, used = 0;
+    while ((a.frames <= 0 || read < a.frames) && source->read_next(&frame)) {
+      ++read;
+      const tracker::InputFrame in = rgbd.Convert(frame);
+      const tracker::TrackedFrame t = tracker.Track(in);
+      const bool fit = tracker::tracking_status_has_fit(t.status);
+      rgbd.SetTrackedPose(t.params, fit);
+      // Only fits that agree with their landmarks (fit_agreement.h): a fit off the face would
+      // pull every binding towards its error.
+      if (!fit || !t.agreement.agrees() || !t.agreement.landmark_warning.empty()) continue;
+      used += search.Add(t.params, in.camera, in.landmarks);
+    }
+    std::fprintf(stderr, "[eval bindings] %s: %d frames, %d with a fit that agrees\n", input.c_str(), read, used);
+  }
+  const auto results = search.Results();
+  const nlohmann::json json = {{"frames", search.frames_used()},
+                               {"inputs", a.inputs},
+                               {"radius_mm", a.radius_mm},
+                               {"unit", "mean distance from the detector's point over the eye distance (outer corners)"},
+                               {"points", tracker::to_json(results, face_model.base_vertex)}};
+  if (!a.out.empty()) {
+    const std::string text = json.dump(1) + "\n";
+    write_file_atomic(a.out, std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(text.data()), text.size()));
+  }
+  std::printf("%5s %7s %12s %9s %12s %9s %9s\n", "ibug", "frames", "now (hm08)", "error", "best (hm08)", "error", "moved mm");
+  for (const auto& r : results) {
+    std::printf("%5d %7d %12d %9.4f %12d %9.4f %9.1f\n", r.ibug_index, r.frames, face_model.base_vertex[static_cast<size_t>(r.current_vertex)],
+                r.current_error, face_model.base_vertex[static_cast<size_t>(r.best_vertex)], r.best_error, r.best_moved_mm);
+  }
+}
+
 void add_eval(CLI::App& app) {
   CLI::App* eval = app.add_subcommand("eval", "Yardsticks on real data");
   eval->require_subcommand(1);
@@ -181,10 +272,30 @@ void add_eval(CLI::App& app) {
       ->check(CLI::Range(10.0, 150.0));
   fit->add_option("--max-images", args->max_images, "stop after N photos (0: all)")->check(CLI::NonNegativeNumber);
   fit->add_flag("--tracker-landmarks", args->tracker_landmarks,
-                "fit the tracker's landmark set (without the eye points and the nose base) instead of all 38 inner points");
+                "fit the tracker's landmark set (without the brows, the eye points and the nose base) instead of the 38 inner points and the brows");
+  fit->add_option("--contour-rounds", args->contour_rounds,
+                  "rounds of the jaw line fitted to the face's contour (default 3; 0: the inner points and brows only)")
+      ->check(CLI::Range(0, 20));
   fit->add_option("--model", args->model, "face model file (default: the installed/generated face-model.frm)");
   fit->add_option("--shape-predictor", args->shape_predictor, "dlib 68-point model (default: libdlib-data's)");
   fit->callback([args] { run_eval_fit(*args); });
+
+  auto bargs = std::make_shared<EvalBindingsArgs>();
+  CLI::App* bind = eval->add_subcommand(
+      "bindings", "Track videos and measure, for each iBUG point, which model vertex near its current binding projects "
+                  "closest to the detector's point (authoring data/ibug68_landmarks.json from real faces)");
+  bind->add_option("--input", bargs->inputs, "video, recording or .oni (repeatable)")->required();
+  bind->add_option("--points", bargs->points, "iBUG points to search, e.g. 17-29 (default)");
+  bind->add_option("--frames", bargs->frames, "at most N frames per input (0: all)")->check(CLI::NonNegativeNumber);
+  bind->add_option("--fov", bargs->fov_deg, "horizontal field of view of the videos (degrees, default 60)")->check(CLI::Range(10.0, 150.0));
+  bind->add_option("--radius", bargs->radius_mm, "candidate vertices within this many mm of the current binding (default 25)")
+      ->check(CLI::Range(1.0, 100.0));
+  bind->add_option("--out", bargs->out, "write the results as JSON");
+  bind->add_flag("--all-inner-landmarks", bargs->all_inner_landmarks, "track with the eye points and the nose base too");
+  bind->add_flag("--brow-landmarks", bargs->brow_landmarks,
+                 "track with the brows too (not for searching the brows themselves: the fit would hold them where they are bound)");
+  bind->add_option("--model", bargs->model, "face model file (default: the installed/generated face-model.frm)");
+  bind->callback([bargs] { run_eval_bindings(*bargs); });
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <memory>
 
 #include "command_registry.h"
+#include "face_reenact/common/byte_io.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/model/face_model_builder.h"
@@ -54,9 +55,12 @@ void run_build(const BuildArgs& a) {
   if (!a.force && fs::exists(out, ec)) {
     try {
       FaceModel existing = load_face_model(out);
+      const std::vector<uint8_t> text = read_file_bytes(landmarks);
+      const std::vector<LandmarkDefinition> definitions =
+          parse_landmark_file(std::string(text.begin(), text.end()), landmarks);
       if (existing.source_sha256 == sha && existing.builder == kFaceModelBuilderVersion &&
-          existing.build_options == opt.ToJson()) {
-        log_line(out + " is up to date (same wheel, builder and options); use --force to rebuild");
+          existing.build_options == opt.ToJson() && landmarks_match(existing, definitions)) {
+        log_line(out + " is up to date (same wheel, builder, options and landmarks); use --force to rebuild");
         return;
       }
       log(out + " was built differently; rebuilding");

@@ -203,6 +203,7 @@ struct TrackArgs {
   int calibration_frame_stride = 1;
   int calibration_window = TrackerOptions{}.calibration_window_frames;
   bool all_inner_landmarks = false;
+  bool brow_landmarks = false;
   bool no_gaze = false;
   bool no_lids = false;
   std::string calibration_start = "neutral";
@@ -231,8 +232,10 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.calibration_frames = a.calibration_frames;
   o.calibration_frame_stride = a.calibration_frame_stride;
   o.calibration_window_frames = a.calibration_window;
-  for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver})
+  for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
     s->energy.all_inner_landmarks = a.all_inner_landmarks;
+    s->energy.use_brow_landmarks = a.brow_landmarks;
+  }
   o.gaze.enabled = !a.no_gaze;
   o.gaze.read_lids = !a.no_lids;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
@@ -541,6 +544,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
+  j["brow_landmarks"] = tracker.options().tracking_solver.energy.use_brow_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
@@ -704,6 +708,9 @@ void add_tracker_commands(CLI::App& app) {
               "Also fit the 12 eye points and the nose base (33): for exact landmarks such as a recording's, where they "
               "read blinks; off by default (dlib's eye points do not follow a closing eyelid, and its 33 is not the "
               "model's)");
+  tc->add_flag("--brow-landmarks", targs->brow_landmarks,
+               "Also fit the brows (iBUG 17-26), so that the brow blendshapes follow where the detector puts the brows "
+               "(off by default: the paper's 38 points have none)");
   tc->add_flag("--no-gaze", targs->no_gaze,
                "Do not read the gaze and the lids from the colour around the eyes (the eyeLook and eyeBlink weights "
                "are then the solver's, which cannot see the iris turn or, without the eye landmarks, a lid close)");

@@ -7,9 +7,12 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <sstream>
+#include <fstream>
 #include <map>
 #include <set>
 
+#include "face_reenact/common/paths.h"
 #include "face_reenact/model/face_model_builder.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/model/shape_statistics.h"
@@ -69,6 +72,24 @@ class BuiltModel : public ::testing::Test {
 };
 FaceModel* BuiltModel::model_ = nullptr;
 std::string BuiltModel::missing_;
+
+// The model's landmarks are the landmark file's (the up-to-date check of `model build` compares
+// them): a file whose binding or flags differ no longer matches, so the model is rebuilt.
+TEST_F(BuiltModel, LandmarksMatchTheLandmarkFileAndNotAnotherOne) {
+  std::ifstream in(resolve_data_file("ibug68_landmarks.json"));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::vector<LandmarkDefinition> defs = parse_landmark_file(ss.str(), "ibug68_landmarks.json");
+  EXPECT_TRUE(landmarks_match(m(), defs));
+  std::vector<LandmarkDefinition> moved = defs;
+  moved[29].base_vertex += 1;
+  EXPECT_FALSE(landmarks_match(m(), moved));
+  std::vector<LandmarkDefinition> flagged = defs;
+  flagged[20].flags |= kLandmarkInner;
+  EXPECT_FALSE(landmarks_match(m(), flagged));
+  defs.pop_back();
+  EXPECT_FALSE(landmarks_match(m(), defs));
+}
 
 TEST_F(BuiltModel, IsValidAndHasProvenance) {
   std::string why;

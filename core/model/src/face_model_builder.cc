@@ -201,6 +201,17 @@ std::vector<LandmarkDefinition> parse_landmark_file(const std::string& text, con
   return out;
 }
 
+bool landmarks_match(const FaceModel& model, const std::vector<LandmarkDefinition>& definitions) {
+  if (model.landmarks.size() != definitions.size()) return false;
+  for (const ModelLandmark& l : model.landmarks) {
+    if (l.ibug_index < 0 || l.ibug_index >= static_cast<int>(definitions.size())) return false;
+    const LandmarkDefinition& d = definitions[static_cast<size_t>(l.ibug_index)];
+    if (l.vertex < 0 || l.vertex >= static_cast<int>(model.base_vertex.size())) return false;
+    if (model.base_vertex[static_cast<size_t>(l.vertex)] != d.base_vertex || l.flags != d.flags) return false;
+  }
+  return true;
+}
+
 FaceModel build_face_model(const ZipArchive& wheel, const std::string& wheel_sha256,
                            const std::string& landmark_file, const FaceModelBuildOptions& opt,
                            const std::function<void(const std::string&)>& log, FaceModelBuildSummary* summary) {

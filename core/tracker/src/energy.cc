@@ -291,15 +291,15 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   if (options.use_landmarks) {
     std::unordered_map<int, const TrackerLandmark*> by_index;
     for (const auto& l : model.landmarks) {
-      if (options.inner_landmarks_only && !(l.flags & kLandmarkInner)) continue;
-      if (!options.all_inner_landmarks && LeftOutUnlessAllInner(l.ibug_index)) continue;
+      if (!EnergyUsesLandmark(options, l.ibug_index, l.flags)) continue;
       by_index[l.ibug_index] = &l;
     }
     for (const auto& in : frame.landmarks) {
       if (!(in.confidence > 0.f)) continue;
       auto it = by_index.find(in.ibug_index);
       if (it == by_index.end()) continue;
-      const int v = it->second->vertex;
+      const int v = LandmarkVertex(in, it->second->vertex, model.num_vertices());
+      if (v < 0) continue;
       const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
       if (!LandmarkVertexVisible(x, gbuffer, frame.camera, static_cast<float>(options.landmark_occlusion_m))) continue;
       lin.landmarks.push_back({v, in.position.cast<double>(), in.confidence});

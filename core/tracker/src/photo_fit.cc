@@ -70,6 +70,8 @@ bool PhotoFitOptions::IsValid(std::string* why) const {
     return internal::fail(why, "photo fit: one photo is one calibration frame (calibration_frames 1, no window)");
   }
   if (tracker.background_calibration) return internal::fail(why, "photo fit: the calibration runs in the foreground");
+  if (contour_rounds < 0 || contour_rounds > 20) return internal::fail(why, "photo fit: contour_rounds must be 0..20");
+  if (contour_iterations < 1 || contour_iterations > 200) return internal::fail(why, "photo fit: contour_iterations must be 1..200");
   return tracker.IsValid(why);
 }
 
@@ -108,13 +110,44 @@ PhotoFit PhotoFitter::Fit(const cv::Mat& bgr, landmarks::LandmarkDetector* detec
   t0 = std::chrono::steady_clock::now();
   tracker_->Reset();
   out.tracked = tracker_->Track(input, out.detect_ms);
-  out.fit_ms = ms_since(t0);
   out.message = out.tracked.message;
   // A photo that did not calibrate (too few landmarks for the calibration's checks) has at best
   // the mean face's fit, which is not the photo's fit.
   out.ok = out.tracked.status == TrackingStatus::kCalibrated && out.tracked.has_parameters;
   if (!out.ok && out.message.empty()) out.message = tracking_status_name(out.tracked.status);
-  if (out.ok) out.fitted = ProjectModelLandmarks(tracker_->model(), out.tracked.params, out.camera);
+  if (!out.ok) return out;
+  const TrackerModel& model = tracker_->model();
+  out.params = out.tracked.params;
+  if (options_.contour_rounds > 0) {
+    SolverOptions so = AdaptScheduleToFaceSize(options_.tracker.calibration_solver,
+                                               LandmarkExtentPx(input, options_.tracker.loss.min_landmark_confidence),
+                                               options_.tracker.ResolvedCalibrationMinFaceWidth());
+    so.energy.inner_landmarks_only = false;  // the jaw line (and the brows) too
+    so.schedule.resize(1);
+    so.schedule[0].gauss_newton_iterations = options_.contour_iterations;
+    const ParameterLayout layout =
+        ParameterLayout::Calibration(model.num_identity(), model.num_albedo(), model.num_expression());
+    std::vector<gpu::FaceParameters> params{out.params};
+    for (int round = 0; round < options_.contour_rounds; ++round) {
+      std::array<int, 68> vertex_of{};
+      vertex_of.fill(-1);
+      for (const auto& l : ContourLandmarks(model, params[0], out.camera)) {
+        if (l.ibug_index >= 0 && l.ibug_index < 68) vertex_of[static_cast<size_t>(l.ibug_index)] = l.vertex;
+      }
+      for (auto& l : input.landmarks) {
+        if (l.ibug_index >= 0 && l.ibug_index < 17) l.model_vertex = vertex_of[static_cast<size_t>(l.ibug_index)];
+      }
+      std::vector<gpu::FaceParameters> trial = params;
+      const SolverSummary summary = tracker_->cpu_solver().SolveFrames({input}, layout, so, &trial);
+      // A solve that found nothing to fit or went non-finite keeps the fit it started from.
+      if (summary.termination == Termination::kNoValidResiduals || summary.termination == Termination::kNonFinite) break;
+      params = std::move(trial);
+    }
+    out.params = params[0];
+  }
+  const std::vector<TrackerLandmark> contour = ContourLandmarks(model, out.params, out.camera);
+  out.fitted = ProjectModelLandmarks(model, out.params, out.camera, &contour);
+  out.fit_ms = ms_since(t0);
   return out;
 }
 
@@ -227,7 +260,7 @@ FitEvalReport EvaluateFitOnAnnotatedPhotos(const std::string& folder, PhotoFitte
         e.detector = MeasureShapeErrors(fit.detected.points, truth);
         e.fit = MeasureShapeErrors(fit.fitted.points, truth);
         e.tracking_status = tracking_status_name(fit.tracked.status);
-        e.euler_deg = fit.tracked.params.euler.cast<double>() * (180.0 / M_PI);
+        e.euler_deg = fit.params.euler.cast<double>() * (180.0 / M_PI);
         e.pose_disagreement_deg = fit.tracked.agreement.pose_disagreement_deg;
         ++report.scored;
         det_all.push_back(e.detector.all);

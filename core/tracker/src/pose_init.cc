@@ -18,21 +18,10 @@
 
 namespace face_reenact::tracker {
 using internal::fail;
+using internal::model_vertex;
+using internal::project;
 namespace {
 constexpr double kPi = 3.14159265358979323846;
-
-// Model-frame positions of the given vertices at `shape`'s identity and expression.
-Eigen::Vector3d model_vertex(const TrackerModel& model, const gpu::FaceParameters& shape, int v) {
-  const auto& r = model.render;
-  Eigen::Vector3d x = r.mean_shape.segment<3>(3 * v).cast<double>();
-  const int n_id = std::min<int>(static_cast<int>(shape.alpha.size()), model.num_identity());
-  for (int k = 0; k < n_id; ++k) x += r.identity_basis.block<3, 1>(3 * v, k).cast<double>() * shape.alpha[k];
-  const int n_exp = std::min<int>(static_cast<int>(shape.delta.size()), model.num_expression());
-  for (int k = 0; k < n_exp; ++k) {
-    if (shape.delta[k] != 0.f) x += r.expression_basis.block<3, 1>(3 * v, k).cast<double>() * shape.delta[k];
-  }
-  return x;
-}
 
 struct Correspondence {
   Eigen::Vector3d model;   // model frame
@@ -49,10 +38,6 @@ Eigen::Vector3d euler_from_rotation(const Eigen::Matrix3d& r) {
   const double c = std::atan2(r(1, 0), r(0, 0));
   if (a < 0) a += 2 * kPi;
   return {a, b, c};
-}
-
-Eigen::Vector2d project(const gpu::PinholeCamera& cam, const Eigen::Vector3d& x) {
-  return {cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy};
 }
 
 // Median of the valid depths in a (2r+1)^2 window around a pixel; 0 when none.
@@ -366,16 +351,72 @@ double RotationAngleDeg(const Eigen::Vector3f& euler_a, const Eigen::Vector3f& e
 }
 
 ProjectedLandmarks ProjectModelLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
-                                         const gpu::PinholeCamera& camera) {
+                                         const gpu::PinholeCamera& camera, const std::vector<TrackerLandmark>* landmarks) {
   ProjectedLandmarks out;
   const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
   const Eigen::Vector3d t = params.translation.cast<double>();
-  for (const auto& l : model.landmarks) {
+  for (const auto& l : landmarks ? *landmarks : model.landmarks) {
     if (l.ibug_index < 0 || l.ibug_index >= landmarks::kNumLandmarks) continue;
     const size_t k = static_cast<size_t>(l.ibug_index);
     const Eigen::Vector3d x = r * model_vertex(model, params, l.vertex) + t;
     out.points[k] = x.z() > camera.near_plane ? project(camera, x).cast<float>() : Eigen::Vector2f(1e9f, 1e9f);
     out.bound[k] = true;
+  }
+  return out;
+}
+
+std::vector<TrackerLandmark> ContourLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
+                                              const gpu::PinholeCamera& camera) {
+  std::vector<TrackerLandmark> out = model.landmarks;
+  std::array<int, 68> bound;
+  bound.fill(-1);
+  for (const auto& l : model.landmarks) {
+    if (l.ibug_index >= 0 && l.ibug_index < 68) bound[static_cast<size_t>(l.ibug_index)] = l.vertex;
+  }
+  if (bound[0] < 0 || bound[16] < 0 || bound[8] < 0 || bound[27] < 0) return out;
+  if (!params.euler.allFinite() || !params.translation.allFinite()) return out;
+  const auto& mean = model.render.mean_shape;
+  auto at = [&](int v) -> Eigen::Vector3d { return mean.segment<3>(3 * v).cast<double>(); };
+  // The face's own axes on the mean face: up from the chin to the nasal bridge, and the side
+  // axis between the jaw line's two ends.
+  const Eigen::Vector3d up = (at(bound[27]) - at(bound[8])).normalized();
+  Eigen::Vector3d side = at(bound[0]) - at(bound[16]);
+  side = (side - side.dot(up) * up).normalized();
+  const Eigen::Vector3d centre = 0.5 * (at(bound[0]) + at(bound[16]));
+  const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
+  const Eigen::Vector3d t = params.translation.cast<double>();
+  auto camera_point = [&](const Eigen::Vector3d& model_point) { return Eigen::Vector3d(r * model_point + t); };
+  const Eigen::Vector3d c_cam = camera_point(internal::model_vertex(model, params, bound[8]));
+  if (!(c_cam.z() > camera.near_plane)) return out;
+  // The side axis as the image shows it at the face.
+  const Eigen::Vector3d side_cam = r * side;
+  const Eigen::Vector3d tip = c_cam + 0.05 * side_cam;
+  if (!(tip.z() > camera.near_plane)) return out;
+  const Eigen::Vector2d side_img = (project(camera, tip) - project(camera, c_cam)).normalized();
+  if (!side_img.allFinite()) return out;
+  const int n = model.num_vertices();
+  for (auto& l : out) {
+    if (!(l.flags & kLandmarkSilhouette) || l.ibug_index == 8) continue;
+    const Eigen::Vector3d p = at(l.vertex);
+    const double sign = (p - centre).dot(side) >= 0 ? 1.0 : -1.0;
+    double best = -std::numeric_limits<double>::infinity();
+    int best_vertex = l.vertex;
+    for (int v = 0; v < n; ++v) {
+      // The bound vertex (the frontal silhouette the binding file names) always competes.
+      if (v != l.vertex) {
+        if (model.render.vertex_part[static_cast<size_t>(v)] != static_cast<uint8_t>(FacePart::Face)) continue;
+        const Eigen::Vector3d q = at(v);
+        if (std::abs((q - p).dot(up)) > kContourBandM || sign * (q - centre).dot(side) < 0.01) continue;
+      }
+      const Eigen::Vector3d x = camera_point(internal::model_vertex(model, params, v));
+      if (!(x.z() > camera.near_plane)) continue;
+      const double outward = sign * project(camera, x).dot(side_img);
+      if (outward > best) {
+        best = outward;
+        best_vertex = v;
+      }
+    }
+    l.vertex = best_vertex;
   }
   return out;
 }

@@ -1,8 +1,12 @@
 #pragma once
 // Small helpers shared by the tracker's sources (not part of the public API).
+#include <Eigen/Core>
+#include <algorithm>
 #include <string>
 
 #include "face_reenact/common/timing.h"
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/tracker_model.h"
 
 namespace face_reenact::tracker::internal {
 
@@ -12,6 +16,24 @@ using Clock = SteadyClock;
 inline bool fail(std::string* why, const std::string& message) {
   if (why) *why = message;
   return false;
+}
+
+// Model-frame position of vertex v at `shape`'s identity and expression.
+inline Eigen::Vector3d model_vertex(const TrackerModel& model, const gpu::FaceParameters& shape, int v) {
+  const auto& r = model.render;
+  Eigen::Vector3d x = r.mean_shape.segment<3>(3 * v).cast<double>();
+  const int n_id = std::min<int>(static_cast<int>(shape.alpha.size()), model.num_identity());
+  for (int k = 0; k < n_id; ++k) x += r.identity_basis.block<3, 1>(3 * v, k).cast<double>() * shape.alpha[k];
+  const int n_exp = std::min<int>(static_cast<int>(shape.delta.size()), model.num_expression());
+  for (int k = 0; k < n_exp; ++k) {
+    if (shape.delta[k] != 0.f) x += r.expression_basis.block<3, 1>(3 * v, k).cast<double>() * shape.delta[k];
+  }
+  return x;
+}
+
+// Pinhole projection of a camera-frame point, in pixels.
+inline Eigen::Vector2d project(const gpu::PinholeCamera& cam, const Eigen::Vector3d& x) {
+  return {cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy};
 }
 
 }  // namespace face_reenact::tracker::internal

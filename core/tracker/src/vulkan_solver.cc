@@ -302,8 +302,7 @@ struct VulkanSolver::Impl {
     // Landmark candidates exactly as Linearize filters them before visibility.
     std::unordered_map<int, int> vertex_of;
     for (const auto& l : model.landmarks) {
-      if (energy.inner_landmarks_only && !(l.flags & kLandmarkInner)) continue;
-      if (!energy.all_inner_landmarks && LeftOutUnlessAllInner(l.ibug_index)) continue;
+      if (!EnergyUsesLandmark(energy, l.ibug_index, l.flags)) continue;
       vertex_of[l.ibug_index] = l.vertex;
     }
     std::vector<float> cand;
@@ -312,8 +311,10 @@ struct VulkanSolver::Impl {
         if (!(in.confidence > 0.f)) continue;
         auto it = vertex_of.find(in.ibug_index);
         if (it == vertex_of.end()) continue;
+        const int bound = LandmarkVertex(in, it->second, model.num_vertices());
+        if (bound < 0) continue;
         float vbits;
-        const uint32_t v = static_cast<uint32_t>(it->second);
+        const uint32_t v = static_cast<uint32_t>(bound);
         std::memcpy(&vbits, &v, sizeof(v));
         cand.insert(cand.end(), {vbits, in.position.x(), in.position.y(), in.confidence});
       }

@@ -83,6 +83,9 @@ struct LandmarkDefinition {
 };
 // Parses and validates the landmark file (68 entries, indices 0..67 once each, known flags).
 std::vector<LandmarkDefinition> parse_landmark_file(const std::string& json_text, const std::string& what);
+// Whether `model`'s landmarks are the ones `definitions` bind (same hm08 vertex and flags per
+// point): a model built before the landmark file changed is not up to date.
+bool landmarks_match(const FaceModel& model, const std::vector<LandmarkDefinition>& definitions);
 
 // The iBUG 68 mirror partner of a point (0<->16, 36<->45, 48<->54, 8 -> 8 ...).
 int ibug_mirror_partner(int ibug_index);

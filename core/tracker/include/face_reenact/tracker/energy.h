@@ -119,6 +119,12 @@ struct EnergyOptions {
   // blinks (0.005 -> 0.5) and lower most errors (docs/tracker.md, "Landmark visibility"), so
   // `track --all-inner-landmarks` can switch them on.
   bool all_inner_landmarks = false;
+  // The brows (iBUG 17-26) too, beside the inner points: the brow blendshapes (browDown,
+  // browInnerUp, browOuterUp) are then read from where the detector puts the brows, which on RGB
+  // video is the only evidence of them (the colour barely changes as a brow lifts). Off in the
+  // tracker (the paper's 38 points); the photo fit (photo_fit.h) takes them (docs/tracking-pipeline.md,
+  // "A yardstick on real photos").
+  bool use_brow_landmarks = false;
   // Landmark visibility: a landmark counts when its vertex is in front of the camera and the
   // render, at the pixel the vertex projects to, shows no surface more than this much nearer
   // (an uncovered pixel or one outside the image keeps it: the vertex is on the silhouette).
@@ -133,6 +139,23 @@ struct EnergyOptions {
 
 // The inner points EnergyOptions::all_inner_landmarks adds: the eyes (iBUG 36-47) and 33.
 inline bool LeftOutUnlessAllInner(int ibug_index) { return ibug_index == 33 || (ibug_index >= 36 && ibug_index <= 47); }
+inline bool IsBrowLandmark(int ibug_index) { return ibug_index >= 17 && ibug_index <= 26; }
+
+// The model vertex E_lan matches an input landmark to: its own (InputLandmark::model_vertex) or
+// the model's binding for its point; -1 when that is not a vertex of a model of `num_vertices`.
+inline int LandmarkVertex(const InputLandmark& in, int bound_vertex, int num_vertices) {
+  const int v = in.model_vertex >= 0 ? in.model_vertex : bound_vertex;
+  return v >= 0 && v < num_vertices ? v : -1;
+}
+
+// Whether E_lan takes the model landmark `l` under `options` (before its visibility test): the
+// one rule for the CPU linearisation and the Vulkan solver.
+inline bool EnergyUsesLandmark(const EnergyOptions& options, int ibug_index, uint8_t flags) {
+  const bool inner = (flags & kLandmarkInner) != 0;
+  if (options.inner_landmarks_only && !inner && !(options.use_brow_landmarks && IsBrowLandmark(ibug_index))) return false;
+  if (!options.all_inner_landmarks && LeftOutUnlessAllInner(ibug_index)) return false;
+  return true;
+}
 
 // EnergyOptions::landmark_occlusion_m's rule for one landmark vertex at camera position x.
 bool LandmarkVertexVisible(const Eigen::Vector3f& x, const gpu::GBuffer& gbuffer, const gpu::PinholeCamera& camera,

@@ -91,8 +91,22 @@ struct ProjectedLandmarks {
   landmarks::Shape68 points{};
   std::array<bool, landmarks::kNumLandmarks> bound{};
 };
+// `landmarks`: the bindings to project (nullptr: the model's own; ContourLandmarks' for the jaw
+// line on the occluding contour).
 ProjectedLandmarks ProjectModelLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
-                                         const gpu::PinholeCamera& camera);
+                                         const gpu::PinholeCamera& camera,
+                                         const std::vector<TrackerLandmark>* landmarks = nullptr);
+
+// The jaw line's points (kLandmarkSilhouette) where a face posed by `params` and seen by `camera`
+// shows them: on its occluding contour, which annotators and the detector trace and which slides
+// over the cheek as the head turns, where the binding file names one vertex of the frontal
+// silhouette. For each point, among the face-part vertices of the mean face at the height of its
+// bound vertex (within kContourBandM) on its side of the midline, the one that projects farthest
+// out towards that side. Returns model.landmarks with those points' vertices replaced; the chin
+// (a midline point) keeps its own.
+inline constexpr double kContourBandM = 0.006;
+std::vector<TrackerLandmark> ContourLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
+                                              const gpu::PinholeCamera& camera);
 
 // Measures `params` (the fit of `frame`) against the frame's landmarks. With `previous` (the
 // previous frame's fit) and `seconds_since_previous` > 0, also the rotation speed. Never throws.

@@ -15,6 +15,10 @@ struct InputLandmark {
   int32_t ibug_index = 0;              // 0..67, iBUG 300-W order
   Eigen::Vector2f position{0.f, 0.f};  // pixels of this frame (OpenCV centre convention)
   float confidence = 1.0f;             // >= 0; 0 ignores the point
+  // The model vertex this point is matched to in E_lan, when it is not the model's binding for
+  // ibug_index (-1): a correspondence that moves with the view, like a jaw-line point on the
+  // face's occluding contour (ContourLandmarks, fit_agreement.h).
+  int32_t model_vertex = -1;
 };
 
 struct InputFrame {

@@ -30,19 +30,30 @@ struct PhotoFitOptions {
   // The fit: the tracker's calibration over the one photo (identity, albedo, expression,
   // lighting, pose jointly, RGB only), then its per-frame solve with that identity. `IsValid`
   // requires calibration_frames 1 and no calibration window. Unlike the tracker's default, E_lan
-  // takes all 38 inner points (EnergyOptions::all_inner_landmarks: the eyes and the nose base
-  // too): the tracker leaves them out because on video dlib's eye points do not follow a closing
-  // lid and pulled the pose of synthetic actors, but a photo has no previous frame to hold the
-  // face, and without them the fitted eyes sat 7.7 % of the eye distance from the annotated ones
-  // (2.2 % with them; inner points 5.7 -> 4.6 %, faces-68: docs/tracking-pipeline.md).
+  // takes all 38 inner points and the brows (EnergyOptions::all_inner_landmarks,
+  // use_brow_landmarks): the tracker leaves the eyes and the nose base out because on video dlib's
+  // eye points do not follow a closing lid and pulled the pose of synthetic actors, and the brows
+  // because the paper's 38 points have none; a photo has no previous frame to hold the face, and
+  // on faces-68 the eyes came 0.077 -> 0.022 eye distances from the annotation with their points,
+  // the brows 0.100 -> 0.036 with theirs (docs/tracking-pipeline.md, "A yardstick on real photos").
   TrackerOptions tracker = [] {
     TrackerOptions t;
     t.calibration_frames = 1;
     for (SolverOptions* s : {&t.calibration_solver, &t.tracking_solver, &t.recovery_solver}) {
       s->energy.all_inner_landmarks = true;
+      s->energy.use_brow_landmarks = true;
     }
     return t;
   }();
+
+  // The jaw line: after the tracker's fit, the 17 jaw points are added to E_lan matched to the
+  // face's occluding contour (ContourLandmarks: the vertex the contour passes through at each
+  // point's height, chosen again after each round), and identity, expression, lighting and pose
+  // are solved again (contour_iterations Gauss-Newton steps of the calibration solve per round):
+  // the face's outline is evidence of its width and its chin that the inner points do not give.
+  // 0 rounds: no contour fit (the jaw points are still measured on the contour).
+  int contour_rounds = 3;
+  int contour_iterations = 10;
 
   bool IsValid(std::string* why) const;
 };
@@ -54,7 +65,8 @@ struct PhotoFit {
   gpu::PinholeCamera camera;  // the photo's assumed camera
   landmarks::LandmarkResult detected;
   TrackedFrame tracked;       // the tracker's result (status, parameters, agreement, times)
-  ProjectedLandmarks fitted;  // the fit's 68 landmarks (valid when ok)
+  gpu::FaceParameters params; // the fit (the tracker's, refined by the contour rounds)
+  ProjectedLandmarks fitted;  // the fit's 68 landmarks, the jaw line on the contour (valid when ok)
   double detect_ms = 0, fit_ms = 0;
 };
 
