@@ -14,6 +14,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/tracker/solver.h"
+#include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/vulkan_solver.h"
 #include "gpu_test_support.h"
 #include "tracker_test_support.h"
@@ -407,6 +408,41 @@ TEST_F(VulkanSolverTest, LandmarksAloneMatchTheCpu) {
   EXPECT_LT(g.final_energy.total(), 0.1 * g.initial_energy.total()) << g.FullReport();
   EXPECT_LT(rotation_error(fit, cpu_fit), 0.05 * M_PI / 180);
   EXPECT_LT((fit.translation - cpu_fit.translation).norm(), 5e-5);
+}
+
+// The photo fit's landmarks on the GPU as on the CPU: the brows and the jaw line in E_lan, the jaw
+// points on vertices of their own (InputLandmark::model_vertex, ContourLandmarks), one of them not
+// a vertex at all (left out by both).
+TEST_F(VulkanSolverTest, OwnLandmarkVerticesAndBrowsMatchTheCpu) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
+  frame.depth.clear();
+  std::array<int, 68> contour{};
+  contour.fill(-1);
+  for (const auto& l : ContourLandmarks(model, truth, frame.camera)) contour[static_cast<size_t>(l.ibug_index)] = l.vertex;
+  int own = 0;
+  for (auto& l : frame.landmarks) {
+    if (l.ibug_index < 17) l.model_vertex = contour[static_cast<size_t>(l.ibug_index)], own += l.confidence > 0;
+    if (l.ibug_index == 5) l.model_vertex = model.num_vertices();  // not a vertex
+  }
+  ASSERT_GT(own, 4);
+  ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;
+  options.energy.use_color = false;
+  options.energy.inner_landmarks_only = false;
+  options.energy.use_brow_landmarks = true;
+  options.schedule = {{1, 3, 4}};
+  gpu::FaceParameters start = truth;
+  start.euler += Eigen::Vector3f(0.02f, -0.02f, 0.01f);
+  gpu::FaceParameters cpu_fit = start, fit = start;
+  const SolverSummary c = cpu().Solve(frame, layout, options, &cpu_fit);
+  const SolverSummary g = solver().Solve(frame, layout, options, &fit);
+  ASSERT_EQ(g.termination, c.termination) << g.FullReport() << "\n" << c.FullReport();
+  ASSERT_FALSE(g.iterations.empty());
+  EXPECT_EQ(g.iterations[0].residuals, c.iterations[0].residuals);
+  EXPECT_NEAR(g.initial_energy[Term::kLandmark], c.initial_energy[Term::kLandmark], 1e-4 * c.initial_energy.total());
+  EXPECT_LT(rotation_error(fit, cpu_fit), 0.05 * M_PI / 180);
 }
 
 // `face-reenact bench track` reports the Vulkan strategies next to the CPU reference.

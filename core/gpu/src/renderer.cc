@@ -1,6 +1,7 @@
 #include "face_reenact/gpu/renderer.h"
 
 #include <chrono>
+#include <cstddef>
 #include <cstring>
 
 #include "face_reenact/common/error.h"
@@ -8,6 +9,7 @@
 #include "face_reenact/gpu/context.h"
 #include "face_reenact/gpu/cpu_renderer.h"
 #include "face_reenact/gpu/embedded_shaders.h"
+#include "face_reenact/gpu/shader_layout.h"
 #include "face_reenact/gpu/vk_check.h"
 
 namespace face_reenact::gpu {
@@ -15,26 +17,71 @@ namespace {
 
 constexpr uint32_t kLocalSize = 64;
 
-// Mirrors FrameBlock in shaders/common.glsl (std430).
-struct FrameBlock {
-  float rotation_rows[3][4];
-  float translation[4];
-  float gamma[kNumShParameters];
-};
-static_assert(sizeof(FrameBlock) == 172, "FrameBlock must match the std430 layout in common.glsl");
+// Host mirrors of the shaders' blocks (std430; types and rules: shader_layout.h).
 
+// shaders/common.glsl, struct FrameBlock: vertex_shade.comp's Frame buffer. std430 rounds a
+// struct's size up to its alignment (16, from the vec4s): 172 bytes of members, 176 in all.
+struct alignas(16) FrameBlock {
+  glm::vec4 rotation_rows[3];     // R, row-major, xyz used
+  glm::vec4 translation;          // t, xyz used
+  float gamma[kNumShParameters];  // SH lighting, gamma[channel * 9 + k]
+};
+static_assert(offsetof(FrameBlock, rotation_rows) == 0);
+static_assert(offsetof(FrameBlock, translation) == 48);
+static_assert(offsetof(FrameBlock, gamma) == 64);
+static_assert(sizeof(FrameBlock::gamma) == 27 * sizeof(float));  // float gamma[27]: the rounding hides its length
+static_assert(sizeof(FrameBlock) == 176);
+
+// identity_eval.comp, push constant block Push.
 struct IdentityEvalPush {
-  uint32_t rows, num_identity, num_albedo, albedo_offset;
+  glm::uint rows;  // 3N
+  glm::uint num_identity;
+  glm::uint num_albedo;
+  glm::uint albedo_offset;  // index of beta_0 in coeffs
 };
+static_assert(offsetof(IdentityEvalPush, rows) == 0);
+static_assert(offsetof(IdentityEvalPush, num_identity) == 4);
+static_assert(offsetof(IdentityEvalPush, num_albedo) == 8);
+static_assert(offsetof(IdentityEvalPush, albedo_offset) == 12);
+static_assert(sizeof(IdentityEvalPush) == 16);
+
+// model_eval.comp, push constant block Push.
 struct ModelEvalPush {
-  uint32_t rows, num_expression, expression_offset, pad;
+  glm::uint rows;  // 3N
+  glm::uint num_expression;
+  glm::uint expression_offset;  // index of delta_0 in coeffs
+  glm::uint pad;
 };
+static_assert(offsetof(ModelEvalPush, rows) == 0);
+static_assert(offsetof(ModelEvalPush, num_expression) == 4);
+static_assert(offsetof(ModelEvalPush, expression_offset) == 8);
+static_assert(offsetof(ModelEvalPush, pad) == 12);
+static_assert(sizeof(ModelEvalPush) == 16);
+
+// vertex_shade.comp, push constant block Push.
 struct ShadePush {
-  uint32_t num_vertices;
+  glm::uint num_vertices;
 };
+static_assert(offsetof(ShadePush, num_vertices) == 0);
+static_assert(sizeof(ShadePush) == 4);
+
+// gbuffer.vert, push constant block Push.
 struct RasterPush {
-  float fx, fy, cx, cy, width, height, near_plane, far_plane;
+  float fx, fy, cx, cy;
+  float width, height, near_plane, far_plane;
 };
+static_assert(offsetof(RasterPush, fx) == 0);
+static_assert(offsetof(RasterPush, fy) == 4);
+static_assert(offsetof(RasterPush, cx) == 8);
+static_assert(offsetof(RasterPush, cy) == 12);
+static_assert(offsetof(RasterPush, width) == 16);
+static_assert(offsetof(RasterPush, height) == 20);
+static_assert(offsetof(RasterPush, near_plane) == 24);
+static_assert(offsetof(RasterPush, far_plane) == 28);
+static_assert(sizeof(RasterPush) == 32);
+
+// gbuffer.vert, element of the DrawList buffer (uvec4 draw_list[]): v0, v1, v2, model triangle.
+using DrawListEntry = glm::uvec4;
 
 constexpr VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
 
@@ -118,15 +165,15 @@ Renderer::Renderer(const Context& context, const RenderModel& model, const Optio
 
   coefficients_ = Buffer(context, std::max<size_t>(coefficient_count_ * sizeof(float), 16), kStorage, BufferDomain::Upload,
                          "coefficients alpha|delta|beta");
-  frame_ = Buffer(context, 176, kStorage, BufferDomain::Upload, "frame pose + lighting");
+  frame_ = Buffer(context, sizeof(FrameBlock), kStorage, BufferDomain::Upload, "frame pose + lighting");
   base_shape_ = Buffer(context, rows * sizeof(float), kStorage, BufferDomain::Device, "identity shape a_id + E_id alpha");
   shape_ = Buffer(context, rows * sizeof(float), kStorage, BufferDomain::Device, "model positions");
   albedo_ = Buffer(context, rows * sizeof(float), kStorage, BufferDomain::Device, "vertex albedo");
-  camera_positions_ = Buffer(context, num_vertices_ * 16ull, kStorage, BufferDomain::Device, "camera positions");
-  camera_normals_ = Buffer(context, num_vertices_ * 16ull, kStorage, BufferDomain::Device, "camera normals");
-  colors_ = Buffer(context, num_vertices_ * 16ull, kStorage, BufferDomain::Device, "shaded vertex colours");
-  draw_list_ = Buffer(context, std::max<size_t>(model_.triangles.size(), 1) * 16, kStorage, BufferDomain::Device,
-                      "draw list");
+  camera_positions_ = Buffer(context, num_vertices_ * sizeof(glm::vec4), kStorage, BufferDomain::Device, "camera positions");
+  camera_normals_ = Buffer(context, num_vertices_ * sizeof(glm::vec4), kStorage, BufferDomain::Device, "camera normals");
+  colors_ = Buffer(context, num_vertices_ * sizeof(glm::vec4), kStorage, BufferDomain::Device, "shaded vertex colours");
+  draw_list_ = Buffer(context, std::max<size_t>(model_.triangles.size(), 1) * sizeof(DrawListEntry), kStorage,
+                      BufferDomain::Device, "draw list");
 
   identity_pipeline_ = std::make_unique<ComputePipeline>(context, shaders::identity_eval_comp, 7,
                                                          sizeof(IdentityEvalPush), "identity + albedo evaluation");
@@ -180,14 +227,14 @@ GBufferTargets& Renderer::targets_for(int width, int height) {
 
 void Renderer::update_draw_list(const RenderOptions& options) {
   if (options.parts == draw_list_parts_) return;
-  std::vector<uint32_t> list;
+  std::vector<DrawListEntry> list;
   for (int32_t t : drawn_triangles(model_, options)) {
     const auto& tri = model_.triangles[t];
-    list.insert(list.end(), {static_cast<uint32_t>(tri[0]), static_cast<uint32_t>(tri[1]), static_cast<uint32_t>(tri[2]),
-                             static_cast<uint32_t>(t)});
+    list.emplace_back(static_cast<glm::uint>(tri[0]), static_cast<glm::uint>(tri[1]), static_cast<glm::uint>(tri[2]),
+                      static_cast<glm::uint>(t));
   }
-  if (!list.empty()) draw_list_.write(list.data(), list.size() * sizeof(uint32_t));
-  draw_count_ = static_cast<uint32_t>(list.size() / 4);
+  if (!list.empty()) draw_list_.write(list.data(), list.size() * sizeof(DrawListEntry));
+  draw_count_ = static_cast<uint32_t>(list.size());
   draw_list_parts_ = options.parts;
 }
 
@@ -431,11 +478,11 @@ VertexState Renderer::read_vertex_state() const {
   shape_.read(s.model_positions.data(), 3 * n * sizeof(float));
   albedo_.read(s.albedo.data(), 3 * n * sizeof(float));
   auto read_vec4 = [&](const Buffer& b, Eigen::VectorXf& out) {
-    std::vector<float> tmp(4 * n);
-    b.read(tmp.data(), tmp.size() * sizeof(float));
+    std::vector<glm::vec4> tmp(n);
+    b.read(tmp.data(), tmp.size() * sizeof(glm::vec4));
     out.resize(3 * n);
     for (Eigen::Index v = 0; v < n; ++v) {
-      for (int c = 0; c < 3; ++c) out[3 * v + c] = tmp[4 * v + c];
+      for (int c = 0; c < 3; ++c) out[3 * v + c] = tmp[v][c];
     }
   };
   read_vec4(camera_positions_, s.camera_positions);

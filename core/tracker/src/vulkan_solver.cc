@@ -1,8 +1,10 @@
 #include "face_reenact/tracker/vulkan_solver.h"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
+#include <cstddef>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -18,6 +20,7 @@
 #include "face_reenact/gpu/embedded_shaders.h"
 #include "face_reenact/gpu/pipeline.h"
 #include "face_reenact/gpu/renderer.h"
+#include "face_reenact/gpu/shader_layout.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/common/timing.h"
 #include "gauss_newton_loop.h"
@@ -28,68 +31,198 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// Mirrors TrackParams in shaders/tracker_common.glsl (std430: only 4-byte scalars).
+// Host mirrors of the shaders' blocks (std430; types and rules: gpu/shader_layout.h).
+
+// shaders/tracker_common.glsl, struct TrackParams: the Params buffer of tracker_vertices.comp
+// and tracker_evaluate.comp.
 struct TrackParams {
-  uint32_t num_pixels, num_landmarks, num_regularizer, n;
-  uint32_t k_id, k_alb, k_exp;
-  uint32_t o_id, o_alb, o_exp, o_gam, o_rot, o_t;
-  uint32_t model_id, model_alb, model_exp;
-  uint32_t num_vertices, width, regularize_shared, rows;
-  float s_point, s_plane, s_col, s_lan, s_reg;
+  glm::uint num_pixels;                             // P pixel items (8 rows each: 3 point, 2 plane, 3 colour)
+  glm::uint num_landmarks;                          // L landmark items (2 rows each)
+  glm::uint num_regularizer;                        // R regulariser rows
+  glm::uint n;                                      // unknowns (columns of J)
+  glm::uint k_id, k_alb, k_exp;                     // solved coefficients per block
+  glm::uint o_id, o_alb, o_exp, o_gam, o_rot, o_t;  // column offsets of the blocks
+  glm::uint model_id, model_alb, model_exp;         // the model's full coefficient counts
+  glm::uint num_vertices;
+  glm::uint width;                              // of the pyramid level (pixel index = j * width + i)
+  glm::uint regularize_shared;                  // identity/albedo prior rows present
+  glm::uint rows;                               // column stride of the column-major J: (8 P + 2 L + R) rounded up to 4
+  float s_point, s_plane, s_col, s_lan, s_reg;  // residual pre-scales (energy.cc)
   float fx, fy, cx, cy;
-  float s_reg_exp;
-  float r0[9];
-  float w_sparse_exp, sparse_eps_exp;
+  float s_reg_exp;       // expression prior rows: sqrt(w_reg_expression) / sigma_exp
+  float r0[9];           // rotation at the linearisation point, row-major (freezes model normals)
+  float w_sparse_exp;    // EnergyOptions::w_expression_sparsity (0 = off)
+  float sparse_eps_exp;  // EnergyOptions::expression_sparsity_epsilon
   float pad1, pad2;
 };
-static_assert(sizeof(TrackParams) == 172, "TrackParams must match tracker_common.glsl");
+static_assert(offsetof(TrackParams, num_pixels) == 0);
+static_assert(offsetof(TrackParams, num_landmarks) == 4);
+static_assert(offsetof(TrackParams, num_regularizer) == 8);
+static_assert(offsetof(TrackParams, n) == 12);
+static_assert(offsetof(TrackParams, k_id) == 16);
+static_assert(offsetof(TrackParams, k_alb) == 20);
+static_assert(offsetof(TrackParams, k_exp) == 24);
+static_assert(offsetof(TrackParams, o_id) == 28);
+static_assert(offsetof(TrackParams, o_alb) == 32);
+static_assert(offsetof(TrackParams, o_exp) == 36);
+static_assert(offsetof(TrackParams, o_gam) == 40);
+static_assert(offsetof(TrackParams, o_rot) == 44);
+static_assert(offsetof(TrackParams, o_t) == 48);
+static_assert(offsetof(TrackParams, model_id) == 52);
+static_assert(offsetof(TrackParams, model_alb) == 56);
+static_assert(offsetof(TrackParams, model_exp) == 60);
+static_assert(offsetof(TrackParams, num_vertices) == 64);
+static_assert(offsetof(TrackParams, width) == 68);
+static_assert(offsetof(TrackParams, regularize_shared) == 72);
+static_assert(offsetof(TrackParams, rows) == 76);
+static_assert(offsetof(TrackParams, s_point) == 80);
+static_assert(offsetof(TrackParams, s_plane) == 84);
+static_assert(offsetof(TrackParams, s_col) == 88);
+static_assert(offsetof(TrackParams, s_lan) == 92);
+static_assert(offsetof(TrackParams, s_reg) == 96);
+static_assert(offsetof(TrackParams, fx) == 100);
+static_assert(offsetof(TrackParams, fy) == 104);
+static_assert(offsetof(TrackParams, cx) == 108);
+static_assert(offsetof(TrackParams, cy) == 112);
+static_assert(offsetof(TrackParams, s_reg_exp) == 116);
+static_assert(offsetof(TrackParams, r0) == 120);
+static_assert(offsetof(TrackParams, w_sparse_exp) == 156);
+static_assert(offsetof(TrackParams, sparse_eps_exp) == 160);
+static_assert(offsetof(TrackParams, pad1) == 164);
+static_assert(offsetof(TrackParams, pad2) == 168);
+static_assert(sizeof(TrackParams) == 172);
 
-// Mirrors the Counters block of tracker_classify.comp / tracker_landmarks.comp.
+// tracker_classify.comp and tracker_landmarks.comp, buffer block Counters.
 struct Counters {
-  uint32_t pixel_count, num_point, num_plane, num_color, landmark_count;
+  glm::uint pixel_count;
+  glm::uint num_point;
+  glm::uint num_plane;
+  glm::uint num_color;
+  glm::uint landmark_count;
   float landmark_weight;
-  uint32_t pad[2];
+  glm::uint pad[2];
 };
-static_assert(sizeof(Counters) == 32, "Counters must match the shaders");
+static_assert(offsetof(Counters, pixel_count) == 0);
+static_assert(offsetof(Counters, num_point) == 4);
+static_assert(offsetof(Counters, num_plane) == 8);
+static_assert(offsetof(Counters, num_color) == 12);
+static_assert(offsetof(Counters, landmark_count) == 16);
+static_assert(offsetof(Counters, landmark_weight) == 20);
+static_assert(offsetof(Counters, pad) == 24);
+static_assert(sizeof(Counters) == 32);
 
+// tracker_classify.comp, push constant block Push.
 struct ClassifyPush {
-  uint32_t width, height, has_depth, use_point, use_plane, use_color;
+  glm::uint width, height, has_depth, use_point, use_plane, use_color;
   float max_point_distance, min_normal_dot;
-  float color_robust_threshold;
-  uint32_t color_parts;
+  float color_robust_threshold;  // EnergyOptions::color_robust_threshold (0 = off)
+  glm::uint color_parts;         // EnergyOptions::color_parts (bit per FacePart)
 };
+static_assert(offsetof(ClassifyPush, width) == 0);
+static_assert(offsetof(ClassifyPush, height) == 4);
+static_assert(offsetof(ClassifyPush, has_depth) == 8);
+static_assert(offsetof(ClassifyPush, use_point) == 12);
+static_assert(offsetof(ClassifyPush, use_plane) == 16);
+static_assert(offsetof(ClassifyPush, use_color) == 20);
+static_assert(offsetof(ClassifyPush, max_point_distance) == 24);
+static_assert(offsetof(ClassifyPush, min_normal_dot) == 28);
+static_assert(offsetof(ClassifyPush, color_robust_threshold) == 32);
+static_assert(offsetof(ClassifyPush, color_parts) == 36);
+static_assert(sizeof(ClassifyPush) == 40);
+
+// tracker_landmarks.comp, push constant block Push.
 struct LandmarkPush {
-  uint32_t count;
+  glm::uint count;
   float near_plane;
-  uint32_t width, height;
+  glm::uint width, height;
   float fx, fy, cx, cy;
   float occlusion_m;
 };
+static_assert(offsetof(LandmarkPush, count) == 0);
+static_assert(offsetof(LandmarkPush, near_plane) == 4);
+static_assert(offsetof(LandmarkPush, width) == 8);
+static_assert(offsetof(LandmarkPush, height) == 12);
+static_assert(offsetof(LandmarkPush, fx) == 16);
+static_assert(offsetof(LandmarkPush, fy) == 20);
+static_assert(offsetof(LandmarkPush, cx) == 24);
+static_assert(offsetof(LandmarkPush, cy) == 28);
+static_assert(offsetof(LandmarkPush, occlusion_m) == 32);
+static_assert(sizeof(LandmarkPush) == 36);
+
+// tracker_vertices.comp, push constant block Push.
 struct VerticesPush {
-  uint32_t x_slot, mode;  // mode: 0 full, 1 fill the identity cache, 2 cache + expression
+  glm::uint x_slot;  // first slot; workgroup row y handles slot x_slot + y
+  glm::uint mode;    // 0 full sums, 1 fill identity_cache from the base, 2 identity_cache + expression
 };
+static_assert(offsetof(VerticesPush, x_slot) == 0);
+static_assert(offsetof(VerticesPush, mode) == 4);
+static_assert(sizeof(VerticesPush) == 8);
+
+// tracker_evaluate.comp, push constant block Push.
 struct EvaluatePush {
-  uint32_t x_slot, write_jacobian;
+  glm::uint x_slot;          // first x in XVectors; workgroup row y evaluates x slot x_slot + y
+  glm::uint write_jacobian;  // 0 residuals only, 1 J column-major, 2 J column- and row-major
 };
+static_assert(offsetof(EvaluatePush, x_slot) == 0);
+static_assert(offsetof(EvaluatePush, write_jacobian) == 4);
+static_assert(sizeof(EvaluatePush) == 8);
+
+// tracker_jt.comp, push constant block Push.
 struct JtPush {
-  uint32_t rows, n, mode, p_offset, done_index, col_stride;
+  glm::uint rows, n, mode, p_offset, done_index, col_stride;
 };
+static_assert(offsetof(JtPush, rows) == 0);
+static_assert(offsetof(JtPush, n) == 4);
+static_assert(offsetof(JtPush, mode) == 8);
+static_assert(offsetof(JtPush, p_offset) == 12);
+static_assert(offsetof(JtPush, done_index) == 16);
+static_assert(offsetof(JtPush, col_stride) == 20);
+static_assert(sizeof(JtPush) == 24);
+
+// tracker_reduce.comp, push constant block Push.
 struct ReducePush {
-  uint32_t count, groups;
+  glm::uint count, groups;
 };
+static_assert(offsetof(ReducePush, count) == 0);
+static_assert(offsetof(ReducePush, groups) == 4);
+static_assert(sizeof(ReducePush) == 8);
+
+// tracker_jtj.comp, push constant block Push.
 struct JtjPush {
-  uint32_t rows, n, rows_per_chunk, col_stride;
+  glm::uint rows, n, rows_per_chunk, col_stride;  // rows_per_chunk: a multiple of 4
 };
+static_assert(offsetof(JtjPush, rows) == 0);
+static_assert(offsetof(JtjPush, n) == 4);
+static_assert(offsetof(JtjPush, rows_per_chunk) == 8);
+static_assert(offsetof(JtjPush, col_stride) == 12);
+static_assert(sizeof(JtjPush) == 16);
+
+// tracker_pcg.comp, push constant block Push.
 struct PcgPush {
-  uint32_t stage, n, max_iterations, num_trials;
-  uint32_t o_exp, k_exp, clamp_expression, groups;
+  glm::uint stage, n, max_iterations, num_trials;
+  glm::uint o_exp, k_exp, clamp_expression, groups;  // groups: partials to sum in stages 0 and 2
   float tolerance, damping;
 };
+static_assert(offsetof(PcgPush, stage) == 0);
+static_assert(offsetof(PcgPush, n) == 4);
+static_assert(offsetof(PcgPush, max_iterations) == 8);
+static_assert(offsetof(PcgPush, num_trials) == 12);
+static_assert(offsetof(PcgPush, o_exp) == 16);
+static_assert(offsetof(PcgPush, k_exp) == 20);
+static_assert(offsetof(PcgPush, clamp_expression) == 24);
+static_assert(offsetof(PcgPush, groups) == 28);
+static_assert(offsetof(PcgPush, tolerance) == 32);
+static_assert(offsetof(PcgPush, damping) == 36);
+static_assert(sizeof(PcgPush) == 40);
+
+// tracker_landmarks.comp, element of the Candidates buffer (vec4 candidates[]): the vertex index's
+// bits (floatBitsToUint), u, v, confidence.
+using LandmarkCandidate = glm::vec4;
 
 constexpr uint32_t kRowsPerPixel = 8;     // tracker_common.glsl
 // Per pixel of a level's input: point, normal, colour, colour gradient along u and along v
-// (tracker_common.glsl kInputVec4sPerPixel vec4s).
-constexpr size_t kInputFloatsPerPixel = 20;
+// (tracker_common.glsl: kInputVec4sPerPixel elements of the vec4 Input buffer).
+constexpr size_t kInputVec4sPerPixel = 5;
 constexpr uint32_t kPixelItemWords = 9;
 constexpr uint32_t kEvaluateGroup = 64;   // tracker_evaluate.comp local size
 constexpr uint32_t kJtChunk = 256;        // tracker_jt.comp rows per workgroup
@@ -250,7 +383,7 @@ struct VulkanSolver::Impl {
     }
     identity_cache = gpu::Buffer(context, std::max<size_t>(6 * static_cast<size_t>(model.num_vertices()) * 4, 16), kStorage,
                                  gpu::BufferDomain::Device, "tracker identity cache");
-    landmark_items = gpu::Buffer(context, std::max<size_t>(model.landmarks.size(), 1) * 16 + 16 * 68, kStorage,
+    landmark_items = gpu::Buffer(context, (std::max<size_t>(model.landmarks.size(), 1) + 68) * sizeof(glm::vec4), kStorage,
                                  gpu::BufferDomain::Device, "tracker landmark items");
   }
 
@@ -263,39 +396,32 @@ struct VulkanSolver::Impl {
     li.frame = &f;
     const int w = f.width(), h = f.height();
     const size_t pixels = static_cast<size_t>(w) * h;
-    ensure(li.data, kInputFloatsPerPixel * pixels * sizeof(float), gpu::BufferDomain::Upload, "tracker level input");
-    auto* data = static_cast<float*>(li.data.mapped());
+    ensure(li.data, kInputVec4sPerPixel * pixels * sizeof(glm::vec4), gpu::BufferDomain::Upload, "tracker level input");
+    auto* data = static_cast<glm::vec4*>(li.data.mapped());
     const bool gradient = ColorFollowsProjection(energy, f);
     constexpr int kRowsPerItem = 16;
     ParallelFor((h + kRowsPerItem - 1) / kRowsPerItem, ResolvedThreadCount(threads), [&](int item) {
       for (int j = item * kRowsPerItem; j < std::min(h, (item + 1) * kRowsPerItem); ++j) {
         for (int i = 0; i < w; ++i) {
           const size_t p = static_cast<size_t>(j) * w + i;
-          float d[kInputFloatsPerPixel] = {};
+          // point (w = valid depth), normal (w = exists), colour, colour gradient along u, along v
+          glm::vec4 d[kInputVec4sPerPixel] = {};
           if (f.has_depth() && f.depth_valid(i, j)) {
-            const Eigen::Vector3d x = f.point(i, j);
-            d[0] = static_cast<float>(x.x());
-            d[1] = static_cast<float>(x.y());
-            d[2] = static_cast<float>(x.z());
-            d[3] = 1.f;
+            const Eigen::Vector3f x = f.point(i, j).cast<float>();
+            d[0] = glm::vec4(x.x(), x.y(), x.z(), 1.f);
             Eigen::Vector3d nrm;
             if (InputNormal(f, i, j, energy.max_depth_jump_m, &nrm)) {
-              d[4] = static_cast<float>(nrm.x());
-              d[5] = static_cast<float>(nrm.y());
-              d[6] = static_cast<float>(nrm.z());
-              d[7] = 1.f;
+              const Eigen::Vector3f n = nrm.cast<float>();
+              d[1] = glm::vec4(n.x(), n.y(), n.z(), 1.f);
             }
           }
-          for (int c = 0; c < 3; ++c) d[8 + c] = f.color[3 * p + c];
-          d[11] = 1.f;
+          d[2] = glm::vec4(f.color[3 * p], f.color[3 * p + 1], f.color[3 * p + 2], 1.f);
           if (gradient) {
-            const Eigen::Matrix<double, 3, 2> g = InputColorGradient(f, i, j);
-            for (int c = 0; c < 3; ++c) {
-              d[12 + c] = static_cast<float>(g(c, 0));
-              d[16 + c] = static_cast<float>(g(c, 1));
-            }
+            const Eigen::Matrix<float, 3, 2> g = InputColorGradient(f, i, j).cast<float>();
+            d[3] = glm::vec4(g(0, 0), g(1, 0), g(2, 0), 0.f);
+            d[4] = glm::vec4(g(0, 1), g(1, 1), g(2, 1), 0.f);
           }
-          std::memcpy(data + kInputFloatsPerPixel * p, d, sizeof(d));  // whole pixels: the mapping may be write-combined
+          std::memcpy(data + kInputVec4sPerPixel * p, d, sizeof(d));  // whole pixels: the mapping may be write-combined
         }
       }
     });
@@ -305,7 +431,7 @@ struct VulkanSolver::Impl {
       if (!EnergyUsesLandmark(energy, l.ibug_index, l.flags)) continue;
       vertex_of[l.ibug_index] = l.vertex;
     }
-    std::vector<float> cand;
+    std::vector<LandmarkCandidate> cand;
     if (energy.use_landmarks) {
       for (const auto& in : f.landmarks) {
         if (!(in.confidence > 0.f)) continue;
@@ -313,15 +439,14 @@ struct VulkanSolver::Impl {
         if (it == vertex_of.end()) continue;
         const int bound = LandmarkVertex(in, it->second, model.num_vertices());
         if (bound < 0) continue;
-        float vbits;
-        const uint32_t v = static_cast<uint32_t>(bound);
-        std::memcpy(&vbits, &v, sizeof(v));
-        cand.insert(cand.end(), {vbits, in.position.x(), in.position.y(), in.confidence});
+        const float vertex_bits = std::bit_cast<float>(static_cast<glm::uint>(bound));
+        cand.emplace_back(vertex_bits, in.position.x(), in.position.y(), in.confidence);
       }
     }
-    li.num_candidates = static_cast<uint32_t>(cand.size() / 4);
-    ensure(li.candidates, cand.size() * sizeof(float), gpu::BufferDomain::Upload, "tracker landmark candidates");
-    if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(float));
+    li.num_candidates = static_cast<uint32_t>(cand.size());
+    ensure(li.candidates, cand.size() * sizeof(LandmarkCandidate), gpu::BufferDomain::Upload,
+           "tracker landmark candidates");
+    if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(LandmarkCandidate));
   }
 
   // Renders `p` for the level and runs the linearisation pass; returns its counts.
