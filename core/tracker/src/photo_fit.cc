@@ -20,18 +20,6 @@ double ms_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
-FitEvalReport::Stat stat_of(std::vector<double> v) {
-  FitEvalReport::Stat s;
-  if (v.empty()) return s;
-  double sum = 0;
-  for (double x : v) sum += x;
-  s.mean = sum / static_cast<double>(v.size());
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  s.median = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-  return s;
-}
-
 nlohmann::json errors_json(const ShapeErrors& e) {
   return {{"all", e.all},     {"inner", e.inner}, {"jaw", e.jaw},     {"brows", e.brows},
           {"nose", e.nose},   {"eyes", e.eyes},   {"mouth", e.mouth}};
@@ -56,8 +44,9 @@ ShapeErrors part_mean(const std::vector<FitEvalImage>& images, ShapeErrors FitEv
 // JSON has no NaN: an unmeasured figure is null.
 nlohmann::json number_or_null(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
-nlohmann::json stat_json(const FitEvalReport::Stat& s) {
-  return {{"mean", number_or_null(s.mean)}, {"median", number_or_null(s.median)}};
+nlohmann::json stat_json(const Distribution& s) {
+  return {{"mean", number_or_null(s.mean)}, {"median", number_or_null(s.median)}, {"p95", number_or_null(s.p95)},
+          {"max", number_or_null(s.max)}};
 }
 
 }  // namespace
@@ -280,19 +269,19 @@ FitEvalReport EvaluateFitOnAnnotatedPhotos(const std::string& folder, PhotoFitte
     if (observer) observer(e, bgr, fit, e.status == "bad annotation" ? nullptr : &truth);
     report.per_image.push_back(std::move(e));
   }
-  report.detector_all = stat_of(det_all);
-  report.detector_inner = stat_of(det_inner);
-  report.detector_jaw = stat_of(det_jaw);
-  report.fit_all = stat_of(fit_all);
-  report.fit_inner = stat_of(fit_inner);
-  report.fit_jaw = stat_of(fit_jaw);
+  report.detector_all = Summarize(det_all);
+  report.detector_inner = Summarize(det_inner);
+  report.detector_jaw = Summarize(det_jaw);
+  report.fit_all = Summarize(fit_all);
+  report.fit_inner = Summarize(fit_inner);
+  report.fit_jaw = Summarize(fit_jaw);
   for (size_t k = 0; k < report.fit_point_mean.size() && report.scored > 0; ++k) {
     report.detector_point_mean[k] /= report.scored;
     report.fit_point_mean[k] /= report.scored;
   }
   report.detector_part_mean = part_mean(report.per_image, &FitEvalImage::detector);
   report.fit_part_mean = part_mean(report.per_image, &FitEvalImage::fit);
-  report.fit_ms_mean = stat_of(fit_ms).mean;
+  report.fit_ms_mean = Summarize(fit_ms).mean;
   if (!std::isfinite(report.fit_ms_mean)) report.fit_ms_mean = 0;
   return report;
 }

@@ -120,11 +120,8 @@ struct FitEvalReport {
   int images = 0;   // annotated images found
   int scored = 0;   // with both a detection and a fit
   int no_face = 0, fit_failed = 0, unreadable = 0, bad_annotation = 0;
-  // Over the scored images: mean and median per-image NME.
-  struct Stat {
-    double mean = FitAgreement::kNaN, median = FitAgreement::kNaN;
-  };
-  Stat detector_all, detector_inner, detector_jaw, fit_all, fit_inner, fit_jaw;
+  // Over the scored images: the per-image NMEs' distribution (fit_agreement.h's Summarize).
+  Distribution detector_all, detector_inner, detector_jaw, fit_all, fit_inner, fit_jaw;
   ShapeErrors detector_part_mean, fit_part_mean;  // per part (brows, nose, eyes, mouth), mean over the scored images
   // Per iBUG point, the mean over the scored images of its distance from the annotation (in eye
   // distances): which of the model's landmark vertices misses where annotators put the point.
