@@ -35,6 +35,7 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "face_reenact/reenact/closed_loop.h"
 #include "face_reenact/reenact/face_compositor.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
 #include "face_reenact/reenact/transfer.h"
@@ -508,40 +509,6 @@ void parse_size(const std::string& text, int* w, int* h) {
   *h = b;
 }
 
-// Distance of a fitted identity from the true one (tracker::CompareIdentities: neutral faces
-// from the front, rigidly aligned; closest-point surface error as `track` reports it, plus the
-// vertex-to-vertex figure). Recomputed only when the fitted identity changes (calibration).
-class IdentityMeter {
- public:
-  IdentityMeter(const FaceModel& model, const gpu::PinholeCamera& camera)
-      : model_(tracker::TrackerModel::FromFaceModel(model)), renderer_(model_.render), camera_(camera) {}
-  const tracker::IdentityErrors& Compare(const Eigen::VectorXf& fit, const Eigen::VectorXf& truth) {
-    if (!has_ || fit.size() != fit_.size() || fit != fit_ || truth.size() != truth_.size() || truth != truth_) {
-      last_ = tracker::CompareIdentities(renderer_, model_, fit, truth, camera_, kDistanceM);
-      fit_ = fit;
-      truth_ = truth;
-      has_ = true;
-    }
-    return last_;
-  }
-
- private:
-  static constexpr float kDistanceM = 0.6f;
-  tracker::TrackerModel model_;
-  gpu::CpuRenderer renderer_;
-  gpu::PinholeCamera camera_;
-  bool has_ = false;
-  Eigen::VectorXf fit_, truth_;
-  tracker::IdentityErrors last_;
-};
-
-double expression_error(const Eigen::VectorXf& got, const Eigen::VectorXf& truth) {
-  double sum = 0;
-  for (int i = 0; i < reenact::kNumExpressionWeights; ++i)
-    sum += std::abs(reenact::expression_weight(got, i) - reenact::expression_weight(truth, i));
-  return sum / reenact::kNumExpressionWeights;
-}
-
 struct Mean {
   double sum = 0;
   int n = 0;
@@ -622,8 +589,7 @@ void run_demo(const DemoArgs& a) {
   Mp4Writer writer(video_path, so.fps, cv::Size(so.width, so.height));
   ProgressBar bar(so.frames, !a.quiet);
   log("tracking, reenacting and re-tracking the output");
-  Mean expr_err, id_err, id_vertex_err, jaw_err, src_expr_err, tgt_id_err, tgt_id_vertex_err, rendered_expr_err;
-  IdentityMeter target_identity(model, target_rec.info().camera), loop_identity(model, target_rec.info().camera);
+  reenact::ClosedLoopScore score(tracker::TrackerModel::FromFaceModel(model), target_rec.info().camera);
   int best_frame = -1;
   float best_jaw = -1;
   cv::Mat best_sheet;
@@ -654,21 +620,12 @@ void run_demo(const DemoArgs& a) {
 
     const Eigen::VectorXf& truth_src = sf.ground_truth.params->delta;
     const bool transferred = r.reenacted && expr.blend_weight > 0.99f;
-    if (st.has_parameters && tracker::tracking_status_has_fit(st.status) && source.tracker->calibrated())
-      src_expr_err.add(expression_error(st.params.delta, truth_src));
-    if (pipeline.status() == reenact::TrackingStatus::kTracking && tf.ground_truth.params) {
-      const tracker::IdentityErrors& e = target_identity.Compare(pipeline.target_neutral().alpha, tf.ground_truth.params->alpha);
-      tgt_id_err.add(e.surface_mm_mean);
-      tgt_id_vertex_err.add(e.vertex_mm_mean);
-    }
-    if (transferred && loop.tracker->calibrated() && lt.has_parameters && tracker::tracking_status_has_fit(lt.status)) {
-      expr_err.add(expression_error(lt.params.delta, truth_src));
-      rendered_expr_err.add(expression_error(lt.params.delta, r.output_params.delta));
-      jaw_err.add(std::abs(reenact::expression_weight(lt.params.delta, reenact::kJawOpenIndex) -
-                           reenact::expression_weight(truth_src, reenact::kJawOpenIndex)));
-      const tracker::IdentityErrors& e = loop_identity.Compare(loop.tracker->neutral().alpha, tf.ground_truth.params->alpha);
-      id_err.add(e.surface_mm_mean);
-      id_vertex_err.add(e.vertex_mm_mean);
+    score.AddSource(st, source.tracker->calibrated(), truth_src);
+    if (pipeline.status() == reenact::TrackingStatus::kTracking && tf.ground_truth.params)
+      score.AddTargetIdentity(pipeline.target_neutral().alpha, tf.ground_truth.params->alpha);
+    if (transferred) {
+      score.AddLoop(lt, loop.tracker->calibrated(), loop.tracker->neutral().alpha, truth_src, r.output_params.delta,
+                    tf.ground_truth.params->alpha);
     }
     per_frame << nlohmann::json{{"frame", i},
                                 {"target", reenact::tracking_status_name(r.status)},
@@ -705,6 +662,7 @@ void run_demo(const DemoArgs& a) {
   if (!cv::imwrite(sheet_path, best_sheet)) throw Error("cannot write '" + sheet_path + "'");
 
   const reenact::PipelineSummary s = pipeline.summary();
+  const reenact::ClosedLoopScore::Summary loop_score = score.summary();
   const double source_ms = source.track_ms_sum / std::max(1, source.frames);
   nlohmann::json report = {
       {"frames", so.frames},
@@ -724,15 +682,15 @@ void run_demo(const DemoArgs& a) {
       {"reenacted_frames", s.reenacted_frames},
       {"calibrating_frames", s.calibrating_frames},
       {"lost_frames", s.lost_frames},
-      {"closed_loop_frames", expr_err.n},
-      {"closed_loop_expression_error_mean", json_number(expr_err.value())},
-      {"closed_loop_jaw_open_error_mean", json_number(jaw_err.value())},
-      {"closed_loop_identity_error_mm_mean", json_number(id_err.value())},
-      {"closed_loop_identity_vertex_error_mm_mean", json_number(id_vertex_err.value())},
-      {"closed_loop_expression_error_vs_rendered_mean", json_number(rendered_expr_err.value())},
-      {"source_tracking_expression_error_mean", json_number(src_expr_err.value())},
-      {"target_calibration_identity_error_mm_mean", json_number(tgt_id_err.value())},
-      {"target_calibration_identity_vertex_error_mm_mean", json_number(tgt_id_vertex_err.value())},
+      {"closed_loop_frames", loop_score.loop_frames},
+      {"closed_loop_expression_error_mean", json_number(loop_score.expression_error)},
+      {"closed_loop_jaw_open_error_mean", json_number(loop_score.jaw_open_error)},
+      {"closed_loop_identity_error_mm_mean", json_number(loop_score.identity_error_mm)},
+      {"closed_loop_identity_vertex_error_mm_mean", json_number(loop_score.identity_vertex_error_mm)},
+      {"closed_loop_expression_error_vs_rendered_mean", json_number(loop_score.expression_error_vs_rendered)},
+      {"source_tracking_expression_error_mean", json_number(loop_score.source_expression_error)},
+      {"target_calibration_identity_error_mm_mean", json_number(loop_score.target_identity_error_mm)},
+      {"target_calibration_identity_vertex_error_mm_mean", json_number(loop_score.target_identity_vertex_error_mm)},
       {"side_by_side_frame", best_frame},
       {"video_codec", writer.codec()},
       {"synthesis_seconds", synth_s},
@@ -744,7 +702,7 @@ void run_demo(const DemoArgs& a) {
   log(stage_report(s, source_ms));
   char line[256];
   std::snprintf(line, sizeof(line), "closed loop over %d frames: expression error %.3f (jawOpen %.3f), identity error %.2f mm",
-                expr_err.n, expr_err.value(), jaw_err.value(), id_err.value());
+                loop_score.loop_frames, loop_score.expression_error, loop_score.jaw_open_error, loop_score.identity_error_mm);
   log(line);
   std::printf("%s\n", fs::absolute(out).lexically_normal().string().c_str());
 }

@@ -2,10 +2,14 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
 #include <limits>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
+#include "face_reenact/model/model_file.h"
+#include "face_reenact/reenact/closed_loop.h"
 #include "face_reenact/reenact/transfer.h"
 #include "face_reenact/stream/stream_state.h"
 
@@ -149,6 +153,56 @@ TEST(ReenactTransferTest, SourceFromParametersAndRemote) {
   EXPECT_FLOAT_EQ(r.blend_weight, 0.5f);
   EXPECT_FLOAT_EQ(r.weights[kJawOpenIndex], 0.6f);
   EXPECT_FLOAT_EQ(r.weights[1], 0.0f);
+}
+
+}  // namespace
+}  // namespace face_reenact::reenact
+
+// The demo's closed-loop yardstick (closed_loop.h): each figure is the mean over the frames it
+// counts, frames without a fit or before calibration are not counted, and an identity compared
+// with itself is 0 mm away.
+namespace face_reenact::reenact {
+namespace {
+
+TEST(ClosedLoopScore, CountsTheFramesItShouldAndAveragesTheErrors) {
+  const char* path = std::getenv("FR_MODEL");
+  if (!path || !std::filesystem::exists(path)) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const tracker::TrackerModel model = tracker::TrackerModel::FromFaceModel(load_face_model(path));
+  gpu::PinholeCamera camera;
+  camera.width = 320;
+  camera.height = 240;
+  camera.fx = camera.fy = 280;
+  camera.cx = 159.5f;
+  camera.cy = 119.5f;
+  ClosedLoopScore score(model, camera);
+  ClosedLoopScore::Summary empty = score.summary();
+  EXPECT_EQ(empty.loop_frames, 0);
+  EXPECT_TRUE(std::isnan(empty.expression_error));
+
+  const Eigen::VectorXf truth = Eigen::VectorXf::Constant(kNumExpressionWeights, 0.2f);
+  tracker::TrackedFrame fit;
+  fit.status = tracker::TrackingStatus::kTracking;
+  fit.has_parameters = true;
+  fit.params.delta = truth;
+  fit.params.delta[kJawOpenIndex] += 0.52f;  // one weight 0.52 off: 0.01 over the 52
+  score.AddSource(fit, /*source_calibrated=*/true, truth);
+  score.AddSource(fit, /*source_calibrated=*/false, truth);  // not counted
+  tracker::TrackedFrame lost = fit;
+  lost.status = tracker::TrackingStatus::kLost;
+  score.AddSource(lost, true, truth);  // not counted
+  const Eigen::VectorXf alpha = Eigen::VectorXf::Constant(model.num_identity(), 0.01f);
+  score.AddLoop(fit, /*loop_calibrated=*/true, alpha, truth, fit.params.delta, alpha);
+  score.AddLoop(fit, /*loop_calibrated=*/false, alpha, truth, truth, alpha);  // not counted
+  score.AddTargetIdentity(alpha, alpha);
+  const ClosedLoopScore::Summary s = score.summary();
+  EXPECT_NEAR(s.source_expression_error, 0.01, 1e-6);
+  EXPECT_EQ(s.loop_frames, 1);
+  EXPECT_NEAR(s.expression_error, 0.01, 1e-6);
+  EXPECT_NEAR(s.jaw_open_error, 0.52, 1e-6);
+  EXPECT_NEAR(s.expression_error_vs_rendered, 0.0, 1e-9);
+  EXPECT_NEAR(s.identity_error_mm, 0.0, 1e-3);
+  EXPECT_NEAR(s.target_identity_error_mm, 0.0, 1e-3);
+  EXPECT_NEAR(ExpressionError(truth, truth), 0.0, 1e-12);
 }
 
 }  // namespace
