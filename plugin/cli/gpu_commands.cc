@@ -11,6 +11,7 @@
 #include "command_registry.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
+#include "face_reenact/live/usb_cameras.h"
 #include "face_reenact/gpu/context.h"
 #include "face_reenact/gpu/cpu_renderer.h"
 #include "face_reenact/gpu/renderer.h"
@@ -27,7 +28,32 @@ std::string human_bytes(uint64_t b) {
   return buf;
 }
 
-void run_devices(const std::string& device, bool json) {
+// The RGB-D cameras on USB (live/usb_cameras.h), for `devices` and `devices --cameras`.
+void print_rgbd_cameras(bool json) {
+  std::string error;
+  const auto cameras = live::list_usb_rgbd_cameras(&error);
+  if (json) {
+    nlohmann::json doc = {{"cameras", nlohmann::json::array()}, {"error", error.empty() ? nlohmann::json() : nlohmann::json(error)}};
+    for (const auto& c : cameras) {
+      char id[16];
+      std::snprintf(id, sizeof id, "%04x:%04x", c.vendor_id, c.product_id);
+      doc["cameras"].push_back({{"model", c.model}, {"usb_id", id}, {"bus", c.bus}, {"address", c.address}});
+    }
+    std::printf("%s\n", doc.dump(2).c_str());
+    return;
+  }
+  if (!error.empty()) {
+    std::printf("RGB-D cameras on USB: unknown, %s\n", error.c_str());
+  } else if (cameras.empty()) {
+    std::printf("RGB-D cameras on USB: none (PrimeSense, Asus Xtion, Carmine or Kinect; an OpenNI input waits for one)\n");
+  } else {
+    std::printf("RGB-D cameras on USB (an OpenNI input opens the first: openni, or openni:URI):\n");
+    for (const auto& c : cameras) std::printf("  %s\n", c.Describe().c_str());
+  }
+}
+
+void run_devices(const std::string& device, bool json, bool cameras_only) {
+  if (cameras_only) return print_rgbd_cameras(json);
   const auto devices = Context::enumerate_devices(device);
   if (json) {
     nlohmann::json doc = nlohmann::json::array();
@@ -66,6 +92,7 @@ void run_devices(const std::string& device, bool json) {
   for (const auto& d : devices) any = any || d.would_pick;
   std::printf(any ? "* = the device face-reenact uses (override: --device or FR_VULKAN_DEVICE)\n"
                   : "no device matches the selection\n");
+  print_rgbd_cameras(false);
 }
 
 struct BenchArgs {
@@ -188,10 +215,15 @@ void run_bench_render(const BenchArgs& a) {
 void add_gpu_commands(CLI::App& app) {
   auto devices_json = std::make_shared<bool>(false);
   auto devices_select = std::make_shared<std::string>();
-  CLI::App* devices = app.add_subcommand("devices", "List the Vulkan devices and the one face-reenact would use");
+  auto devices_cameras = std::make_shared<bool>(false);
+  CLI::App* devices = app.add_subcommand(
+      "devices", "List the Vulkan devices and the one face-reenact would use, and the RGB-D cameras on USB");
   devices->add_flag("--json", *devices_json, "Machine-readable output");
+  devices->add_flag("--cameras", *devices_cameras, "Only the RGB-D cameras on USB (PrimeSense, Xtion, Kinect)");
   devices->add_option("--device", *devices_select, "Selection to evaluate (name substring or index; default FR_VULKAN_DEVICE)");
-  devices->callback([devices_json, devices_select] { run_devices(*devices_select, *devices_json); });
+  devices->callback([devices_json, devices_select, devices_cameras] {
+    run_devices(*devices_select, *devices_json, *devices_cameras);
+  });
 
   CLI::App* bench = get_or_add_subcommand(app, "bench", "Measure the cost of pipeline stages");
   auto args = std::make_shared<BenchArgs>();

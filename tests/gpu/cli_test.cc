@@ -50,6 +50,18 @@ TEST_F(CliTest, DevicesTextMarksTheChoice) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("* ["), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("llvmpipe"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("RGB-D cameras on USB"), std::string::npos) << r.output;
+}
+
+// The RGB-D cameras alone (live/usb_cameras.h): a list, with the reason where the buses cannot be
+// read (none here: no camera is plugged into the test machines).
+TEST_F(CliTest, DevicesCamerasListsTheRgbdCamerasOnUsb) {
+  const auto r = run_subprocess({cli(), "devices", "--cameras", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto doc = parse_json(r.output);
+  ASSERT_TRUE(doc.contains("cameras") && doc["cameras"].is_array()) << r.output;
+  EXPECT_TRUE(doc.contains("error")) << r.output;
+  for (const auto& c : doc["cameras"]) EXPECT_TRUE(c.contains("model") && c.contains("usb_id")) << r.output;
 }
 
 TEST_F(CliTest, DevicesWithAnUnknownSelectionSaysSo) {

@@ -21,6 +21,7 @@
 #include "face_reenact/stream/stream_state.h"
 #include "face_reenact/stream/udp.h"
 #include "live_test_support.h"
+#include "face_reenact/live/usb_cameras.h"
 #include "support/openni_fixture.h"
 #include "support/temp_dir.h"
 
@@ -580,6 +581,62 @@ TEST(FrameGrabberTest, InvalidOptionsThrowAndStatusesDescribeTheInput) {
   EXPECT_GE(s.open_attempts, 3);  // retried
   EXPECT_FALSE(s.open);
   EXPECT_NE(s.error.find("/nonexistent.mp4"), std::string::npos) << s.error;
+}
+
+// The USB ids that are RGB-D cameras: those Debian's OpenNI2 opens (PrimeSense PS1080-class,
+// Kinect cameras), not a Kinect's motor or audio function, not a webcam.
+TEST(UsbCamerasTest, KnownIdsAreRgbdCamerasAndOthersAreNot) {
+  EXPECT_NE(rgbd_camera_model(0x1d27, 0x0601), nullptr);  // Asus Xtion Pro Live
+  EXPECT_NE(rgbd_camera_model(0x1d27, 0x0609), nullptr);  // Carmine 1.09
+  ASSERT_NE(rgbd_camera_model(0x045e, 0x02ae), nullptr);  // Kinect camera
+  EXPECT_STREQ(rgbd_camera_model(0x045e, 0x02ae), "Microsoft Kinect");
+  EXPECT_EQ(rgbd_camera_model(0x045e, 0x02b0), nullptr);  // the Kinect's motor
+  EXPECT_EQ(rgbd_camera_model(0x046d, 0x0825), nullptr);  // a Logitech webcam
+  EXPECT_EQ(rgbd_camera_model(0x1d27, 0x1234), nullptr);
+  // Listing the buses never throws; where they cannot be read, it says why.
+  std::string error;
+  const auto cameras = list_usb_rgbd_cameras(&error);
+  if (cameras.empty() && !error.empty()) EXPECT_NE(error.find("USB"), std::string::npos) << error;
+  UsbRgbdCamera c{0x045e, 0x02ae, "Microsoft Kinect", 1, 4};
+  EXPECT_EQ(c.Describe(), "Microsoft Kinect (045e:02ae) on bus 1, device 4");
+}
+
+// An OpenNI camera input that cannot open waits reopen_interval between tries; an RGB-D camera
+// arriving on USB ends the wait at once (here a minute long, so only the arrival can explain the
+// second try). A .oni file does not watch the buses.
+TEST(FrameGrabberTest, AnRgbdCameraArrivingOnUsbIsOpenedAtOnce) {
+  FR_SKIP_OPENNI_UNDER_ASAN();
+  GrabberOptions o;
+  o.input = parse_target_spec("openni:no-such-device-uri", "t");
+  o.reopen_interval = 60s;
+  FrameGrabber grabber(o);
+  const Clock::time_point deadline = Clock::now() + 15s;
+  while (grabber.status().open_attempts < 1 || grabber.status().error == "opening") {
+    ASSERT_LT(Clock::now(), deadline) << grabber.status().error;
+    std::this_thread::sleep_for(20ms);
+  }
+  ASSERT_FALSE(grabber.status().open) << "an OpenNI device with this URI exists?";
+  std::this_thread::sleep_for(200ms);
+  EXPECT_EQ(grabber.status().open_attempts, 1);
+  UsbRgbdHotplug::Instance().SimulateForTesting(false, {0x1d27, 0x0601, "PrimeSense / Asus Xtion (PS1080)", 1, 5});
+  std::this_thread::sleep_for(200ms);
+  EXPECT_EQ(grabber.status().open_attempts, 1) << "a camera leaving is no reason to try";
+  UsbRgbdHotplug::Instance().SimulateForTesting(true, {0x1d27, 0x0601, "PrimeSense / Asus Xtion (PS1080)", 1, 6});
+  const Clock::time_point t0 = Clock::now();
+  while (grabber.status().open_attempts < 2) {
+    ASSERT_LT(Clock::now() - t0, 10s) << "the arrival did not wake the grabber";
+    std::this_thread::sleep_for(10ms);
+  }
+  EXPECT_EQ(grabber.status().usb_arrivals, 1);
+  const Clock::time_point t_stop = Clock::now();
+  grabber.stop();
+  EXPECT_LT(Clock::now() - t_stop, 5s);
+
+  GrabberOptions file = o;
+  file.input = parse_target_spec("/nowhere/room.oni", "t");
+  FrameGrabber oni(file);
+  UsbRgbdHotplug::Instance().SimulateForTesting(true, {0x1d27, 0x0601, "PrimeSense / Asus Xtion (PS1080)", 1, 7});
+  EXPECT_EQ(oni.status().usb_arrivals, 0);
 }
 
 TEST(FrameGrabberTest, OpenNiFileDriverPlaysTheSharedRecording) {

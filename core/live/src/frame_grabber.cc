@@ -1,4 +1,5 @@
 #include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/live/usb_cameras.h"
 
 #include <pthread.h>
 
@@ -138,6 +139,19 @@ FrameGrabber::FrameGrabber(GrabberOptions options) : options_(std::move(options)
   if (!options_.IsValid(&why)) throw Error("frame grabber: " + why);
   status_.description = options_.input.describe();
   status_.error = "opening";
+  // An OpenNI camera (not a .oni file) that is not there yet or was unplugged is opened again the
+  // moment an RGB-D camera arrives on USB, instead of at the next reopen_interval.
+  if (options_.input.kind == InputKind::kOpenNi && !has_oni_extension(options_.input.device_path)) {
+    hotplug_subscription_ = UsbRgbdHotplug::Instance().Subscribe([this](bool arrived, const UsbRgbdCamera&) {
+      if (!arrived) return;
+      {
+        std::lock_guard lock(mu_);
+        usb_arrival_ = true;
+        ++status_.usb_arrivals;
+      }
+      stop_cv_.notify_all();
+    });
+  }
   thread_ = std::thread([this] {
     // Nothing may escape the thread (std::terminate); a failure becomes the status.
     try {
@@ -153,6 +167,10 @@ FrameGrabber::FrameGrabber(GrabberOptions options) : options_(std::move(options)
 FrameGrabber::~FrameGrabber() { stop(); }
 
 void FrameGrabber::stop() {
+  if (hotplug_subscription_) {
+    UsbRgbdHotplug::Instance().Unsubscribe(hotplug_subscription_);  // no callback after this returns
+    hotplug_subscription_ = 0;
+  }
   {
     std::lock_guard lock(mu_);
     stopping_ = true;
@@ -164,7 +182,8 @@ void FrameGrabber::stop() {
 
 bool FrameGrabber::sleep_until(Clock::time_point until) {
   std::unique_lock lock(mu_);
-  stop_cv_.wait_until(lock, until, [&] { return stopping_; });
+  stop_cv_.wait_until(lock, until, [&] { return stopping_ || usb_arrival_; });
+  usb_arrival_ = false;
   return !stopping_;
 }
 

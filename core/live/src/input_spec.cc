@@ -21,13 +21,6 @@ std::string trim(const std::string& s) {
   return s.substr(b, e - b + 1);
 }
 
-bool has_oni_extension(const std::string& text) {
-  if (text.size() <= 4) return false;
-  std::string ext = text.substr(text.size() - 4);
-  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return ext == ".oni";
-}
-
 // Camera, OpenNI or recording; nullopt-like kNone when the text is none of these.
 InputSpec parse_capture(const std::string& text) {
   InputSpec spec;
@@ -79,6 +72,13 @@ std::string InputSpec::describe() const {
     case InputKind::kUdp: return "udp " + listen;
   }
   return text;
+}
+
+bool has_oni_extension(const std::string& text) {
+  if (text.size() <= 4) return false;
+  std::string ext = text.substr(text.size() - 4);
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext == ".oni";
 }
 
 InputSpec parse_target_spec(const std::string& raw, const std::string& what) {

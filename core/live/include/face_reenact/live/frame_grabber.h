@@ -28,6 +28,8 @@ struct GrabberOptions {
   // are asked for, instead of at the file's own speed (an .oni's driver would skip the frames a
   // slow reader misses, as a camera does).
   bool every_frame = false;
+  // How often an input that cannot be opened is tried again. An OpenNI camera is also tried the
+  // moment one arrives on USB (UsbRgbdHotplug, where libusb can see arrivals).
   std::chrono::milliseconds reopen_interval{1000};
   std::string thread_name = "fr-live-grab";  // at most 15 characters (Linux limit)
 
@@ -43,6 +45,7 @@ struct GrabberStatus {
   int64_t open_attempts = 0;  // opens tried (the first included)
   int64_t losses = 0;         // times an open input stopped delivering
   double fps = 0;             // frames per second over the last second or so
+  int64_t usb_arrivals = 0;   // RGB-D cameras plugged in while this (OpenNI) input was watching
 };
 
 // An opened input: reads frames one at a time. Implementations throw face_reenact::Error when
@@ -103,6 +106,8 @@ class FrameGrabber {
   std::condition_variable frame_cv_;  // a new frame, or stopping
   std::condition_variable stop_cv_;   // stopping (wakes the grabber's own sleeps)
   bool stopping_ = false;
+  bool usb_arrival_ = false;          // an RGB-D camera arrived: end the wait before the next open
+  int hotplug_subscription_ = 0;      // UsbRgbdHotplug, for OpenNI devices (0: none)
   capture::RgbdFrame latest_;
   std::chrono::steady_clock::time_point latest_published_{};
   uint64_t sequence_ = 0;

@@ -36,6 +36,8 @@ struct InputSpec {
 // Parses a target (camera, OpenNI or recording). Throws face_reenact::Error for empty text, udp
 // or none (`what` names the option in the message).
 InputSpec parse_target_spec(const std::string& text, const std::string& what);
+// True when `path` ends in .oni (any case): an OpenNI recording, not a device.
+bool has_oni_extension(const std::string& path);
 // Parses an expression source: none/empty, udp://..., or a camera/OpenNI/recording actor.
 InputSpec parse_source_spec(const std::string& text, const std::string& what);
 
