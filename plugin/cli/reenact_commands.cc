@@ -28,6 +28,7 @@
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/capture/synth.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/json_number.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/context.h"
@@ -519,7 +520,6 @@ struct Mean {
   double value() const { return n ? sum / n : std::nan(""); }
 };
 
-nlohmann::json json_number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
 void run_demo(const DemoArgs& a) {
   auto log = [&](const std::string& s) {

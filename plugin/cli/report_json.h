@@ -23,11 +23,7 @@ inline std::string intrinsics_description(const std::string& input, const captur
 
 // The report's "agreement" section (FitAgreementTally::Summary).
 inline nlohmann::json agreement_json(const tracker::FitAgreementTally::Summary& s) {
-  auto num = [](double v) { return std::isnan(v) ? nlohmann::json() : nlohmann::json(v); };
-  auto dist = [&](const tracker::Distribution& d) {
-    return nlohmann::json{{"frames", d.count}, {"mean", num(d.mean)}, {"median", num(d.median)}, {"p95", num(d.p95)},
-                          {"max", num(d.max)}};
-  };
+  auto dist = [](const tracker::Distribution& d) { return tracker::to_json(d); };
   nlohmann::json listed = nlohmann::json::array();
   for (const auto& b : s.beyond) listed.push_back({{"frame", b.frame}, {"what", b.what}, {"value", b.value}, {"message", b.message}});
   return {{"limits", {{"pose_disagreement_deg", s.yardstick.max_pose_disagreement_deg},

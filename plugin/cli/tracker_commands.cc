@@ -30,6 +30,7 @@
 #include "video_output.h"
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/json_number.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/live/frame_grabber.h"
@@ -309,7 +310,7 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
                                                {"open_fraction", {t.gaze.open_fraction[0], t.gaze.open_fraction[1]}}}
                                : nlohmann::json();
   // The fit against the frame's landmarks (fit_agreement.h; null where not measured).
-  auto measure = [](double v) { return std::isnan(v) ? nlohmann::json() : nlohmann::json(v); };
+  auto measure = [](double v) { return json_number(v); };
   j["agreement"] = {{"pose_disagreement_deg", measure(t.agreement.pose_disagreement_deg)},
                     {"landmark_nme", measure(t.agreement.landmark_nme)},
                     {"landmark_nme_by_part", {measure(t.agreement.nme_brows), measure(t.agreement.nme_nose),
@@ -526,7 +527,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   if (tracker.calibrated()) {
     // Which start the joint solve kept and the final energy from each start solved (null: not solved).
     const FaceTracker::CalibrationStartReport& cs = tracker.calibration_start_report();
-    auto energy = [](double e) { return std::isnan(e) ? nlohmann::json() : nlohmann::json(e); };
+    auto energy = [](double e) { return json_number(e); };
     j["calibration_start"] = {{"option", calibration_start_name(tracker.options().calibration_start)},
                               {"kept", calibration_start_name(cs.kept)},
                               {"energy_from_neutral", energy(cs.neutral_energy)},

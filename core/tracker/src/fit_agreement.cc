@@ -6,6 +6,8 @@
 
 #include "face_reenact/tracker/fit_agreement.h"
 
+#include "face_reenact/common/json_number.h"
+
 namespace face_reenact::tracker {
 
 Distribution Summarize(std::vector<double> values) {
@@ -24,6 +26,14 @@ Distribution Summarize(std::vector<double> values) {
   d.p95 = rank(0.95);
   d.max = values.back();
   return d;
+}
+
+nlohmann::json to_json(const Distribution& d) {
+  return {{"frames", d.count},
+          {"mean", json_number(d.mean)},
+          {"median", json_number(d.median)},
+          {"p95", json_number(d.p95)},
+          {"max", json_number(d.max)}};
 }
 
 FitAgreementTally::FitAgreementTally(FitAgreementOptions yardstick) { s_.yardstick = yardstick; }

@@ -2,12 +2,13 @@
 #include "face_reenact/tracker/photo_fit.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 
 #include "face_reenact/capture/media_file.h"
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/json_number.h"
+#include "face_reenact/common/timing.h"
 #include "face_reenact/landmarks/evaluation.h"
 #include "face_reenact/tracker/rgbd_input.h"
 #include "tracker_internal.h"
@@ -15,10 +16,6 @@
 namespace face_reenact::tracker {
 
 namespace {
-
-double ms_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
 
 nlohmann::json errors_json(const ShapeErrors& e) {
   return {{"all", e.all},     {"inner", e.inner}, {"jaw", e.jaw},     {"brows", e.brows},
@@ -39,14 +36,6 @@ ShapeErrors part_mean(const std::vector<FitEvalImage>& images, ShapeErrors FitEv
   if (n == 0) return m;
   for (double* v : {&m.all, &m.inner, &m.jaw, &m.brows, &m.nose, &m.eyes, &m.mouth}) *v /= n;
   return m;
-}
-
-// JSON has no NaN: an unmeasured figure is null.
-nlohmann::json number_or_null(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
-
-nlohmann::json stat_json(const Distribution& s) {
-  return {{"mean", number_or_null(s.mean)}, {"median", number_or_null(s.median)}, {"p95", number_or_null(s.p95)},
-          {"max", number_or_null(s.max)}};
 }
 
 }  // namespace
@@ -81,7 +70,7 @@ PhotoFit PhotoFitter::Fit(const cv::Mat& bgr, landmarks::LandmarkDetector* detec
   }
   const cv::Mat image = bgr.isContinuous() ? bgr : bgr.clone();
   out.camera = capture::camera_from_fov(image.cols, image.rows, options_.horizontal_fov_deg);
-  auto t0 = std::chrono::steady_clock::now();
+  auto t0 = internal::Clock::now();
   out.detected = detector->Detect(
       landmarks::ImageView{image.data, image.cols, image.rows, image.step[0], landmarks::PixelFormat::kBGR8}, hint);
   out.detect_ms = ms_since(t0);
@@ -96,7 +85,7 @@ PhotoFit PhotoFitter::Fit(const cv::Mat& bgr, landmarks::LandmarkDetector* detec
   InputFrame input = MakeInputFrameNoLandmarks(frame, /*use_depth=*/false);
   input.landmarks = DetectedLandmarks(out.detected, 1.0f);
 
-  t0 = std::chrono::steady_clock::now();
+  t0 = internal::Clock::now();
   tracker_->Reset();
   out.tracked = tracker_->Track(input, out.detect_ms);
   out.message = out.tracked.message;
@@ -170,8 +159,8 @@ nlohmann::json FitEvalReport::ToJson() const {
   j["fit_failed"] = fit_failed;
   j["unreadable"] = unreadable;
   j["bad_annotation"] = bad_annotation;
-  j["detector_nme"] = {{"all", stat_json(detector_all)}, {"inner", stat_json(detector_inner)}, {"jaw", stat_json(detector_jaw)}};
-  j["fit_nme"] = {{"all", stat_json(fit_all)}, {"inner", stat_json(fit_inner)}, {"jaw", stat_json(fit_jaw)}};
+  j["detector_nme"] = {{"all", to_json(detector_all)}, {"inner", to_json(detector_inner)}, {"jaw", to_json(detector_jaw)}};
+  j["fit_nme"] = {{"all", to_json(fit_all)}, {"inner", to_json(fit_inner)}, {"jaw", to_json(fit_jaw)}};
   j["detector_nme_per_part_mean"] = errors_json(detector_part_mean);
   j["fit_nme_per_part_mean"] = errors_json(fit_part_mean);
   j["detector_nme_per_point_mean"] = detector_point_mean;
@@ -189,7 +178,7 @@ nlohmann::json FitEvalReport::ToJson() const {
       p["fit_nme"] = errors_json(e.fit);
       p["tracking_status"] = e.tracking_status;
       p["euler_deg"] = {e.euler_deg.x(), e.euler_deg.y(), e.euler_deg.z()};
-      p["pose_disagreement_deg"] = number_or_null(e.pose_disagreement_deg);
+      p["pose_disagreement_deg"] = json_number(e.pose_disagreement_deg);
     }
     p["detect_ms"] = e.detect_ms;
     p["fit_ms"] = e.fit_ms;

@@ -11,6 +11,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/landmarks/landmark_detector.h"
 #include "face_reenact/tracker/input_frame.h"
@@ -123,6 +125,8 @@ struct Distribution {
   double mean = FitAgreement::kNaN, median = FitAgreement::kNaN, p95 = FitAgreement::kNaN, max = FitAgreement::kNaN;
 };
 Distribution Summarize(std::vector<double> values);
+// {"frames", "mean", "median", "p95", "max"} for the reports; an unmeasured figure is null.
+nlohmann::json to_json(const Distribution& d);
 
 // The agreement over a whole run (`track --report`, `reenact --report`): the distributions over
 // the frames reported with a fit, those frames whose measures lie beyond the yardstick's limits

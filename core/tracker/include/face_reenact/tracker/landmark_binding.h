@@ -32,7 +32,7 @@ class LandmarkBindingSearch {
   // `mirror_vertex`: FaceModel::mirror_vertex (the left/right partner of every vertex). A pair of
   // mirrored points is searched jointly so the binding stays mirror-consistent; a midline point
   // keeps to midline vertices. Throws face_reenact::Error on invalid options or a point the model
-  // does not bind.
+  // does not bind. `model` must outlive the search (it is read, not copied).
   LandmarkBindingSearch(const TrackerModel& model, std::vector<int32_t> mirror_vertex, BindingSearchOptions options);
 
   // One frame: its fit and the detector's points (InputFrame::landmarks). Frames without both eye
