@@ -18,6 +18,7 @@
 #include "command_registry.h"
 #include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/thread_cpu.h"
 #include "face_reenact/live/live_session.h"
 #include "face_reenact/output/frame_source.h"
 #include "face_reenact/output/pixel_conversion.h"
@@ -223,20 +224,27 @@ void add_webcam_command(CLI::App& app) {
     }
   });
 
-  // bench live: the live session's throughput and capture-to-output latency on a target.
+  // bench live: the live session's throughput, capture-to-output latency and where the time
+  // goes (per stage, per thread), as the OBS source and the webcam run it.
   auto live_args = std::make_shared<WebcamArgs>();
   auto live_seconds = std::make_shared<double>(5);
+  auto live_warmup = std::make_shared<double>(0);
   CLI::App* bench_live = bench->add_subcommand(
-      "live", "Run the live session (as OBS and the webcam do) on a target and report fps, pipeline time and latency");
+      "live", "Run the live session (as OBS and the webcam do) on a target and report fps, latency and the time per stage and thread");
   bench_live->add_option("--target", live_args->target, "camera or recording/video (looped)")->required();
   bench_live->add_option("--source", live_args->source, "expression source (none, udp://PORT, camera, recording)")
       ->capture_default_str();
   bench_live->add_option("--key", live_args->key_file, "stream key file for udp://");
   bench_live->add_option("--mode", live_args->mode, "reenact, passthrough, overlay or raw")->capture_default_str();
   bench_live->add_option("--model", live_args->model, "face model file");
-  bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame")->capture_default_str();
-  bench_live->callback([live_args, live_seconds] {
+  bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame (and the warm-up)")
+      ->capture_default_str();
+  bench_live->add_option("--warmup", *live_warmup,
+                         "seconds after the first frame left out of the measurement (model load, calibration)")
+      ->capture_default_str();
+  bench_live->callback([live_args, live_seconds, live_warmup] {
     if (!(*live_seconds > 0) || *live_seconds > 3600) throw Error("--seconds must be in (0, 3600]");
+    if (!(*live_warmup >= 0) || *live_warmup > 600) throw Error("--warmup must be in [0, 600]");
     live::LiveSession::Options o;
     o.target = live_args->target;
     o.source = live_args->source;
@@ -249,18 +257,38 @@ void add_webcam_command(CLI::App& app) {
     live::LiveFrame frame;
     if (!session.wait_frame(0, std::chrono::seconds(60), &frame))
       throw Error("bench live: no frame within 60 s: " + session.status().Headline());
+    uint64_t last = frame.sequence;
+    const auto warm_end = std::chrono::steady_clock::now() + std::chrono::nanoseconds(static_cast<int64_t>(*live_warmup * 1e9));
+    while (std::chrono::steady_clock::now() < warm_end)
+      if (session.wait_frame(last, std::chrono::milliseconds(200), &frame)) last = frame.sequence;
+
+    // The measurement: the session's stage times and counts, each thread's CPU time, and the
+    // output conversion the virtual webcam does on every frame (BGR -> YUYV).
+    session.ResetTimings();
+    const std::vector<ThreadInfo> threads_before = ProcessThreads();
+    const double cpu_before = ProcessCpuSeconds();
     std::vector<double> latency_ms;
+    double convert_ms = 0;
+    std::vector<uint8_t> yuyv;
     const auto start = std::chrono::steady_clock::now();
     const auto end = start + std::chrono::nanoseconds(static_cast<int64_t>(*live_seconds * 1e9));
-    uint64_t first = frame.sequence, last = frame.sequence;
+    const uint64_t first = last;
     while (std::chrono::steady_clock::now() < end) {
       if (!session.wait_frame(last, std::chrono::milliseconds(200), &frame)) continue;
       last = frame.sequence;
       latency_ms.push_back(std::chrono::duration<double, std::milli>(frame.produced - frame.captured).count());
+      const auto tc = std::chrono::steady_clock::now();
+      yuyv.resize(frame_bytes(PixelFormat::kYuyv, frame.bgr.cols, frame.bgr.rows));
+      convert_bgr(frame.bgr, PixelFormat::kYuyv, yuyv);
+      convert_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tc).count();
     }
-    double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const double cpu_s = ProcessCpuSeconds() - cpu_before;
+    const std::vector<ThreadInfo> threads_after = ProcessThreads();
+    const live::LiveTimings t = session.timings();
     live::LiveStatus status = session.status();
     session.stop();
+
     std::sort(latency_ms.begin(), latency_ms.end());
     double mean = 0;
     for (double v : latency_ms) mean += v;
@@ -273,6 +301,37 @@ void add_webcam_command(CLI::App& app) {
                 "capture-to-output latency mean %.2f ms, p95 %.2f ms\n",
                 double(last - first) / seconds, static_cast<unsigned long long>(last - first), seconds, status.target_fps,
                 status.process_ms, mean, p95);
+    const double n = static_cast<double>(std::max<int64_t>(1, t.frames));
+    std::printf("  frames: %lld processed, %lld tracked (%.1f tracked fps), %lld calibrating, %lld unchanged; "
+                "input delivered %lld, dropped at the input %lld (only the newest frame is kept)\n",
+                static_cast<long long>(t.frames), static_cast<long long>(t.tracked), t.tracked / seconds,
+                static_cast<long long>(t.calibrating), static_cast<long long>(t.unchanged),
+                static_cast<long long>(t.input_frames), static_cast<long long>(t.dropped_at_input));
+    std::printf("  worker, mean ms per processed frame (the paper's Table 1 rows):\n");
+    for (const live::LiveStageRow& row : live::LiveStageRows())
+      std::printf("    %-26s %8.2f\n", row.name, t.sum.*row.ms / n);
+    std::printf("    %-26s %8.2f\n", "total", t.sum.total_ms / n);
+    std::printf("    %-26s %8.2f   (BGR -> YUYV, as the virtual webcam does per frame)\n", "output conversion",
+                latency_ms.empty() ? 0.0 : convert_ms / latency_ms.size());
+    // CPU per thread, summed over threads of one name (the pool's helpers share theirs).
+    std::vector<std::pair<std::string, double>> per_name;
+    double listed = 0;
+    for (const ThreadInfo& a : threads_after) {
+      double before = 0;
+      for (const ThreadInfo& b : threads_before)
+        if (b.tid == a.tid) before = b.cpu_s;
+      const double used = std::max(0.0, a.cpu_s - before);
+      listed += used;
+      auto it = std::find_if(per_name.begin(), per_name.end(), [&](const auto& p) { return p.first == a.name; });
+      if (it == per_name.end()) per_name.emplace_back(a.name, used);
+      else it->second += used;
+    }
+    if (cpu_s - listed > 0.02) per_name.emplace_back("(threads that ended)", cpu_s - listed);
+    std::sort(per_name.begin(), per_name.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+    const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+    std::printf("  CPU: %.2f of %u cores busy on average (%.1f CPU-s in %.1f s)\n", cpu_s / seconds, cores, cpu_s, seconds);
+    for (const auto& [name, used] : per_name)
+      if (used >= 0.005) std::printf("    %-22s %5.1f %% of a core\n", name.c_str(), 100.0 * used / seconds);
   });
 }
 

@@ -536,6 +536,44 @@ TEST(LiveSessionTest, ReenactModeRunsThePipelineOnTheRecording) {
   EXPECT_NE(s.tracking, TrackingState::kOff) << s.Headline();
 }
 
+// The worker's stage times and counts (bench live's table): every processed frame is counted once
+// as tracked, calibrating or unchanged, the named rows add up to no more than the frame's time, the
+// tracker's rows are there once it tracks, and ResetTimings starts a new measurement.
+TEST(LiveSessionTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) {
+  std::string why;
+  // The calibration test's recording (a face large enough to track at 320x240).
+  const std::string dir = test::make_test_recording({"recording-320", 320, 240, 60, 7}, &why);
+  if (dir.empty()) GTEST_SKIP() << "no test recording: " << why;
+  LiveSession session(pipeline_options(dir, OutputMode::kPassThrough));
+  // The calibration's joint solve takes seconds here and minutes under the sanitizers.
+  LiveStatus s = wait_status(session, 280s, [](const LiveStatus& st) {
+    return st.pipeline_ready && st.tracking == TrackingState::kTracking;
+  });
+  ASSERT_EQ(s.tracking, TrackingState::kTracking) << s.Headline();
+  session.ResetTimings();
+  EXPECT_EQ(session.timings().frames, 0);
+  LiveFrame frame;
+  uint64_t last = 0;
+  for (int k = 0; k < 6 && session.wait_frame(last, 10s, &frame); ++k) last = frame.sequence;
+  const LiveTimings t = session.timings();
+  ASSERT_GE(t.frames, 5);
+  EXPECT_EQ(t.tracked + t.calibrating + t.unchanged, t.frames);
+  EXPECT_GT(t.tracked, 0);
+  EXPECT_GT(t.seconds, 0.0);
+  EXPECT_GE(t.input_frames + 1, t.frames);  // the input counter is read once per worker pass
+  EXPECT_EQ(t.dropped_at_input, std::max<int64_t>(0, t.input_frames - t.frames));
+  double named = 0;
+  for (const LiveStageRow& row : LiveStageRows()) {
+    EXPECT_GE(t.sum.*row.ms, 0.0) << row.name;
+    named += t.sum.*row.ms;
+  }
+  EXPECT_GT(t.sum.total_ms, 0.0);
+  EXPECT_LE(named, t.sum.total_ms * 1.0001 + 1e-6);
+  EXPECT_GT(t.sum.synthesis_ms + t.sum.analysis_ms, 0.0);  // the tracker ran
+  EXPECT_GT(t.sum.render_ms + t.sum.composite_ms, 0.0);    // and the face was re-rendered
+  session.stop();
+}
+
 TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
   REQUIRE_RECORDING(dir);
   const char* model = std::getenv("FR_MODEL");

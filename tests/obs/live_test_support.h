@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "face_reenact/capture/recording.h"
+#include "face_reenact/common/thread_cpu.h"
 
 namespace face_reenact::test {
 
@@ -128,44 +129,18 @@ inline double closest_frame_difference(const cv::Mat& image, const std::vector<c
   return best;
 }
 
-// Names of this process's threads (/proc/self/task/*/comm).
+// Names of this process's threads.
 inline std::vector<std::string> thread_names() {
   std::vector<std::string> names;
-  std::error_code ec;
-  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task", ec)) {
-    FILE* f = std::fopen((task.path() / "comm").c_str(), "r");
-    if (!f) continue;
-    char buf[64] = {};
-    if (std::fgets(buf, sizeof buf, f)) {
-      std::string n = buf;
-      while (!n.empty() && (n.back() == '\n' || n.back() == '\r')) n.pop_back();
-      names.push_back(n);
-    }
-    std::fclose(f);
-  }
+  for (const ThreadInfo& t : ProcessThreads()) names.push_back(t.name);
   return names;
 }
 
-// Nice values (field 19 of /proc/self/task/*/stat) of the threads whose name starts with `prefix`.
+// Nice values of the threads whose name starts with `prefix`.
 inline std::vector<int> thread_nice_values(const std::string& prefix) {
   std::vector<int> values;
-  std::error_code ec;
-  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task", ec)) {
-    FILE* f = std::fopen((task.path() / "stat").c_str(), "r");
-    if (!f) continue;
-    char buf[1024] = {};
-    size_t n = std::fread(buf, 1, sizeof buf - 1, f);
-    std::fclose(f);
-    std::string stat(buf, n);
-    size_t open = stat.find('('), close = stat.rfind(')');
-    if (open == std::string::npos || close == std::string::npos) continue;
-    if (stat.substr(open + 1, close - open - 1).rfind(prefix, 0) != 0) continue;
-    // After ") ": state(3) ppid(4) ... nice is field 19, i.e. the 17th token after the name.
-    std::istringstream rest(stat.substr(close + 2));
-    std::string token;
-    for (int field = 3; field <= 19 && rest >> token; ++field)
-      if (field == 19) values.push_back(std::atoi(token.c_str()));
-  }
+  for (const ThreadInfo& t : ProcessThreads())
+    if (t.name.rfind(prefix, 0) == 0) values.push_back(t.nice);
   return values;
 }
 

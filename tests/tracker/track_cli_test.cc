@@ -243,6 +243,39 @@ TEST(TrackCli, AblationReportsEachEnergyConfiguration) {
             report["ablation"]["feature"]["geometric_error_mm_mean"].get<double>());
 }
 
+// Early termination of the per-frame solve (TrackerOptions::tracking_solver.function_tolerance):
+// the default ends a level once a step gains little, so it runs fewer Gauss-Newton iterations than
+// the paper's whole schedule (--tracking-tolerance 0) on the same frames, and fits them as well.
+TEST(TrackCli, EarlyTerminationRunsFewerIterationsAndFitsAsWell) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "tolerance";
+  fs::create_directories(out);
+  auto run = [&](const std::string& name, const std::vector<std::string>& extra) {
+    std::vector<std::string> args = {cli(), "track", "--input", fx.recording.string(), "--out",
+                                     (out / (name + ".jsonl")).string(), "--report", (out / (name + ".json")).string(),
+                                     "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const SubprocessResult r = run_subprocess(args);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return read_json(out / (name + ".json"));
+  };
+  const nlohmann::json fast = run("default", {});
+  const nlohmann::json full = run("full", {"--tracking-tolerance", "0"});
+  ASSERT_TRUE(fast.contains("gauss_newton_iterations_per_frame"));
+  const double fast_iterations = fast["gauss_newton_iterations_per_frame"].get<double>();
+  const double full_iterations = full["gauss_newton_iterations_per_frame"].get<double>();
+  EXPECT_GT(fast_iterations, 0.0);
+  EXPECT_LT(fast_iterations, full_iterations);
+  // As well: within the margins of the synthetic seeds (docs/tracking-pipeline.md, "Early termination").
+  EXPECT_LT(fast["rotation_error_deg_mean"].get<double>(), full["rotation_error_deg_mean"].get<double>() + 0.1);
+  EXPECT_LT(fast["translation_error_mm_mean"].get<double>(), full["translation_error_mm_mean"].get<double>() + 0.2);
+  EXPECT_LT(fast["expression_error_mean"].get<double>(), full["expression_error_mean"].get<double>() + 0.01);
+  EXPECT_LT(fast["geometric_error_mm_mean"].get<double>(), full["geometric_error_mm_mean"].get<double>() + 0.05);
+  const SubprocessResult bad = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out",
+                                               (out / "bad.jsonl").string(), "--tracking-tolerance", "-1", "--quiet"});
+  EXPECT_NE(bad.exit_code, 0);
+}
+
 // --calibration-frame-stride: the calibration frames are taken that many frames apart, so two of
 // them with stride 3 are frames 0 and 3, and the calibration happens on frame 3 (1 when consecutive).
 TEST(TrackCli, CalibrationFramesAreTakenStrideApart) {

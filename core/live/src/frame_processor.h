@@ -27,6 +27,7 @@ struct ProcessedFrame {
   bool actor_calibrating = false;  // the actor frame given went to the actor's calibration
   std::string actor_calibration_progress;  // then: its progress (CalibrationProgress::Brief())
   std::string calibration_progress;        // the target's, while calibrating (LiveStatus::calibration_progress)
+  LiveStageTimes times;  // the pipeline's rows (the worker adds worker_other_ms and total_ms)
 };
 
 class FrameProcessor {

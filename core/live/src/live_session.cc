@@ -15,6 +15,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
+#include "face_reenact/common/timing.h"
 #include "face_reenact/live/frame_grabber.h"
 #include "face_reenact/stream/receiver.h"
 #include "face_reenact/stream/stream_key.h"
@@ -37,6 +38,32 @@ bool is_picture_input(InputKind kind) {
 }
 
 }  // namespace
+
+const std::vector<LiveStageRow>& LiveStageRows() {
+  static const std::vector<LiveStageRow> rows = {
+      {"input conversion", &LiveStageTimes::input_ms},
+      {"landmarks", &LiveStageTimes::landmarks_ms},
+      {"pose initialisation", &LiveStageTimes::pose_init_ms},
+      {"pyramid", &LiveStageTimes::pyramid_ms},
+      {"synthesis", &LiveStageTimes::synthesis_ms},
+      {"analysis", &LiveStageTimes::analysis_ms},
+      {"calibration (foreground)", &LiveStageTimes::calibration_ms},
+      {"gaze/lids", &LiveStageTimes::gaze_ms},
+      {"tracker checks", &LiveStageTimes::tracker_other_ms},
+      {"transfer", &LiveStageTimes::transfer_ms},
+      {"render", &LiveStageTimes::render_ms},
+      {"mouth", &LiveStageTimes::mouth_ms},
+      {"composite", &LiveStageTimes::composite_ms},
+      {"source actor tracking", &LiveStageTimes::actor_ms},
+      {"worker other", &LiveStageTimes::worker_other_ms},
+  };
+  return rows;
+}
+
+void LiveStageTimes::Add(const LiveStageTimes& t) {
+  for (const LiveStageRow& row : LiveStageRows()) this->*row.ms += t.*row.ms;
+  total_ms += t.total_ms;
+}
 
 const char* output_mode_name(OutputMode mode) {
   switch (mode) {
@@ -194,6 +221,7 @@ LiveSession::LiveSession(Options options) : options_(std::move(options)) {
   status_.source = source_spec_.kind == InputKind::kNone ? SourceState::kNone : SourceState::kWaiting;
   status_.source_description = source_spec_.describe();
   start_time_ = Clock::now();
+  timings_start_ = start_time_;
   worker_ = std::thread([this] {
     try {
       run();
@@ -247,6 +275,22 @@ bool LiveSession::wait_frame(uint64_t after, std::chrono::nanoseconds timeout, L
 LiveStatus LiveSession::status() const {
   std::lock_guard lock(mu_);
   return status_;
+}
+
+LiveTimings LiveSession::timings() const {
+  std::lock_guard lock(mu_);
+  LiveTimings t = timings_;
+  t.seconds = std::chrono::duration<double>(Clock::now() - timings_start_).count();
+  t.input_frames = std::max<int64_t>(0, input_frames_ - timings_input_base_);
+  t.dropped_at_input = std::max<int64_t>(0, t.input_frames - t.frames);
+  return t;
+}
+
+void LiveSession::ResetTimings() {
+  std::lock_guard lock(mu_);
+  timings_ = LiveTimings();
+  timings_start_ = Clock::now();
+  timings_input_base_ = input_frames_;
 }
 
 std::string LiveSession::describe() const {
@@ -426,6 +470,20 @@ void LiveSession::run() {
           // A front-end's callback must not take the worker down; it sees the next frame.
         }
       }
+      LiveStageTimes rows = out.times;
+      rows.total_ms = ms_since(t0);
+      double named = 0;
+      for (const LiveStageRow& row : LiveStageRows()) named += rows.*row.ms;
+      rows.worker_other_ms = std::max(0.0, rows.total_ms - named);
+      {
+        std::lock_guard lock(mu_);
+        ++timings_.frames;
+        const bool shown_tracked = pipeline_ready && out.tracking == TrackingState::kTracking;
+        timings_.tracked += shown_tracked;
+        timings_.calibrating += pipeline_ready && out.tracking == TrackingState::kCalibrating;
+        timings_.unchanged += !shown_tracked && !(pipeline_ready && out.tracking == TrackingState::kCalibrating);
+        timings_.sum.Add(rows);
+      }
     }
 
     // Status, refreshed every pass (a few copies of small strings).
@@ -507,6 +565,7 @@ void LiveSession::run() {
     bool ended = ts.ended && !options_.loop;
     {
       std::lock_guard lock(mu_);
+      input_frames_ = ts.frames;
       s.calibration_pending = status_.calibration_pending;
       s.frames_out = status_.frames_out;
       status_ = s;

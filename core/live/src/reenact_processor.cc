@@ -1,5 +1,8 @@
 // The session's link to the reenactment pipeline (core/reenact/.../reenactment_pipeline.h).
+#include <algorithm>
+
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/timing.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
@@ -15,6 +18,27 @@ TrackingState tracking_from(reenact::TrackingStatus status) {
     case reenact::TrackingStatus::kLost: return TrackingState::kLost;
   }
   return TrackingState::kOff;
+}
+
+// The pipeline's own stage times as the live session's rows.
+LiveStageTimes stage_rows(const reenact::ReenactedFrame& r) {
+  const tracker::StageTimes& t = r.tracked.times;
+  LiveStageTimes out;
+  out.input_ms = std::max(0.0, r.times.track_ms - t.total_ms);  // track_ms = input conversion + Track()
+  out.landmarks_ms = t.landmarks_ms;
+  out.pose_init_ms = t.pose_init_ms;
+  out.pyramid_ms = t.pyramid_ms;
+  out.synthesis_ms = t.synthesis_ms;
+  out.analysis_ms = t.analysis_ms;
+  out.calibration_ms = t.calibration_ms;
+  out.gaze_ms = t.gaze_ms;
+  out.tracker_other_ms = std::max(0.0, t.total_ms - (t.landmarks_ms + t.pose_init_ms + t.pyramid_ms + t.synthesis_ms +
+                                                     t.analysis_ms + t.calibration_ms + t.gaze_ms));
+  out.transfer_ms = r.times.transfer_ms;
+  out.render_ms = r.times.render_ms;
+  out.mouth_ms = r.times.mouth_ms;
+  out.composite_ms = r.times.composite_ms;
+  return out;
 }
 
 class ReenactProcessor : public FrameProcessor {
@@ -48,8 +72,11 @@ class ReenactProcessor : public FrameProcessor {
 
   ProcessedFrame process(const capture::RgbdFrame& target, const ExpressionInput& input) override {
     ProcessedFrame out;
+    double actor_ms = 0;
     if (actor_ && input.actor_frame) {
+      const auto t_actor = SteadyClock::now();
       reenact::ReenactedFrame actor = actor_->Process(*input.actor_frame, nullptr);
+      actor_ms = ms_since(t_actor);
       if (actor.status == reenact::TrackingStatus::kTracking) {
         actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
         have_actor_expression_ = true;
@@ -70,6 +97,8 @@ class ReenactProcessor : public FrameProcessor {
     }
     reenact::ReenactedFrame result = target_->Process(target, source);
     out.bgr = result.bgr;
+    out.times = stage_rows(result);
+    out.times.actor_ms = actor_ms;
     out.tracking = tracking_from(result.status);
     out.message = result.message;
     out.calibration_warning = target_->calibration_warning();

@@ -637,6 +637,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   }
 
   Attempt a = Solve(*input, start, reinit, &out.times, options_.stop);
+  out.gauss_newton_iterations = static_cast<int>(a.summary.iterations.size());
   // Energy jump: far above the recent level of this track.
   auto check_energy = [&](Attempt* at) {
     if (!at->failure.empty() || depth_dropped) return;
@@ -679,6 +680,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     const std::string first_failure = a.failure.empty() ? a.agreement.landmark_warning : a.failure;
     start.delta = neutral_.delta;
     Attempt b = Solve(*input, start, true, &out.times, options_.stop);
+    out.gauss_newton_iterations += static_cast<int>(b.summary.iterations.size());
     check_energy(&b);
     check_agreement(&b);
     reinit_reason = first_failure;

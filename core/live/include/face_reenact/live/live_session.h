@@ -21,6 +21,7 @@
 #include <stop_token>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -99,6 +100,54 @@ struct LiveStatus {
   std::string StateLine() const;
 };
 
+// Where the worker's time goes, per stage (the rows of the paper's Table 1), summed over the
+// frames it processed: `bench live` divides by `frames` and prints them. The tracker's rows come
+// from tracker::StageTimes, the rest from reenact::StageTimes; `tracker_other_ms` is the tracker's
+// time outside its named stages (the fit's agreement check, loss checks, the landmark pose), and
+// `worker_other_ms` the worker's outside the pipeline (copies, status, publishing).
+struct LiveStageTimes {
+  double input_ms = 0;          // the frame turned into the tracker's input (sRGB decode, depth)
+  double landmarks_ms = 0;      // dlib: detection, or tracking from the last frame's points
+  double pose_init_ms = 0;      // the pose re-initialised from the landmarks
+  double pyramid_ms = 0;
+  double synthesis_ms = 0;      // renders inside the Gauss-Newton solve
+  double analysis_ms = 0;       // linearisation, J, PCG, step control
+  double calibration_ms = 0;    // a joint calibration solve run in the foreground
+  double gaze_ms = 0;           // gaze and lids from the colour around the eyes
+  double tracker_other_ms = 0;
+  double transfer_ms = 0;       // Eq. 15
+  double render_ms = 0;         // the face re-rendered (and the albedo observed)
+  double mouth_ms = 0;
+  double composite_ms = 0;      // masks, Laplacian blend, 8-bit output
+  double actor_ms = 0;          // a source actor's frame tracked on this worker (camera/recording source)
+  double worker_other_ms = 0;
+  double total_ms = 0;          // the worker's whole time per frame (the sum of the rows above)
+
+  void Add(const LiveStageTimes& t);
+};
+
+// The rows of LiveStageTimes in pipeline order with their names, for sums and tables.
+struct LiveStageRow {
+  const char* name;
+  double LiveStageTimes::*ms;
+};
+// Every row but total_ms; the last is worker_other_ms.
+const std::vector<LiveStageRow>& LiveStageRows();
+
+// The worker's counts and stage times since the session started or ResetTimings().
+struct LiveTimings {
+  int64_t frames = 0;          // target frames the worker processed (= output frames)
+  int64_t tracked = 0;         // of which the target's face was tracked (reenacted / re-rendered)
+  int64_t calibrating = 0;     // passed unchanged while calibrating
+  int64_t unchanged = 0;       // passed unchanged otherwise (no face, loading, raw mode, a failure)
+  int64_t input_frames = 0;    // frames the target input delivered in the same time
+  // Frames the input delivered that the worker never took: the capture thread keeps only the
+  // newest frame, so a worker slower than the input drops frames here instead of queueing them.
+  int64_t dropped_at_input = 0;
+  LiveStageTimes sum;          // summed over `frames`
+  double seconds = 0;          // wall time covered
+};
+
 struct LiveFrame {
   cv::Mat bgr;                    // CV_8UC3, the target's size
   uint64_t sequence = 0;          // 1, 2, ... in output order
@@ -148,6 +197,9 @@ class LiveSession : public output::FrameSource {
   // Waits up to `timeout` for an output frame above `after`; false on timeout or stop.
   bool wait_frame(uint64_t after, std::chrono::nanoseconds timeout, LiveFrame* frame) const;
   LiveStatus status() const;
+  // Counts and per-stage times since the start or the last ResetTimings() (bench live).
+  LiveTimings timings() const;
+  void ResetTimings();
   // The next pipeline call restarts the target's calibration. Any thread, never waits.
   void RequestCalibration();
   // Stops and joins every thread; idempotent. wait_frame/next() return at once afterwards.
@@ -176,6 +228,10 @@ class LiveSession : public output::FrameSource {
   bool ended_ = false;
   LiveFrame latest_;
   LiveStatus status_;
+  LiveTimings timings_;                      // guarded by mu_
+  std::chrono::steady_clock::time_point timings_start_;
+  int64_t timings_input_base_ = 0;           // the target input's frame count at timings_start_
+  int64_t input_frames_ = 0;                 // the target input's frame count, as last seen
   std::atomic<bool> calibration_requested_{false};
   uint64_t next_delivered_ = 0;  // FrameSource::next(): last sequence handed out
   std::chrono::steady_clock::time_point start_time_;
