@@ -2,6 +2,7 @@
 // Report sections that several commands write (`track --report`, `reenact --report`): one
 // wording of each yardstick.
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <string>
 
@@ -20,8 +21,10 @@ inline std::string intrinsics_description(const std::string& input, const captur
   std::error_code ec;
   if (std::filesystem::is_directory(input, ec)) return "recording";
   if (info.source.rfind("OpenNI", 0) == 0) return "the device's (" + info.source + ")";
-  return "principal point at the centre, " + std::to_string(camera["horizontal_fov_deg"].get<double>()) +
-         " degrees horizontal field of view (" + camera["from"].get<std::string>() + ")";
+  char fov[32];
+  std::snprintf(fov, sizeof(fov), "%.1f", camera["horizontal_fov_deg"].get<double>());
+  return std::string("principal point at the centre, ") + fov + " degrees horizontal field of view (" +
+         camera["from"].get<std::string>() + ")";
 }
 
 // The report's "agreement" section (FitAgreementTally::Summary).

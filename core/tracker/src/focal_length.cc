@@ -22,8 +22,8 @@ bool FocalLengthOptions::IsValid(std::string* why) const {
   if (identity_components < 0) return fail(why, "focal length search: identity_components must be >= 0");
   if (!(w_identity >= 0 && w_landmarks > 0)) return fail(why, "focal length search: weights must be w_identity >= 0, w_landmarks > 0");
   if (!(fallback_fov_deg > 1 && fallback_fov_deg < 179)) return fail(why, "focal length search: fallback_fov_deg must be in (1, 179)");
-  if (!(min_relative_contrast >= 0) || !(min_landmark_confidence >= 0))
-    return fail(why, "focal length search: min_relative_contrast and min_landmark_confidence must be >= 0");
+  if (!(min_relative_contrast >= 0) || !(min_landmark_confidence >= 0) || !(max_landmark_rms_px > 0))
+    return fail(why, "focal length search: min_relative_contrast, min_landmark_confidence >= 0 and max_landmark_rms_px > 0 needed");
   return true;
 }
 
@@ -310,10 +310,13 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   double fov = options.min_fov_deg + step * best;
   if (fc.energy < chosen.energy) chosen = fc, fov = c;
   if (fd.energy < chosen.energy) chosen = fd, fov = d;
-  out.estimated = true;
-  out.horizontal_fov_deg = fov;
   out.energy = chosen.energy;
   out.landmark_error_px = chosen.rms_px;
+  if (!(chosen.rms_px <= options.max_landmark_rms_px))
+    return fallback(format_fov("focal length not estimated: the landmarks are %.1f px RMS from the best fit (%.0f degrees), "
+                               "too noisy to read the lens", chosen.rms_px, fov));
+  out.estimated = true;
+  out.horizontal_fov_deg = fov;
   out.ms = ms_since(t0);
   out.message = format_fov("estimated %.1f degrees horizontal field of view", fov) + " from " + std::to_string(out.frames) +
                 format_fov(" calibration frames (landmarks %.2f px RMS, %.0f ms)", chosen.rms_px, out.ms);

@@ -52,6 +52,11 @@ struct FocalLengthOptions {
   double fallback_fov_deg = 60.0;
   // An energy whose range over the grid is below this fraction of its minimum is "flat".
   double min_relative_contrast = 0.02;
+  // Landmarks further from the best fit than this (RMS, pixels of a 640-wide image) are too noisy
+  // to read the lens: the perspective the search reads is below a pixel (synthetic renders fit to
+  // 0.07 px; dlib on the real clips to ~3 px, where the energy over the field of view had several
+  // minima).
+  double max_landmark_rms_px = 1.5;
   float min_landmark_confidence = 0.05f;
   bool IsValid(std::string* why) const;
 };
