@@ -23,6 +23,7 @@
 #include <opencv2/videoio.hpp>
 
 #include "command_registry.h"
+#include "camera_options.h"
 #include "report_json.h"
 #include "video_output.h"
 #include "face_reenact/capture/recording.h"
@@ -176,7 +177,7 @@ struct ReenactArgs {
   std::string report, status_log;  // --report FILE.json, --status-log FILE.jsonl
   int frames = 0;
   int calibration_window = 0;      // as `track --calibration-window`, for both actors
-  double fov_deg = 60.0;           // horizontal field of view assumed for video files
+  CameraArgs camera;               // --fov / --intrinsics of both actors' videos (none: estimated)
   double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
   double target_rest_s = -1;       // the same for the target
   bool quiet = false;
@@ -258,8 +259,7 @@ void run_reenact(const ReenactArgs& a) {
   // The options are checked before anything is opened (a bad --calibration-window says so at once).
   std::string why;
   if (!ro.IsValid(&why)) throw Error("reenact: " + why);
-  capture::VideoReader::Options video;
-  video.horizontal_fov_deg = a.fov_deg;
+  const capture::VideoReader::Options video = video_options(a.camera, "reenact");
   std::unique_ptr<capture::FrameSource> target = live::open_offline_source(a.target, "--target", video);
   std::unique_ptr<capture::FrameSource> source_rec;
   std::unique_ptr<stream::ExpressionReceiver> receiver;
@@ -277,9 +277,15 @@ void run_reenact(const ReenactArgs& a) {
     if (!status_log) throw Error("--status-log '" + a.status_log + "': cannot write");
   }
   const FaceModel model = load_face_model(resolve_model_path(a.model));
+  // Each actor's focal length is estimated when its camera is an assumption (a video, a webcam).
+  ro.tracker.focal_length.estimate = estimate_focal_length(a.camera, target->info());
   reenact::ReenactmentPipeline pipeline(model, ro);
   std::unique_ptr<TrackedSource> source_tracker;
-  if (source_rec) source_tracker = std::make_unique<TrackedSource>(model, ro.tracker, ro.input);
+  if (source_rec) {
+    tracker::TrackerOptions so = ro.tracker;
+    so.focal_length.estimate = estimate_focal_length(a.camera, source_rec->info());
+    source_tracker = std::make_unique<TrackedSource>(model, so, ro.input);
+  }
   SourceByTime source_by_time(source_rec.get());
 
   const capture::RecordingInfo& info = target->info();
@@ -386,6 +392,14 @@ void run_reenact(const ReenactArgs& a) {
     std::printf("stream: %llu datagrams applied, %llu rejected\n", static_cast<unsigned long long>(st.applied),
                 static_cast<unsigned long long>(st.rejected_total()));
   }
+  // The cameras the fits used (estimated, given or the recordings' own).
+  const nlohmann::json target_camera = camera_json(info, a.camera, pipeline.focal_length_report());
+  const nlohmann::json source_camera =
+      source_tracker ? camera_json(source_rec->info(), a.camera, source_tracker->tracker->focal_length_report()) : nlohmann::json();
+  if (!a.quiet) {
+    std::printf("target %s\n", camera_line(target_camera).c_str());
+    if (source_tracker) std::printf("source %s\n", camera_line(source_camera).c_str());
+  }
   if (!a.report.empty()) {
     auto warning = [](const std::string& w) { return w.empty() ? nlohmann::json() : nlohmann::json(w); };
     nlohmann::json lost = nlohmann::json::object();
@@ -407,8 +421,9 @@ void run_reenact(const ReenactArgs& a) {
                       {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
                       {"target_total", s.mean_times.total_ms}}},
         {"renderer", s.renderer},
-        {"intrinsics", {{"target", intrinsics_description(a.target, info, a.fov_deg)},
-                        {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), a.fov_deg))
+        {"camera", {{"target", target_camera}, {"source", source_camera}}},
+        {"intrinsics", {{"target", intrinsics_description(a.target, info, target_camera)},
+                        {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), source_camera))
                                               : nlohmann::json()}}},
         {"calibration_window_frames", a.calibration_window},
         {"agreement", agreement_json(agreement.summary())}};
@@ -821,8 +836,7 @@ void add_reenact_commands(CLI::App& app) {
                   "JSON report: frames reenacted / calibrating / lost and why, both actors' calibration warnings, "
                   "stage times, the target fit's agreement with its landmarks");
     c->add_option("--status-log", args->status_log, "One JSON line per output frame: its status, message and source frame");
-    c->add_option("--fov", args->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
-        ->check(CLI::Range(10.0, 170.0));
+    add_camera_options(c, &args->camera);
     c->add_option("--calibration-window", args->calibration_window,
                   "Calibrate each actor on the most varied head poses among this many frames (as track; default 0: the "
                   "first frames)")

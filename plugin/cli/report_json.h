@@ -2,6 +2,7 @@
 // Report sections that several commands write (`track --report`, `reenact --report`): one
 // wording of each yardstick.
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <string>
 
@@ -12,13 +13,18 @@
 
 namespace face_reenact::cli {
 
-// Which intrinsics an input's frames carry, for the reports: a recording's own, an OpenNI device's
-// or camera's, or the pinhole assumed for a video file.
-inline std::string intrinsics_description(const std::string& input, const capture::RecordingInfo& info, double fov_deg) {
+// Which intrinsics an input's frames carry, for the reports: a recording's own, an OpenNI device's,
+// or, for a video file or a webcam, the pinhole of the report's camera section (camera_options.h:
+// estimated, given or assumed).
+inline std::string intrinsics_description(const std::string& input, const capture::RecordingInfo& info,
+                                          const nlohmann::json& camera) {
   std::error_code ec;
   if (std::filesystem::is_directory(input, ec)) return "recording";
-  if (info.source.rfind("OpenNI", 0) == 0 || info.source.rfind("camera", 0) == 0) return "the device's (" + info.source + ")";
-  return "default: principal point at the centre, " + std::to_string(fov_deg) + " degrees horizontal field of view";
+  if (info.source.rfind("OpenNI", 0) == 0) return "the device's (" + info.source + ")";
+  char fov[32];
+  std::snprintf(fov, sizeof(fov), "%.1f", camera["horizontal_fov_deg"].get<double>());
+  return std::string("principal point at the centre, ") + fov + " degrees horizontal field of view (" +
+         camera["from"].get<std::string>() + ")";
 }
 
 // The report's "agreement" section (FitAgreementTally::Summary).

@@ -25,6 +25,7 @@
 #include <string>
 #include <vector>
 
+#include "camera_options.h"
 #include "command_registry.h"
 #include "report_json.h"
 #include "video_output.h"
@@ -210,7 +211,7 @@ struct TrackArgs {
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
-  double fov_deg = 60.0;
+  CameraArgs camera;  // --fov / --intrinsics: none = estimated for videos and webcams
   double tracking_tolerance = -1;  // < 0: TrackerOptions' default
   bool no_agreement_check = false;
   std::string solver = "auto";
@@ -368,8 +369,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
                          const std::string& overlay_path, const std::string& label) {
   std::error_code ec;
   const bool is_recording = std::filesystem::is_directory(a.input, ec);
-  capture::VideoReader::Options vo;
-  vo.horizontal_fov_deg = a.fov_deg;
+  const capture::VideoReader::Options vo = video_options(a.camera, "track");
   // A recording, a video, or an OpenNI device / .oni file (every frame in order).
   std::unique_ptr<capture::FrameSource> source = live::open_offline_source(a.input, "track: --input", vo);
   const capture::RecordingInfo info = source->info();
@@ -381,7 +381,9 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   io.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   io.use_depth = depth && config.depth;
   RgbdInput input(io);
-  FaceTracker tracker(model, track_options(a, config, depth));
+  TrackerOptions to = track_options(a, config, depth);
+  to.focal_length.estimate = estimate_focal_length(a.camera, info);
+  FaceTracker tracker(model, to);
   SolverBackend backend = SolverBackend::kAuto;
   if (!parse_solver_backend(a.solver, &backend)) throw Error("track: --solver must be auto, cpu or vulkan");
   const TrackingSolverChoice solver = ChooseTrackingSolver(backend, model, a.device);
@@ -475,7 +477,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     if (overlay) {
       cv::Mat drawn = frame.color.clone();
       // The status and the measures; the reasons are in the parameter file's lines.
-      reenact::DrawFitOverlay(&drawn, model, renderer, frame.camera, fit ? &t.params : nullptr, in.landmarks,
+      reenact::DrawFitOverlay(&drawn, model, renderer, t.camera, fit ? &t.params : nullptr, in.landmarks,
                               reenact::OverlayStatusLine("frame " + std::to_string(frame.index) + ": " +
                                                              tracking_status_name(t.status),
                                                          t.agreement.pose_disagreement_deg, t.agreement.landmark_nme));
@@ -555,9 +557,8 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = solver.description;
-  j["intrinsics"] = intrinsics_description(a.input, info, a.fov_deg);
-  j["camera"] = {{"fx", info.camera.fx}, {"fy", info.camera.fy}, {"cx", info.camera.cx}, {"cy", info.camera.cy},
-                 {"width", info.camera.width}, {"height", info.camera.height}};
+  j["camera"] = camera_json(info, a.camera, tracker.focal_length_report());
+  j["intrinsics"] = intrinsics_description(a.input, info, j["camera"]);
   const bool truth = r.evaluated > 0;
   j["ground_truth"] = truth;
   j["frames_evaluated"] = r.evaluated;
@@ -636,6 +637,7 @@ void run_track_command(const TrackArgs& a) {
                 report["landmark_source"].get<std::string>().c_str(), report["depth_used"].get<bool>() ? "yes" : "no");
     if (report["calibration_warning"].is_string())
       std::printf("  warning: %s\n", report["calibration_warning"].get<std::string>().c_str());
+    std::printf("  %s\n", camera_line(report["camera"]).c_str());
     const nlohmann::json& ag = report["agreement"];
     std::printf("  against the landmarks (%d frames with a fit): pose %.1f deg median, %.1f p95, %.1f max; inner points "
                 "%.1f%% of the eye distance median, %.1f%% max; %d/%d beyond %.0f deg / %.0f%%; %d fits refused%s\n",
@@ -743,8 +745,7 @@ void add_tracker_commands(CLI::App& app) {
                      std::to_string(TrackerOptions{}.calibration_min_face_width_px) +
                      ", -1 = --min-face-width, 0 = its schedule's level 2)")
       ->check(CLI::Range(-1, 4096));
-  tc->add_option("--fov", targs->fov_deg, "Horizontal field of view (degrees) assumed for video files (default 60)")
-      ->check(CLI::Range(10.0, 170.0));
+  add_camera_options(tc, &targs->camera);
   tc->add_flag("--no-agreement-check", targs->no_agreement_check,
               "Keep fits that disagree with the landmarks (pose beyond 15 degrees of the landmarks', inner points "
               "beyond 5% of the eye distance, a head turning faster than 600 degrees/s) instead of re-solving or "

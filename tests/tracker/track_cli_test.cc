@@ -593,7 +593,44 @@ TEST(TrackCli, VideoFilesAreTrackedWithoutDepth) {
   EXPECT_EQ(report["depth_used"], false);
   EXPECT_EQ(report["landmark_source"], "detector");
   EXPECT_NE(report["intrinsics"].get<std::string>().find("60"), std::string::npos) << report["intrinsics"];
+  EXPECT_EQ(report["camera"]["from"], "assumed");  // 4 frames: no calibration, so no estimate
   EXPECT_EQ(report["ground_truth"], false);
+  // With a calibration the focal length is searched (estimated, or 60 degrees with the reason);
+  // --fov and --intrinsics override it: no search then.
+  const SubprocessResult est = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
+                                               (out / "e.jsonl").string(), "--report", (out / "e.json").string(),
+                                               "--calibration-frames", "2", "--model", model()});
+  ASSERT_EQ(est.exit_code, 0) << est.output;
+  const nlohmann::json searched = read_json(out / "e.json")["camera"];
+  EXPECT_TRUE(searched["from"] == "estimated" || searched["from"] == "fallback") << searched;
+  ASSERT_TRUE(searched.contains("focal_length_search")) << searched;
+  EXPECT_FALSE(searched["focal_length_search"]["message"].get<std::string>().empty());
+  EXPECT_NE(est.output.find("camera: "), std::string::npos) << est.output;
+  const SubprocessResult fov = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
+                                               (out / "f.jsonl").string(), "--report", (out / "f.json").string(),
+                                               "--calibration-frames", "2", "--fov", "47", "--quiet", "--model", model()});
+  ASSERT_EQ(fov.exit_code, 0) << fov.output;
+  const nlohmann::json given = read_json(out / "f.json")["camera"];
+  EXPECT_EQ(given["from"], "--fov");
+  EXPECT_NEAR(given["horizontal_fov_deg"].get<double>(), 47.0, 1e-3);
+  EXPECT_FALSE(given.contains("focal_length_search"));
+  const SubprocessResult k = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
+                                             (out / "k.jsonl").string(), "--report", (out / "k.json").string(),
+                                             "--calibration-frames", "2", "--intrinsics", "500,510,300,200", "--quiet",
+                                             "--model", model()});
+  ASSERT_EQ(k.exit_code, 0) << k.output;
+  const nlohmann::json intr = read_json(out / "k.json")["camera"];
+  EXPECT_EQ(intr["from"], "--intrinsics");
+  EXPECT_EQ(intr["fx"], 500.0);
+  EXPECT_EQ(intr["fy"], 510.0);
+  EXPECT_EQ(intr["cy"], 200.0);
+  EXPECT_FALSE(intr.contains("focal_length_search"));
+  for (const char* bad_k : {"500,510,300", "0,510,300,200", "a,b,c,d"}) {
+    const SubprocessResult b = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
+                                               (out / "b.jsonl").string(), "--intrinsics", bad_k, "--model", model()});
+    EXPECT_EQ(b.exit_code, 1) << bad_k;
+    EXPECT_NE(b.output.find("--intrinsics"), std::string::npos) << b.output;
+  }
   EXPECT_TRUE(report["geometric_error_mm_mean"].is_null());
   EXPECT_EQ(read_lines(out / "p.jsonl").size(), 4u);  // every frame has a line, face or not
   // Stored landmarks do not exist in a video.

@@ -404,6 +404,9 @@ gpu::PinholeCamera camera_from_fov(int width, int height, double horizontal_fov_
 
 bool VideoReader::Options::IsValid(std::string* why) const {
   if (!(horizontal_fov_deg > 1 && horizontal_fov_deg < 179)) return fail_why(why, "horizontal_fov_deg must be in (1, 179)");
+  if (intrinsics && !(intrinsics->fx > 0 && intrinsics->fy > 0 && std::isfinite(intrinsics->fx) && std::isfinite(intrinsics->fy) &&
+                      std::isfinite(intrinsics->cx) && std::isfinite(intrinsics->cy)))
+    return fail_why(why, "intrinsics need fx, fy > 0 and finite cx, cy");
   return true;
 }
 
@@ -412,6 +415,12 @@ VideoReader::VideoReader(const std::string& path, const Options& options) : path
   if (!options.IsValid(&why)) throw Error("video '" + path + "': " + why);
   video_ = std::make_unique<VideoFileReader>(path);
   info_.camera = camera_from_fov(video_->width(), video_->height(), options.horizontal_fov_deg);
+  if (options.intrinsics) {
+    info_.camera.fx = static_cast<float>(options.intrinsics->fx);
+    info_.camera.fy = static_cast<float>(options.intrinsics->fy);
+    info_.camera.cx = static_cast<float>(options.intrinsics->cx);
+    info_.camera.cy = static_cast<float>(options.intrinsics->cy);
+  }
   info_.fps = video_->fps();
   // The container's estimate (-1: unknown); below 1e9, so it fits.
   info_.frame_count = static_cast<int>(video_->frame_count());

@@ -159,6 +159,10 @@ std::string ReenactmentPipeline::calibration_warning() const {
   return impl_->tracker ? impl_->tracker->calibration_warning() : std::string();
 }
 
+tracker::FaceTracker::FocalLengthReport ReenactmentPipeline::focal_length_report() const {
+  return impl_->tracker ? impl_->tracker->focal_length_report() : tracker::FaceTracker::FocalLengthReport();
+}
+
 tracker::FaceTracker::CalibrationProgress ReenactmentPipeline::calibration_progress() const {
   return impl_->tracker ? impl_->tracker->calibration_progress() : tracker::FaceTracker::CalibrationProgress();
 }
@@ -232,6 +236,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
   // --- track the target.
   auto t0 = Clock::now();
   gpu::FaceParameters target_params;
+  gpu::PinholeCamera fit_camera = target.camera;  // the camera target_params are in
   std::vector<tracker::InputLandmark> detected;  // the detector's, for the overlay
   if (im.options.use_ground_truth_target) {
     if (!target.ground_truth.params) {
@@ -266,6 +271,9 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
     if (im.tracker->calibrated()) im.neutral = im.tracker->neutral();
     if (out.status == TrackingStatus::kTracking && !has_fit) out.status = TrackingStatus::kLost;
     target_params = out.tracked.params;
+    // The camera the fit is in: the frame's, or the tracker's estimate for a video (focal_length.h).
+    if (out.tracked.camera.width == target.camera.width && out.tracked.camera.height == target.camera.height)
+      fit_camera = out.tracked.camera;
   }
   out.times.track_ms = ms_since(t0);
   if (im.options.mode == ReenactMode::kOverlay && im.tracker) {
@@ -277,7 +285,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
       const std::string progress = im.tracker->calibration_progress().Brief();
       if (!progress.empty()) status += " (" + progress + ")";
     }
-    DrawFitOverlay(&out.bgr, im.tracker->model(), im.tracker->cpu_solver().renderer(), target.camera,
+    DrawFitOverlay(&out.bgr, im.tracker->model(), im.tracker->cpu_solver().renderer(), fit_camera,
                    has_fit ? &out.tracked.params : nullptr, detected,
                    OverlayStatusLine(status, out.tracked.agreement.pose_disagreement_deg, out.tracked.agreement.landmark_nme));
     out.times.render_ms = ms_since(to);
@@ -297,7 +305,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
   try {
     if (im.albedo_observations < kDenseAlbedoFrames || im.tracked_frames % kAlbedoRefreshInterval == 0) {
       const auto ta = Clock::now();
-      im.compositor.ObserveAlbedo(out.bgr, target.camera, target_params, &im.albedo,
+      im.compositor.ObserveAlbedo(out.bgr, fit_camera, target_params, &im.albedo,
                                   out.depth.empty() ? nullptr : &out.depth);
       ++im.albedo_observations;
       out.times.render_ms += ms_since(ta);
@@ -311,7 +319,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
 
     // --- re-render, mouth, composite.
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
-    CompositeResult c = im.compositor.Compose(out.bgr, target.camera, target_params, out.output_params, &im.albedo,
+    CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
                                               input_depth.empty() ? nullptr : &input_depth);
     out.times.render_ms += c.render_ms;
     out.times.mouth_ms = c.mouth_ms;

@@ -128,6 +128,13 @@ std::string NotAtRestWarning(const TrackerModel& model, const Eigen::VectorXf& n
          "): part of that expression is now in the identity; calibrate again with a relaxed face and closed mouth";
 }
 
+// `frame` seen through `camera` (a copy only when the camera differs).
+InputFrame WithCamera(const InputFrame& frame, const gpu::PinholeCamera& camera) {
+  InputFrame f = frame;
+  f.camera = camera;
+  return f;
+}
+
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
@@ -146,6 +153,9 @@ struct FaceTracker::CalibrationOutcome {
   SolverSummary summary;
   CalibrationStartReport report;
   Eigen::VectorXf neutral_delta;  // the neutral expression (TrackerOptions::neutral_from_tracking)
+  // The focal length search (TrackerOptions::focal_length), decided on the tracking thread.
+  bool search_focal_length = false;
+  FocalLengthEstimate focal_length;
   double solve_ms = 0;            // the joint solve(s)
   StageTimes reread_times;        // the neutral's re-reads
 };
@@ -340,6 +350,7 @@ bool LossDetectionOptions::IsValid(std::string* why) const {
 
 bool TrackerOptions::IsValid(std::string* why) const {
   if (calibration_frames < 1 || calibration_frames > 64) return fail(why, "tracker: calibration_frames must be 1..64");
+  if (!focal_length.IsValid(why)) return false;
   if (std::string(calibration_start_name(calibration_start)) == "?")
     return fail(why, "tracker: calibration_start is not one of neutral, per-frame-fits, lower-energy");
   if (calibration_frame_stride < 1 || calibration_frame_stride > 10000) {
@@ -406,6 +417,7 @@ void FaceTracker::Reset() {
   calibration_summary_ = SolverSummary();
   calibration_start_report_ = CalibrationStartReport();
   calibration_warning_.clear();
+  focal_length_ = FocalLengthReport();
   ClearCalibrationFrames();
   previous_ = TrackedFrame();
   last_good_ = TrackedFrame();
@@ -510,6 +522,7 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
 TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_ms*/) {
   TrackedFrame out;
   out.frame_index = frames_seen_++;
+  out.camera = FittingCamera(frame.camera, frame.has_depth());
   if (calibration_requested_.exchange(false)) {
     CancelBackgroundCalibration();
     collecting_ = true;
@@ -577,6 +590,15 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       calibration_note = std::string("calibration failed (") + e.what() + "); collecting new frames";
     }
   }
+  // The estimated focal length (TrackerOptions::focal_length), from the calibration that applied it
+  // on: the frame is fitted through that camera.
+  InputFrame recameraed;
+  out.camera = FittingCamera(frame.camera, frame.has_depth());
+  if (out.camera.fx != input->camera.fx || out.camera.fy != input->camera.fy) {
+    recameraed = *input;
+    recameraed.camera = out.camera;
+    input = &recameraed;
+  }
 
   if (collecting_ && !options_.track_while_calibrating) {
     // Calibration frames without a per-frame solve: the landmark pose is the joint solve's start.
@@ -607,7 +629,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       Calibrate(*input, start, &out);
       if (out.status == TrackingStatus::kCalibrated) {
         have_fit_ = true;
-        out.agreement = MeasureFitAgreement(m, *input, out.params, options_.loss.agreement);
+        out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
         previous_timestamp_s_ = frame.timestamp_s;
         previous_ = out;
         last_good_ = out;
@@ -759,7 +781,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       Calibrate(*input, out.params, &out);
       // The frame's parameters are now the joint fit's (or a solve with the new identity).
       if (out.status == TrackingStatus::kCalibrated)
-        out.agreement = MeasureFitAgreement(m, *input, out.params, options_.loss.agreement);
+        out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
     }
   }
   out.message = note_prefix + out.message;  // a background calibration that ended on this frame
@@ -813,6 +835,11 @@ std::string FaceTracker::CalibrationProgressMessage() const {
   return m;
 }
 
+gpu::PinholeCamera FaceTracker::FittingCamera(const gpu::PinholeCamera& camera, bool has_depth) const {
+  if (!focal_length_.searched || has_depth || camera.width <= 0) return camera;
+  return WithHorizontalFov(camera, focal_length_.estimate.horizontal_fov_deg);
+}
+
 SolverOptions FaceTracker::WithStop(SolverOptions options, const std::stop_token& stop) const {
   if (stop.stop_possible()) options.stop = stop;
   return options;
@@ -845,6 +872,10 @@ FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames() {
   o.starts = std::move(calibration_starts_);
   o.frame_indices = std::move(calibration_frame_indices_);
   ClearCalibrationFrames();
+  // The focal length is searched once per input (the first calibration), and only on frames
+  // without depth: a depth camera's intrinsics are its own.
+  o.search_focal_length = options_.focal_length.estimate && !focal_length_.searched && !o.inputs.empty() &&
+                          std::none_of(o.inputs.begin(), o.inputs.end(), [](const InputFrame& f) { return f.has_depth(); });
   return o;
 }
 
@@ -856,6 +887,18 @@ void FaceTracker::CancelBackgroundCalibration() { background_.reset(); }
 
 void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token& stop) const {
   const TrackerModel& m = solver_.model();
+  if (o->search_focal_length) {
+    // Before the joint solve, which then fits the identity through the found camera. The starts
+    // (fitted through the assumed camera) keep their image: the same x, y, the depth scaled
+    // with the focal length.
+    o->focal_length = EstimateFocalLength(m, o->inputs, options_.focal_length);
+    for (size_t f = 0; f < o->inputs.size(); ++f) {
+      InputFrame& in = o->inputs[f];
+      const gpu::PinholeCamera c = WithHorizontalFov(in.camera, o->focal_length.horizontal_fov_deg);
+      o->starts[f].translation.z() *= c.fx / in.camera.fx;
+      in.camera = c;
+    }
+  }
   const int n_id = options_.calibration_identity_components < 0 ? m.num_identity() : options_.calibration_identity_components;
   const int n_alb = options_.calibration_albedo_components < 0 ? m.num_albedo() : options_.calibration_albedo_components;
   const ParameterLayout layout = ParameterLayout::Calibration(n_id, n_alb, m.num_expression());
@@ -980,6 +1023,11 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
                          report.kept == CalibrationStart::kNeutral ? report.per_frame_fits_energy : report.neutral_energy) +
                   (report.kept == CalibrationStart::kNeutral ? " from the per-frame fits'" : " from neutral");
   *message = "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + o->summary.BriefReport() + ")";
+  if (o->search_focal_length) {
+    focal_length_.searched = true;
+    focal_length_.estimate = o->focal_length;
+    *message += "; camera: " + o->focal_length.message;
+  }
   calibration_warning_ = NotAtRestWarning(m, neutral_.delta, options_.rest_warning_weight);
   if (!calibration_warning_.empty()) *message += "; " + calibration_warning_;
   calibration_summary_ = o->summary;
@@ -994,21 +1042,27 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
                                 &StageTimes::pose_init_ms, &StageTimes::gaze_ms})
     out->times.*t += o.reread_times.*t;
   if (!ApplyCalibration(&o, &out->message)) return;
+  // With a focal length just estimated, this frame too is fitted through the new camera; a start
+  // fitted through the old one keeps its image (depth scaled with the focal length).
+  out->camera = FittingCamera(current.camera, current.has_depth());
+  const InputFrame current_now = WithCamera(current, out->camera);
+  gpu::FaceParameters start_now = current_start;
+  start_now.translation.z() *= out->camera.fx / current.camera.fx;
   // This frame's parameters: its joint fit when it is a calibration frame (always, without a
   // window: it completed the set), else a tracking solve with the new identity.
   const auto in_set = std::find(o.frame_indices.begin(), o.frame_indices.end(), out->frame_index);
   if (in_set != o.frame_indices.end()) {
     out->params = o.params[static_cast<size_t>(in_set - o.frame_indices.begin())];
   } else {
-    gpu::FaceParameters start = current_start;
+    gpu::FaceParameters start = start_now;
     start.alpha = identity_.alpha;
     start.beta = identity_.beta;
-    const Attempt a = Solve(current, start, /*reinit=*/false, &out->times, options_.stop);
-    out->params = a.failure.empty() ? a.params : current_start;
+    const Attempt a = Solve(current_now, start, /*reinit=*/false, &out->times, options_.stop);
+    out->params = a.failure.empty() ? a.params : start_now;
   }
   out->params.alpha = identity_.alpha;
   out->params.beta = identity_.beta;
-  out->landmark_error_px = LandmarkReprojectionError(solver_.model(), current, out->params, options_.loss.min_landmark_confidence,
+  out->landmark_error_px = LandmarkReprojectionError(solver_.model(), current_now, out->params, options_.loss.min_landmark_confidence,
                                                      options_.calibration_solver.energy.inner_landmarks_only);
   out->has_parameters = true;
   out->status = TrackingStatus::kCalibrated;

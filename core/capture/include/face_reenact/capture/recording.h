@@ -129,11 +129,16 @@ class RecordingReader : public FrameSource {
 
 // An ordinary video file as an RGB-only recording. Video files carry no intrinsics, so the
 // camera is a pinhole with the principal point at the image centre and the horizontal field of
-// view `horizontal_fov_deg` (default 60 degrees, typical of webcams).
+// view `horizontal_fov_deg` (default 60 degrees, typical of webcams), or the given `intrinsics`.
+// (The tracker can estimate the focal length from the face: TrackerOptions::focal_length.)
 class VideoReader : public FrameSource {
  public:
+  struct Intrinsics {
+    double fx = 0, fy = 0, cx = 0, cy = 0;  // pixels (OpenCV pixel-centre convention)
+  };
   struct Options {
     double horizontal_fov_deg = 60.0;
+    std::optional<Intrinsics> intrinsics;  // when set, replaces horizontal_fov_deg
     bool IsValid(std::string* why) const;
   };
   // Throws face_reenact::Error for invalid options and for everything VideoFileReader rejects.

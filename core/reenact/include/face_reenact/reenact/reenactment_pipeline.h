@@ -218,6 +218,9 @@ class ReenactmentPipeline {
   // Non-empty when the target's last calibration saw a face not at rest
   // (tracker::FaceTracker::calibration_warning()): the front-end should ask for a new one.
   std::string calibration_warning() const;
+  // The target tracker's focal length search (tracker::FaceTracker::focal_length_report(); not
+  // searched with ground truth or before the first calibration).
+  tracker::FaceTracker::FocalLengthReport focal_length_report() const;
   // Where the target's calibration stands (tracker::FaceTracker::calibration_progress(): frames
   // collected, a background solve running); nothing collecting or solving with ground truth.
   tracker::FaceTracker::CalibrationProgress calibration_progress() const;

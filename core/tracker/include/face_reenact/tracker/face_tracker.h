@@ -35,6 +35,7 @@
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/tracker/energy.h"
 #include "face_reenact/tracker/fit_agreement.h"
+#include "face_reenact/tracker/focal_length.h"
 #include "face_reenact/tracker/gaze.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/parameter_layout.h"
@@ -247,6 +248,13 @@ struct TrackerOptions {
   // calibrating; off for files, where which frame is the first calibrated one must not depend on
   // the machine's speed.
   bool background_calibration = false;
+  // The focal length of a camera that does not say (a video file, a webcam; focal_length.h):
+  // with `estimate` on, the first calibration over frames without depth searches the field of
+  // view that explains the calibration frames' landmarks best, and every later frame without
+  // depth is fitted through that camera (its principal point kept): TrackedFrame::camera says
+  // which camera each fit is in. Frames with depth keep their own intrinsics. Off by default;
+  // the front-ends turn it on for videos and webcams when no --fov / --intrinsics is given.
+  FocalLengthOptions focal_length;
 
   bool IsValid(std::string* why) const;
   // calibration_min_face_width_px with -1 resolved.
@@ -315,6 +323,10 @@ struct TrackedFrame {
   // pose)"), or the frame was lost.
   std::string disagreement;
   StageTimes times;
+  // The camera this frame was fitted through (render `params` with it): the frame's own, or,
+  // once the focal length was estimated (TrackerOptions::focal_length), the frame's with the
+  // estimated fx, fy.
+  gpu::PinholeCamera camera;
 
   // This frame's first fit disagreed with the landmarks and was not kept: the solve from the
   // landmarks' pose replaced it, or the frame was lost.
@@ -373,6 +385,13 @@ class FaceTracker {
   // Non-empty when the last calibration's neutral expression says the actor was not at rest
   // (TrackerOptions::rest_warning_weight): names the strongest weights and what to do.
   const std::string& calibration_warning() const { return calibration_warning_; }
+  // The focal length search of the first calibration over frames without depth
+  // (TrackerOptions::focal_length); searched false before one ran (or when it is off).
+  struct FocalLengthReport {
+    bool searched = false;
+    FocalLengthEstimate estimate;  // estimated false: the fallback field of view is applied
+  };
+  const FocalLengthReport& focal_length_report() const { return focal_length_; }
   // The fit of the last frame with a trustworthy fit (has_parameters false before any).
   const TrackedFrame& last_good() const { return last_good_; }
   int calibration_frames_collected() const { return static_cast<int>(calibration_inputs_.size()); }
@@ -439,6 +458,9 @@ class FaceTracker {
   void OfferCalibrationFrame(const InputFrame& input, const gpu::FaceParameters& start, int64_t frame_index);
   bool CalibrationReady() const;
   void ClearCalibrationFrames();
+  // The camera a frame with `camera` (and depth or not) is fitted through: the estimated focal
+  // length once searched, for frames without depth.
+  gpu::PinholeCamera FittingCamera(const gpu::PinholeCamera& camera, bool has_depth) const;
   std::string CalibrationProgressMessage() const;  // "calibrating: 3 of 5 frames ..."
   // `stop` (options_.stop, or a background calibration's own) given to a solve.
   SolverOptions WithStop(SolverOptions options, const std::stop_token& stop) const;
@@ -456,6 +478,7 @@ class FaceTracker {
   SolverSummary calibration_summary_;
   CalibrationStartReport calibration_start_report_;
   std::string calibration_warning_;
+  FocalLengthReport focal_length_;  // applied to frames without depth once searched
   std::vector<InputFrame> calibration_inputs_;
   std::vector<gpu::FaceParameters> calibration_starts_;
   std::vector<int64_t> calibration_frame_indices_;
