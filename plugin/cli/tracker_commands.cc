@@ -394,7 +394,13 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   std::ofstream params_file;
   std::string params_partial;
   if (!params_path.empty()) {
-    params_partial = params_path + ".partial";
+    // A file is written beside and moved into place at the end, so an interrupted run leaves the
+    // last complete one; a device or pipe (/dev/null, /dev/stdout) is written directly: moving a
+    // file onto it would replace the device node itself (as root, /dev/null became a plain file).
+    std::error_code exists_ec;
+    const bool special = std::filesystem::exists(params_path, exists_ec) &&
+                         !std::filesystem::is_regular_file(params_path, exists_ec);
+    params_partial = special ? params_path : params_path + ".partial";
     params_file.open(params_partial, std::ios::binary | std::ios::trunc);
     if (!params_file) throw Error("track: cannot write '" + params_partial + "'");
   }
@@ -500,8 +506,10 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   if (params_file.is_open()) {
     params_file.close();
     if (!params_file) throw Error("track: writing '" + params_partial + "' failed");
-    std::filesystem::rename(params_partial, params_path, ec);
-    if (ec) throw Error("track: cannot move '" + params_partial + "' to '" + params_path + "': " + ec.message());
+    if (params_partial != params_path) {
+      std::filesystem::rename(params_partial, params_path, ec);
+      if (ec) throw Error("track: cannot move '" + params_partial + "' to '" + params_path + "': " + ec.message());
+    }
   }
   if (!mesh_dir.empty() && tracker.calibrated()) {
     // neutral.ply: the actor's identity with no expression at all; the calibrated rest expression

@@ -3,7 +3,11 @@
 // read back by the stream's replay parser, exported meshes, the ablation, a recording with
 // blank and depth-less frames, a video file (RGB only), and bad arguments.
 #include <gtest/gtest.h>
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
+#include <chrono>
+#include <thread>
 
 #include <algorithm>
 #include <cstdlib>
@@ -668,6 +672,47 @@ TEST(TrackCli, VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe) {
                                                (fx.dir / "x.jsonl").string(), "--solver", "gpu", "--model", model()});
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.output.find("--solver"), std::string::npos) << bad.output;
+}
+
+// --out naming a pipe (or a device such as /dev/null) is written to, not replaced: the parameter
+// file is otherwise written beside and moved into place, which replaced the node itself (run as
+// root, `--out /dev/null` turned /dev/null into a plain file).
+TEST(TrackCli, AnOutputThatIsAPipeOrDeviceIsWrittenNotReplaced) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "pipe";
+  fs::create_directories(out);
+  const fs::path fifo = out / "params.fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  // The reader opens first (non-blocking), so the writer's open never waits; it reads until the
+  // writer has come and gone, or 120 s pass.
+  const int fd = ::open(fifo.c_str(), O_RDONLY | O_NONBLOCK);
+  ASSERT_GE(fd, 0);
+  std::string received;
+  std::thread reader([&] {
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    char buf[4096];
+    while (std::chrono::steady_clock::now() < deadline) {
+      const ssize_t n = ::read(fd, buf, sizeof buf);
+      if (n > 0) {
+        received.append(buf, static_cast<size_t>(n));
+      } else if (n == 0 && !received.empty()) {
+        break;  // the writer closed
+      } else {
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      }
+    }
+  });
+  const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out", fifo.string(),
+                                             "--landmarks", "recording", "--calibration-frames", "2", "--frames", "3",
+                                             "--quiet", "--model", model()});
+  reader.join();
+  ::close(fd);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  struct stat st{};
+  ASSERT_EQ(::stat(fifo.c_str(), &st), 0);
+  EXPECT_TRUE(S_ISFIFO(st.st_mode)) << "the pipe was replaced by a file";
+  EXPECT_FALSE(fs::exists(fifo.string() + ".partial"));
+  EXPECT_EQ(std::count(received.begin(), received.end(), '\n'), 3) << received;
 }
 
 TEST(TrackCli, BadArgumentsFailCleanly) {
