@@ -128,7 +128,7 @@ std::string NotAtRestWarning(const TrackerModel& model, const Eigen::VectorXf& n
          "): part of that expression is now in the identity; calibrate again with a relaxed face and closed mouth";
 }
 
-// `frame` seen through `camera` (a copy only when the camera differs).
+// `frame` seen through `camera` (a copy: used on the calibration frames, not per tracked frame).
 InputFrame WithCamera(const InputFrame& frame, const gpu::PinholeCamera& camera) {
   InputFrame f = frame;
   f.camera = camera;
