@@ -307,7 +307,7 @@ void add_webcam_command(CLI::App& app) {
                 static_cast<long long>(t.frames), static_cast<long long>(t.tracked), t.tracked / seconds,
                 static_cast<long long>(t.calibrating), static_cast<long long>(t.unchanged),
                 static_cast<long long>(t.input_frames), static_cast<long long>(t.dropped_at_input));
-    std::printf("  worker, mean ms per processed frame (the paper's Table 1 rows):\n");
+    std::printf("  per frame, mean ms from the worker taking it to its output (the paper's Table 1 rows):\n");
     for (const live::LiveStageRow& row : live::LiveStageRows())
       std::printf("    %-26s %8.2f\n", row.name, t.sum.*row.ms / n);
     std::printf("    %-26s %8.2f\n", "total", t.sum.total_ms / n);

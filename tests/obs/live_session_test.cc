@@ -490,11 +490,13 @@ TEST(LiveSessionTest, StopIsPromptIdempotentAndLeavesNoThreads) {
     LiveSession session(o);
     LiveFrame frame;
     ASSERT_TRUE(session.wait_frame(0, 10s, &frame));
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 2);  // worker + target grabber
+    // Worker, render thread, target grabber.
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), 1);
     // The session runs niced (Options::worker_nice, default 5) below this thread.
     int mine = ::getpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)));
     std::vector<int> nice_values = test::thread_nice_values("fr-live");
-    EXPECT_EQ(nice_values.size(), size_t(before + 2));
+    EXPECT_EQ(nice_values.size(), size_t(before + 3));
     for (int nice_value : nice_values) EXPECT_EQ(nice_value, std::min(19, mine + 5));
     std::thread other([&] { session.RequestCalibration(); });
     other.join();
@@ -588,8 +590,8 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
     LiveFrame frame;
     ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
     LiveStatus s = wait_status(session, 30s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
-    // Worker, target, actor (the pipeline's loading thread has ended).
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);
+    // Worker, render thread, target, actor (the pipeline's loading thread has ended).
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 4);
     EXPECT_EQ(s.source_description, "recording '" + dir + "'");
     // A 160x120 face is too small for the landmark detector: the actor is waiting (no face
     // tracked yet) or, if it was tracked, live; never "none" or an error.

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <future>
+#include <optional>
 
 #include <opencv2/imgproc.hpp>
 
@@ -190,6 +192,57 @@ TEST(ReenactPipelineTest, TrackedStaticTargetIsStableFrameToFrame) {
   const ReenactedFrame c = pipeline.Process(again, &smile);
   EXPECT_EQ(c.tracked.status, tracker::TrackingStatus::kCalibrating);
   EXPECT_EQ(c.status, TrackingStatus::kCalibrating);
+}
+
+// The live session's split: Track(n+1) on one thread while Render(n) runs on another gives the
+// same frames, bit for bit, as Process one frame after the other (Render keeps the appearance, the
+// neutral of Eq. 15 travels with each frame, so the overlap changes nothing), through a
+// calibration, a moving head and a recalibration request in the middle.
+TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(160, 120);
+  std::vector<capture::RgbdFrame> frames;
+  for (int i = 0; i < 10; ++i) {
+    gpu::FaceParameters p = test_face(0.4f);
+    p.euler.y() += 0.02f * static_cast<float>(i);
+    frames.push_back(make_frame(p, cam, i));
+  }
+  SourceExpression smile;
+  smile.weights[arkit_blendshape_index("mouthSmileLeft")] = 0.7f;
+  smile.weights[kJawOpenIndex] = 0.3f;
+
+  ReenactmentPipeline sequential(*test_model(), recording_landmarks());
+  std::vector<ReenactedFrame> expected;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (i == 6) sequential.RequestCalibration();
+    expected.push_back(sequential.Process(frames[i], &smile));
+  }
+
+  ReenactmentPipeline split(*test_model(), recording_landmarks());
+  std::vector<ReenactedFrame> got;
+  std::future<ReenactedFrame> rendering;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (i == 6) split.RequestCalibration();
+    TrackedTarget tracked = split.Track(frames[i]);  // overlaps the previous frame's Render
+    if (rendering.valid()) got.push_back(rendering.get());
+    rendering = std::async(std::launch::async, [&split, &smile, t = std::move(tracked)]() mutable {
+      return split.Render(std::move(t), &smile);
+    });
+  }
+  got.push_back(rendering.get());
+
+  ASSERT_EQ(got.size(), expected.size());
+  int reenacted = 0;
+  for (size_t i = 0; i < got.size(); ++i) {
+    EXPECT_EQ(got[i].status, expected[i].status) << "frame " << i;
+    EXPECT_EQ(got[i].reenacted, expected[i].reenacted) << "frame " << i;
+    reenacted += got[i].reenacted;
+    ASSERT_EQ(got[i].bgr.size(), expected[i].bgr.size());
+    EXPECT_EQ(cv::norm(got[i].bgr, expected[i].bgr, cv::NORM_INF), 0.0) << "frame " << i;
+  }
+  EXPECT_GE(reenacted, 3);
+  EXPECT_EQ(split.summary().frames, sequential.summary().frames);
+  EXPECT_EQ(split.summary().reenacted_frames, sequential.summary().reenacted_frames);
 }
 
 // The overlay mode (OBS, the webcam, `reenact --mode overlay`): the target is tracked and its

@@ -17,36 +17,52 @@ struct ExpressionInput {
   const capture::RgbdFrame* actor_frame = nullptr;   // a NEW frame of the source actor, else nullptr
 };
 
+// What tracking the source actor's frame gave (the worker's half, ExpressionInput::actor_frame).
+struct ActorOutcome {
+  bool tracked = false;      // the actor frame given was tracked and now drives the expression
+  bool lost = false;         // the actor frame given had no trackable face
+  bool calibrating = false;  // the actor frame given went to the actor's calibration
+  std::string calibration_progress;  // then: its progress (CalibrationProgress::Brief())
+  double ms = 0;             // time spent tracking it
+};
+
 struct ProcessedFrame {
   cv::Mat bgr;
   TrackingState tracking = TrackingState::kOff;
   std::string message;        // why the input passed unchanged, or ""
   std::string calibration_warning;  // LiveStatus::calibration_warning
-  bool actor_tracked = false; // the actor frame given was tracked and now drives the expression
-  bool actor_lost = false;    // the actor frame given had no trackable face
-  bool actor_calibrating = false;  // the actor frame given went to the actor's calibration
-  std::string actor_calibration_progress;  // then: its progress (CalibrationProgress::Brief())
   std::string calibration_progress;        // the target's, while calibrating (LiveStatus::calibration_progress)
-  LiveStageTimes times;  // the pipeline's rows (the worker adds worker_other_ms and total_ms)
+  LiveStageTimes times;  // the pipeline's rows (the session adds worker_other_ms and total_ms)
 };
 
+// A frame between the two halves: whatever the processor's track() hands its render().
+struct StagedFrame {
+  virtual ~StagedFrame() = default;
+};
+
+// Each frame runs in two halves so that consecutive frames overlap on two threads: track() on the
+// session's worker (the target's fit, and the source actor's), render() on its render thread (the
+// re-rendered face composited into the frame), while the worker tracks the next frame. Each half
+// is called from one thread at a time, in frame order.
 class FrameProcessor {
  public:
   virtual ~FrameProcessor() = default;
-  // Never throws for bad frame content; may throw face_reenact::Error for internal failures
-  // (the worker then passes the frame through and reports the message).
-  virtual ProcessedFrame process(const capture::RgbdFrame& target, const ExpressionInput& input) = 0;
+  // Never throw for bad frame content; may throw face_reenact::Error for internal failures
+  // (the session then passes the frame through and reports the message).
+  virtual std::unique_ptr<StagedFrame> track(const capture::RgbdFrame& target, const ExpressionInput& input,
+                                             ActorOutcome* actor) = 0;
+  virtual ProcessedFrame render(std::unique_ptr<StagedFrame> staged) = 0;
   virtual void request_calibration() = 0;
 };
 
 // Output = input. Used for OutputMode::kRaw.
-std::unique_ptr<FrameProcessor> make_raw_processor();
+std::shared_ptr<FrameProcessor> make_raw_processor();
 
 // The reenactment pipeline on the model at `model_path` (mode kReenact or kPassThrough), with a
 // second pipeline tracking the source actor when `with_actor`. Throws face_reenact::Error when
 // the model cannot be loaded or this build has no reenactment pipeline. A requested `stop` ends a
 // process() call in progress within one Gauss-Newton iteration (the session is shutting down).
-std::unique_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
+std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
                                                            bool use_vulkan, bool with_actor, std::stop_token stop);
 
 }  // namespace face_reenact::live

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <deque>
 #include <filesystem>
+#include <functional>
 #include <future>
 
 #include "face_reenact/common/error.h"
@@ -55,7 +56,7 @@ const std::vector<LiveStageRow>& LiveStageRows() {
       {"mouth", &LiveStageTimes::mouth_ms},
       {"composite", &LiveStageTimes::composite_ms},
       {"source actor tracking", &LiveStageTimes::actor_ms},
-      {"worker other", &LiveStageTimes::worker_other_ms},
+      {"hand-off and other", &LiveStageTimes::worker_other_ms},
   };
   return rows;
 }
@@ -311,6 +312,87 @@ output::SourceStatus LiveSession::next(output::SourceFrame* frame, std::string* 
   return output::SourceStatus::kFrame;
 }
 
+namespace {
+
+// One frame between the worker's half (track) and the render half.
+struct RenderJob {
+  std::shared_ptr<FrameProcessor> processor;  // the one that tracked it (a pipeline loaded meanwhile replaces it)
+  std::unique_ptr<StagedFrame> staged;        // null when the worker's half failed: `failure` says why
+  std::string failure;
+  cv::Mat input_bgr;                          // the target frame's colour: the output when nothing else is
+  int source_index = 0;
+  Clock::time_point captured, started;        // the capture thread had it / the worker took it
+};
+
+// The render half of each frame on a thread of its own ("fr-live-render"), so that the worker
+// tracks frame n+1 while frame n is re-rendered, composited and published: both cores work, and
+// a frame waits for nothing but its own stages. One slot, not a queue: a worker that is ahead
+// waits for the slot, so frames never pile up and the latency stays that of one frame.
+class RenderThread {
+ public:
+  using Publish = std::function<void(RenderJob&, ProcessedFrame&)>;
+  explicit RenderThread(Publish publish) : publish_(std::move(publish)), thread_([this] { run(); }) {}
+  ~RenderThread() {
+    {
+      std::lock_guard lock(mu_);
+      stopping_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  RenderThread(const RenderThread&) = delete;
+  RenderThread& operator=(const RenderThread&) = delete;
+
+  // Hands a job over once the slot is free; false (the job dropped) when `stopping()` turns true
+  // first (it is polled every 50 ms).
+  bool Submit(RenderJob job, const std::function<bool()>& stopping) {
+    std::unique_lock lock(mu_);
+    while (slot_) {
+      if (stopping()) return false;
+      cv_.wait_for(lock, std::chrono::milliseconds(50));
+    }
+    slot_ = std::make_unique<RenderJob>(std::move(job));
+    cv_.notify_all();
+    return true;
+  }
+
+ private:
+  void run() {
+    pthread_setname_np(pthread_self(), "fr-live-render");
+    for (;;) {
+      std::unique_ptr<RenderJob> job;
+      {
+        std::unique_lock lock(mu_);
+        cv_.wait(lock, [&] { return stopping_ || slot_; });
+        if (!slot_) return;  // stopping, nothing in hand
+        job = std::move(slot_);
+      }
+      cv_.notify_all();  // the slot is free: the worker may hand over the next frame
+      ProcessedFrame out;
+      if (job->staged) {
+        try {
+          out = job->processor->render(std::move(job->staged));
+        } catch (const std::exception& e) {
+          out = ProcessedFrame();
+          out.message = e.what();
+        }
+      } else {
+        out.message = job->failure;
+      }
+      publish_(*job, out);
+    }
+  }
+
+  Publish publish_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stopping_ = false;
+  std::unique_ptr<RenderJob> slot_;
+  std::thread thread_;  // last: started once the rest is constructed
+};
+
+}  // namespace
+
 void LiveSession::run() {
   pthread_setname_np(pthread_self(), options_.thread_name.c_str());
   if (options_.worker_nice > 0) {
@@ -348,11 +430,11 @@ void LiveSession::run() {
   // The pipeline loads on a thread of its own (seconds: the face model and dlib's 100 MB shape
   // predictor), never on a front-end's thread; meanwhile the target's frames pass unchanged, so
   // a front-end shows the camera at once ("Unchanged: loading the face model").
-  std::unique_ptr<FrameProcessor> processor = make_raw_processor();
+  std::shared_ptr<FrameProcessor> processor = make_raw_processor();
   bool pipeline_ready = false;
   std::string pipeline_error;
   Clock::time_point next_pipeline_try = Clock::now();
-  std::future<std::unique_ptr<FrameProcessor>> loading;  // its destructor waits for a load under way
+  std::future<std::shared_ptr<FrameProcessor>> loading;  // its destructor waits for a load under way
   auto start_loading = [&] {
     try {
       loading = std::async(std::launch::async, [model_path = options_.model_path, mode = options_.mode,
@@ -395,17 +477,67 @@ void LiveSession::run() {
     }
   };
 
-  uint64_t target_seq = 0, actor_seq = 0, out_seq = 0;
+  uint64_t target_seq = 0, actor_seq = 0;
   capture::RgbdFrame frame, actor_frame;
-  Clock::time_point window_start = Clock::now();
-  int64_t window_frames = 0;
-  double window_ms = 0;
   bool actor_ever_tracked = false, actor_calibrating = false;
   Clock::time_point actor_last_tracked{};
   std::deque<Clock::time_point> actor_tracked_times;  // the last second's, for the actor's rate
-  TrackingState tracking = TrackingState::kOff;
-  std::string frame_message, calibration_warning, calibration_progress, actor_progress;
-  double output_fps = 0, process_ms = 0;
+  std::string actor_progress;
+
+  // What the render thread published last (guarded by mu_): the status reads it.
+  struct Published {
+    uint64_t sequence = 0;
+    TrackingState tracking = TrackingState::kOff;
+    std::string message, calibration_warning, calibration_progress;
+    Clock::time_point window_start = Clock::now();
+    int64_t window_frames = 0;
+    double window_ms = 0;
+    double output_fps = 0, process_ms = 0;
+  } shown;
+  auto publish = [&](RenderJob& job, ProcessedFrame& out) {
+    // Whatever went wrong, the front-end gets a picture of the right kind.
+    if (out.bgr.empty() || out.bgr.type() != CV_8UC3) out.bgr = job.input_bgr;
+    LiveFrame published;
+    published.bgr = out.bgr;
+    published.source_index = job.source_index;
+    published.captured = job.captured;
+    LiveStageTimes rows = out.times;
+    {
+      std::lock_guard lock(mu_);
+      published.sequence = ++shown.sequence;
+      published.produced = Clock::now();
+      shown.tracking = out.tracking;
+      shown.message = out.message;
+      shown.calibration_warning = out.calibration_warning;
+      shown.calibration_progress = out.calibration_progress;
+      ++shown.window_frames;
+      shown.window_ms += ms_since(job.started, published.produced);
+      latest_ = published;
+      status_.frames_out = static_cast<int64_t>(published.sequence);
+      status_.calibration_pending = calibration_requested_.load();
+      // The frame's time from the worker taking it to its publication, both halves and the
+      // hand-off between them; a frame a reader has seen is counted.
+      rows.total_ms = ms_since(job.started, published.produced);
+      double named = 0;
+      for (const LiveStageRow& row : LiveStageRows()) named += rows.*row.ms;
+      rows.worker_other_ms = std::max(0.0, rows.total_ms - named);
+      ++timings_.frames;
+      timings_.tracked += out.tracking == TrackingState::kTracking;
+      timings_.calibrating += out.tracking == TrackingState::kCalibrating;
+      timings_.unchanged += out.tracking != TrackingState::kTracking && out.tracking != TrackingState::kCalibrating;
+      timings_.sum.Add(rows);
+    }
+    frame_cv_.notify_all();
+    if (options_.on_frame) {
+      try {
+        options_.on_frame(published);
+      } catch (...) {
+        // A front-end's callback must not take the session down; it sees the next frame.
+      }
+    }
+  };
+  // Declared after everything `publish` uses, so it is joined (its job in hand finished) first.
+  RenderThread render(publish);
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
@@ -424,77 +556,51 @@ void LiveSession::run() {
       ExpressionInput input;
       if (receiver) input.remote = &remote;
       if (actor && actor->take_newer(actor_seq, &actor_frame, &actor_seq)) input.actor_frame = &actor_frame;
-      Clock::time_point t0 = Clock::now();
-      ProcessedFrame out;
+      RenderJob job;
+      job.processor = processor;
+      job.input_bgr = frame.color;
+      job.source_index = frame.index;
+      job.captured = captured;
+      job.started = Clock::now();
+      ActorOutcome actor_outcome;
       try {
-        out = processor->process(frame, input);
+        job.staged = processor->track(frame, input, &actor_outcome);
       } catch (const std::exception& e) {
-        out = ProcessedFrame();
-        out.message = e.what();
+        job.failure = e.what();
       }
-      double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-      // Whatever went wrong, the front-end gets a picture of the right kind.
-      if (out.bgr.empty() || out.bgr.type() != CV_8UC3) out.bgr = frame.color;
-      tracking = out.tracking;
-      frame_message = out.message;
-      calibration_warning = out.calibration_warning;
-      calibration_progress = out.calibration_progress;
       if (input.actor_frame) {
-        actor_calibrating = out.actor_calibrating;
-        actor_progress = out.actor_calibration_progress;
+        actor_calibrating = actor_outcome.calibrating;
+        actor_progress = actor_outcome.calibration_progress;
       }
-      if (out.actor_tracked) {
+      if (actor_outcome.tracked) {
         actor_ever_tracked = true;
         actor_last_tracked = Clock::now();
         actor_tracked_times.push_back(actor_last_tracked);
       }
-      LiveFrame published;
-      published.bgr = out.bgr;
-      published.sequence = ++out_seq;
-      published.source_index = frame.index;
-      published.captured = captured;
-      published.produced = Clock::now();
-      ++window_frames;
-      window_ms += ms;
-      {
-        std::lock_guard lock(mu_);
-        latest_ = published;
-        status_.frames_out = static_cast<int64_t>(out_seq);
-        status_.calibration_pending = calibration_requested_.load();
-      }
-      frame_cv_.notify_all();
-      if (options_.on_frame) {
-        try {
-          options_.on_frame(published);
-        } catch (...) {
-          // A front-end's callback must not take the worker down; it sees the next frame.
-        }
-      }
-      LiveStageTimes rows = out.times;
-      rows.total_ms = ms_since(t0);
-      double named = 0;
-      for (const LiveStageRow& row : LiveStageRows()) named += rows.*row.ms;
-      rows.worker_other_ms = std::max(0.0, rows.total_ms - named);
-      {
-        std::lock_guard lock(mu_);
-        ++timings_.frames;
-        const bool shown_tracked = pipeline_ready && out.tracking == TrackingState::kTracking;
-        timings_.tracked += shown_tracked;
-        timings_.calibrating += pipeline_ready && out.tracking == TrackingState::kCalibrating;
-        timings_.unchanged += !shown_tracked && !(pipeline_ready && out.tracking == TrackingState::kCalibrating);
-        timings_.sum.Add(rows);
-      }
+      render.Submit(std::move(job), stopping);
     }
 
     // Status, refreshed every pass (a few copies of small strings).
     now = Clock::now();
-    double window_s = std::chrono::duration<double>(now - window_start).count();
-    if (window_s >= 1.0) {
-      output_fps = window_frames / window_s;
-      process_ms = window_frames > 0 ? window_ms / window_frames : 0;
-      window_frames = 0;
-      window_ms = 0;
-      window_start = now;
+    TrackingState tracking;
+    std::string frame_message, calibration_warning, calibration_progress;
+    double output_fps, process_ms;
+    {
+      std::lock_guard lock(mu_);
+      const double window_s = std::chrono::duration<double>(now - shown.window_start).count();
+      if (window_s >= 1.0) {
+        shown.output_fps = shown.window_frames / window_s;
+        shown.process_ms = shown.window_frames > 0 ? shown.window_ms / shown.window_frames : 0;
+        shown.window_frames = 0;
+        shown.window_ms = 0;
+        shown.window_start = now;
+      }
+      tracking = shown.tracking;
+      frame_message = shown.message;
+      calibration_warning = shown.calibration_warning;
+      calibration_progress = shown.calibration_progress;
+      output_fps = shown.output_fps;
+      process_ms = shown.process_ms;
     }
     GrabberStatus ts = target.status();
     LiveStatus s;

@@ -5,9 +5,17 @@ namespace {
 
 class RawProcessor : public FrameProcessor {
  public:
-  ProcessedFrame process(const capture::RgbdFrame& target, const ExpressionInput&) override {
+  struct Staged : StagedFrame {
+    cv::Mat bgr;
+  };
+  std::unique_ptr<StagedFrame> track(const capture::RgbdFrame& target, const ExpressionInput&, ActorOutcome*) override {
+    auto staged = std::make_unique<Staged>();
+    staged->bgr = target.color;
+    return staged;
+  }
+  ProcessedFrame render(std::unique_ptr<StagedFrame> staged) override {
     ProcessedFrame out;
-    out.bgr = target.color;
+    out.bgr = static_cast<Staged&>(*staged).bgr;
     out.tracking = TrackingState::kOff;
     return out;
   }
@@ -16,6 +24,6 @@ class RawProcessor : public FrameProcessor {
 
 }  // namespace
 
-std::unique_ptr<FrameProcessor> make_raw_processor() { return std::make_unique<RawProcessor>(); }
+std::shared_ptr<FrameProcessor> make_raw_processor() { return std::make_shared<RawProcessor>(); }
 
 }  // namespace face_reenact::live

@@ -70,42 +70,66 @@ class ReenactProcessor : public FrameProcessor {
     }
   }
 
-  ProcessedFrame process(const capture::RgbdFrame& target, const ExpressionInput& input) override {
-    ProcessedFrame out;
+  // The worker's half: the source actor's frame, the source expression, the target's fit, and
+  // what the status needs from the tracker (read here: the next Track may change it meanwhile).
+  struct Staged : StagedFrame {
+    reenact::TrackedTarget target;
+    reenact::SourceExpression source;
+    bool has_source = false;
+    std::string calibration_warning;
+    std::string calibration_progress;
     double actor_ms = 0;
+  };
+
+  std::unique_ptr<StagedFrame> track(const capture::RgbdFrame& target, const ExpressionInput& input,
+                                     ActorOutcome* actor_out) override {
+    auto staged = std::make_unique<Staged>();
+    ActorOutcome actor_outcome;
     if (actor_ && input.actor_frame) {
       const auto t_actor = SteadyClock::now();
       reenact::ReenactedFrame actor = actor_->Process(*input.actor_frame, nullptr);
-      actor_ms = ms_since(t_actor);
+      actor_outcome.ms = ms_since(t_actor);
       if (actor.status == reenact::TrackingStatus::kTracking) {
         actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
         have_actor_expression_ = true;
-        out.actor_tracked = true;
+        actor_outcome.tracked = true;
       } else {
-        out.actor_lost = actor.status == reenact::TrackingStatus::kLost;
-        out.actor_calibrating = actor.status == reenact::TrackingStatus::kCalibrating;
-        if (out.actor_calibrating) out.actor_calibration_progress = actor_->calibration_progress().Brief();
+        actor_outcome.lost = actor.status == reenact::TrackingStatus::kLost;
+        actor_outcome.calibrating = actor.status == reenact::TrackingStatus::kCalibrating;
+        if (actor_outcome.calibrating) actor_outcome.calibration_progress = actor_->calibration_progress().Brief();
       }
     }
-    reenact::SourceExpression remote;
-    const reenact::SourceExpression* source = nullptr;
+    if (actor_out) *actor_out = actor_outcome;
     if (input.remote) {
-      remote = reenact::SourceFromRemote(*input.remote);
-      source = &remote;
+      staged->source = reenact::SourceFromRemote(*input.remote);
+      staged->has_source = true;
     } else if (have_actor_expression_) {
-      source = &actor_expression_;
+      staged->source = actor_expression_;
+      staged->has_source = true;
     }
-    reenact::ReenactedFrame result = target_->Process(target, source);
+    staged->target = target_->Track(target);
+    staged->calibration_warning = target_->calibration_warning();
+    if (staged->target.frame.status == reenact::TrackingStatus::kCalibrating)
+      staged->calibration_progress = target_->calibration_progress().Brief();
+    if (actor_ && !actor_->calibration_warning().empty())
+      staged->calibration_warning += (staged->calibration_warning.empty() ? "" : "; ") +
+                                     ("source actor: " + actor_->calibration_warning());
+    staged->actor_ms = actor_outcome.ms;
+    return staged;
+  }
+
+  ProcessedFrame render(std::unique_ptr<StagedFrame> base) override {
+    Staged& staged = static_cast<Staged&>(*base);
+    ProcessedFrame out;
+    reenact::ReenactedFrame result =
+        target_->Render(std::move(staged.target), staged.has_source ? &staged.source : nullptr);
     out.bgr = result.bgr;
     out.times = stage_rows(result);
-    out.times.actor_ms = actor_ms;
+    out.times.actor_ms = staged.actor_ms;
     out.tracking = tracking_from(result.status);
     out.message = result.message;
-    out.calibration_warning = target_->calibration_warning();
-    if (result.status == reenact::TrackingStatus::kCalibrating)
-      out.calibration_progress = target_->calibration_progress().Brief();
-    if (actor_ && !actor_->calibration_warning().empty())
-      out.calibration_warning += (out.calibration_warning.empty() ? "" : "; ") + ("source actor: " + actor_->calibration_warning());
+    out.calibration_warning = staged.calibration_warning;
+    if (result.status == reenact::TrackingStatus::kCalibrating) out.calibration_progress = staged.calibration_progress;
     return out;
   }
 
@@ -124,9 +148,9 @@ class ReenactProcessor : public FrameProcessor {
 
 }  // namespace
 
-std::unique_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
+std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
                                                            bool use_vulkan, bool with_actor, std::stop_token stop) {
-  return std::make_unique<ReenactProcessor>(model_path, mode, use_vulkan, with_actor, std::move(stop));
+  return std::make_shared<ReenactProcessor>(model_path, mode, use_vulkan, with_actor, std::move(stop));
 }
 
 }  // namespace face_reenact::live

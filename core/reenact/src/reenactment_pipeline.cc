@@ -180,28 +180,23 @@ PipelineSummary ReenactmentPipeline::summary() const {
 }
 
 ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, const SourceExpression* source) {
-  Impl& im = *impl_;
-  const auto start = Clock::now();
   std::string why;
   if (source && !source->IsValid(&why)) throw Error(why);
+  return Render(Track(target), source);
+}
 
-  ReenactedFrame out;
+TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
+  Impl& im = *impl_;
+  TrackedTarget tt;
+  tt.start = Clock::now();
+  ReenactedFrame& out = tt.frame;
   out.frame_index = target.index;
-  auto finish = [&](ReenactedFrame& f) -> ReenactedFrame {
-    f.times.total_ms = ms_since(start);
-    im.status = f.status;
-    ++im.summary.frames;
-    if (f.reenacted) ++im.summary.reenacted_frames;
-    if (f.status == TrackingStatus::kLost) ++im.summary.lost_frames;
-    if (f.status == TrackingStatus::kCalibrating) ++im.summary.calibrating_frames;
-    add_times(&im.time_sums, f.times);
-    return std::move(f);
-  };
-  auto pass_through = [&](TrackingStatus status, const std::string& message) -> ReenactedFrame {
+  auto pass_through = [&](TrackingStatus status, const std::string& message) -> TrackedTarget {
     out.status = status;
     out.message = message;
     out.reenacted = false;
-    return finish(out);
+    tt.finished = true;
+    return std::move(tt);
   };
 
   // The output always has the input's size and type CV_8UC3, whatever arrives.
@@ -230,7 +225,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
 
   if (calibration_requested_.exchange(false)) {
     if (im.tracker) im.tracker->RequestCalibration();
-    im.ForgetActor();
+    tt.forget_actor = true;  // the appearance belongs to Render's side (another thread, maybe)
   }
 
   // --- track the target.
@@ -291,7 +286,8 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
     out.times.render_ms = ms_since(to);
     out.target_params = out.tracked.params;
     out.message = out.tracked.message;
-    return finish(out);
+    tt.finished = true;
+    return tt;
   }
   if (out.status != TrackingStatus::kTracking) {
     return pass_through(out.status, out.tracked.message.empty() ? std::string(tracking_status_name(out.status))
@@ -299,6 +295,36 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
   }
   out.target_params = target_params;
   if (im.options.mode == ReenactMode::kOff) return pass_through(out.status, "reenactment is off");
+  tt.camera = fit_camera;
+  tt.neutral = im.neutral;  // Eq. 15's, as of this frame (the next Track may change it meanwhile)
+  return tt;
+}
+
+ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceExpression* source) {
+  Impl& im = *impl_;
+  std::string why;
+  if (source && !source->IsValid(&why)) throw Error(why);
+  if (tracked.forget_actor) im.ForgetActor();
+  ReenactedFrame& out = tracked.frame;
+  auto finish = [&]() -> ReenactedFrame {
+    out.times.total_ms = ms_since(tracked.start);
+    im.status = out.status;
+    ++im.summary.frames;
+    if (out.reenacted) ++im.summary.reenacted_frames;
+    if (out.status == TrackingStatus::kLost) ++im.summary.lost_frames;
+    if (out.status == TrackingStatus::kCalibrating) ++im.summary.calibrating_frames;
+    add_times(&im.time_sums, out.times);
+    return std::move(out);
+  };
+  auto pass_through = [&](TrackingStatus status, const std::string& message) -> ReenactedFrame {
+    out.status = status;
+    out.message = message;
+    out.reenacted = false;
+    return finish();
+  };
+  if (tracked.finished) return finish();
+  const gpu::FaceParameters& target_params = out.target_params;
+  const gpu::PinholeCamera& fit_camera = tracked.camera;
 
   // --- the target's appearance: its own per-vertex albedo, learned from its frames.
   ++im.tracked_frames;
@@ -312,9 +338,9 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
     }
 
     // --- transfer (Eq. 15).
-    t0 = Clock::now();
+    auto t0 = Clock::now();
     const bool transfer = im.options.mode == ReenactMode::kReenact && source != nullptr;
-    out.output_params = transfer ? TransferParameters(target_params, im.neutral, *source) : target_params;
+    out.output_params = transfer ? TransferParameters(target_params, tracked.neutral, *source) : target_params;
     out.times.transfer_ms = ms_since(t0);
 
     // --- re-render, mouth, composite.
@@ -337,7 +363,7 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
     // Non-finite or out-of-range tracked parameters: show the input, say why.
     return pass_through(TrackingStatus::kLost, std::string("reenactment failed: ") + e.what());
   }
-  return finish(out);
+  return finish();
 }
 
 }  // namespace face_reenact::reenact

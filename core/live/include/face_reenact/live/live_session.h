@@ -5,10 +5,12 @@
 // an output mode. It owns three kinds of threads:
 //   - a capture thread per picture input (FrameGrabber): keeps only the newest frame;
 //   - the UDP receiver's thread (stream::ExpressionReceiver) when the source is a stream;
-//   - the worker ("fr-live"), which loads the model, runs the reenactment pipeline on the
-//     newest target frame and publishes the result.
+//   - the worker ("fr-live"), which loads the model and tracks the newest target frame, then
+//     hands it to
+//   - the render thread ("fr-live-render"), which re-renders and composites it and publishes the
+//     result while the worker already tracks the next frame (both cores busy; docs/real-time.md).
 // Front-ends never wait on any of it: latest_frame() and status() copy under a short lock, and
-// Options::on_frame is called on the worker thread with each output frame (OBS hands it to
+// Options::on_frame is called on the render thread with each output frame (OBS hands it to
 // obs_source_output_video there). Inputs that fail (camera unplugged, recording missing,
 // stream silent, model missing) are statuses, retried in the background, never exceptions.
 #include <atomic>
@@ -104,7 +106,8 @@ struct LiveStatus {
 // frames it processed: `bench live` divides by `frames` and prints them. The tracker's rows come
 // from tracker::StageTimes, the rest from reenact::StageTimes; `tracker_other_ms` is the tracker's
 // time outside its named stages (the fit's agreement check, loss checks, the landmark pose), and
-// `worker_other_ms` the worker's outside the pipeline (copies, status, publishing).
+// `worker_other_ms` the rest of the frame's time from the worker taking it to its publication (the
+// hand-off to the render thread, a wait for it, copies).
 struct LiveStageTimes {
   double input_ms = 0;          // the frame turned into the tracker's input (sRGB decode, depth)
   double landmarks_ms = 0;      // dlib: detection, or tracking from the last frame's points
@@ -121,7 +124,7 @@ struct LiveStageTimes {
   double composite_ms = 0;      // masks, Laplacian blend, 8-bit output
   double actor_ms = 0;          // a source actor's frame tracked on this worker (camera/recording source)
   double worker_other_ms = 0;
-  double total_ms = 0;          // the worker's whole time per frame (the sum of the rows above)
+  double total_ms = 0;          // from the worker taking the frame to its publication (the sum of the rows above)
 
   void Add(const LiveStageTimes& t);
 };
@@ -173,7 +176,7 @@ class LiveSession : public output::FrameSource {
     // The worker's nice increment (0..19): the pipeline yields the CPU to the front-end's own
     // threads (OBS's render thread, the webcam's pacing thread) when the machine is saturated.
     int worker_nice = 5;
-    // Called on the worker thread for each output frame; must return quickly (no blocking).
+    // Called on the render thread for each output frame; must return quickly (no blocking).
     std::function<void(const LiveFrame&)> on_frame;
     std::string thread_name = "fr-live";
 

@@ -9,11 +9,14 @@
 // `face-reenact reenact` / `demo` commands. It only grows (new fields get defaults, new
 // functions are added); nothing here is removed or changes meaning.
 //
-// Threading: a ReenactmentPipeline is driven by ONE thread (Process, options, status).
-// RequestCalibration() alone may be called from any thread at any time (an atomic flag that the
-// next Process() call consumes).
+// Threading: a ReenactmentPipeline is driven by ONE thread (Process, options, status), or by two
+// that split each frame: Track() on one, Render() on the other, so that the next frame's Track
+// runs while this frame's Render does (the live session; each half still runs on one thread at a
+// time, in frame order). RequestCalibration() alone may be called from any thread at any time (an
+// atomic flag that the next Process() or Track() call consumes).
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <memory>
 #include <string>
 
@@ -189,6 +192,17 @@ struct PipelineSummary {
   std::string BriefReport() const;
 };
 
+// A target frame after ReenactmentPipeline::Track: what Render needs to finish it. Plain data,
+// moved from one thread to the other.
+struct TrackedTarget {
+  ReenactedFrame frame;        // the output so far (the input's copy, status, message, tracked fit)
+  bool finished = false;       // nothing is left to render: `frame` is the output (Render only books it)
+  gpu::PinholeCamera camera;   // the camera the fit is in
+  gpu::FaceParameters neutral; // the target's neutral at this frame (Eq. 15)
+  bool forget_actor = false;   // a recalibration was requested: the learned appearance starts again
+  std::chrono::steady_clock::time_point start;  // Track's start (ReenactedFrame::times.total_ms)
+};
+
 class ReenactmentPipeline {
  public:
   // Throws face_reenact::Error on invalid options or model. The model must outlive the pipeline.
@@ -202,6 +216,12 @@ class ReenactmentPipeline {
   // output is then the input (or a black frame for an empty input) with status and message set.
   // Throws face_reenact::Error only on programmer errors (an invalid SourceExpression).
   ReenactedFrame Process(const capture::RgbdFrame& target, const SourceExpression* source);
+  // Process in two halves (Process = Render(Track(target), source)): Track validates the frame and
+  // tracks the target (landmarks, the fit, the overlay mode's drawing); Render learns the
+  // appearance, transfers the expression, re-renders and composites. Render(n) may run on another
+  // thread while Track(n+1) runs; the same guarantees as Process.
+  TrackedTarget Track(const capture::RgbdFrame& target);
+  ReenactedFrame Render(TrackedTarget tracked, const SourceExpression* source);
 
   // Thread-safe: the next Process() restarts the target's calibration (e.g. a new person sat down).
   void RequestCalibration();
