@@ -103,7 +103,7 @@ void FaceReenactSource::calibrate() {
   }
 }
 
-// On the session's worker thread.
+// On the session's render thread ("fr-live-render").
 void FaceReenactSource::output_frame(const live::LiveFrame& frame, uint64_t generation) {
   if (generation != generation_.load() || frame.bgr.empty()) return;
   thread_local cv::Mat bgra;
