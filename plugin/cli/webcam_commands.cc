@@ -239,10 +239,13 @@ void add_webcam_command(CLI::App& app) {
   bench_live->add_option("--model", live_args->model, "face model file");
   bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame (and the warm-up)")
       ->capture_default_str();
+  auto live_overlap = std::make_shared<bool>(false);
+  bench_live->add_flag("--overlap", *live_overlap,
+                       "Render frame n on a second thread while the worker tracks frame n+1 (LiveSession::Options::overlap_frames)");
   bench_live->add_option("--warmup", *live_warmup,
                          "seconds after the first frame left out of the measurement (model load, calibration)")
       ->capture_default_str();
-  bench_live->callback([live_args, live_seconds, live_warmup] {
+  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap] {
     if (!(*live_seconds > 0) || *live_seconds > 3600) throw Error("--seconds must be in (0, 3600]");
     if (!(*live_warmup >= 0) || *live_warmup > 600) throw Error("--warmup must be in [0, 600]");
     live::LiveSession::Options o;
@@ -250,6 +253,7 @@ void add_webcam_command(CLI::App& app) {
     o.source = live_args->source;
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
+    o.overlap_frames = *live_overlap;
     if (!live::parse_output_mode(live_args->mode, &o.mode))
       throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, raw");
     live::LiveSession::CheckInputs(o);

@@ -490,13 +490,11 @@ TEST(LiveSessionTest, StopIsPromptIdempotentAndLeavesNoThreads) {
     LiveSession session(o);
     LiveFrame frame;
     ASSERT_TRUE(session.wait_frame(0, 10s, &frame));
-    // Worker, render thread, target grabber.
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), 1);
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 2);  // worker + target grabber
     // The session runs niced (Options::worker_nice, default 5) below this thread.
     int mine = ::getpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)));
     std::vector<int> nice_values = test::thread_nice_values("fr-live");
-    EXPECT_EQ(nice_values.size(), size_t(before + 3));
+    EXPECT_EQ(nice_values.size(), size_t(before + 2));
     for (int nice_value : nice_values) EXPECT_EQ(nice_value, std::min(19, mine + 5));
     std::thread other([&] { session.RequestCalibration(); });
     other.join();
@@ -541,12 +539,18 @@ TEST(LiveSessionTest, ReenactModeRunsThePipelineOnTheRecording) {
 // The worker's stage times and counts (bench live's table): every processed frame is counted once
 // as tracked, calibrating or unchanged, the named rows add up to no more than the frame's time, the
 // tracker's rows are there once it tracks, and ResetTimings starts a new measurement.
-TEST(LiveSessionTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) {
+// With overlap_frames the same holds, the render thread publishes, and it ends with the session.
+class LiveSessionTimingsTest : public ::testing::TestWithParam<bool> {};
+
+TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) {
   std::string why;
   // The calibration test's recording (a face large enough to track at 320x240).
   const std::string dir = test::make_test_recording({"recording-320", 320, 240, 60, 7}, &why);
   if (dir.empty()) GTEST_SKIP() << "no test recording: " << why;
-  LiveSession session(pipeline_options(dir, OutputMode::kPassThrough));
+  const int threads_before = test::count_threads_with_prefix("fr-live-render");
+  LiveSession::Options options = pipeline_options(dir, OutputMode::kPassThrough);
+  options.overlap_frames = GetParam();
+  LiveSession session(options);
   // The calibration's joint solve takes seconds here and minutes under the sanitizers.
   LiveStatus s = wait_status(session, 280s, [](const LiveStatus& st) {
     return st.pipeline_ready && st.tracking == TrackingState::kTracking;
@@ -573,8 +577,12 @@ TEST(LiveSessionTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) {
   EXPECT_LE(named, t.sum.total_ms * 1.0001 + 1e-6);
   EXPECT_GT(t.sum.synthesis_ms + t.sum.analysis_ms, 0.0);  // the tracker ran
   EXPECT_GT(t.sum.render_ms + t.sum.composite_ms, 0.0);    // and the face was re-rendered
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + (GetParam() ? 1 : 0));
   session.stop();
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before);
 }
+
+INSTANTIATE_TEST_SUITE_P(OneOrTwoThreads, LiveSessionTimingsTest, ::testing::Bool());
 
 TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
   REQUIRE_RECORDING(dir);
@@ -590,8 +598,8 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
     LiveFrame frame;
     ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
     LiveStatus s = wait_status(session, 30s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
-    // Worker, render thread, target, actor (the pipeline's loading thread has ended).
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 4);
+    // Worker, target, actor (the pipeline's loading thread has ended).
+    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);
     EXPECT_EQ(s.source_description, "recording '" + dir + "'");
     // A 160x120 face is too small for the landmark detector: the actor is waiting (no face
     // tracked yet) or, if it was tracked, live; never "none" or an error.

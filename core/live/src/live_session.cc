@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <functional>
 #include <future>
+#include <optional>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
@@ -324,10 +325,9 @@ struct RenderJob {
   Clock::time_point captured, started;        // the capture thread had it / the worker took it
 };
 
-// The render half of each frame on a thread of its own ("fr-live-render"), so that the worker
-// tracks frame n+1 while frame n is re-rendered, composited and published: both cores work, and
-// a frame waits for nothing but its own stages. One slot, not a queue: a worker that is ahead
-// waits for the slot, so frames never pile up and the latency stays that of one frame.
+// The render half of each frame on a thread of its own ("fr-live-render", Options::overlap_frames),
+// so that the worker tracks frame n+1 while frame n is re-rendered, composited and published. One
+// slot, not a queue: a worker that is ahead waits for the slot, so frames never pile up.
 class RenderThread {
  public:
   using Publish = std::function<void(RenderJob&, ProcessedFrame&)>;
@@ -342,6 +342,22 @@ class RenderThread {
   }
   RenderThread(const RenderThread&) = delete;
   RenderThread& operator=(const RenderThread&) = delete;
+
+  // The render half of `job` (on whichever thread runs it), or why there is none.
+  static ProcessedFrame Finish(RenderJob& job) {
+    ProcessedFrame out;
+    if (!job.staged) {
+      out.message = job.failure;
+      return out;
+    }
+    try {
+      out = job.processor->render(std::move(job.staged));
+    } catch (const std::exception& e) {
+      out = ProcessedFrame();
+      out.message = e.what();
+    }
+    return out;
+  }
 
   // Hands a job over once the slot is free; false (the job dropped) when `stopping()` turns true
   // first (it is polled every 50 ms).
@@ -368,17 +384,7 @@ class RenderThread {
         job = std::move(slot_);
       }
       cv_.notify_all();  // the slot is free: the worker may hand over the next frame
-      ProcessedFrame out;
-      if (job->staged) {
-        try {
-          out = job->processor->render(std::move(job->staged));
-        } catch (const std::exception& e) {
-          out = ProcessedFrame();
-          out.message = e.what();
-        }
-      } else {
-        out.message = job->failure;
-      }
+      ProcessedFrame out = Finish(*job);
       publish_(*job, out);
     }
   }
@@ -537,7 +543,8 @@ void LiveSession::run() {
     }
   };
   // Declared after everything `publish` uses, so it is joined (its job in hand finished) first.
-  RenderThread render(publish);
+  std::optional<RenderThread> render;
+  if (options_.overlap_frames) render.emplace(publish);
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
@@ -577,7 +584,12 @@ void LiveSession::run() {
         actor_last_tracked = Clock::now();
         actor_tracked_times.push_back(actor_last_tracked);
       }
-      render.Submit(std::move(job), stopping);
+      if (render) {
+        render->Submit(std::move(job), stopping);
+      } else {
+        ProcessedFrame out = RenderThread::Finish(job);
+        publish(job, out);
+      }
     }
 
     // Status, refreshed every pass (a few copies of small strings).

@@ -103,7 +103,7 @@ void FaceReenactSource::calibrate() {
   }
 }
 
-// On the session's render thread ("fr-live-render").
+// On the session's publishing thread (its worker).
 void FaceReenactSource::output_frame(const live::LiveFrame& frame, uint64_t generation) {
   if (generation != generation_.load() || frame.bgr.empty()) return;
   thread_local cv::Mat bgra;

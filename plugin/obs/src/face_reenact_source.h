@@ -4,7 +4,7 @@
 //   - update()/calibrate()/properties run on OBS's UI thread, video_tick on its graphics
 //     thread: none of them waits for the pipeline (a replaced session is stopped on a
 //     retiring thread, so even a long pipeline call never stalls the UI);
-//   - the live session's render thread hands every output frame to OBS with
+//   - the live session's worker thread hands every output frame to OBS with
 //     obs_source_output_video (async source), converted to BGRA there.
 #include <obs-module.h>
 

@@ -5,12 +5,13 @@
 // an output mode. It owns three kinds of threads:
 //   - a capture thread per picture input (FrameGrabber): keeps only the newest frame;
 //   - the UDP receiver's thread (stream::ExpressionReceiver) when the source is a stream;
-//   - the worker ("fr-live"), which loads the model and tracks the newest target frame, then
-//     hands it to
-//   - the render thread ("fr-live-render"), which re-renders and composites it and publishes the
-//     result while the worker already tracks the next frame (both cores busy; docs/real-time.md).
+//   - the worker ("fr-live"), which loads the model, tracks the newest target frame, re-renders
+//     and composites it and publishes the result; with Options::overlap_frames it hands the
+//     second half to
+//   - a render thread ("fr-live-render"), which publishes while the worker already tracks the
+//     next frame (docs/real-time.md).
 // Front-ends never wait on any of it: latest_frame() and status() copy under a short lock, and
-// Options::on_frame is called on the render thread with each output frame (OBS hands it to
+// Options::on_frame is called on the publishing thread with each output frame (OBS hands it to
 // obs_source_output_video there). Inputs that fail (camera unplugged, recording missing,
 // stream silent, model missing) are statuses, retried in the background, never exceptions.
 #include <atomic>
@@ -176,7 +177,12 @@ class LiveSession : public output::FrameSource {
     // The worker's nice increment (0..19): the pipeline yields the CPU to the front-end's own
     // threads (OBS's render thread, the webcam's pacing thread) when the machine is saturated.
     int worker_nice = 5;
-    // Called on the render thread for each output frame; must return quickly (no blocking).
+    // Render frame n on a thread of its own ("fr-live-render") while the worker tracks frame n+1.
+    // Measured on 2 cores (docs/real-time.md): 13-25 % more frames per second, but 5-24 ms more
+    // latency (the two halves slow each other down), so it is off by default.
+    bool overlap_frames = false;
+    // Called for each output frame on the thread that publishes it (the worker, or the render
+    // thread with overlap_frames); must return quickly (no blocking).
     std::function<void(const LiveFrame&)> on_frame;
     std::string thread_name = "fr-live";
 
