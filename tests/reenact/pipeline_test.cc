@@ -202,7 +202,7 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(160, 120);
   std::vector<capture::RgbdFrame> frames;
-  for (int i = 0; i < 10; ++i) {
+  for (int i = 0; i < 8; ++i) {  // calibration 0-1, tracking 2-4, recalibration 5-6, tracking 7
     gpu::FaceParameters p = test_face(0.4f);
     p.euler.y() += 0.02f * static_cast<float>(i);
     frames.push_back(make_frame(p, cam, i));
@@ -214,7 +214,7 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
   ReenactmentPipeline sequential(*test_model(), recording_landmarks());
   std::vector<ReenactedFrame> expected;
   for (size_t i = 0; i < frames.size(); ++i) {
-    if (i == 6) sequential.RequestCalibration();
+    if (i == 5) sequential.RequestCalibration();
     expected.push_back(sequential.Process(frames[i], &smile));
   }
 
@@ -222,7 +222,7 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
   std::vector<ReenactedFrame> got;
   std::future<ReenactedFrame> rendering;
   for (size_t i = 0; i < frames.size(); ++i) {
-    if (i == 6) split.RequestCalibration();
+    if (i == 5) split.RequestCalibration();
     TrackedTarget tracked = split.Track(frames[i]);  // overlaps the previous frame's Render
     if (rendering.valid()) got.push_back(rendering.get());
     rendering = std::async(std::launch::async, [&split, &smile, t = std::move(tracked)]() mutable {
