@@ -552,7 +552,7 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   options.overlap_frames = GetParam();
   LiveSession session(options);
   // The calibration's joint solve takes seconds here and minutes under the sanitizers.
-  LiveStatus s = wait_status(session, 280s, [](const LiveStatus& st) {
+  LiveStatus s = wait_status(session, 560s, [](const LiveStatus& st) {
     return st.pipeline_ready && st.tracking == TrackingState::kTracking;
   });
   ASSERT_EQ(s.tracking, TrackingState::kTracking) << s.Headline();
