@@ -727,9 +727,11 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_flag("--brow-landmarks", targs->brow_landmarks,
                "Also fit the brows (iBUG 17-26), so that the brow blendshapes follow where the detector puts the brows "
                "(off by default: the paper's 38 points have none)");
+  char default_tolerance[32];
+  std::snprintf(default_tolerance, sizeof default_tolerance, "%g", TrackerOptions{}.tracking_solver.function_tolerance);
   tc->add_option("--tracking-tolerance", targs->tracking_tolerance,
                  "End a frame's solve on a level once a step lowers the energy by less than this fraction (default " +
-                     std::to_string(TrackerOptions{}.tracking_solver.function_tolerance).substr(0, 4) +
+                     std::string(default_tolerance) +
                      "; 0 runs the paper's whole schedule, 7 + 1 iterations, on every frame)")
       ->check(CLI::Range(0.0, 1.0));
   tc->add_flag("--no-gaze", targs->no_gaze,

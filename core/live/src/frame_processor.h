@@ -20,7 +20,6 @@ struct ExpressionInput {
 // What tracking the source actor's frame gave (the worker's half, ExpressionInput::actor_frame).
 struct ActorOutcome {
   bool tracked = false;      // the actor frame given was tracked and now drives the expression
-  bool lost = false;         // the actor frame given had no trackable face
   bool calibrating = false;  // the actor frame given went to the actor's calibration
   std::string calibration_progress;  // then: its progress (CalibrationProgress::Brief())
   double ms = 0;             // time spent tracking it

@@ -94,7 +94,6 @@ class ReenactProcessor : public FrameProcessor {
         have_actor_expression_ = true;
         actor_outcome.tracked = true;
       } else {
-        actor_outcome.lost = actor.status == reenact::TrackingStatus::kLost;
         actor_outcome.calibrating = actor.status == reenact::TrackingStatus::kCalibrating;
         if (actor_outcome.calibrating) actor_outcome.calibration_progress = actor_->calibration_progress().Brief();
       }
