@@ -359,6 +359,7 @@ struct RunTotals {
   // Recovery: frames from the first frame with a face after a no-face/lost stretch to a fit.
   int recoveries = 0;
   int max_frames_to_recover = 0;
+  std::vector<int64_t> face_switches;  // frames where a more prominent face took over
   FitAgreementTally agreement;
 };
 
@@ -440,6 +441,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     ++r.tracked_frames;
     const bool fit = tracking_status_has_fit(t.status);
     r.agreement.Add(frame.index, fit, t.fit_refused(), t.agreement, t.message);
+    if (t.new_face) r.face_switches.push_back(frame.index);
     if (!fit && no_face_run_start < 0 && f > 0) no_face_run_start = f;
     if (fit && no_face_run_start >= 0) {
       ++r.recoveries;
@@ -551,6 +553,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["statuses"] = r.statuses;
   j["recoveries"] = r.recoveries;
   j["max_frames_to_recover"] = r.max_frames_to_recover;
+  j["face_switches"] = r.face_switches;
   j["agreement"] = agreement_json(r.agreement.summary());
   j["agreement_check"] = !a.no_agreement_check;
   j["energy_terms"] = {{"landmark", true}, {"regularizer", true}, {"color", config.colour},

@@ -511,6 +511,35 @@ TEST(FaceTracker, RecalibratesOnRequestFromAnotherThreadAndResets) {
   EXPECT_EQ(again.status, TrackingStatus::kCalibrated);
 }
 
+// The landmark tracker left a small face for a more prominent one (InputFrame::new_face): the
+// new person's identity is calibrated from their own frames, their pose comes from the
+// landmarks (not the other face's fit), and the frame says why.
+TEST(FaceTracker, ANewFaceRestartsTheCalibrationAndThePose) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  FaceTracker tracker(*model, fast_options(2));
+  const CpuSolver& solver = tracker.cpu_solver();
+  tracker.Track(render_frame(solver, sequence_parameters(*model, 0)));
+  ASSERT_EQ(tracker.Track(render_frame(solver, sequence_parameters(*model, 1))).status, TrackingStatus::kCalibrated);
+  const Eigen::VectorXf first_identity = tracker.neutral().alpha;
+  TrackedFrame t = tracker.Track(render_frame(solver, sequence_parameters(*model, 2)));
+  ASSERT_EQ(t.status, TrackingStatus::kTracking) << t.message;
+  EXPECT_FALSE(t.new_face);
+
+  InputFrame other = render_frame(solver, sequence_parameters(*model, 3));
+  other.new_face = true;
+  t = tracker.Track(other);
+  EXPECT_TRUE(t.new_face);
+  EXPECT_EQ(t.status, TrackingStatus::kCalibrating) << t.message;
+  EXPECT_TRUE(t.pose_reinitialized) << t.message;
+  EXPECT_NE(t.message.find("more prominent face"), std::string::npos) << t.message;
+  EXPECT_NE(t.message.find("1 of 2 frames"), std::string::npos) << t.message;  // a fresh collection
+  t = tracker.Track(render_frame(solver, sequence_parameters(*model, 4)));
+  EXPECT_FALSE(t.new_face);
+  EXPECT_EQ(t.status, TrackingStatus::kCalibrated) << t.message;
+  EXPECT_GT((tracker.neutral().alpha - first_identity).norm(), 0.f);  // fitted again on the new frames
+}
+
 TEST(FaceTracker, CalibratesFromLandmarkPosesWithoutTrackingFirst) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";

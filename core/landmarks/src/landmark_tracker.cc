@@ -18,6 +18,11 @@ bool TrackerOptions::IsValid(std::string* error) const {
   if (redetect_interval < 0) return fail("redetect_interval must be >= 0");
   if (reacquire_frames < 0) return fail("reacquire_frames must be >= 0");
   if (!(redetect_band >= 0.f && redetect_band <= 4.f)) return fail("redetect_band must be in [0, 4]");
+  if (prominent_face_interval < 0) return fail("prominent_face_interval must be >= 0");
+  if (!(prominent_face_max_width >= 0.f && prominent_face_max_width <= 1.f))
+    return fail("prominent_face_max_width must be in [0, 1]");
+  if (!(prominent_face_area_ratio >= 1.f && prominent_face_area_ratio <= 100.f))
+    return fail("prominent_face_area_ratio must be in [1, 100]");
   if (!(start_box_deadband >= 0.f && start_box_deadband <= 0.5f)) return fail("start_box_deadband must be in [0, 0.5]");
   if (!(min_track_confidence >= 0.f && min_track_confidence < 1.f)) {
     return fail("min_track_confidence must be in [0, 1)");
@@ -30,6 +35,7 @@ std::string TrackerSummary::BriefReport() const {
   s << frames << " frames, " << frames_with_landmarks << " with landmarks; " << tracked_frames << " tracked, "
     << full_searches << " full searches, " << band_searches << " band searches (" << band_misses << " missed), "
     << losses << " losses";
+  if (face_switches > 0) s << ", " << face_switches << " switches to a more prominent face";
   if (!last_loss_reason.empty()) s << " (last: " << last_loss_reason << ")";
   return s.str();
 }
@@ -45,6 +51,7 @@ struct LandmarkTracker::Impl {
   bool has_previous_box = false;
   int frames_since_search = 0;
   int frames_without_followed_face = 0;
+  int frames_since_prominent_search = 0;
   Box last_start_box;
   bool has_start_box = false;
   float anchor_scale = 1.f;
@@ -168,6 +175,40 @@ struct LandmarkTracker::Impl {
     return r;
   }
 
+  // TrackerOptions::prominent_face_*: while the followed face is small, look for a much larger
+  // face elsewhere every prominent_face_interval frames. Returns true (and fills *r) on a switch.
+  bool switch_to_prominent_face(const ImageView& gray_view, LandmarkResult* r) {
+    if (options.prominent_face_interval <= 0 ||
+        previous_box.width >= options.prominent_face_max_width * float(gray_view.width))
+      return false;
+    if (++frames_since_prominent_search < options.prominent_face_interval) return false;
+    frames_since_prominent_search = 0;
+    ++summary.prominent_searches;
+    const std::vector<FaceCandidate> faces = detector.FindFaces(gray_view, /*harder=*/false);
+    int best = -1;
+    float best_area = options.prominent_face_area_ratio * previous_box.area();
+    for (size_t i = 0; i < faces.size(); ++i) {
+      // Overlapping the followed face: that face itself (nearer, or its box drawn differently).
+      if (faces[i].box.iou(previous_box) > 0.f) continue;
+      if (faces[i].box.area() >= best_area) {
+        best_area = faces[i].box.area();
+        best = int(i);
+      }
+    }
+    if (best < 0) return false;
+    LandmarkResult candidate = detector.FitFromBox(gray_view, faces[size_t(best)].box);
+    // A detection the shape predictor cannot fit as a face is not worth leaving the track for.
+    if (!candidate.has_landmarks || !loss_reason(candidate, gray_view.width, gray_view.height).empty()) return false;
+    candidate.source = LandmarkSource::kDetected;
+    candidate.detector_score = faces[size_t(best)].score;
+    candidate.faces_found = int(faces.size());
+    candidate.switched_face = true;
+    ++summary.face_switches;
+    smoother.Reset();  // another face: its own filter history
+    *r = std::move(candidate);
+    return true;
+  }
+
   LandmarkResult track(const ImageView& frame, double timestamp_s, const HeadPose* pose) {
     ++summary.frames;
     LandmarkResult r;
@@ -185,8 +226,8 @@ struct LandmarkTracker::Impl {
       r = full_search(gray_view);
     } else {
       ++frames_since_search;
-      bool fitted = false;
-      if (options.redetect_interval > 0 && frames_since_search >= options.redetect_interval) {
+      bool fitted = switch_to_prominent_face(gray_view, &r);
+      if (!fitted && options.redetect_interval > 0 && frames_since_search >= options.redetect_interval) {
         frames_since_search = 0;
         ++summary.band_searches;
         const float g = options.redetect_band;
@@ -265,6 +306,7 @@ void LandmarkTracker::Reset() {
   impl_->has_previous_box = false;
   impl_->frames_since_search = 0;
   impl_->frames_without_followed_face = 0;
+  impl_->frames_since_prominent_search = 0;
   impl_->has_start_box = false;
   impl_->smoother.Reset();
 }

@@ -253,6 +253,7 @@ TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
     }
     if (im.options.mode == ReenactMode::kOverlay) detected = frame.landmarks;
     out.tracked = im.tracker->Track(frame, info.landmarks_ms);
+    if (out.tracked.new_face) tt.forget_actor = true;  // the learned appearance was the other face's
     const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
     im.input->SetTrackedPose(out.tracked.params, has_fit);
     // A landmark track that keeps finding nothing is restarted from a fresh detection (measured:

@@ -523,10 +523,20 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   TrackedFrame out;
   out.frame_index = frames_seen_++;
   out.camera = FittingCamera(frame.camera, frame.has_depth());
-  if (calibration_requested_.exchange(false)) {
+  const bool recalibrate = calibration_requested_.exchange(false);
+  if (recalibrate || frame.new_face) {
     CancelBackgroundCalibration();
     collecting_ = true;
     ClearCalibrationFrames();
+  }
+  if (frame.new_face) {
+    // Another person: neither the last fit's pose nor its lighting is theirs, and their identity
+    // is calibrated from their own frames (the old one serves until then, as after Calibrate).
+    out.new_face = true;
+    have_fit_ = false;
+    previous_ = TrackedFrame();
+    last_good_ = TrackedFrame();
+    energy_history_.clear();
   }
   auto hold = [&](TrackingStatus status, const std::string& message) {
     out.status = status;
@@ -568,7 +578,8 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
 
   // A calibration in the background: frames are held until it has finished, then the first one
   // applies it and is tracked with the new identity from the last calibration frame's fit.
-  std::string calibration_note;
+  std::string calibration_note =
+      frame.new_face ? "a more prominent face appeared: following it, calibrating its identity" : "";
   bool just_calibrated = false;
   if (background_) {
     if (!background_->done())

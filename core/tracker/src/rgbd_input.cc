@@ -135,6 +135,7 @@ InputFrame MakeInputFrame(const capture::RgbdFrame& frame, const RgbdInputOption
     const landmarks::LandmarkResult result = detector->Track(view, frame.timestamp_s, pose);
     inf.landmarks_ms = ms_since(t1);
     in.landmarks = DetectedLandmarks(result, options.detector_confidence_scale);
+    in.new_face = result.switched_face;
     inf.landmark_status = result.ok() ? "ok" : std::string(landmarks::status_name(result.status)) + ": " + result.reason;
   }
   for (const auto& l : in.landmarks) inf.landmarks += l.confidence > 0.f;

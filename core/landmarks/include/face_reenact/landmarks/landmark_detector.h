@@ -67,6 +67,9 @@ struct LandmarkResult {
   float shape_residual = 0;           // RMS distance to the mean shape after similarity alignment,
                                       // in inter-ocular units (implausible shapes are large)
   int faces_found = 0;                // faces the detector saw in this call (0 when tracked)
+  // The tracker left the face it followed for a more prominent one elsewhere in the frame
+  // (TrackerOptions::prominent_face_*): another person, whose identity must be learned anew.
+  bool switched_face = false;
 
   bool ok() const { return status == DetectionStatus::kOk; }
 };

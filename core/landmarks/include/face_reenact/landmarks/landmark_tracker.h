@@ -38,6 +38,17 @@ struct TrackerOptions {
   // After losing the followed face, only a face overlapping its last box is taken for this
   // many frames (it may come back after a blur or a turn); then the largest face is.
   int reacquire_frames = 15;
+  // A face that is followed from the first frame on may be the wrong one: someone small in the
+  // background found while the person in front was turned away (multi_face.avi: the HOG
+  // detector misses a face turned ~30 deg). While the followed face is narrower than
+  // prominent_face_max_width of the frame, the whole frame is searched every
+  // prominent_face_interval frames, and a face elsewhere (no overlap) whose box has at least
+  // prominent_face_area_ratio times the followed one's area becomes the followed face
+  // (LandmarkResult::switched_face). A face that fills a fifth of the frame width is the
+  // person at the camera: no search then, so a typical webcam user pays nothing.
+  int prominent_face_interval = 30;  // 0: never switch to a more prominent face
+  float prominent_face_max_width = 0.2f;
+  float prominent_face_area_ratio = 2.f;
   SmoothingOptions smoothing;
 
   bool IsValid(std::string* error) const;
@@ -52,6 +63,8 @@ struct TrackerSummary {
   int64_t band_misses = 0;          // band searches that found no face
   int64_t tracked_frames = 0;       // frames fitted from the previous landmarks
   int64_t losses = 0;               // tracks dropped (implausible shape, low confidence, left frame)
+  int64_t prominent_searches = 0;   // whole-frame searches for a more prominent face
+  int64_t face_switches = 0;        // ... that found one and followed it instead
   std::string last_loss_reason;
 
   std::string BriefReport() const;

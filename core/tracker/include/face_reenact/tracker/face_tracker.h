@@ -308,6 +308,9 @@ struct TrackedFrame {
   // when there were none.
   double landmark_error_px = -1;
   bool pose_reinitialized = false;  // the pose came from the landmark fit this frame
+  // This frame's landmarks were another face's (InputFrame::new_face): the track, the lighting
+  // and the calibration started again for it.
+  bool new_face = false;
   Termination solver_termination = Termination::kScheduleDone;
   // Gauss-Newton iterations run for this frame, a re-solve's included (the cost of the fit).
   int gauss_newton_iterations = 0;

@@ -30,6 +30,9 @@ struct InputFrame {
   // When the frame was captured (seconds, any origin); NaN = unknown. The tracker's rotation
   // speed check (FitAgreementOptions::max_rotation_speed_deg_s) needs it.
   double timestamp_s = std::numeric_limits<double>::quiet_NaN();
+  // The landmarks belong to another face than the previous frame's (the landmark tracker left a
+  // small face for a more prominent one): the tracker learns this person's identity anew.
+  bool new_face = false;
 
   int width() const { return camera.width; }
   int height() const { return camera.height; }
