@@ -741,8 +741,8 @@ void add_tracker_commands(CLI::App& app) {
                "Do not read the gaze and the lids from the colour around the eyes (the eyeLook and eyeBlink weights "
                "are then the solver's, which cannot see the iris turn or, without the eye landmarks, a lid close)");
   tc->add_flag("--no-lids", targs->no_lids,
-               "Read the gaze but not the lids (eyeBlink) from the colour around the eyes; they are read on RGB-D "
-               "input only");
+               "Read the gaze but not the lids (eyeBlink): from the colour around the eyes on RGB-D input, from the "
+               "detector's eye points on video");
   tc->add_option("--calibration-start", targs->calibration_start,
                  "Expressions the joint calibration starts from: neutral (default), per-frame-fits, or lower-energy "
                  "(both, keeping the lower final energy: a better surface on some actors, twice the time)")

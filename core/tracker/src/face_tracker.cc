@@ -371,6 +371,7 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (!recovery_solver.IsValid(&inner)) return fail(why, "tracker: recovery_solver: " + inner);
   if (!loss.IsValid(why)) return false;
   if (!gaze.IsValid(&inner)) return fail(why, "tracker: " + inner);
+  if (!eye_openness.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
@@ -388,7 +389,8 @@ FaceTracker::FaceTracker(const FaceModel& model, const TrackerOptions& options)
     : FaceTracker(TrackerModel::FromFaceModel(model), options) {}
 
 FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
-    : options_(options), solver_(std::move(model)), gaze_(solver_.model()) {
+    : options_(options), solver_(std::move(model)), gaze_(solver_.model()),
+      eye_openness_(options_.eye_openness, &solver_.model()) {
   std::string why;
   if (!options_.IsValid(&why)) throw Error(why);
   const TrackerModel& m = solver_.model();
@@ -426,6 +428,7 @@ void FaceTracker::Reset() {
   frames_seen_ = 0;
   unresolved_disagreement_deg_ = std::numeric_limits<double>::quiet_NaN();
   unresolved_landmark_nme_ = std::numeric_limits<double>::quiet_NaN();
+  eye_openness_.Reset();
 }
 
 void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
@@ -466,7 +469,8 @@ TrackedFrame FaceTracker::Track(const InputFrame& frame, double landmarks_ms) {
 }
 
 FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit,
-                                        StageTimes* times, const std::stop_token& stop) const {
+                                        StageTimes* times, const std::stop_token& stop,
+                                        const EyeOpennessReading* lids) const {
   Attempt a;
   a.reinit = reinit;
   const TrackerModel& m = solver_.model();
@@ -512,8 +516,22 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
   if (a.failure.empty() && options_.gaze.enabled) {
     // The lids only on fits that place the eyes well: with depth and the calibrated identity
     // (before the calibration, on the mean face, open eyes read 0.5-1.0 on synthetic actors).
+    const bool landmark_lids = lids && lids->ok && !input.has_depth() && options_.gaze.read_lids;
+    if (landmark_lids) {
+      for (int e = 0; e < 2; ++e) {
+        const int k = arkit_blendshape_index(e == 0 ? "eyeBlinkLeft" : "eyeBlinkRight");
+        if (k >= 0 && k < a.params.delta.size()) a.params.delta[k] = lids->blink[size_t(e)];
+      }
+    }
     a.gaze = gaze_.Read(solver_.renderer(), input, &a.params, options_.gaze,
                         calibrated_ && (so.energy.use_point || so.energy.use_plane));
+    if (landmark_lids) {
+      a.gaze.lids_read = true;
+      a.gaze.blink = lids->blink;
+      const double nan = std::numeric_limits<double>::quiet_NaN();
+      a.gaze.open_fraction = {nan, nan};  // a colour reading's; the eye points have none
+      a.gaze.lids_message = "read from the eye points";
+    }
     times->gaze_ms += a.gaze.ms;
   }
   return a;
@@ -537,6 +555,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     previous_ = TrackedFrame();
     last_good_ = TrackedFrame();
     energy_history_.clear();
+    eye_openness_.Reset();
   }
   auto hold = [&](TrackingStatus status, const std::string& message) {
     out.status = status;
@@ -575,6 +594,10 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     no_depth.landmarks = frame.landmarks;
     input = &no_depth;
   }
+  // The eye points of every frame with a face and no depth teach the reader the actor's open eyes
+  // (eye_openness.h); Solve writes its reading into the fit.
+  EyeOpennessReading lids;
+  if (options_.gaze.enabled && options_.gaze.read_lids && !input->has_depth()) lids = eye_openness_.Read(*input);
 
   // A calibration in the background: frames are held until it has finished, then the first one
   // applies it and is tracked with the new identity from the last calibration frame's fit.
@@ -669,7 +692,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     start.gamma = last_good_.has_parameters ? last_good_.params.gamma : initial_lighting(m, *input);
   }
 
-  Attempt a = Solve(*input, start, reinit, &out.times, options_.stop);
+  Attempt a = Solve(*input, start, reinit, &out.times, options_.stop, &lids);
   out.gauss_newton_iterations = static_cast<int>(a.summary.iterations.size());
   // Energy jump: far above the recent level of this track.
   auto check_energy = [&](Attempt* at) {
@@ -712,7 +735,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     // closer to the landmarks, a stray fit the re-solve only when that passes and strays less.
     const std::string first_failure = a.failure.empty() ? a.agreement.landmark_warning : a.failure;
     start.delta = neutral_.delta;
-    Attempt b = Solve(*input, start, true, &out.times, options_.stop);
+    Attempt b = Solve(*input, start, true, &out.times, options_.stop, &lids);
     out.gauss_newton_iterations += static_cast<int>(b.summary.iterations.size());
     check_energy(&b);
     check_agreement(&b);

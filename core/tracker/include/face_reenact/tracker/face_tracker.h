@@ -36,6 +36,7 @@
 #include "face_reenact/tracker/energy.h"
 #include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/focal_length.h"
+#include "face_reenact/tracker/eye_openness.h"
 #include "face_reenact/tracker/gaze.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/parameter_layout.h"
@@ -222,6 +223,10 @@ struct TrackerOptions {
   // synthetic actors looking aside by 0.2-0.5 it lowered the expression error
   // (docs/tracker.md, "Gaze"). enabled = false leaves the eyeLook weights to the solve.
   GazeOptions gaze;
+  // The lids on frames without depth (eye_openness.h): the eyeBlink weights from the detector's
+  // eye points, where the colour reader (gaze.read_lids, RGB-D only) cannot read them. Off with
+  // gaze.enabled or gaze.read_lids off too.
+  EyeOpennessOptions eye_openness;
   // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
   // itself takes whatever landmarks the InputFrame carries).
   LandmarkSourceChoice landmark_source = LandmarkSourceChoice::kDetector;
@@ -436,8 +441,10 @@ class FaceTracker {
     FitAgreement agreement;
   };
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
+  // `lids`: the frame's eye-point reading (eye_openness.h), written into the fit's eyeBlink
+  // weights before the gaze is read in the opening they leave.
   Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times,
-                const std::stop_token& stop) const;
+                const std::stop_token& stop, const EyeOpennessReading* lids = nullptr) const;
   // A joint calibration over a set of frames: its inputs and what it found (face_tracker.cc).
   struct CalibrationOutcome;
   // The thread running one calibration in the background (TrackerOptions::background_calibration).
@@ -471,6 +478,7 @@ class FaceTracker {
   TrackerOptions options_;
   CpuSolver solver_;
   GazeEstimator gaze_;  // reads solver_'s model
+  EyeOpennessReader eye_openness_;  // learns the actor's open eyes from the frames seen
   PyramidSolveFunction tracking_solve_;
   FramesSolveFunction calibration_solve_;
   std::atomic<bool> calibration_requested_{false};
