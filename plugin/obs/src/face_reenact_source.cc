@@ -95,12 +95,13 @@ void FaceReenactSource::join_retired(bool all) {
   for (auto& r : to_join) r.thread.join();
 }
 
-void FaceReenactSource::calibrate() {
+bool FaceReenactSource::calibrate() {
   std::lock_guard lock(mu_);
-  if (session_) {
-    session_->RequestCalibration();
-    blog(LOG_INFO, "%s '%s': calibration requested", kLogPrefix, obs_source_get_name(source_));
-  }
+  if (!session_) return false;
+  session_->RequestCalibration();
+  ++calibrations_requested_;
+  blog(LOG_INFO, "%s '%s': calibration requested", kLogPrefix, obs_source_get_name(source_));
+  return true;
 }
 
 // On the session's publishing thread (its worker).
