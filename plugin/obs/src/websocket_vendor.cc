@@ -146,7 +146,7 @@ void vendor_calibrate(obs_data_t* request, obs_data_t* response, void*) {
     }
     if (!source.impl()->calibrate()) {
       set_state(response, source);
-      return fail(response, "source '" + source.name() + "' is not running: " + source.impl()->status_line());
+      return fail(response, "source '" + source.name() + "' cannot calibrate: " + source.impl()->status_line());
     }
     obs_data_set_bool(response, "ok", true);
     set_state(response, source);
