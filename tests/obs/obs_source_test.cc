@@ -584,11 +584,14 @@ TEST_F(WebSocketVendorTest, BadRequestsAnswerAClearErrorAndChangeNothing) {
   obs_data_release(settings);
   obs_scene_t* scene = obs_scene_create("ws-scene");
   ASSERT_TRUE(raw && stopped && scene);
+  Status running = wait_status(raw, 10s, [](const Status& s) { return s.frames_out > 0; });
+  ASSERT_TRUE(running.running) << running.line;
   auto expect_error = [](const char* type, const char* json, const std::string& words) {
     auto a = call(type, json);
     ASSERT_TRUE(a->data) << type;
-    EXPECT_FALSE(a->ok) << type << " " << (json ? json : "(none)");
-    EXPECT_NE(a->error.find(words), std::string::npos) << type << " " << (json ? json : "(none)") << ": " << a->error;
+    EXPECT_FALSE(a->ok) << type << " " << (json ? json : "(none)") << ": " << a->status;
+    EXPECT_NE(a->error.find(words), std::string::npos)
+        << type << " " << (json ? json : "(none)") << ": " << a->error << " (status: " << a->status << ")";
   };
   for (const char* type : {"GetStatus", "Calibrate"}) {
     expect_error(type, R"({"sourceName": "ws-none"})", "no source named 'ws-none'");
