@@ -45,12 +45,19 @@ class FakeWebSocket {
   static inline proc_handler_t* ph = nullptr;
   static inline std::string vendor_name;
   static inline std::map<std::string, Callback> requests;
+  struct Event {
+    std::string type, source_name, status, state;
+  };
+  static inline std::mutex events_mu;
+  static inline std::vector<Event> events;  // vendor_event_emit calls (from the graphics thread)
 
   static void install() {
     ph = proc_handler_create();
     proc_handler_add(ph, "bool vendor_register(in string name, out ptr vendor)", vendor_register, nullptr);
     proc_handler_add(ph, "bool vendor_request_register(in ptr vendor, in string type, in ptr callback)",
                      vendor_request_register, nullptr);
+    proc_handler_add(ph, "bool vendor_event_emit(in ptr vendor, in string type, in ptr data)", vendor_event_emit,
+                     nullptr);
     proc_handler_add(obs_get_proc_handler(), "bool obs_websocket_api_get_ph(out ptr ph)",
                      [](void*, calldata_t* cd) {
                        calldata_set_ptr(cd, "ph", ph);
@@ -83,6 +90,17 @@ class FakeWebSocket {
     auto* cb = static_cast<Callback*>(calldata_ptr(cd, "callback"));
     bool ok = calldata_ptr(cd, "vendor") == &vendor_name && type && *type && cb && cb->callback && !requests.count(type);
     if (ok) requests[type] = *cb;  // copied, as obs-websocket does
+    calldata_set_bool(cd, "success", ok);
+  }
+  static void vendor_event_emit(void*, calldata_t* cd) {
+    const char* type = calldata_string(cd, "type");
+    auto* data = static_cast<obs_data_t*>(calldata_ptr(cd, "data"));
+    bool ok = calldata_ptr(cd, "vendor") == &vendor_name && type && *type && data;
+    if (ok) {
+      std::lock_guard lock(events_mu);
+      events.push_back({type, obs_data_get_string(data, "sourceName"), obs_data_get_string(data, "status"),
+                        obs_data_get_string(data, "state")});
+    }
     calldata_set_bool(cd, "success", ok);
   }
 };
@@ -611,6 +629,43 @@ TEST_F(WebSocketVendorTest, BadRequestsAnswerAClearErrorAndChangeNothing) {
   EXPECT_FALSE(obs_data_get_bool(st->data, "running"));
   obs_source_remove(obs_scene_get_source(scene));
   obs_scene_release(scene);
+}
+
+TEST_F(WebSocketVendorTest, StateChangesAreVendorEvents) {
+  REQUIRE_RECORDING(dir);
+  obs_data_t* settings = recording_settings("");
+  obs_source_t* source = create(settings, "ws-events");  // not running until the recording is chosen
+  ASSERT_NE(source, nullptr);
+  auto events_of = [](const std::string& name) {
+    std::lock_guard lock(FakeWebSocket::events_mu);
+    std::vector<FakeWebSocket::Event> mine;
+    for (const auto& e : FakeWebSocket::events)
+      if (e.source_name == name) mine.push_back(e);
+    return mine;
+  };
+  auto wait_for_state = [&](const std::string& state) {
+    Clock::time_point end = Clock::now() + 10s;
+    while (Clock::now() < end) {
+      for (const auto& e : events_of("ws-events"))
+        if (e.state == state) return e;
+      std::this_thread::sleep_for(20ms);
+    }
+    return FakeWebSocket::Event{};
+  };
+  FakeWebSocket::Event stopped = wait_for_state("not_running");
+  EXPECT_EQ(stopped.type, "StateChanged");
+  EXPECT_EQ(stopped.status, "Not running: choose a recording or video file for the target");
+  obs_data_set_string(settings, "target_path", dir.c_str());
+  obs_source_update(source, settings);
+  obs_data_release(settings);
+  FakeWebSocket::Event raw = wait_for_state("raw");
+  EXPECT_EQ(raw.type, "StateChanged");
+  EXPECT_EQ(raw.status.rfind("Raw input", 0), 0u) << raw.status;
+  // One event per change of state, not one per frame or per rate change.
+  std::this_thread::sleep_for(1500ms);
+  size_t raw_events = 0;
+  for (const auto& e : events_of("ws-events")) raw_events += e.state == "raw";
+  EXPECT_EQ(raw_events, 1u);
 }
 
 TEST_F(WebSocketVendorTest, CalibrateRequestsTheSameCalibrationAsTheButton) {

@@ -13,7 +13,8 @@ CallVendorRequest: GetStatus of that source says what it does (raw input), ListS
 Face Reenact sources, bad requests (an unknown source name, a scene, no sourceName, a raw-mode
 source to calibrate) answer a clear error and OBS goes on. A second source, "Tracked"
 (pass-through on a 320x240 recording, a face the tracker calibrates on), is calibrated remotely
-once it tracks: Calibrate answers ok, its counter moves and GetStatus then says "calibrating".
+once it tracks: Calibrate answers ok, its counter moves and GetStatus then says "calibrating";
+the vendor event StateChanged (the client subscribes to vendor events) says so too.
 
 Exit status: 0 passed, 1 failed (the reason is printed), 77 skipped (obs or Xvfb missing, or OBS
 cannot start at all on this machine; the reason is printed).
@@ -112,6 +113,7 @@ def stddev(values):
 # --- a minimal websocket client (RFC 6455): text frames, masking, ping/pong ---------------------
 class WebSocket:
     def __init__(self, host, port, timeout):
+        self.events = []  # op 5 messages received while waiting for answers
         self.sock = socket.create_connection((host, port), timeout=timeout)
         key = base64.b64encode(os.urandom(16)).decode()
         request = (f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
@@ -286,6 +288,8 @@ def request(ws, kind, data, request_id):
     ws.send_json({"op": 6, "d": {"requestType": kind, "requestId": request_id, "requestData": data}})
     while True:
         msg = ws.recv_json()
+        if msg.get("op") == 5:  # an event that arrived meanwhile: kept for the checks
+            ws.events.append(msg["d"])
         if msg.get("op") == 7 and msg["d"].get("requestId") == request_id:
             return msg["d"]
 
@@ -364,6 +368,7 @@ def check_vendor(ws, config):
     # Remote calibration of a tracking source: the same as its Calibrate button.
     tracking, _ = wait_status(ws, TRACKED_NAME, lambda a: a["state"] == "tracking", 200, "tracking", config)
     before = tracking["calibrationsRequested"]
+    events_before = len(ws.events)
     status, answer = vendor(ws, "Calibrate", {"sourceName": TRACKED_NAME}, "c1")
     print("Calibrate", TRACKED_NAME, "->", answer)
     if not status.get("result") or not answer.get("ok"):
@@ -373,6 +378,21 @@ def check_vendor(ws, config):
     calibrating, _ = wait_status(ws, TRACKED_NAME, lambda a: a["state"] == "calibrating", 30, "calibrating", config)
     if not calibrating["status"].startswith("Calibrating") or calibrating["tracking"] != "calibrating":
         raise Failure(f"GetStatus after Calibrate: the status does not say calibrating: {calibrating}")
+
+    # The vendor event StateChanged announces the change without polling (the source checks its
+    # state twice a second): wait for it, letting requests carry the events in.
+    deadline, changes = time.time() + 10, []
+    while time.time() < deadline:
+        changes = [(e["eventData"]["eventData"].get("sourceName"), e["eventData"]["eventData"].get("state"))
+                   for e in ws.events[events_before:] if e.get("eventType") == "VendorEvent"
+                   and e["eventData"].get("vendorName") == VENDOR and e["eventData"].get("eventType") == "StateChanged"]
+        if (TRACKED_NAME, "calibrating") in changes:
+            break
+        request(ws, "GetVersion", {}, f"pump{time.time()}")
+        time.sleep(0.2)
+    print("StateChanged events since Calibrate:", changes)
+    if (TRACKED_NAME, "calibrating") not in changes:
+        raise Failure(f"no StateChanged event saying {TRACKED_NAME} is calibrating: {changes}")
 
 
 def run(args):
@@ -434,7 +454,8 @@ def run(args):
         if hello.get("op") != 0:
             raise Failure(f"expected Hello, got {hello}")
         print("obs-websocket", hello["d"].get("obsWebSocketVersion"), "rpc", hello["d"].get("rpcVersion"))
-        ws.send_json({"op": 1, "d": {"rpcVersion": 1, "eventSubscriptions": 0}})
+        # Vendor events only (EventSubscription::Vendors): the plugin's StateChanged.
+        ws.send_json({"op": 1, "d": {"rpcVersion": 1, "eventSubscriptions": 1 << 9}})
         identified = ws.recv_json()
         if identified.get("op") != 2:
             raise Failure(f"expected Identified, got {identified}")

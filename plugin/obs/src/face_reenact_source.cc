@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "source_settings.h"
+#include "websocket_vendor.h"
 
 namespace face_reenact::obs_plugin {
 namespace {
@@ -145,7 +146,9 @@ void FaceReenactSource::video_tick() {
   bool changed = key != last_state_key_;
   if (changed) {
     last_state_key_ = key;
-    blog(LOG_INFO, "%s '%s': %s", kLogPrefix, obs_source_get_name(source_), status_line().c_str());
+    std::string line = status_line();
+    blog(LOG_INFO, "%s '%s': %s", kLogPrefix, obs_source_get_name(source_), line.c_str());
+    emit_state_changed(obs_source_get_name(source_), line, state_word(has_session, status));
   }
   // The properties window shows the status line: refresh it when the state changes, and every
   // few seconds for the rates (more often would rebuild the window under the user's cursor).

@@ -1,5 +1,6 @@
 #include "websocket_vendor.h"
 
+#include <atomic>
 #include <cstring>
 #include <exception>
 #include <string>
@@ -23,24 +24,9 @@ void fail(obs_data_t* response, const std::string& why) {
   obs_data_set_string(response, "error", why.c_str());
 }
 
-// One word for what the source is doing (the status line says it in a sentence).
-const char* state_word(bool has_session, const live::LiveStatus& s) {
-  if (!has_session) return "not_running";  // settings incomplete, or the session failed to start
-  if (!s.target_open) {
-    if (s.target_error == "end of recording") return "ended";
-    if (s.target_error.empty() || s.target_error == "opening") return "opening";
-    return "no_input";
-  }
-  if (s.mode == live::OutputMode::kRaw) return "raw";
-  if (!s.pipeline_ready) return s.pipeline_message.empty() ? "loading" : "unchanged";
-  switch (s.tracking) {
-    case live::TrackingState::kCalibrating: return "calibrating";
-    case live::TrackingState::kTracking: return "tracking";
-    case live::TrackingState::kLost: return "no_face";
-    case live::TrackingState::kOff: return "starting";
-  }
-  return "starting";
-}
+// obs-websocket's handler and our vendor there, once registered (for the events).
+std::atomic<proc_handler_t*> g_websocket{nullptr};
+std::atomic<void*> g_vendor{nullptr};
 
 // The Face Reenact source named by the request's "sourceName", with a reference held (released
 // by the destructor, so the source and its FaceReenactSource stay alive while a request uses
@@ -106,6 +92,41 @@ bool call_proc(proc_handler_t* ph, const char* name, calldata_t* cd) {
 }
 
 }  // namespace
+
+const char* state_word(bool has_session, const live::LiveStatus& s) {
+  if (!has_session) return "not_running";  // settings incomplete, or the session failed to start
+  if (!s.target_open) {
+    if (s.target_error == "end of recording") return "ended";
+    if (s.target_error.empty() || s.target_error == "opening") return "opening";
+    return "no_input";
+  }
+  if (s.mode == live::OutputMode::kRaw) return "raw";
+  if (!s.pipeline_ready) return s.pipeline_message.empty() ? "loading" : "unchanged";
+  switch (s.tracking) {
+    case live::TrackingState::kCalibrating: return "calibrating";
+    case live::TrackingState::kTracking: return "tracking";
+    case live::TrackingState::kLost: return "no_face";
+    case live::TrackingState::kOff: return "starting";
+  }
+  return "starting";
+}
+
+void emit_state_changed(const char* source_name, const std::string& status, const char* state) {
+  proc_handler_t* ws = g_websocket.load();
+  void* vendor = g_vendor.load();
+  if (!ws || !vendor) return;
+  obs_data_t* data = obs_data_create();
+  obs_data_set_string(data, "sourceName", source_name ? source_name : "");
+  obs_data_set_string(data, "status", status.c_str());
+  obs_data_set_string(data, "state", state);
+  calldata_t cd = {};
+  calldata_set_ptr(&cd, "vendor", vendor);
+  calldata_set_string(&cd, "type", "StateChanged");
+  calldata_set_ptr(&cd, "data", data);
+  proc_handler_call(ws, "vendor_event_emit", &cd);  // fails harmlessly while the server is off
+  calldata_free(&cd);
+  obs_data_release(data);
+}
 
 void vendor_get_status(obs_data_t* request, obs_data_t* response, void*) {
   guarded(response, "GetStatus", [&] {
@@ -219,8 +240,11 @@ bool register_websocket_vendor() {
     }
     calldata_free(&cd);
   }
+  g_websocket.store(ws);
+  g_vendor.store(vendor);
   if (all)
-    blog(LOG_INFO, "%s obs-websocket vendor '%s' registered: GetStatus, Calibrate, ListSources", kLogPrefix, kVendorName);
+    blog(LOG_INFO, "%s obs-websocket vendor '%s' registered: GetStatus, Calibrate, ListSources; event StateChanged",
+         kLogPrefix, kVendorName);
   return all;
 }
 

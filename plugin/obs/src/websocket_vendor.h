@@ -10,6 +10,10 @@
 // (obs-websocket's header is not shipped by Debian's libobs-dev).
 #include <obs-module.h>
 
+#include <string>
+
+#include "face_reenact/live/live_session.h"
+
 namespace face_reenact::obs_plugin {
 
 inline constexpr const char* kVendorName = "face-reenact";
@@ -24,9 +28,20 @@ bool register_websocket_vendor();
 // kind, a missing field) and nothing else is done.
 //   GetStatus   {sourceName} -> {ok, sourceName, status, state, mode, tracking, source, ...}
 //   Calibrate   {sourceName} -> {ok, sourceName, calibrationsRequested, status, state}
-//   ListSources {}           -> {ok, sourceNames: [{sourceName}]}
+//   ListSources (no data)    -> {ok, sources: [{sourceName, status, state}]}
 void vendor_get_status(obs_data_t* request, obs_data_t* response, void* unused);
 void vendor_calibrate(obs_data_t* request, obs_data_t* response, void* unused);
 void vendor_list_sources(obs_data_t* request, obs_data_t* response, void* unused);
+
+// One word for what a source is doing ("tracking", "calibrating", "raw", ...: docs/obs-source.md).
+const char* state_word(bool has_session, const live::LiveStatus& status);
+
+// The vendor event "StateChanged" {sourceName, status, state} to obs-websocket's clients that
+// subscribed to vendor events; nothing without obs-websocket. Any thread; never waits (obs-websocket
+// sends it from its own threads).
+void emit_state_changed(const char* source_name, const std::string& status, const char* state);
+
+// Not unregistered at unload: obs-websocket has no proc to drop a vendor, and libobs does not
+// unmap modules; a request after the sources are gone finds no source and says so.
 
 }  // namespace face_reenact::obs_plugin
