@@ -2,7 +2,8 @@
 // The C++ side of the "Face Reenact" OBS source. The obs_source_info callbacks (source_info.cc)
 // forward here and stay thin. Threading:
 //   - update()/calibrate()/properties run on OBS's UI thread, video_tick on its graphics
-//     thread: none of them waits for the pipeline (a replaced session is stopped on a
+//     thread, calibrate()/status_line()/live_status() also on obs-websocket's thread (its
+//     vendor requests, websocket_vendor.h): none of them waits for the pipeline (a replaced session is stopped on a
 //     retiring thread, so even a long pipeline call never stalls the UI);
 //   - the live session's worker thread hands every output frame to OBS with
 //     obs_source_output_video (async source), converted to BGRA there.

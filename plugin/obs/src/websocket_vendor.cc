@@ -83,6 +83,9 @@ void guarded(obs_data_t* response, const char* request_type, F&& f) {
   } catch (const std::exception& e) {
     blog(LOG_WARNING, "%s obs-websocket request %s failed: %s", kLogPrefix, request_type, e.what());
     fail(response, std::string("internal error: ") + e.what());
+  } catch (...) {
+    blog(LOG_WARNING, "%s obs-websocket request %s failed", kLogPrefix, request_type);
+    fail(response, "internal error");
   }
 }
 
