@@ -3,8 +3,8 @@
 // forward here and stay thin. Threading:
 //   - update()/calibrate()/properties run on OBS's UI thread, video_tick on its graphics
 //     thread, calibrate()/status_line()/live_status() also on obs-websocket's thread (its
-//     vendor requests, websocket_vendor.h): none of them waits for the pipeline (a replaced session is stopped on a
-//     retiring thread, so even a long pipeline call never stalls the UI);
+//     vendor requests, websocket_vendor.h): none of them waits for the pipeline (a replaced
+//     session is stopped on a retiring thread, so even a long pipeline call never stalls the UI);
 //   - the live session's worker thread hands every output frame to OBS with
 //     obs_source_output_video (async source), converted to BGRA there.
 #include <obs-module.h>
