@@ -11,6 +11,7 @@
 #include <atomic>
 #include <chrono>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
@@ -28,6 +29,81 @@ using Clock = std::chrono::steady_clock;
 
 constexpr const char* kSourceId = "face_reenact_source";
 constexpr int kVideoWidth = 160, kVideoHeight = 120;
+
+// A stand-in for obs-websocket 5's vendor API (what its WebSocketApi sets up: the global proc
+// "obs_websocket_api_get_ph" returning a handler with "vendor_register" and
+// "vendor_request_register"), so the module's vendor is tested in-process, also under the
+// sanitizers where the real obs cannot load our module. It keeps what the module registers and
+// calls the requests as obs-websocket does.
+class FakeWebSocket {
+ public:
+  using Function = void (*)(obs_data_t*, obs_data_t*, void*);
+  struct Callback {  // obs-websocket's struct obs_websocket_request_callback
+    Function callback;
+    void* priv_data;
+  };
+  static inline proc_handler_t* ph = nullptr;
+  static inline std::string vendor_name;
+  static inline std::map<std::string, Callback> requests;
+  struct Event {
+    std::string type, source_name, status, state;
+  };
+  static inline std::mutex events_mu;
+  static inline std::vector<Event> events;  // vendor_event_emit calls (from the graphics thread)
+
+  static void install() {
+    ph = proc_handler_create();
+    proc_handler_add(ph, "bool vendor_register(in string name, out ptr vendor)", vendor_register, nullptr);
+    proc_handler_add(ph, "bool vendor_request_register(in ptr vendor, in string type, in ptr callback)",
+                     vendor_request_register, nullptr);
+    proc_handler_add(ph, "bool vendor_event_emit(in ptr vendor, in string type, in ptr data)", vendor_event_emit,
+                     nullptr);
+    proc_handler_add(obs_get_proc_handler(), "bool obs_websocket_api_get_ph(out ptr ph)",
+                     [](void*, calldata_t* cd) {
+                       calldata_set_ptr(cd, "ph", ph);
+                       calldata_set_bool(cd, "success", true);
+                     },
+                     nullptr);
+  }
+  // Calls a registered request: `request` JSON (or nothing) -> the response, as obs-websocket
+  // hands it over (an object, empty when no requestData came).
+  static obs_data_t* call(const std::string& type, const char* request_json = nullptr) {
+    auto it = requests.find(type);
+    if (it == requests.end()) return nullptr;
+    obs_data_t* request = request_json ? obs_data_create_from_json(request_json) : obs_data_create();
+    obs_data_t* response = obs_data_create();
+    it->second.callback(request, response, it->second.priv_data);
+    obs_data_release(request);
+    return response;
+  }
+
+ private:
+  static void vendor_register(void*, calldata_t* cd) {
+    const char* name = calldata_string(cd, "name");
+    bool ok = name && *name && vendor_name.empty();
+    if (ok) vendor_name = name;
+    calldata_set_ptr(cd, "vendor", ok ? &vendor_name : nullptr);
+    calldata_set_bool(cd, "success", ok);
+  }
+  static void vendor_request_register(void*, calldata_t* cd) {
+    const char* type = calldata_string(cd, "type");
+    auto* cb = static_cast<Callback*>(calldata_ptr(cd, "callback"));
+    bool ok = calldata_ptr(cd, "vendor") == &vendor_name && type && *type && cb && cb->callback && !requests.count(type);
+    if (ok) requests[type] = *cb;  // copied, as obs-websocket does
+    calldata_set_bool(cd, "success", ok);
+  }
+  static void vendor_event_emit(void*, calldata_t* cd) {
+    const char* type = calldata_string(cd, "type");
+    auto* data = static_cast<obs_data_t*>(calldata_ptr(cd, "data"));
+    bool ok = calldata_ptr(cd, "vendor") == &vendor_name && type && *type && data;
+    if (ok) {
+      std::lock_guard lock(events_mu);
+      events.push_back({type, obs_data_get_string(data, "sourceName"), obs_data_get_string(data, "status"),
+                        obs_data_get_string(data, "state")});
+    }
+    calldata_set_bool(cd, "success", ok);
+  }
+};
 
 // libobs can start once per process: this environment does it for every test.
 class ObsEnvironment : public ::testing::Environment {
@@ -67,7 +143,16 @@ class ObsEnvironment : public ::testing::Environment {
       load_error = "obs_open_module(" FR_OBS_MODULE_FILE ") returned " + std::to_string(rc);
       return;
     }
-    if (!obs_init_module(module)) load_error = "obs_init_module failed";
+    if (!obs_init_module(module)) {
+      load_error = "obs_init_module failed";
+      return;
+    }
+    // OBS calls every module's post_load after loading them all. Without obs-websocket the
+    // module registers nothing (and goes on); with it, its vendor.
+    obs_post_load_modules();
+    if (!FakeWebSocket::requests.empty()) load_error = "requests registered without obs-websocket";
+    FakeWebSocket::install();
+    obs_post_load_modules();
   }
   void TearDown() override {
     if (started_) obs_shutdown();
@@ -438,6 +523,174 @@ TEST_F(ObsSourceTest, SettingsChangesNeverBlockTheCaller) {
   ASSERT_FALSE(frame.empty()) << status(source).line;
   EXPECT_EQ(closest_frame_difference(frame, recording_frames(dir)), 0.0);  // raw again
   EXPECT_EQ(status(source).line.rfind("Raw input", 0), 0u) << status(source).line;
+}
+
+// The module's obs-websocket vendor (docs/obs-source.md, "Remote control"), called as
+// obs-websocket calls it; the real obs-websocket drives it in obs_websocket_e2e.
+class WebSocketVendorTest : public ObsSourceTest {
+ protected:
+  struct Answer {
+    bool ok = false;
+    std::string error, status, state;
+    long long calibrations = -1, frames_out = 0;
+    obs_data_t* data = nullptr;
+    ~Answer() { obs_data_release(data); }
+  };
+  static std::unique_ptr<Answer> call(const char* type, const char* json) {
+    auto a = std::make_unique<Answer>();
+    a->data = FakeWebSocket::call(type, json);
+    if (!a->data) return a;
+    a->ok = obs_data_get_bool(a->data, "ok");
+    a->error = obs_data_get_string(a->data, "error");
+    a->status = obs_data_get_string(a->data, "status");
+    a->state = obs_data_get_string(a->data, "state");
+    a->calibrations = obs_data_has_user_value(a->data, "calibrationsRequested")
+                          ? obs_data_get_int(a->data, "calibrationsRequested")
+                          : -1;
+    a->frames_out = obs_data_get_int(a->data, "framesOut");
+    return a;
+  }
+};
+
+TEST_F(WebSocketVendorTest, RegistersTheVendorAndItsRequests) {
+  EXPECT_EQ(FakeWebSocket::vendor_name, "face-reenact");
+  for (const char* type : {"GetStatus", "Calibrate", "ListSources"})
+    EXPECT_EQ(FakeWebSocket::requests.count(type), 1u) << type;
+}
+
+TEST_F(WebSocketVendorTest, GetStatusAndListSourcesSayWhatTheSourceDoes) {
+  REQUIRE_RECORDING(dir);
+  obs_data_t* settings = recording_settings(dir);
+  obs_source_t* source = create(settings, "ws-raw");
+  obs_data_release(settings);
+  ASSERT_NE(source, nullptr);
+  wait_status(source, 5s, [](const Status& s) { return s.frames_out > 5; });
+  auto a = call("GetStatus", R"({"sourceName": "ws-raw"})");
+  ASSERT_TRUE(a->data);
+  EXPECT_TRUE(a->ok) << a->error;
+  EXPECT_EQ(a->state, "raw");
+  EXPECT_EQ(a->status.rfind("Raw input", 0), 0u) << a->status;
+  EXPECT_STREQ(obs_data_get_string(a->data, "sourceName"), "ws-raw");
+  EXPECT_STREQ(obs_data_get_string(a->data, "mode"), "raw");
+  EXPECT_STREQ(obs_data_get_string(a->data, "tracking"), "off");
+  EXPECT_TRUE(obs_data_get_bool(a->data, "running"));
+  EXPECT_TRUE(obs_data_get_bool(a->data, "targetOpen"));
+  EXPECT_GT(a->frames_out, 5);
+  EXPECT_EQ(a->calibrations, 0);
+
+  auto list = call("ListSources", nullptr);
+  ASSERT_TRUE(list->ok);
+  obs_data_array_t* sources = obs_data_get_array(list->data, "sources");
+  std::vector<std::string> names;
+  for (size_t i = 0; i < obs_data_array_count(sources); ++i) {
+    obs_data_t* item = obs_data_array_item(sources, i);
+    names.push_back(obs_data_get_string(item, "sourceName"));
+    if (names.back() == "ws-raw") EXPECT_STREQ(obs_data_get_string(item, "state"), "raw");
+    obs_data_release(item);
+  }
+  obs_data_array_release(sources);
+  EXPECT_NE(std::find(names.begin(), names.end(), "ws-raw"), names.end());
+}
+
+TEST_F(WebSocketVendorTest, BadRequestsAnswerAClearErrorAndChangeNothing) {
+  REQUIRE_RECORDING(dir);
+  obs_data_t* settings = recording_settings(dir);
+  obs_source_t* raw = create(settings, "ws-raw");
+  obs_data_release(settings);
+  settings = recording_settings("");
+  obs_source_t* stopped = create(settings, "ws-stopped");  // settings incomplete: no session
+  obs_data_release(settings);
+  obs_scene_t* scene = obs_scene_create("ws-scene");
+  ASSERT_TRUE(raw && stopped && scene);
+  Status running = wait_status(raw, 10s, [](const Status& s) { return s.frames_out > 0; });
+  ASSERT_TRUE(running.running) << running.line;
+  auto expect_error = [](const char* type, const char* json, const std::string& words) {
+    auto a = call(type, json);
+    ASSERT_TRUE(a->data) << type;
+    EXPECT_FALSE(a->ok) << type << " " << (json ? json : "(none)") << ": " << a->status;
+    EXPECT_NE(a->error.find(words), std::string::npos)
+        << type << " " << (json ? json : "(none)") << ": " << a->error << " (status: " << a->status << ")";
+  };
+  for (const char* type : {"GetStatus", "Calibrate"}) {
+    expect_error(type, R"({"sourceName": "ws-none"})", "no source named 'ws-none'");
+    expect_error(type, R"({"sourceName": "ws-scene"})", "source 'ws-scene' is not a Face Reenact source");
+    expect_error(type, nullptr, "missing field 'sourceName'");
+    expect_error(type, R"({"name": "ws-raw"})", "missing field 'sourceName'");
+    expect_error(type, R"({"sourceName": 7})", "missing field 'sourceName'");
+    expect_error(type, R"({"sourceName": ""})", "missing field 'sourceName'");
+  }
+  expect_error("Calibrate", R"({"sourceName": "ws-raw"})", "raw mode (tracking off): nothing to calibrate");
+  expect_error("Calibrate", R"({"sourceName": "ws-stopped"})",
+               "source 'ws-stopped' cannot calibrate: Not running: choose a recording or video file for the target");
+  auto st = call("GetStatus", R"({"sourceName": "ws-stopped"})");
+  EXPECT_TRUE(st->ok);
+  EXPECT_EQ(st->state, "not_running");
+  EXPECT_EQ(st->calibrations, 0);
+  EXPECT_FALSE(obs_data_get_bool(st->data, "running"));
+  obs_source_remove(obs_scene_get_source(scene));
+  obs_scene_release(scene);
+}
+
+TEST_F(WebSocketVendorTest, StateChangesAreVendorEvents) {
+  REQUIRE_RECORDING(dir);
+  obs_data_t* settings = recording_settings("");
+  obs_source_t* source = create(settings, "ws-events");  // not running until the recording is chosen
+  ASSERT_NE(source, nullptr);
+  auto events_of = [](const std::string& name) {
+    std::lock_guard lock(FakeWebSocket::events_mu);
+    std::vector<FakeWebSocket::Event> mine;
+    for (const auto& e : FakeWebSocket::events)
+      if (e.source_name == name) mine.push_back(e);
+    return mine;
+  };
+  auto wait_for_state = [&](const std::string& state) {
+    Clock::time_point end = Clock::now() + 10s;
+    while (Clock::now() < end) {
+      for (const auto& e : events_of("ws-events"))
+        if (e.state == state) return e;
+      std::this_thread::sleep_for(20ms);
+    }
+    return FakeWebSocket::Event{};
+  };
+  FakeWebSocket::Event stopped = wait_for_state("not_running");
+  EXPECT_EQ(stopped.type, "StateChanged");
+  EXPECT_EQ(stopped.status, "Not running: choose a recording or video file for the target");
+  obs_data_set_string(settings, "target_path", dir.c_str());
+  obs_source_update(source, settings);
+  obs_data_release(settings);
+  FakeWebSocket::Event raw = wait_for_state("raw");
+  EXPECT_EQ(raw.type, "StateChanged");
+  EXPECT_EQ(raw.status.rfind("Raw input", 0), 0u) << raw.status;
+  // One event per change of state, not one per frame or per rate change.
+  std::this_thread::sleep_for(1500ms);
+  size_t raw_events = 0;
+  for (const auto& e : events_of("ws-events")) raw_events += e.state == "raw";
+  EXPECT_EQ(raw_events, 1u);
+}
+
+TEST_F(WebSocketVendorTest, CalibrateRequestsTheSameCalibrationAsTheButton) {
+  REQUIRE_RECORDING(dir);
+  // Pass-through with a model that is not there: the session runs (frames unchanged), and takes
+  // calibration requests like the button's, without loading a pipeline.
+  obs_data_t* settings = recording_settings(dir, "passthrough");
+  obs_data_set_string(settings, "model_path", "/nonexistent/face-model.frm");
+  obs_source_t* source = create(settings, "ws-calibrate");
+  obs_data_release(settings);
+  ASSERT_NE(source, nullptr);
+  Clock::time_point t0 = Clock::now();
+  auto a = call("Calibrate", R"({"sourceName": "ws-calibrate"})");
+  EXPECT_LT(Clock::now() - t0, 100ms);  // a request, never a wait
+  EXPECT_TRUE(a->ok) << a->error;
+  EXPECT_EQ(a->calibrations, 1);
+  EXPECT_STREQ(obs_data_get_string(a->data, "sourceName"), "ws-calibrate");
+  // The button counts the same way.
+  obs_properties_t* props = obs_source_properties(source);
+  obs_property_button_clicked(obs_properties_get(props, "calibrate"), source);
+  obs_properties_destroy(props);
+  auto b = call("GetStatus", R"({"sourceName": "ws-calibrate"})");
+  EXPECT_TRUE(b->ok);
+  EXPECT_EQ(b->calibrations, 2);
+  EXPECT_STREQ(obs_data_get_string(b->data, "mode"), "passthrough");
 }
 
 }  // namespace

@@ -8,6 +8,15 @@ recording, and obs-websocket v5 enabled. A minimal websocket client (Python stan
 only) identifies with protocol v5 and asks for GetSourceScreenshot of the source; the PNG it
 returns must have the recording's size and match one of its frames.
 
+Then the plugin's obs-websocket vendor "face-reenact" (docs/obs-source.md), through
+CallVendorRequest: GetStatus of that source says what it does (raw input), ListSources lists the
+Face Reenact sources, bad requests (an unknown source name, a scene, no sourceName, a raw-mode
+source to calibrate) answer a clear error and OBS goes on. A second source, "Tracked"
+(pass-through on a 320x240 recording, a face the tracker calibrates on), is calibrated remotely
+once it tracks: Calibrate answers ok, its counter moves and GetStatus then says "calibrating".
+Last, the raw source's recording is removed with SetInputSettings: the vendor event StateChanged
+(the client subscribes to vendor events) says it has no input.
+
 Exit status: 0 passed, 1 failed (the reason is printed), 77 skipped (obs or Xvfb missing, or OBS
 cannot start at all on this machine; the reason is printed).
 
@@ -30,6 +39,9 @@ import zlib
 SKIP = 77
 WIDTH, HEIGHT, FRAMES = 160, 120, 12
 SOURCE_NAME = "Face"
+TRACKED_NAME = "Tracked"  # pass-through on a 320x240 recording: calibrates, then tracks
+TRACKED_SIZE, TRACKED_FRAMES = (320, 240), 60
+VENDOR = "face-reenact"
 
 
 class Failure(Exception):
@@ -102,6 +114,7 @@ def stddev(values):
 # --- a minimal websocket client (RFC 6455): text frames, masking, ping/pong ---------------------
 class WebSocket:
     def __init__(self, host, port, timeout):
+        self.events = []  # op 5 messages received while waiting for answers
         self.sock = socket.create_connection((host, port), timeout=timeout)
         key = base64.b64encode(os.urandom(16)).decode()
         request = (f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
@@ -185,7 +198,7 @@ def free_port():
     return port
 
 
-def write_config(home, plugin_dir, recording, port):
+def write_config(home, plugin_dir, recording, tracked_recording, port):
     config = os.path.join(home, ".config", "obs-studio")
     os.makedirs(os.path.join(config, "plugins"))
     os.symlink(os.path.abspath(plugin_dir), os.path.join(config, "plugins", "face-reenact"))
@@ -212,11 +225,18 @@ def write_config(home, plugin_dir, recording, port):
              "settings": {"id_counter": 1, "custom_size": False, "items": [
                  {"name": SOURCE_NAME, "id": 1, "visible": True, "locked": False, "rot": 0.0,
                   "pos": {"x": 0.0, "y": 0.0}, "scale": {"x": 1.0, "y": 1.0}, "align": 5,
+                  "bounds_type": 0, "bounds_align": 0, "bounds": {"x": 0.0, "y": 0.0}},
+                 {"name": TRACKED_NAME, "id": 2, "visible": False, "locked": False, "rot": 0.0,
+                  "pos": {"x": 0.0, "y": 0.0}, "scale": {"x": 1.0, "y": 1.0}, "align": 5,
                   "bounds_type": 0, "bounds_align": 0, "bounds": {"x": 0.0, "y": 0.0}}]}},
             {"id": "face_reenact_source", "versioned_id": "face_reenact_source", "name": SOURCE_NAME,
              "enabled": True, "flags": 0,
              "settings": {"target_kind": "recording", "target_path": recording, "source_kind": "none",
                           "mode": "raw"}},
+            {"id": "face_reenact_source", "versioned_id": "face_reenact_source", "name": TRACKED_NAME,
+             "enabled": True, "flags": 0,
+             "settings": {"target_kind": "recording", "target_path": tracked_recording, "source_kind": "none",
+                          "mode": "passthrough"}},
         ],
     }
     with open(os.path.join(scenes, "FRTest.json"), "w") as f:
@@ -269,8 +289,125 @@ def request(ws, kind, data, request_id):
     ws.send_json({"op": 6, "d": {"requestType": kind, "requestId": request_id, "requestData": data}})
     while True:
         msg = ws.recv_json()
+        if msg.get("op") == 5:  # an event that arrived meanwhile: kept for the checks
+            ws.events.append(msg["d"])
         if msg.get("op") == 7 and msg["d"].get("requestId") == request_id:
             return msg["d"]
+
+
+def vendor(ws, request_type, data, request_id):
+    """CallVendorRequest to our vendor: (obs-websocket's requestStatus, our responseData)."""
+    call = {"vendorName": VENDOR, "requestType": request_type}
+    if data is not None:  # (obs-websocket 5.1 refuses an empty requestData object)
+        call["requestData"] = data
+    d = request(ws, "CallVendorRequest", call, request_id)
+    return d["requestStatus"], d.get("responseData", {}).get("responseData", {})
+
+
+def expect_error(ws, request_type, data, request_id, words):
+    status, answer = vendor(ws, request_type, data, request_id)
+    if not status.get("result"):
+        raise Failure(f"{request_type} {data}: obs-websocket failed the call: {status}")
+    if answer.get("ok") is not False or words not in answer.get("error", ""):
+        raise Failure(f"{request_type} {data}: expected an error saying '{words}', got {answer}")
+    print(f"{request_type} {json.dumps(data)} -> error: {answer['error']}")
+
+
+def wait_status(ws, name, accept, timeout, what, config, interval=0.2):
+    """GetStatus of `name` until accept(answer); the answers seen on the way (state changes)."""
+    deadline, seen, i, answer = time.time() + timeout, [], 0, {}
+    while time.time() < deadline:
+        i += 1
+        status, answer = vendor(ws, "GetStatus", {"sourceName": name}, f"w{what}{i}")
+        if not status.get("result") or not answer.get("ok"):
+            raise Failure(f"GetStatus {name}: {status} {answer}")
+        if not seen or seen[-1]["state"] != answer["state"]:
+            seen.append(answer)
+            print(f"  {name}: {answer['state']}: {answer['status']}")
+        if accept(answer):
+            return answer, seen
+        if answer["state"] == "unchanged" and "no face model" in answer["status"]:
+            raise Skip(f"{name} cannot track: {answer['status']} (set FACE_REENACT_MODEL)")
+        time.sleep(interval)
+    raise Failure(f"{name} never {what} within {timeout} s; last status {answer}\n" + obs_log(config)[-3000:])
+
+
+def check_vendor(ws, config):
+    """The plugin's obs-websocket vendor: status, calibration, and clear errors on bad input."""
+    status, answer = vendor(ws, "GetStatus", {"sourceName": SOURCE_NAME}, "g1")
+    if not status.get("result"):
+        raise Failure(f"CallVendorRequest GetStatus failed (vendor not registered?): {status}\n" + obs_log(config)[-3000:])
+    print("GetStatus", SOURCE_NAME, "->", answer)
+    if not answer.get("ok") or answer.get("sourceName") != SOURCE_NAME:
+        raise Failure(f"GetStatus {SOURCE_NAME}: {answer}")
+    if answer.get("state") != "raw" or not answer.get("status", "").startswith("Raw input"):
+        raise Failure(f"GetStatus {SOURCE_NAME} does not say what the source does (raw input): {answer}")
+    if answer.get("mode") != "raw" or not answer.get("targetOpen") or answer.get("framesOut", 0) <= 0:
+        raise Failure(f"GetStatus {SOURCE_NAME}: unexpected fields {answer}")
+
+    status, answer = vendor(ws, "ListSources", None, "l1")
+    names = sorted(item.get("sourceName") for item in answer.get("sources", []))
+    print("ListSources ->", names)
+    if not answer.get("ok") or names != sorted([SOURCE_NAME, TRACKED_NAME]):
+        raise Failure(f"ListSources: {status} {answer}")
+
+    expect_error(ws, "GetStatus", {"sourceName": "No such source"}, "e1", "no source named 'No such source'")
+    expect_error(ws, "Calibrate", {"sourceName": "No such source"}, "e2", "no source named")
+    expect_error(ws, "GetStatus", {"sourceName": "Scene"}, "e3", "is not a Face Reenact source")
+    expect_error(ws, "Calibrate", {"sourceName": "Scene"}, "e4", "is not a Face Reenact source")
+    expect_error(ws, "GetStatus", {"source": SOURCE_NAME}, "e5", "missing field 'sourceName'")
+    expect_error(ws, "Calibrate", None, "e5b", "missing field 'sourceName'")
+    expect_error(ws, "Calibrate", {"sourceName": 42}, "e6", "missing field 'sourceName'")
+    expect_error(ws, "Calibrate", {"sourceName": SOURCE_NAME}, "e7", "raw mode")
+    status, _ = vendor(ws, "NoSuchRequest", None, "e8")
+    if status.get("result"):
+        raise Failure(f"an unknown vendor request succeeded: {status}")
+    print("NoSuchRequest ->", status.get("comment"))
+    if request(ws, "GetVersion", {}, "alive")["requestStatus"].get("result") is not True:
+        raise Failure("OBS stopped answering after the bad requests")
+
+    # Remote calibration of a tracking source: the same as its Calibrate button.
+    tracking, _ = wait_status(ws, TRACKED_NAME, lambda a: a["state"] == "tracking", 200, "tracking", config)
+    before = tracking["calibrationsRequested"]
+    events_before = len(ws.events)
+    status, answer = vendor(ws, "Calibrate", {"sourceName": TRACKED_NAME}, "c1")
+    print("Calibrate", TRACKED_NAME, "->", answer)
+    if not status.get("result") or not answer.get("ok"):
+        raise Failure(f"Calibrate {TRACKED_NAME}: {status} {answer}")
+    if answer.get("calibrationsRequested") != before + 1:
+        raise Failure(f"Calibrate {TRACKED_NAME}: the calibration counter did not move ({before} before): {answer}")
+    # Polled every 20 ms: collecting the calibration's 5 frames alone takes 1/6 s at 30 fps.
+    calibrating, _ = wait_status(ws, TRACKED_NAME, lambda a: a["state"] == "calibrating", 30, "calibrating", config,
+                                 interval=0.02)
+    if not calibrating["status"].startswith("Calibrating") or calibrating["tracking"] != "calibrating":
+        raise Failure(f"GetStatus after Calibrate: the status does not say calibrating: {calibrating}")
+
+    # The vendor event StateChanged announces changes without polling. The source looks at its
+    # state twice a second, so a calibration shorter than that may pass unannounced: a lasting
+    # change, made through obs-websocket's own SetInputSettings (the raw source's recording
+    # removed), must be announced.
+    missing = "/nonexistent/face-reenact/recording"
+    changed = request(ws, "SetInputSettings", {"inputName": SOURCE_NAME, "inputSettings": {"target_path": missing}},
+                      "set1")
+    if not changed["requestStatus"].get("result"):
+        raise Failure(f"SetInputSettings failed: {changed['requestStatus']}")
+    deadline, changes = time.time() + 10, []
+    while time.time() < deadline:
+        changes = [(e["eventData"]["eventData"].get("sourceName"), e["eventData"]["eventData"].get("state"),
+                    e["eventData"]["eventData"].get("status"))
+                   for e in ws.events[events_before:] if e.get("eventType") == "VendorEvent"
+                   and e["eventData"].get("vendorName") == VENDOR and e["eventData"].get("eventType") == "StateChanged"]
+        if any(name == SOURCE_NAME and state == "no_input" for name, state, _ in changes):
+            break
+        request(ws, "GetVersion", {}, f"pump{time.time()}")
+        time.sleep(0.2)
+    print("StateChanged events since Calibrate:", [(name, state) for name, state, _ in changes])
+    no_input = [status for name, state, status in changes if name == SOURCE_NAME and state == "no_input"]
+    if not no_input or missing not in no_input[0]:
+        raise Failure(f"no StateChanged event saying {SOURCE_NAME} lost its recording: {changes}")
+    status, answer = vendor(ws, "GetStatus", {"sourceName": SOURCE_NAME}, "g2")
+    if answer.get("state") != "no_input":
+        raise Failure(f"GetStatus after the recording was removed: {answer}")
 
 
 def run(args):
@@ -290,6 +427,12 @@ def run(args):
                            capture_output=True, text=True)
     if synth.returncode != 0:
         raise Failure("face-reenact synth failed: " + synth.stderr)
+    tracked_recording = os.path.join(args.work, "recording-320")
+    synth = subprocess.run([args.cli, "synth", "--size", "%dx%d" % TRACKED_SIZE, "--frames", str(TRACKED_FRAMES),
+                            "--seed", "7", "--quiet", "--out", tracked_recording] + (["--model", model] if model else []),
+                           capture_output=True, text=True)
+    if synth.returncode != 0:
+        raise Failure("face-reenact synth failed: " + synth.stderr)
     frames = []
     for name in sorted(os.listdir(os.path.join(recording, "color"))):
         w, h, luma = decode_png(open(os.path.join(recording, "color", name), "rb").read())
@@ -299,7 +442,7 @@ def run(args):
 
     home = os.path.join(args.work, "home")
     port = free_port()
-    config = write_config(home, args.plugin_dir, recording, port)
+    config = write_config(home, args.plugin_dir, recording, tracked_recording, port)
     xvfb, display = start_xvfb(args.work)
     env = dict(os.environ, HOME=home, DISPLAY=display, QT_QPA_PLATFORM="xcb", LIBGL_ALWAYS_SOFTWARE="1",
                XDG_CONFIG_HOME=os.path.join(home, ".config"))
@@ -326,7 +469,8 @@ def run(args):
         if hello.get("op") != 0:
             raise Failure(f"expected Hello, got {hello}")
         print("obs-websocket", hello["d"].get("obsWebSocketVersion"), "rpc", hello["d"].get("rpcVersion"))
-        ws.send_json({"op": 1, "d": {"rpcVersion": 1, "eventSubscriptions": 0}})
+        # Vendor events only (EventSubscription::Vendors): the plugin's StateChanged.
+        ws.send_json({"op": 1, "d": {"rpcVersion": 1, "eventSubscriptions": 1 << 9}})
         identified = ws.recv_json()
         if identified.get("op") != 2:
             raise Failure(f"expected Identified, got {identified}")
@@ -375,6 +519,11 @@ def run(args):
         if "[face-reenact]" not in log:
             raise Failure("the OBS log has no [face-reenact] lines")
         print("plugin log lines:", [l for l in log.splitlines() if "[face-reenact]" in l][:4])
+        if "obs-websocket vendor 'face-reenact' registered" not in log:
+            raise Failure("the OBS log does not say the obs-websocket vendor was registered")
+        check_vendor(ws, config)
+        if proc.poll() is not None:
+            raise Failure(f"obs exited ({proc.returncode}) during the vendor requests")
     finally:
         if ws:
             ws.close()

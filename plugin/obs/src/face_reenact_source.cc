@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "source_settings.h"
+#include "websocket_vendor.h"
 
 namespace face_reenact::obs_plugin {
 namespace {
@@ -95,12 +96,13 @@ void FaceReenactSource::join_retired(bool all) {
   for (auto& r : to_join) r.thread.join();
 }
 
-void FaceReenactSource::calibrate() {
+bool FaceReenactSource::calibrate() {
   std::lock_guard lock(mu_);
-  if (session_) {
-    session_->RequestCalibration();
-    blog(LOG_INFO, "%s '%s': calibration requested", kLogPrefix, obs_source_get_name(source_));
-  }
+  if (!session_) return false;
+  session_->RequestCalibration();
+  ++calibrations_requested_;
+  blog(LOG_INFO, "%s '%s': calibration requested", kLogPrefix, obs_source_get_name(source_));
+  return true;
 }
 
 // On the session's publishing thread (its worker).
@@ -144,7 +146,9 @@ void FaceReenactSource::video_tick() {
   bool changed = key != last_state_key_;
   if (changed) {
     last_state_key_ = key;
-    blog(LOG_INFO, "%s '%s': %s", kLogPrefix, obs_source_get_name(source_), status_line().c_str());
+    std::string line = status_line();
+    blog(LOG_INFO, "%s '%s': %s", kLogPrefix, obs_source_get_name(source_), line.c_str());
+    emit_state_changed(obs_source_get_name(source_), line, state_word(has_session, status));
   }
   // The properties window shows the status line: refresh it when the state changes, and every
   // few seconds for the rates (more often would rebuild the window under the user's cursor).

@@ -1,5 +1,8 @@
-// The OBS module "face-reenact": registers the "Face Reenact" source (docs/obs-source.md).
+// The OBS module "face-reenact": registers the "Face Reenact" source and, once every module is
+// loaded, its obs-websocket vendor (docs/obs-source.md).
 #include <obs-module.h>
+
+#include "websocket_vendor.h"
 
 OBS_DECLARE_MODULE()
 OBS_MODULE_USE_DEFAULT_LOCALE("face-reenact", "en-US")
@@ -17,3 +20,6 @@ bool obs_module_load(void) {
   blog(LOG_INFO, "[face-reenact] module loaded (version " FR_VERSION ")");
   return true;
 }
+
+// After every module's obs_module_load: obs-websocket has set its vendor API up by now.
+void obs_module_post_load(void) { face_reenact::obs_plugin::register_websocket_vendor(); }
