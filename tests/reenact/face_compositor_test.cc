@@ -455,5 +455,59 @@ TEST(ReenactCompositorTest, RenderedFramesMatchStoredExpectations) {
   }
 }
 
+// A barely opened mouth under light from above and the front (the webcam clip's kind): the
+// inner faces of the lips, seen edge-on in the thin opening, face up or down, where such an SH
+// fit falls to its floor (15 % of its ambient part). Shaded so, they drew a hard, nearly black
+// slit along the lips, darker than the cavity behind them. Everything inside the opening is
+// lit by the light entering it, as the cavity is: no pixel of the gap is darker than the cavity
+// colour under that light (known answer: camera-facing irradiance x 0.35 x the cavity's albedo;
+// before, the darkest red in the gap was 12-34 against the cavity's 47, after 44-48).
+TEST(ReenactCompositorTest, ABarelyOpenedMouthHasNoGapDarkerThanTheCavity) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  gpu::FaceParameters target = test_face(0.5f);
+  for (int c = 0; c < 3; ++c) {
+    const float tint = c == 0 ? 1.05f : (c == 1 ? 1.0f : 0.92f);
+    target.gamma[static_cast<size_t>(c * 9 + 0)] = 1.0f * tint;
+    target.gamma[static_cast<size_t>(c * 9 + 1)] = -1.2f * tint;  // from above
+    target.gamma[static_cast<size_t>(c * 9 + 2)] = -1.2f * tint;  // from the camera side
+    target.gamma[static_cast<size_t>(c * 9 + 3)] = 0.0f;
+  }
+  target.delta[kJawOpenIndex] = 0.25f;
+  // The cavity's red under the rendering light (one directional shape; red keeps its own DC).
+  const auto basis = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+  float e_red = 0.f;
+  for (int k = 0; k < gpu::kNumShCoefficients; ++k) e_red += target.gamma[static_cast<size_t>(k)] * basis[static_cast<size_t>(k)];
+  // Less 10 %: teeth under a partly faded-in interior keep some of their own shading (44 vs 47).
+  const double cavity_red = 255.0 * srgb_encode(0.9f * e_red * 0.35f * 0.09f);
+  for (const Appearance appearance : {Appearance::kFrameTexture, Appearance::kAlbedoMap}) {
+    ReenactmentOptions o;
+    o.appearance = appearance;
+    const FaceCompositor fc(*test_model(), o);
+    const Rendered t = make_target(fc, target, cam);
+    for (const float jaw : {0.3f, 0.36f, 0.45f}) {
+      SCOPED_TRACE(::testing::Message() << "appearance " << static_cast<int>(appearance) << " jawOpen " << jaw);
+      gpu::FaceParameters out = target;
+      out.delta[kJawOpenIndex] = jaw;
+      const CompositeResult c = fc.Compose(t.target, cam, target, out, &t.albedo);
+      ASSERT_TRUE(c.mouth_drawn);
+      double darkest = 255.0;
+      int darker = 0;
+      for (int j = 0; j < cam.height; ++j)
+        for (int i = 0; i < cam.width; ++i) {
+          if (!c.mouth_mask.at<uchar>(j, i)) continue;
+          // Where the interior is faded in only partly, the frame texture shows the target's own
+          // mouth there, which may be darker.
+          const double red = c.rendered_bgr.at<cv::Vec3b>(j, i)[2];
+          darkest = std::min(darkest, red);
+          if (red < std::min(cavity_red, static_cast<double>(t.target.at<cv::Vec3b>(j, i)[2])) - 1.0) ++darker;
+        }
+      RecordProperty("darkest_gap_red_" + std::to_string(static_cast<int>(appearance)) + "_" + std::to_string(jaw),
+                     std::to_string(darkest));
+      EXPECT_EQ(darker, 0) << "darkest red " << darkest << ", cavity red " << cavity_red;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace face_reenact::reenact

@@ -128,6 +128,9 @@ struct FaceCompositor::Impl {
   // opening: where a closed mouth or eye meets itself, with no change of surface in a G-buffer.
   std::vector<std::vector<int32_t>> seam_contours;
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
+  // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
+  // and the wall behind them). See irradiance_at.
+  std::vector<char> in_mouth;
 
   Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), renderer(gpu::RenderModel::FromFaceModel(m)), options(o) {
     std::array<int32_t, 68> by_index;
@@ -142,6 +145,7 @@ struct FaceCompositor::Impl {
         if (by_index[static_cast<size_t>(i)] >= 0) contour.push_back(by_index[static_cast<size_t>(i)]);
       if (contour.size() >= 3) seam_contours.push_back(std::move(contour));
     }
+    FindMouthInterior();
     neighbours.resize(static_cast<size_t>(model.num_vertices()));
     for (const auto& t : model.triangles)
       for (int k = 0; k < 3; ++k) {
@@ -151,6 +155,57 @@ struct FaceCompositor::Impl {
           if (std::find(list.begin(), list.end(), nb) == list.end()) list.push_back(nb);
         }
       }
+  }
+
+  // in_mouth from the mean shape (model space: x to the person's left, y up, z towards the
+  // viewer): every face vertex between the mouth corners, within 5 mm of the inner lip line's
+  // height and more than 0.5 mm behind it (the line's depth interpolated along x over the upper
+  // inner lip, iBUG 60-64). The lips' outer, red surface lies in front of
+  // that line, the skin above and below the lips farther than 5 mm from it.
+  void FindMouthInterior() {
+    const int n = model.num_vertices();
+    in_mouth.assign(static_cast<size_t>(n), 0);
+    if (inner_lip_vertices.size() != 8) return;
+    auto at = [&](int32_t v) { return Eigen::Vector3f(model.mean_shape.segment<3>(3 * v)); };
+    std::vector<Eigen::Vector3f> line;  // iBUG 60..64 along x
+    for (size_t k = 0; k <= 4; ++k) line.push_back(at(inner_lip_vertices[k]));
+    std::sort(line.begin(), line.end(), [](const auto& a, const auto& b) { return a.x() < b.x(); });
+    constexpr float kHalfHeightM = 0.005f, kBehindM = 0.0005f;
+    for (int v = 0; v < n; ++v) {
+      if (part_of(v) != FacePart::Face) continue;
+      const Eigen::Vector3f x = at(v);
+      if (x.x() < line.front().x() || x.x() > line.back().x()) continue;
+      size_t k = 0;
+      while (k + 2 < line.size() && x.x() > line[k + 1].x()) ++k;
+      const float span = line[k + 1].x() - line[k].x();
+      const float t = span > 0.f ? std::clamp((x.x() - line[k].x()) / span, 0.0f, 1.0f) : 0.f;
+      const Eigen::Vector3f ref = (1.f - t) * line[k] + t * line[k + 1];
+      if (std::abs(x.y() - ref.y()) < kHalfHeightM && x.z() < ref.z() - kBehindM) in_mouth[static_cast<size_t>(v)] = 1;
+    }
+  }
+
+  // Irradiance of vertex v's channel c under `light` at the normal with SH basis `basis`.
+  // Surfaces inside the mouth face up, down or away from the camera, where the SH fit is an
+  // extrapolation floored at 15 % of its ambient part (irradiance()). Shaded so, the lips' inner
+  // faces, seen edge-on in a barely opened mouth, drew a hard, nearly black slit with reddish
+  // edges along the lips (on the webcam clip wherever the output's mouth opens a little wider
+  // than the target's; mostly just outside the inner-lip polygon, where the mouth pass draws
+  // nothing): darker than the cavity the mouth pass draws behind them.
+  // They are lit by the light that enters the opening, as the cavity is (kCavityOcclusion of the
+  // camera-facing irradiance), so that is their floor: a parted mouth's gap is then the lips'
+  // colour darkening softly into the cavity colour as it opens, never darker than the cavity.
+  // The output's shading, the frame texture's tracked shading (its re-lighting ratio) and the
+  // albedo map's division all use this, so they stay consistent with one another. Teeth and
+  // tongue keep the plain fit: lit so, the lower teeth seen through a barely opened gap drew
+  // white specks on the webcam clip; the mouth pass shades them (no darker than the cavity).
+  float irradiance_at(const Gamma& light, const std::array<float, 9>& basis, int c, int v) const {
+    const float e = irradiance(light, basis, c);
+    if (!in_mouth[static_cast<size_t>(v)]) return e;
+    return std::max(e, entering_light(light, c));
+  }
+  static float entering_light(const Gamma& light, int c) {
+    static const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+    return std::max(0.f, irradiance(light, facing, c)) * kCavityOcclusion;
   }
 
   // Skin vertices never observed (turned away, hidden) take the model albedo scaled by the
@@ -336,7 +391,7 @@ struct FaceCompositor::Impl {
       tracked_irradiance.resize(static_cast<size_t>(n));
       for (int v = 0; v < n; ++v) {
         const auto basis = gpu::sh_basis(ts.camera_normals.segment<3>(3 * v));
-        for (int c = 0; c < 3; ++c) tracked_irradiance[static_cast<size_t>(v)][c] = irradiance(light, basis, c);
+        for (int c = 0; c < 3; ++c) tracked_irradiance[static_cast<size_t>(v)][c] = irradiance_at(light, basis, c, v);
       }
     }
     const std::vector<Eigen::Vector3f>& e_target = same ? e_out : tracked_irradiance;
@@ -507,7 +562,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
     const auto basis = gpu::sh_basis(state.camera_normals.segment<3>(3 * v));
     for (int c = 0; c < 3; ++c) {
       if (use_map) state.albedo[3 * v + c] = albedo->albedo[3 * v + c];
-      float e = irradiance(light, basis, c);
+      float e = im.irradiance_at(light, basis, c, v);
       irradiance_out[static_cast<size_t>(v)][c] = e;
       if (cap) e = std::min(e, 1.05f * albedo->max_irradiance[c]);
       state.colors[3 * v + c] = state.albedo[3 * v + c] * e;
@@ -590,11 +645,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
     if (in_front) {
       cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
       cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255));
-      // Light reaching the cavity: the ambient part of the target's lighting (camera-facing normal).
-      const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+      // Light reaching the cavity: the part of the target's lighting that enters the opening.
       Eigen::Vector3f cavity_rgb;
-      for (int c = 0; c < 3; ++c)
-        cavity_rgb[c] = std::max(0.f, irradiance(light, facing, c)) * kCavityAlbedo[c] * kCavityOcclusion;
+      for (int c = 0; c < 3; ++c) cavity_rgb[c] = Impl::entering_light(light, c) * kCavityAlbedo[c];
       int drawn = 0;
       for (int j = 0; j < h; ++j) {
         const uchar* orow = opening.ptr<uchar>(j);
@@ -615,7 +668,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                     ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
                                  kMaxTongueOcclusion)
                     : std::clamp(1.0f - depth_behind / kTeethOcclusionDepthM, kMinTeethOcclusion, 1.0f);
-            for (int c = 0; c < 3; ++c) interior[c] = occlusion * g.color[3 * p + static_cast<size_t>(c)];
+            // No darker than the cavity wall behind them: the fit's floor left edge-on teeth and
+            // the tongue near black (see irradiance_at).
+            for (int c = 0; c < 3; ++c) interior[c] = std::max(occlusion * g.color[3 * p + static_cast<size_t>(c)], cavity_rgb[c]);
           } else if (!covered || depth_behind > kCavityDepthM) {
             interior = cavity_rgb;
           } else {
@@ -723,7 +778,9 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
       const float e = irradiance(light, basis, c);
       const float ambient = light[static_cast<size_t>(c * 9)] * basis[0];
       if (!(e > 0.05f) || !(e > 0.4f * ambient)) ok = false;
-      observed[c] = std::clamp(linear[c] / std::max(e, 0.05f), 0.0f, 1.0f);
+      // Divided by the irradiance the re-rendering uses (the mouth's floor included), so the
+      // observed colour is what it reproduces.
+      observed[c] = std::clamp(linear[c] / std::max(im.irradiance_at(light, basis, c, v), 0.05f), 0.0f, 1.0f);
     }
     if (!ok) continue;
     for (int c = 0; c < 3; ++c) brightest[c] = std::max(brightest[c], irradiance(light, basis, c));
