@@ -80,6 +80,17 @@ float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
   return std::max(e, 0.15f * ambient);
 }
 
+// `m` (CV_32FC1) at the sub-pixel position (x, y), bilinear, clamped to its border.
+float sample_float(const cv::Mat& m, float x, float y) {
+  x = std::clamp(x, 0.0f, static_cast<float>(m.cols - 1));
+  y = std::clamp(y, 0.0f, static_cast<float>(m.rows - 1));
+  const int i0 = std::min(static_cast<int>(x), std::max(m.cols - 2, 0)), j0 = std::min(static_cast<int>(y), std::max(m.rows - 2, 0));
+  const int i1 = std::min(i0 + 1, m.cols - 1), j1 = std::min(j0 + 1, m.rows - 1);
+  const float fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f), fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
+  return (1 - fy) * ((1 - fx) * m.at<float>(j0, i0) + fx * m.at<float>(j0, i1)) +
+         fy * ((1 - fx) * m.at<float>(j1, i0) + fx * m.at<float>(j1, i1));
+}
+
 // Linear colour of `bgr` at the sub-pixel position (x, y), bilinear (0 <= x <= w-1, 0 <= y <= h-1).
 Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
   const auto& lut = srgb_decode_table();
@@ -113,7 +124,13 @@ struct FaceCompositor::Impl {
   mutable std::unique_ptr<gpu::Renderer> vk_renderer;
   mutable std::string vk_failure;
   std::vector<int32_t> inner_lip_vertices;  // iBUG 60-67 in order around the opening
+  // The inner lip line and the lid margins (iBUG 60-67, 36-41, 42-47), each in order around its
+  // opening: where a closed mouth or eye meets itself, with no change of surface in a G-buffer.
+  std::vector<std::vector<int32_t>> seam_contours;
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
+  // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
+  // and the wall behind them). See irradiance_at.
+  std::vector<char> in_mouth;
 
   Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), renderer(gpu::RenderModel::FromFaceModel(m)), options(o) {
     std::array<int32_t, 68> by_index;
@@ -122,6 +139,13 @@ struct FaceCompositor::Impl {
       if (l.ibug_index >= 0 && l.ibug_index < 68) by_index[static_cast<size_t>(l.ibug_index)] = l.vertex;
     for (int i = 60; i <= 67; ++i)
       if (by_index[static_cast<size_t>(i)] >= 0) inner_lip_vertices.push_back(by_index[static_cast<size_t>(i)]);
+    for (const auto& [first, last] : {std::pair{60, 67}, std::pair{36, 41}, std::pair{42, 47}}) {
+      std::vector<int32_t> contour;
+      for (int i = first; i <= last; ++i)
+        if (by_index[static_cast<size_t>(i)] >= 0) contour.push_back(by_index[static_cast<size_t>(i)]);
+      if (contour.size() >= 3) seam_contours.push_back(std::move(contour));
+    }
+    FindMouthInterior();
     neighbours.resize(static_cast<size_t>(model.num_vertices()));
     for (const auto& t : model.triangles)
       for (int k = 0; k < 3; ++k) {
@@ -131,6 +155,57 @@ struct FaceCompositor::Impl {
           if (std::find(list.begin(), list.end(), nb) == list.end()) list.push_back(nb);
         }
       }
+  }
+
+  // in_mouth from the mean shape (model space: x to the person's left, y up, z towards the
+  // viewer): every face vertex between the mouth corners, within 5 mm of the inner lip line's
+  // height and more than 0.5 mm behind it (the line's depth interpolated along x over the upper
+  // inner lip, iBUG 60-64). The lips' outer, red surface lies in front of
+  // that line, the skin above and below the lips farther than 5 mm from it.
+  void FindMouthInterior() {
+    const int n = model.num_vertices();
+    in_mouth.assign(static_cast<size_t>(n), 0);
+    if (inner_lip_vertices.size() != 8) return;
+    auto at = [&](int32_t v) { return Eigen::Vector3f(model.mean_shape.segment<3>(3 * v)); };
+    std::vector<Eigen::Vector3f> line;  // iBUG 60..64 along x
+    for (size_t k = 0; k <= 4; ++k) line.push_back(at(inner_lip_vertices[k]));
+    std::sort(line.begin(), line.end(), [](const auto& a, const auto& b) { return a.x() < b.x(); });
+    constexpr float kHalfHeightM = 0.005f, kBehindM = 0.0005f;
+    for (int v = 0; v < n; ++v) {
+      if (part_of(v) != FacePart::Face) continue;
+      const Eigen::Vector3f x = at(v);
+      if (x.x() < line.front().x() || x.x() > line.back().x()) continue;
+      size_t k = 0;
+      while (k + 2 < line.size() && x.x() > line[k + 1].x()) ++k;
+      const float span = line[k + 1].x() - line[k].x();
+      const float t = span > 0.f ? std::clamp((x.x() - line[k].x()) / span, 0.0f, 1.0f) : 0.f;
+      const Eigen::Vector3f ref = (1.f - t) * line[k] + t * line[k + 1];
+      if (std::abs(x.y() - ref.y()) < kHalfHeightM && x.z() < ref.z() - kBehindM) in_mouth[static_cast<size_t>(v)] = 1;
+    }
+  }
+
+  // Irradiance of vertex v's channel c under `light` at the normal with SH basis `basis`.
+  // Surfaces inside the mouth face up, down or away from the camera, where the SH fit is an
+  // extrapolation floored at 15 % of its ambient part (irradiance()). Shaded so, the lips' inner
+  // faces, seen edge-on in a barely opened mouth, drew a hard, nearly black slit with reddish
+  // edges along the lips (on the webcam clip wherever the output's mouth opens a little wider
+  // than the target's; mostly just outside the inner-lip polygon, where the mouth pass draws
+  // nothing): darker than the cavity the mouth pass draws behind them.
+  // They are lit by the light that enters the opening, as the cavity is (kCavityOcclusion of the
+  // camera-facing irradiance), so that is their floor: a parted mouth's gap is then the lips'
+  // colour darkening softly into the cavity colour as it opens, never darker than the cavity.
+  // The output's shading, the frame texture's tracked shading (its re-lighting ratio) and the
+  // albedo map's division all use this, so they stay consistent with one another. Teeth and
+  // tongue keep the plain fit: lit so, the lower teeth seen through a barely opened gap drew
+  // white specks on the webcam clip; the mouth pass shades them (no darker than the cavity).
+  float irradiance_at(const Gamma& light, const std::array<float, 9>& basis, int c, int v) const {
+    const float e = irradiance(light, basis, c);
+    if (!in_mouth[static_cast<size_t>(v)]) return e;
+    return std::max(e, entering_light(light, c));
+  }
+  static float entering_light(const Gamma& light, int c) {
+    static const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+    return std::max(0.f, irradiance(light, facing, c)) * kCavityOcclusion;
   }
 
   // Skin vertices never observed (turned away, hidden) take the model albedo scaled by the
@@ -228,17 +303,68 @@ struct FaceCompositor::Impl {
     }
   }
 
+  // Distance (pixels, over `roi`) from each pixel of `tg` (the target's rendering of `ts`) to the
+  // nearest occluding boundary: a change of surface between neighbouring pixels (nothing drawn,
+  // skin, an eyeball, teeth, tongue), a depth jump within one surface (an occluding contour such
+  // as the nose on a turned head), and the seam contours (a closed mouth or eye shows neither).
+  // Across such a boundary the frame shows something else than the surface on this side.
+  cv::Mat BoundaryDistance(const gpu::GBuffer& tg, const gpu::VertexState& ts, const gpu::PinholeCamera& camera,
+                           const cv::Rect& roi) const {
+    constexpr float kDepthJumpM = 0.01f;  // ~10 pixel footprints at 0.6 m: no smooth surface but a grazing one
+    const int w = camera.width;
+    cv::Mat open(roi.size(), CV_8UC1, cv::Scalar(255));  // 0 on the boundary
+    auto surface = [&](size_t p) { return tg.triangle[p] < 0 ? -1 : static_cast<int>(part_of(tg.vertices[3 * p])); };
+    for (int j = roi.y; j < roi.y + roi.height; ++j)
+      for (int i = roi.x; i < roi.x + roi.width; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        const int sp = surface(p);
+        for (const auto& [di, dj] : {std::pair{1, 0}, std::pair{0, 1}}) {
+          const int ni = i + di, nj = j + dj;
+          if (ni >= roi.x + roi.width || nj >= roi.y + roi.height) continue;
+          const size_t q = static_cast<size_t>(nj) * w + ni;
+          if (sp == surface(q) && (sp < 0 || std::abs(tg.position[3 * p + 2] - tg.position[3 * q + 2]) <= kDepthJumpM))
+            continue;
+          open.at<uchar>(j - roi.y, i - roi.x) = 0;
+          open.at<uchar>(nj - roi.y, ni - roi.x) = 0;
+        }
+      }
+    for (const auto& contour : seam_contours) {
+      std::vector<cv::Point> line;
+      for (int32_t v : contour) {
+        const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
+        if (!(x.z() > camera.near_plane)) break;
+        line.emplace_back(static_cast<int>(std::lround(camera.fx * x.x() / x.z() + camera.cx)) - roi.x,
+                          static_cast<int>(std::lround(camera.fy * x.y() / x.z() + camera.cy)) - roi.y);
+      }
+      if (line.size() == contour.size()) cv::polylines(open, line, true, cv::Scalar(0), 1, cv::LINE_8);
+    }
+    cv::Mat dist;
+    cv::distanceTransform(open, dist, cv::DIST_L2, cv::DIST_MASK_3);
+    return dist;
+  }
+
   // Appearance::kFrameTexture: every drawn pixel of `g` (the output's G-buffer)
   // whose surface point the target frame shows takes that frame's colour there, times the
   // change of the point's shading from the tracked normal to the output's. The surface point is
   // the pixel's triangle and barycentrics evaluated on the target's tracked geometry; it is
   // shown when the target's own G-buffer at its projection lies at its depth. Other pixels keep
   // g->color (the albedo map). `e_out`: the output's per-vertex irradiance (uncapped), as
-  // Compose computed it for the shading.
+  // Compose computed it for the shading. `mouth_redraw`: how much of the mouth opening the
+  // mouth pass will replace (0..1).
+  //
+  // A shown sample is still not trusted near an occluding boundary of the target's rendering
+  // (BoundaryDistance; grazing views count too): the fit is off by a pixel or two, so a lip
+  // point there samples the mouth cavity or the teeth, a lid point the eyeball, a chin point
+  // the neck. Left in place that sample shows what the frame shows there anyway. Moved by the
+  // output expression, or next to a mouth opening the mouth pass redraws, it draws a dark or
+  // white line along the lips and strokes on the cheek or neck. There the frame's weight fades to
+  // the albedo map over options.frame_texture_boundary_px (smooth in distance and in motion, so
+  // the fallback draws no seam of its own).
   void ApplyFrameTexture(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                          const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                          const gpu::VertexState& out_state, const std::vector<Eigen::Vector3f>& e_out,
-                         const Gamma& light, const gpu::RenderOptions& ropt, gpu::GBuffer* g) const {
+                         const Gamma& light, const gpu::RenderOptions& ropt, float mouth_redraw,
+                         gpu::GBuffer* g) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
 
     cv::Rect box;  // the drawn pixels to texture
@@ -265,10 +391,34 @@ struct FaceCompositor::Impl {
       tracked_irradiance.resize(static_cast<size_t>(n));
       for (int v = 0; v < n; ++v) {
         const auto basis = gpu::sh_basis(ts.camera_normals.segment<3>(3 * v));
-        for (int c = 0; c < 3; ++c) tracked_irradiance[static_cast<size_t>(v)][c] = irradiance(light, basis, c);
+        for (int c = 0; c < 3; ++c) tracked_irradiance[static_cast<size_t>(v)][c] = irradiance_at(light, basis, c, v);
       }
     }
     const std::vector<Eigen::Vector3f>& e_target = same ? e_out : tracked_irradiance;
+    // The boundary distance of the tracked rendering; none needed for the same geometry (every
+    // sample lands on its own pixel, and the mouth keeps the target's: nothing is redrawn).
+    const float ramp_px = options.frame_texture_boundary_px;
+    const bool distrust = !same && ramp_px > 0.f;
+    cv::Rect roi, mouth_zone;
+    cv::Mat boundary_px;
+    if (distrust) {
+      for (int j = 0; j < h; ++j)
+        for (int i = 0; i < w; ++i)
+          if (tg.triangle[static_cast<size_t>(j) * w + i] >= 0) roi |= cv::Rect(i, j, 1, 1);
+      const int margin = static_cast<int>(std::ceil(ramp_px)) + 2;
+      roi = (roi + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
+      if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi);
+      // Samples landing here are next to the opening the mouth pass redraws.
+      if (mouth_redraw > 0.f) {
+        for (int32_t v : inner_lip_vertices) {
+          const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
+          if (!(x.z() > camera.near_plane)) continue;
+          mouth_zone |= cv::Rect(static_cast<int>(std::floor(camera.fx * x.x() / x.z() + camera.cx)),
+                                 static_cast<int>(std::floor(camera.fy * x.y() / x.z() + camera.cy)), 2, 2);
+        }
+        mouth_zone = mouth_zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin);
+      }
+    }
     // A surface point counts as shown when the frame's visible surface at its projection is
     // within this depth of it: a few millimetres, more where one pixel spans more than that.
     constexpr float kShownToleranceM = 0.004f;
@@ -282,11 +432,13 @@ struct FaceCompositor::Impl {
         if (g->triangle[p] < 0) continue;
         const int bi = i - box.x, bj = j - box.y;
         covered.at<float>(bj, bi) = 1.0f;
-        Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero();
+        Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
+                        nt = Eigen::Vector3f::Zero();
         for (int k = 0; k < 3; ++k) {
           const int32_t v = g->vertices[3 * p + static_cast<size_t>(k)];
           const float b = g->barycentric[3 * p + static_cast<size_t>(k)];
           x += b * ts.camera_positions.segment<3>(3 * v);
+          nt += b * ts.camera_normals.segment<3>(3 * v);
           eo += b * e_out[static_cast<size_t>(v)];
           et += b * e_target[static_cast<size_t>(v)];
         }
@@ -305,11 +457,28 @@ struct FaceCompositor::Impl {
           const float ratio = std::clamp(eo[c] / std::max(et[c], 1e-4f), kMinShadingRatio, kMaxShadingRatio);
           t[c] = std::min(1.0f, seen[c] * ratio);
         }
-        weight.at<float>(bj, bi) = 1.0f;
+        float trust = 1.0f;
+        if (!boundary_px.empty()) {
+          // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
+          const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
+          const bool by_mouth = mouth_zone.contains(cv::Point(static_cast<int>(u), static_cast<int>(vv)));
+          const float exposed = std::max(moved, by_mouth ? mouth_redraw : 0.0f);
+          if (exposed > 0.f) {
+            const float d = sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y));
+            const float away = std::clamp(2.0f * d / ramp_px - 1.0f, 0.0f, 1.0f);
+            // Grazing views (the tracked normal within ~80 degrees of the view ray) are smeared
+            // and sit at silhouettes.
+            const float cos_view = -nt.normalized().dot(x.normalized());
+            const float facing = std::clamp((cos_view - 0.1f) / 0.2f, 0.0f, 1.0f);
+            trust = 1.0f - exposed * (1.0f - away * facing);
+          }
+        }
+        weight.at<float>(bj, bi) = trust;
       }
     // The weight smoothed over the drawn pixels only (normalised, so the silhouette keeps 1):
-    // shown pixels next to unshown ones fade towards the albedo map, so a disoccluded region
-    // has no hard seam. Unshown pixels keep the albedo map (their texture is unknown).
+    // shown pixels next to unshown (or distrusted) ones fade towards the albedo map, so a
+    // disoccluded region has no hard seam. Unshown pixels keep the albedo map (their texture is
+    // unknown), and so do fully distrusted ones.
     cv::Mat ws, cs;
     cv::GaussianBlur(weight, ws, cv::Size(0, 0), 1.0);
     cv::GaussianBlur(covered, cs, cv::Size(0, 0), 1.0);
@@ -393,7 +562,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
     const auto basis = gpu::sh_basis(state.camera_normals.segment<3>(3 * v));
     for (int c = 0; c < 3; ++c) {
       if (use_map) state.albedo[3 * v + c] = albedo->albedo[3 * v + c];
-      float e = irradiance(light, basis, c);
+      float e = im.irradiance_at(light, basis, c, v);
       irradiance_out[static_cast<size_t>(v)][c] = e;
       if (cap) e = std::min(e, 1.05f * albedo->max_irradiance[c]);
       state.colors[3 * v + c] = state.albedo[3 * v + c] * e;
@@ -404,8 +573,26 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   ropt.cull_back_faces = true;
   gpu::GBuffer& g = Impl::scratch_gbuffer(0);
   im.rasterize(state, output, camera, ropt, &g);
+  const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
+  const float target_jaw = expression_weight(target.delta, kJawOpenIndex);
+  result.mouth_opened_wider = out_jaw > target_jaw + opt.mouth_open_threshold;
+  // How much of the mouth interior replaces what the opening shows. With the albedo map, all of
+  // it whenever the rendered mouth is open: the re-rendered face covers the target's own mouth.
+  // With the frame texture the opening already shows the target's own mouth as far as the output
+  // opens no wider than the tracked one (the same geometry samples the same pixels: the target's
+  // real lips, closed or open), and the interior fades in over the next kMouthFadeJaw of extra
+  // jawOpen. So a closed source mouth on a target whose closed mouth the tracker reads as
+  // slightly open (jawOpen 0.25 on the demo's target with dlib's points) keeps the target's
+  // lips instead of showing a dark slit, and an opening mouth darkens without a jump.
+  constexpr float kMouthFadeJaw = 0.1f;
+  const float mouth_alpha =
+      opt.appearance == Appearance::kFrameTexture
+          ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
+          : 1.0f;
+  const bool mouth_pass = opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3;
   if (opt.appearance == Appearance::kFrameTexture)
-    im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt, &g);
+    im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
+                         mouth_pass ? mouth_alpha : 0.0f, &g);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
@@ -443,23 +630,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // jawOpen / tongueOut blendshapes) darkened with depth, and a dark cavity wherever the
   // opening shows the inside of the head or nothing at all.
   start = Clock::now();
-  const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
-  const float target_jaw = expression_weight(target.delta, kJawOpenIndex);
-  result.mouth_opened_wider = out_jaw > target_jaw + opt.mouth_open_threshold;
-  // How much of the mouth interior replaces what the opening shows. With the albedo map, all of
-  // it whenever the rendered mouth is open: the re-rendered face covers the target's own mouth.
-  // With the frame texture the opening already shows the target's own mouth as far as the output
-  // opens no wider than the tracked one (the same geometry samples the same pixels: the target's
-  // real lips, closed or open), and the interior fades in over the next kMouthFadeJaw of extra
-  // jawOpen. So a closed source mouth on a target whose closed mouth the tracker reads as
-  // slightly open (jawOpen 0.25 on the demo's target with dlib's points) keeps the target's
-  // lips instead of showing a dark slit, and an opening mouth darkens without a jump.
-  constexpr float kMouthFadeJaw = 0.1f;
-  const float mouth_alpha =
-      opt.appearance == Appearance::kFrameTexture
-          ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
-          : 1.0f;
-  if (opt.render_mouth && out_jaw > opt.mouth_open_threshold && mouth_alpha > 0.f && im.inner_lip_vertices.size() >= 3) {
+  if (mouth_pass && mouth_alpha > 0.f) {
     std::vector<cv::Point> polygon;
     float lip_z = 0.f;
     bool in_front = true;
@@ -474,11 +645,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
     if (in_front) {
       cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
       cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255));
-      // Light reaching the cavity: the ambient part of the target's lighting (camera-facing normal).
-      const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+      // Light reaching the cavity: the part of the target's lighting that enters the opening.
       Eigen::Vector3f cavity_rgb;
-      for (int c = 0; c < 3; ++c)
-        cavity_rgb[c] = std::max(0.f, irradiance(light, facing, c)) * kCavityAlbedo[c] * kCavityOcclusion;
+      for (int c = 0; c < 3; ++c) cavity_rgb[c] = Impl::entering_light(light, c) * kCavityAlbedo[c];
       int drawn = 0;
       for (int j = 0; j < h; ++j) {
         const uchar* orow = opening.ptr<uchar>(j);
@@ -499,7 +668,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                     ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
                                  kMaxTongueOcclusion)
                     : std::clamp(1.0f - depth_behind / kTeethOcclusionDepthM, kMinTeethOcclusion, 1.0f);
-            for (int c = 0; c < 3; ++c) interior[c] = occlusion * g.color[3 * p + static_cast<size_t>(c)];
+            // No darker than the cavity wall behind them: the fit's floor left edge-on teeth and
+            // the tongue near black (see irradiance_at).
+            for (int c = 0; c < 3; ++c) interior[c] = std::max(occlusion * g.color[3 * p + static_cast<size_t>(c)], cavity_rgb[c]);
           } else if (!covered || depth_behind > kCavityDepthM) {
             interior = cavity_rgb;
           } else {
@@ -607,7 +778,9 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
       const float e = irradiance(light, basis, c);
       const float ambient = light[static_cast<size_t>(c * 9)] * basis[0];
       if (!(e > 0.05f) || !(e > 0.4f * ambient)) ok = false;
-      observed[c] = std::clamp(linear[c] / std::max(e, 0.05f), 0.0f, 1.0f);
+      // Divided by the irradiance the re-rendering uses (the mouth's floor included), so the
+      // observed colour is what it reproduces.
+      observed[c] = std::clamp(linear[c] / std::max(im.irradiance_at(light, basis, c, v), 0.05f), 0.0f, 1.0f);
     }
     if (!ok) continue;
     for (int c = 0; c < 3; ++c) brightest[c] = std::max(brightest[c], irradiance(light, basis, c));

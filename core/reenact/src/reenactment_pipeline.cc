@@ -61,6 +61,8 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
     return fail("unknown appearance");
   if (!std::isfinite(mouth_open_threshold) || mouth_open_threshold < 0.f || mouth_open_threshold > 1.f)
     return fail("mouth_open_threshold must be in [0, 1]");
+  if (!std::isfinite(frame_texture_boundary_px) || frame_texture_boundary_px < 0.f || frame_texture_boundary_px > 20.f)
+    return fail("frame_texture_boundary_px must be in [0, 20]");
   if (blend_levels < 1 || blend_levels > 10) return fail("blend_levels must be in [1, 10]");
   if (!std::isfinite(mask_erosion_px) || mask_erosion_px < 0.f || mask_erosion_px > 50.f)
     return fail("mask_erosion_px must be in [0, 50]");

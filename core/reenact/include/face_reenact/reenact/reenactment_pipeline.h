@@ -112,6 +112,16 @@ struct ReenactmentOptions {
   // shows the target's closed lips.
   float mouth_open_threshold = 0.02f;
 
+  // --- frame texture (Appearance::kFrameTexture) ---
+  // A frame sample is distrusted near an occluding boundary of the target's own rendering (the
+  // lip line, the eyelids, the face's border, a depth jump): across it the frame shows the mouth
+  // cavity, teeth, an eyeball, the neck or the background, and a tracking error of a pixel or
+  // two puts those colours on the surface. Where the sample moved (the output expression moves
+  // the point), or the mouth pass redraws the opening beside it, such pixels fade to the albedo
+  // map: the frame's weight is 0 up to half this distance from the boundary (a fit off by 2 px
+  // at 640x480 is common) and rises linearly to 1 at this distance. 0 turns the fallback off.
+  float frame_texture_boundary_px = 4.0f;
+
   // --- compositing (Sec. 7.4.2) ---
   int blend_levels = 5;              // Laplacian pyramid levels (>= 1; 1 = plain alpha blend)
   float mask_erosion_px = 1.5f;      // the face mask is eroded by this (at full size) before
