@@ -202,6 +202,61 @@ TEST(ReenactCompositorTest, FrameTextureNeverSamplesAcrossTheLipLine) {
   EXPECT_EQ(composite, 0);
 }
 
+// A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
+// eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
+// map, which holds no iris (on the webcam clip it drew the eyes reddish brown).
+TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters turned = target;
+  turned.delta[arkit_blendshape_index("eyeLookOutLeft")] = 0.6f;
+  turned.delta[arkit_blendshape_index("eyeLookInRight")] = 0.6f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  // The eye openings (iBUG 36-41, 42-47) of a parameter vector, filled.
+  auto openings = [&](const gpu::FaceParameters& p) {
+    const gpu::VertexState st = renderer.evaluate(p);
+    cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+    for (int first : {36, 42}) {
+      std::vector<cv::Point> poly;
+      for (int k = first; k < first + 6; ++k)
+        for (const auto& l : model.landmarks)
+          if (l.ibug_index == k) {
+            const Eigen::Vector3f x = st.camera_positions.segment<3>(3 * l.vertex);
+            poly.emplace_back(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
+                              static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
+          }
+      if (poly.size() == 6u) cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+    }
+    return mask;
+  };
+  const cv::Mat target_eyes = openings(target);
+  ASSERT_GT(cv::countNonZero(target_eyes), 20) << "the target's eyes should be open";
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);  // learned from the plain eyes
+  cv::Mat frame = plain.clone();
+  frame.setTo(cv::Scalar(255, 0, 0), target_eyes);  // the frame's eyes blue
+  const CompositeResult c = fc.Compose(frame, cam, target, turned, &albedo);
+  ASSERT_TRUE(c.drawn);
+  cv::Mat eyes = openings(turned);
+  cv::erode(eyes, eyes, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+  eyes &= c.face_mask;
+  int blue = 0, all = 0;
+  for (int j = 0; j < eyes.rows; ++j)
+    for (int i = 0; i < eyes.cols; ++i) {
+      if (!eyes.at<uchar>(j, i)) continue;
+      ++all;
+      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+      blue += px[0] - std::max(px[1], px[2]) > 60;
+    }
+  RecordProperty("blue_eye_pixels", std::to_string(blue) + " of " + std::to_string(all));
+  ASSERT_GT(all, 10);
+  EXPECT_GT(blue, all / 2) << blue << " of " << all << " eye pixels show the frame's eyes";
+}
+
 // With the frame texture, a mouth the output opens no wider than the tracked one shows the
 // target's own mouth (the tracker may read a closed mouth as slightly open: the demo's target
 // with dlib's points reads jawOpen 0.25); the interior fades in with the extra opening. The

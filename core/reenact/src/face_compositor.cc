@@ -458,7 +458,13 @@ struct FaceCompositor::Impl {
           t[c] = std::min(1.0f, seen[c] * ratio);
         }
         float trust = 1.0f;
-        if (!boundary_px.empty()) {
+        // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
+        // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
+        // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
+        // moved by the gaze is what the reenactment is to show.
+        const FacePart drawn_part = part_of(g->vertices[3 * p]);
+        const bool eyeball = drawn_part == FacePart::LeftEye || drawn_part == FacePart::RightEye;
+        if (!boundary_px.empty() && !eyeball) {
           // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
           const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
           const bool by_mouth = mouth_zone.contains(cv::Point(static_cast<int>(u), static_cast<int>(vv)));
