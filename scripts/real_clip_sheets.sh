@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Contact sheets on the shared real clips (../shared/data/videos), for a person to look at:
 #   - the fit drawn over each clip (`track --overlay`), three frames side by side;
-#   - a reenactment (`reenact`: source | target | output, and the output's face zoomed), with the
+#   - a reenactment (`reenact --sheets`: source | target | output, the faces and the mouth zoomed), with the
 #     report and the per-frame statuses beside it.
 # Usage: scripts/real_clip_sheets.sh OUT_DIR [FRAMES]   (needs ffmpeg; run from the repository)
 set -euo pipefail
@@ -30,17 +30,6 @@ done
 # The reenactment: a LivePortrait driving clip onto the webcam clip (paired by time).
 src="$VIDEOS/liveportrait_d14.mp4" tgt="$VIDEOS/webcam_talking_640x480.wmv"
 "$FR" reenact --source "$src" --target "$tgt" --frames "$FRAMES" --out "$OUT/reenact.mp4" \
-      --report "$OUT/reenact.json" --status-log "$OUT/reenact.status.jsonl" --quiet
-for n in $((FRAMES / 3)) $((2 * FRAMES / 3)) $((FRAMES - 5)); do
-  t=$(python3 -c "import json; print([json.loads(l) for l in open('$OUT/reenact.status.jsonl')][$n]['target_time_s'])")
-  ffmpeg -loglevel error -y -ss "$t" -i "$src" -frames:v 1 -vf "scale=-2:240" "$OUT/s_$n.png"
-  ffmpeg -loglevel error -y -i "$tgt" -vf "select='eq(n\,$n)',scale=-2:240" -frames:v 1 "$OUT/t_$n.png"
-  ffmpeg -loglevel error -y -i "$OUT/reenact.mp4" -vf "select='eq(n\,$n)',scale=-2:240" -frames:v 1 "$OUT/o_$n.png"
-  # The face of the output, twice the size (the middle of the frame, where the webcam clip's face is).
-  ffmpeg -loglevel error -y -i "$OUT/reenact.mp4" -vf "select='eq(n\,$n)',crop=iw/2:ih/2:iw/4:ih/8,scale=-2:240" \
-         -frames:v 1 "$OUT/z_$n.png"
-  ffmpeg -loglevel error -y -i "$OUT/s_$n.png" -i "$OUT/t_$n.png" -i "$OUT/o_$n.png" -i "$OUT/z_$n.png" \
-         -filter_complex hstack=inputs=4 "$OUT/reenact_$n.png"
-  rm -f "$OUT/s_$n.png" "$OUT/t_$n.png" "$OUT/o_$n.png" "$OUT/z_$n.png"
-done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), reenact_N.png (source | target | output | output's face)"
+      --report "$OUT/reenact.json" --status-log "$OUT/reenact.status.jsonl" --quiet \
+      --sheets "$OUT" --sheet-frames "$((FRAMES / 3)),$((2 * FRAMES / 3)),$((FRAMES - 5))"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth)"

@@ -15,6 +15,7 @@
 #include <optional>
 #include <sstream>
 #include <thread>
+#include <vector>
 
 #include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
@@ -37,6 +38,7 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "face_reenact/reenact/contact_sheet.h"
 #include "face_reenact/reenact/closed_loop.h"
 #include "face_reenact/reenact/face_compositor.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
@@ -175,6 +177,8 @@ struct ReenactArgs {
   std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu",
                                  appearance = "frame-texture";
   std::string report, status_log;  // --report FILE.json, --status-log FILE.jsonl
+  std::string sheets;              // --sheets DIR: contact sheets of chosen output frames
+  std::vector<int> sheet_frames;   // --sheet-frames: which (default: three spread over the output)
   int frames = 0;
   int calibration_window = 0;      // as `track --calibration-window`, for both actors
   CameraArgs camera;               // --fov / --intrinsics of both actors' videos (none: estimated)
@@ -236,11 +240,14 @@ void run_reenact(const ReenactArgs& a) {
   if (fs::path(a.out).extension() != ".mp4") throw Error("--out '" + a.out + "': must end in .mp4");
   if (!a.report.empty()) check_output_file(a.report, "--report");
   if (!a.status_log.empty()) check_output_file(a.status_log, "--status-log");
-  if (!a.frames_dir.empty()) {
+  for (const std::string* dir : {&a.frames_dir, &a.sheets}) {
+    if (dir->empty()) continue;
     std::error_code ec;
-    fs::create_directories(a.frames_dir, ec);
-    if (!fs::is_directory(a.frames_dir)) throw Error("--frames-dir '" + a.frames_dir + "': cannot create the folder");
+    fs::create_directories(*dir, ec);
+    const char* option = dir == &a.sheets ? "--sheets" : "--frames-dir";
+    if (!fs::is_directory(*dir)) throw Error(std::string(option) + " '" + *dir + "': cannot create the folder");
   }
+  if (!a.sheet_frames.empty() && a.sheets.empty()) throw Error("--sheet-frames needs --sheets DIR");
   const std::optional<stream::ListenSpec> udp = parse_udp_source(a.source);
   if (udp && a.key.empty()) throw Error("--source '" + a.source + "': a udp:// source needs --key KEYFILE");
   if (!udp && !a.key.empty()) throw Error("--key is only used with a udp:// source");
@@ -293,6 +300,17 @@ void run_reenact(const ReenactArgs& a) {
   if (a.frames > 0) total = total > 0 ? std::min(total, a.frames) : a.frames;
   const double fps = info.fps > 0 ? info.fps : 30.0;
   Mp4Writer writer(a.out, fps, cv::Size(info.camera.width, info.camera.height));
+  // The output frames of the contact sheets: as asked, or three spread over a known length (the
+  // 1st, 2nd and last third's ends), or frames 30, 60 and 90 of a stream of unknown length.
+  std::vector<int> sheet_frames = a.sheet_frames;
+  if (!a.sheets.empty() && sheet_frames.empty())
+    sheet_frames = total > 0 ? std::vector<int>{std::max(0, total / 3 - 1), std::max(0, 2 * total / 3 - 1), total - 1}
+                             : std::vector<int>{30, 60, 90};
+  for (int f : sheet_frames)
+    if (f < 0 || (total > 0 && f >= total))
+      throw Error("--sheet-frames: frame " + std::to_string(f) + " is not among the " + std::to_string(total) +
+                  " output frames (0.." + std::to_string(total - 1) + ")");
+  int sheets_written = 0;
   ProgressBar bar(total, !a.quiet);
 
   const auto start = Clock::now();
@@ -345,6 +363,16 @@ void run_reenact(const ReenactArgs& a) {
       if (!cv::imwrite((fs::path(a.frames_dir) / name).string(), out.bgr))
         throw Error("cannot write '" + (fs::path(a.frames_dir) / name).string() + "'");
     }
+    if (std::find(sheet_frames.begin(), sheet_frames.end(), done) != sheet_frames.end()) {
+      char name[40];
+      std::snprintf(name, sizeof(name), "sheet_%06d.png", done);
+      const std::string path = (fs::path(a.sheets) / name).string();
+      const std::string caption = "frame " + std::to_string(done) + ", " + reenact::tracking_status_name(out.status);
+      if (!cv::imwrite(path, reenact::ReenactmentContactSheet(source_rec ? sf.color : cv::Mat(), tf.color, out.bgr,
+                                                               out.reenacted ? out.face_mask : cv::Mat(), caption)))
+        throw Error("--sheets: cannot write '" + path + "'");
+      ++sheets_written;
+    }
     const bool fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
     agreement.Add(tf.index, fit, out.tracked.fit_refused(), out.tracked.agreement, out.tracked.message);
     if (out.status == reenact::TrackingStatus::kLost) {
@@ -387,6 +415,12 @@ void run_reenact(const ReenactArgs& a) {
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   if (source_rec && source_by_time.skipped() > 0)
     std::printf("source: %d frames tracked, %d skipped to keep its timing\n", source_tracker->frames, source_by_time.skipped());
+  if (!a.sheets.empty()) {
+    std::printf("contact sheets: %d of %zu written to %s\n", sheets_written, sheet_frames.size(), a.sheets.c_str());
+    if (sheets_written < static_cast<int>(sheet_frames.size()))
+      std::fprintf(stderr, "warning: the output ended after %d frames: %zu contact sheets were not written\n", done,
+                   sheet_frames.size() - static_cast<size_t>(sheets_written));
+  }
   if (receiver) {
     const stream::ReceiverStatistics st = receiver->statistics();
     std::printf("stream: %llu datagrams applied, %llu rejected\n", static_cast<unsigned long long>(st.applied),
@@ -824,6 +858,12 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--target", args->target, "Target: a recording folder or a video file")->required();
     c->add_option("--out", args->out, "Output video (.mp4)")->required();
     c->add_option("--frames-dir", args->frames_dir, "Also write every output frame as PNG into this folder");
+    c->add_option("--sheets", args->sheets,
+                  "Contact sheets into this folder (sheet_NNNNNN.png): source | target | output, and the target's face, "
+                  "the output's face and mouth enlarged");
+    c->add_option("--sheet-frames", args->sheet_frames,
+                  "Output frames of the contact sheets, comma-separated (default: three spread over the output)")
+        ->delimiter(',');
     c->add_option("--key", args->key, "Stream key file (for a udp:// source)");
     c->add_option("--frames", args->frames, "At most this many frames (default: all)")->check(CLI::Range(1, 10000000));
     c->add_option("--mode", args->mode, "reenact (default), pass-through (the target's own expression), overlay (the target's fit drawn over it), off");

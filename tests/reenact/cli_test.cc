@@ -188,6 +188,32 @@ TEST(ReenactCliTest, PairsSourceAndTargetByTimeAndReportsEveryFrame) {
     EXPECT_EQ(up_lines[static_cast<size_t>(k)].at("source_frame"), k / 2) << up_lines[static_cast<size_t>(k)].dump();
     EXPECT_EQ(up_lines[static_cast<size_t>(k)].at("source_fresh"), k % 2 == 0);
   }
+  // Contact sheets of chosen frames: source | target | output over the faces and the mouth, each
+  // panel 240 px high; frames outside the output and --sheet-frames alone are refused up front.
+  const SubprocessResult sheets =
+      run_cli({"reenact", "--source", (dir / "fast").string(), "--target", (dir / "slow").string(), "--out",
+               (dir / "s.mp4").string(), "--landmarks", "recording", "--sheets", (dir / "sheets").string(),
+               "--sheet-frames", "1,5", "--model", model, "--quiet"});
+  ASSERT_EQ(sheets.exit_code, 0) << sheets.output;
+  EXPECT_NE(sheets.output.find("contact sheets: 2 of 2"), std::string::npos) << sheets.output;
+  for (const char* name : {"sheet_000001.png", "sheet_000005.png"}) {
+    const cv::Mat sheet = cv::imread((dir / "sheets" / name).string(), cv::IMREAD_COLOR);
+    ASSERT_FALSE(sheet.empty()) << name;
+    EXPECT_EQ(sheet.rows, 480) << name;
+    EXPECT_EQ(sheet.cols, 3 * 320) << name;  // three 4:3 panels of 240 px
+  }
+  EXPECT_FALSE(fs::exists(dir / "sheets" / "sheet_000000.png"));
+  const SubprocessResult beyond =
+      run_cli({"reenact", "--source", (dir / "fast").string(), "--target", (dir / "slow").string(), "--out",
+               (dir / "b.mp4").string(), "--sheets", (dir / "sheets").string(), "--sheet-frames", "6", "--model", model});
+  EXPECT_EQ(beyond.exit_code, 1);
+  EXPECT_NE(beyond.output.find("frame 6 is not among the 6 output frames"), std::string::npos) << beyond.output;
+  const SubprocessResult alone =
+      run_cli({"reenact", "--source", (dir / "fast").string(), "--target", (dir / "slow").string(), "--out",
+               (dir / "c.mp4").string(), "--sheet-frames", "1", "--model", model});
+  EXPECT_EQ(alone.exit_code, 1);
+  EXPECT_NE(alone.output.find("--sheet-frames needs --sheets"), std::string::npos) << alone.output;
+
   // Bad arguments are refused before any work.
   const SubprocessResult bad = run_cli({"reenact", "--source", (dir / "fast").string(), "--target", (dir / "slow").string(),
                                         "--out", (dir / "x.mp4").string(), "--report", (dir / "no" / "r.json").string(),

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/reenact/contact_sheet.h"
 #include "face_reenact/reenact/face_compositor.h"
 #include "face_reenact/reenact/laplacian_blend.h"
 #include "face_reenact/reenact/transfer.h"
@@ -562,6 +563,40 @@ TEST(ReenactCompositorTest, ABarelyOpenedMouthHasNoGapDarkerThanTheCavity) {
       EXPECT_EQ(darker, 0) << "darkest red " << darkest << ", cavity red " << cavity_red;
     }
   }
+}
+
+}  // namespace
+}  // namespace face_reenact::reenact
+
+namespace face_reenact::reenact {
+namespace {
+
+// The contact sheet (contact_sheet.h): its layout, the zoom framing the rendered face, a missing
+// source, and images it cannot use.
+TEST(ReenactContactSheetTest, LayoutZoomAndBadImages) {
+  cv::Mat target(120, 160, CV_8UC3, cv::Scalar(10, 20, 30)), output = target.clone();
+  cv::Mat mask = cv::Mat::zeros(120, 160, CV_8UC1);
+  cv::rectangle(mask, cv::Rect(60, 30, 40, 50), cv::Scalar(255), cv::FILLED);
+  output.setTo(cv::Scalar(0, 0, 255), mask);  // the "face" red
+  const cv::Mat sheet = ReenactmentContactSheet(target, target, output, mask, "frame 3");
+  ASSERT_EQ(sheet.type(), CV_8UC3);
+  EXPECT_EQ(sheet.rows, 480);
+  EXPECT_EQ(sheet.cols, 3 * 320);
+  // The output's face zoom (bottom row, second panel) is mostly the red face.
+  const cv::Mat zoom = sheet(cv::Rect(0, 240, sheet.cols, 240));
+  int red = 0;
+  for (int j = 40; j < 240; ++j)
+    for (int i = 0; i < zoom.cols; ++i) red += zoom.at<cv::Vec3b>(j, i) == cv::Vec3b(0, 0, 255);
+  EXPECT_GT(red, 200 * 200 / 2);
+  // No source image (a UDP stream): a panel says so; no mask: the middle of the frame.
+  EXPECT_EQ(ReenactmentContactSheet(cv::Mat(), target, output, cv::Mat(), "").rows, 480);
+  EXPECT_THROW(ReenactmentContactSheet(target, target, cv::Mat(60, 80, CV_8UC3), mask, ""), Error);
+  EXPECT_THROW(ReenactmentContactSheet(target, cv::Mat(120, 160, CV_32FC3), output, mask, ""), Error);
+  EXPECT_THROW(ReenactmentContactSheet(cv::Mat(10, 10, CV_8UC1), target, output, mask, ""), Error);
+  EXPECT_THROW(ReenactmentContactSheet(target, target, output, cv::Mat(10, 10, CV_8UC1), ""), Error);
+  ContactSheetOptions tiny;
+  tiny.panel_height = 4;
+  EXPECT_THROW(ReenactmentContactSheet(target, target, output, mask, "", tiny), Error);
 }
 
 }  // namespace
