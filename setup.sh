@@ -118,7 +118,13 @@ run_tests() {
   #   the window and recalibration tests run the calibration here). 1360 s of the 3800 s this
   #   run took on 2 cores, measured 2026-11-25;
   # - the live session's timings on one thread (its code path is every other live test's; the
-  #   two-thread variant, the only one with a render thread, runs here: 160-260 s each).
+  #   two-thread variant, the only one with a render thread, runs here: 160-260 s each);
+  # - `track` over 262 frames of a real clip for its blinks (29 s in the release build, over 300 s
+  #   under ASan); the eye-point reader and the tracker writing it run here in the other
+  #   EyeOpenness tests;
+  # - the landmark tracker against detection on every frame over a whole talking-head clip (10 s
+  #   in the release build, 138 s under ASan); the other TrackerVideoTest cases run the same
+  #   tracker on video here.
   local release_only=(
     'ReenactCliTest[.]DemoAndReenactEndToEnd'
     'TrackCli[.]VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe'
@@ -127,6 +133,8 @@ run_tests() {
     'TrackCli[.](CalibrationWhileSmilingIsReported|LowerEnergyCalibrationSolvesBothStartsAndKeepsTheLower)'
     'FaceTracker[.](CalibrationOfANeutralActorFindsANeutralExpression|TheCalibrationSolveDoesNotClimbAfterItsLowestEnergy)'
     'OneOrTwoThreads/LiveSessionTimingsTest[.]TimingsCountEveryFrameAndSplitItsTimeIntoStages/false'
+    'EyeOpenness[.]BlinksOnARealClip'
+    'TrackerVideoTest[.]TrackingFindsTheFaceAndIsAsStableAsDetection'
   )
   local pattern
   pattern="^($(IFS='|'; echo "${release_only[*]}"))\$"
