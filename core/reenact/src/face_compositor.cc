@@ -80,32 +80,46 @@ float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
   return std::max(e, 0.15f * ambient);
 }
 
+// The four pixels around the sub-pixel position (x, y) of a cols x rows image (x, y within
+// [0, cols-1] x [0, rows-1]) and their bilinear weights: value = mix(mix(a, b, fx), mix(c, d, fx), fy).
+struct Bilinear {
+  int i0, j0, i1, j1;
+  float fx, fy;
+  Bilinear(int cols, int rows, float x, float y) {
+    i0 = std::min(static_cast<int>(x), std::max(cols - 2, 0));
+    j0 = std::min(static_cast<int>(y), std::max(rows - 2, 0));
+    i1 = std::min(i0 + 1, cols - 1);
+    j1 = std::min(j0 + 1, rows - 1);
+    fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f);
+    fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
+  }
+  float mix(float a, float b, float c, float d) const { return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d); }
+};
+
 // `m` (CV_32FC1) at the sub-pixel position (x, y), bilinear, clamped to its border.
 float sample_float(const cv::Mat& m, float x, float y) {
-  x = std::clamp(x, 0.0f, static_cast<float>(m.cols - 1));
-  y = std::clamp(y, 0.0f, static_cast<float>(m.rows - 1));
-  const int i0 = std::min(static_cast<int>(x), std::max(m.cols - 2, 0)), j0 = std::min(static_cast<int>(y), std::max(m.rows - 2, 0));
-  const int i1 = std::min(i0 + 1, m.cols - 1), j1 = std::min(j0 + 1, m.rows - 1);
-  const float fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f), fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
-  return (1 - fy) * ((1 - fx) * m.at<float>(j0, i0) + fx * m.at<float>(j0, i1)) +
-         fy * ((1 - fx) * m.at<float>(j1, i0) + fx * m.at<float>(j1, i1));
+  const Bilinear s(m.cols, m.rows, std::clamp(x, 0.0f, static_cast<float>(m.cols - 1)),
+                   std::clamp(y, 0.0f, static_cast<float>(m.rows - 1)));
+  return s.mix(m.at<float>(s.j0, s.i0), m.at<float>(s.j0, s.i1), m.at<float>(s.j1, s.i0), m.at<float>(s.j1, s.i1));
 }
 
 // Linear colour of `bgr` at the sub-pixel position (x, y), bilinear (0 <= x <= w-1, 0 <= y <= h-1).
 Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
   const auto& lut = srgb_decode_table();
-  const int i0 = std::min(static_cast<int>(x), std::max(bgr.cols - 2, 0));
-  const int j0 = std::min(static_cast<int>(y), std::max(bgr.rows - 2, 0));
-  const int i1 = std::min(i0 + 1, bgr.cols - 1), j1 = std::min(j0 + 1, bgr.rows - 1);
-  const float fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f), fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
-  const cv::Vec3b a = bgr.at<cv::Vec3b>(j0, i0), b = bgr.at<cv::Vec3b>(j0, i1), c = bgr.at<cv::Vec3b>(j1, i0),
-                  d = bgr.at<cv::Vec3b>(j1, i1);
+  const Bilinear s(bgr.cols, bgr.rows, x, y);
+  const cv::Vec3b a = bgr.at<cv::Vec3b>(s.j0, s.i0), b = bgr.at<cv::Vec3b>(s.j0, s.i1), c = bgr.at<cv::Vec3b>(s.j1, s.i0),
+                  d = bgr.at<cv::Vec3b>(s.j1, s.i1);
   Eigen::Vector3f out;
   for (int ch = 0; ch < 3; ++ch) {
     const int k = 2 - ch;  // BGR -> RGB
-    out[ch] = (1 - fy) * ((1 - fx) * lut[a[k]] + fx * lut[b[k]]) + fy * ((1 - fx) * lut[c[k]] + fx * lut[d[k]]);
+    out[ch] = s.mix(lut[a[k]], lut[b[k]], lut[c[k]], lut[d[k]]);
   }
   return out;
+}
+
+// The pixel position (u, v) of camera-space point x (in front of the camera).
+Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
+  return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};
 }
 
 bool same_geometry(const gpu::FaceParameters& a, const gpu::FaceParameters& b) {
@@ -333,8 +347,8 @@ struct FaceCompositor::Impl {
       for (int32_t v : contour) {
         const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
         if (!(x.z() > camera.near_plane)) break;
-        line.emplace_back(static_cast<int>(std::lround(camera.fx * x.x() / x.z() + camera.cx)) - roi.x,
-                          static_cast<int>(std::lround(camera.fy * x.y() / x.z() + camera.cy)) - roi.y);
+        const Eigen::Vector2f uv = project(camera, x);
+        line.emplace_back(static_cast<int>(std::lround(uv.x())) - roi.x, static_cast<int>(std::lround(uv.y())) - roi.y);
       }
       if (line.size() == contour.size()) cv::polylines(open, line, true, cv::Scalar(0), 1, cv::LINE_8);
     }
@@ -413,8 +427,8 @@ struct FaceCompositor::Impl {
         for (int32_t v : inner_lip_vertices) {
           const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
           if (!(x.z() > camera.near_plane)) continue;
-          mouth_zone |= cv::Rect(static_cast<int>(std::floor(camera.fx * x.x() / x.z() + camera.cx)),
-                                 static_cast<int>(std::floor(camera.fy * x.y() / x.z() + camera.cy)), 2, 2);
+          const Eigen::Vector2f uv = project(camera, x);
+          mouth_zone |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
         }
         mouth_zone = mouth_zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin);
       }
@@ -443,7 +457,8 @@ struct FaceCompositor::Impl {
           et += b * e_target[static_cast<size_t>(v)];
         }
         if (!(x.z() > camera.near_plane)) continue;
-        const float u = camera.fx * x.x() / x.z() + camera.cx, vv = camera.fy * x.y() / x.z() + camera.cy;
+        const Eigen::Vector2f uv = project(camera, x);
+        const float u = uv.x(), vv = uv.y();
         if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
         const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
         // Not shown: nothing of the model there, or a surface at another depth (the point is
@@ -644,8 +659,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
       if (!(x.z() > camera.near_plane)) in_front = false;
       lip_z += x.z();
-      polygon.emplace_back(static_cast<int>(std::lround(camera.fx * x.x() / x.z() + camera.cx)),
-                           static_cast<int>(std::lround(camera.fy * x.y() / x.z() + camera.cy)));
+      const Eigen::Vector2f uv = project(camera, x);
+      polygon.emplace_back(static_cast<int>(std::lround(uv.x())), static_cast<int>(std::lround(uv.y())));
     }
     lip_z /= static_cast<float>(im.inner_lip_vertices.size());
     if (in_front) {
@@ -750,8 +765,8 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     if (!(ropt.parts & part_bit(part))) continue;
     const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
     if (!(x.z() > camera.near_plane)) continue;
-    const int i = static_cast<int>(std::lround(camera.fx * x.x() / x.z() + camera.cx));
-    const int j = static_cast<int>(std::lround(camera.fy * x.y() / x.z() + camera.cy));
+    const Eigen::Vector2f uv = project(camera, x);
+    const int i = static_cast<int>(std::lround(uv.x())), j = static_cast<int>(std::lround(uv.y()));
     if (i < 1 || j < 1 || i >= camera.width - 1 || j >= camera.height - 1) continue;
     if (!g.covered(i, j) || std::abs(g.depth(i, j) - x.z()) > kDepthToleranceM) continue;  // hidden
     if (frame_depth && frame_depth->type() == CV_32FC1 && frame_depth->size() == frame_bgr.size()) {

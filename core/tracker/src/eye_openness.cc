@@ -82,7 +82,16 @@ float EyeOpeningCurve::WeightFor(int eye, double opening) const {
 }
 
 EyeOpennessReader::EyeOpennessReader(const EyeOpennessOptions& options, const TrackerModel* model)
-    : options_(options), curve_(model ? EyeOpeningCurve::FromModel(*model) : EyeOpeningCurve{}) {}
+    : options_(options),
+      curve_(model ? EyeOpeningCurve::FromModel(*model) : EyeOpeningCurve{}),
+      blink_index_{arkit_blendshape_index("eyeBlinkLeft"), arkit_blendshape_index("eyeBlinkRight")} {}
+
+void EyeOpennessReader::WriteBlink(const EyeOpennessReading& reading, Eigen::VectorXf* delta) const {
+  for (int e = 0; e < 2; ++e) {
+    const int k = blink_index_[size_t(e)];
+    if (k >= 0 && k < delta->size()) (*delta)[k] = reading.blink[size_t(e)];
+  }
+}
 
 void EyeOpennessReader::Reset() {
   for (auto& h : history_) h.clear();

@@ -421,11 +421,15 @@ void FaceTracker::Reset() {
   calibration_warning_.clear();
   focal_length_ = FocalLengthReport();
   ClearCalibrationFrames();
+  ForgetTrack();
+  frames_seen_ = 0;
+}
+
+void FaceTracker::ForgetTrack() {
   previous_ = TrackedFrame();
   last_good_ = TrackedFrame();
   have_fit_ = false;
   energy_history_.clear();
-  frames_seen_ = 0;
   unresolved_disagreement_deg_ = std::numeric_limits<double>::quiet_NaN();
   unresolved_landmark_nme_ = std::numeric_limits<double>::quiet_NaN();
   eye_openness_.Reset();
@@ -516,13 +520,9 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
   if (a.failure.empty() && options_.gaze.enabled) {
     // The lids only on fits that place the eyes well: with depth and the calibrated identity
     // (before the calibration, on the mean face, open eyes read 0.5-1.0 on synthetic actors).
-    const bool landmark_lids = lids && lids->ok && !input.has_depth() && options_.gaze.read_lids;
-    if (landmark_lids) {
-      for (int e = 0; e < 2; ++e) {
-        const int k = arkit_blendshape_index(e == 0 ? "eyeBlinkLeft" : "eyeBlinkRight");
-        if (k >= 0 && k < a.params.delta.size()) a.params.delta[k] = lids->blink[size_t(e)];
-      }
-    }
+    // TrackImpl reads `lids` only on frames without depth and with the lids on.
+    const bool landmark_lids = lids && lids->ok;
+    if (landmark_lids) eye_openness_.WriteBlink(*lids, &a.params.delta);
     a.gaze = gaze_.Read(solver_.renderer(), input, &a.params, options_.gaze,
                         calibrated_ && (so.energy.use_point || so.energy.use_plane));
     if (landmark_lids) {
@@ -551,11 +551,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     // Another person: neither the last fit's pose nor its lighting is theirs, and their identity
     // is calibrated from their own frames (the old one serves until then, as after Calibrate).
     out.new_face = true;
-    have_fit_ = false;
-    previous_ = TrackedFrame();
-    last_good_ = TrackedFrame();
-    energy_history_.clear();
-    eye_openness_.Reset();
+    ForgetTrack();
   }
   auto hold = [&](TrackingStatus status, const std::string& message) {
     out.status = status;

@@ -82,12 +82,16 @@ class EyeOpennessReader {
   EyeOpennessReading Read(const InputFrame& frame);
   // A new person (or a new track): the open eye is learned again.
   void Reset();
+  // Writes a reading's weights into `delta`'s eyeBlinkLeft / eyeBlinkRight entries (those the
+  // vector has).
+  void WriteBlink(const EyeOpennessReading& reading, Eigen::VectorXf* delta) const;
 
   const EyeOpennessOptions& options() const { return options_; }
 
  private:
   EyeOpennessOptions options_;
   EyeOpeningCurve curve_;
+  std::array<int, 2> blink_index_;  // eyeBlinkLeft, eyeBlinkRight in the expression vector
   std::array<std::deque<double>, 2> history_;
 };
 

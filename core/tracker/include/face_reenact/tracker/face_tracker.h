@@ -468,6 +468,9 @@ class FaceTracker {
   void OfferCalibrationFrame(const InputFrame& input, const gpu::FaceParameters& start, int64_t frame_index);
   bool CalibrationReady() const;
   void ClearCalibrationFrames();
+  // Forgets the current track (its fits, energies, unresolved disagreements and the open eyes
+  // learned): Reset() and a new face (InputFrame::new_face) start from the landmarks again.
+  void ForgetTrack();
   // The camera a frame with `camera` (and depth or not) is fitted through: the estimated focal
   // length once searched, for frames without depth.
   gpu::PinholeCamera FittingCamera(const gpu::PinholeCamera& camera, bool has_depth) const;
