@@ -49,6 +49,7 @@
 #include "face_reenact/gpu/cpu_renderer.h"
 #include "face_reenact/tracker/evaluation.h"
 #include "face_reenact/tracker/face_tracker.h"
+#include "face_reenact/tracker/solver_choice.h"
 #include "face_reenact/tracker/tracker_model.h"
 #include "face_reenact/tracker/rgbd_input.h"
 
@@ -174,7 +175,7 @@ reenact::Appearance parse_appearance(const std::string& s) {
 }
 
 struct ReenactArgs {
-  std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu",
+  std::string source, target, out, frames_dir, key, model, mode = "reenact", landmarks = "detector", renderer = "cpu", solver = "auto",
                                  appearance = "frame-texture";
   std::string report, status_log;  // --report FILE.json, --status-log FILE.jsonl
   std::string sheets;              // --sheets DIR: contact sheets of chosen output frames
@@ -263,6 +264,7 @@ void run_reenact(const ReenactArgs& a) {
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
   ro.tracker.calibration_window_frames = a.calibration_window;
+  if (!tracker::parse_solver_backend(a.solver, &ro.tracker.solver)) throw Error("reenact: --solver must be auto, cpu or vulkan");
   // The options are checked before anything is opened (a bad --calibration-window says so at once).
   std::string why;
   if (!ro.IsValid(&why)) throw Error("reenact: " + why);
@@ -455,6 +457,7 @@ void run_reenact(const ReenactArgs& a) {
                       {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
                       {"target_total", s.mean_times.total_ms}}},
         {"renderer", s.renderer},
+        {"solver", pipeline.tracking_solver()},
         {"camera", {{"target", target_camera}, {"source", source_camera}}},
         {"intrinsics", {{"target", intrinsics_description(a.target, info, target_camera)},
                         {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), source_camera))
@@ -869,6 +872,9 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--mode", args->mode, "reenact (default), pass-through (the target's own expression), overlay (the target's fit drawn over it), off");
     c->add_option("--landmarks", args->landmarks, "detector (default: dlib on every frame) or recording (stored landmarks)");
     c->add_option("--renderer", args->renderer, "cpu (default) or vulkan: the rasteriser of the re-rendered face");
+    c->add_option("--solver", args->solver,
+                  "the trackers' solver: auto (default: the Vulkan solver on a GPU, the CPU solver where Vulkan runs on the "
+                  "CPU), cpu or vulkan");
     c->add_option("--appearance", args->appearance,
                   "frame-texture (default: the target frame's own colours, re-shaded) or albedo-map (the learned "
                   "per-vertex albedo only)");

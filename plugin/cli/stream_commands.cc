@@ -26,6 +26,7 @@
 #include "face_reenact/stream/sender.h"
 #include "face_reenact/stream/shutdown_signals.h"
 #include "face_reenact/stream/stream_key.h"
+#include "face_reenact/tracker/solver_choice.h"
 
 namespace face_reenact::cli {
 namespace {
@@ -51,6 +52,7 @@ void run_keygen(const KeygenArgs& a) {
 // ---------------------------------------------------------------------------------------------
 struct SendArgs {
   std::string to, key, replay, input, model;
+  std::string solver = "auto";  // --input: the tracker's solver
   int calibration_frames = -1;
   bool no_pose = false;
   int livelink_port = -1;
@@ -93,6 +95,7 @@ std::unique_ptr<fs::ExpressionFrameSource> make_tracked_source(const SendArgs& a
   o.tracker.background_calibration = o.grabber.input.kind != live::InputKind::kRecording;
   o.input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
   o.send_pose = !a.no_pose;
+  if (!tracker::parse_solver_backend(a.solver, &o.tracker.solver)) throw Error("send: --solver must be auto, cpu or vulkan");
   const FaceModel model = load_face_model(resolve_model_path(a.model));
   return std::make_unique<live::TrackedExpressionSource>(model, o);
 }
@@ -408,6 +411,10 @@ void add_stream_commands(CLI::App& app) {
     c->add_option("--calibration-frames", args->calibration_frames,
                   "--input: frames to calibrate the actor over before sending (keep a neutral face)");
     c->add_flag("--no-pose", args->no_pose, "--input: do not send the head pose");
+    c->add_option("--solver", args->solver,
+                  "--input: the tracker's solver: auto (the Vulkan solver on a GPU, the CPU solver where Vulkan runs on the "
+                  "CPU), cpu or vulkan")
+        ->capture_default_str();
     c->add_option("--stream", args->stream_id, "Stream id (u32) the receivers allow")->capture_default_str();
     c->add_option("--rate", args->rate, "Replay rate in Hz (default: the file's timestamps, else 30)");
     c->add_flag("--loop", args->loop, "Replay the file (or the --input recording) in a loop");

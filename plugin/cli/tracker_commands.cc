@@ -170,9 +170,16 @@ void run_bench_track(const TrackBenchArgs& a) {
     // rest of the loop (step control, host bookkeeping), so the columns add up to the total.
     double rest = double(s["total_ms_per_frame"]) - double(s["pyramid_ms_per_frame"]) - double(s["input_ms_per_frame"]);
     for (const auto& l : s["levels"]) rest -= double(l["synthesis_ms_per_frame"]) + double(l["analysis_ms_per_frame"]);
-    std::printf("%-24s total per frame %.2f ms (pyramid %.2f, input %.2f, rest %.2f ms), mean final energy %.4g\n",
+    std::printf("%-24s total per frame %.2f ms (pyramid %.2f, input %.2f, rest %.2f ms), mean final energy %.4g",
                 name.c_str(), double(s["total_ms_per_frame"]), double(s["pyramid_ms_per_frame"]),
                 double(s["input_ms_per_frame"]), rest, double(s["mean_final_energy"]));
+    // Each device submission is also a host wait for the device (gpu::Context::submit_and_wait).
+    const double submissions = s["device_submissions_per_frame"];
+    if (submissions > 0) {
+      std::printf(", %.1f device submissions and host syncs per frame (%.2f ms inside them)", submissions,
+                  double(s["device_submission_ms_per_frame"]));
+    }
+    std::printf("\n");
   }
   if (doc["solvers"].contains("cpu_matrix_free_1_thread")) {
     std::printf("cpu_matrix_free on %d threads: speed-up %.2fx over one thread (same steps; below 1 = slower)\n", int(doc["cpu_threads"]),
@@ -384,12 +391,9 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   RgbdInput input(io);
   TrackerOptions to = track_options(a, config, depth);
   to.focal_length.estimate = estimate_focal_length(a.camera, info);
+  if (!parse_solver_backend(a.solver, &to.solver)) throw Error("track: --solver must be auto, cpu or vulkan");
+  to.solver_device = a.device;
   FaceTracker tracker(model, to);
-  SolverBackend backend = SolverBackend::kAuto;
-  if (!parse_solver_backend(a.solver, &backend)) throw Error("track: --solver must be auto, cpu or vulkan");
-  const TrackingSolverChoice solver = ChooseTrackingSolver(backend, model, a.device);
-  tracker.SetTrackingSolver(solver.solve);
-  tracker.SetCalibrationSolver(solver.calibrate);
   const gpu::CpuRenderer renderer(model.render);
 
   std::ofstream params_file;
@@ -567,7 +571,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["gaze"] = tracker.options().gaze.enabled;
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
-  j["solver"] = solver.description;
+  j["solver"] = tracker.solver_description();
   j["camera"] = camera_json(info, a.camera, tracker.focal_length_report());
   j["intrinsics"] = intrinsics_description(a.input, info, j["camera"]);
   const bool truth = r.evaluated > 0;
@@ -809,10 +813,12 @@ nlohmann::json time_track_solver(const BenchSolveFunction& solve, const std::vec
   };
   const double timed = std::max<double>(1.0, static_cast<double>(frames.size()) - 1.0);
   std::map<int, LevelTotals> levels;
-  double pyramid_ms = 0, input_ms = 0, total_ms = 0, final_energy = 0;
+  double pyramid_ms = 0, input_ms = 0, total_ms = 0, final_energy = 0, submissions = 0, submission_ms = 0;
   for (size_t f = 0; f < frames.size(); ++f) {
     const SolverSummary s = solve(frames[f], &start);
     if (f == 0) continue;  // warm-up (for the Vulkan solver's auto strategy, the measurement)
+    submissions += s.device_submissions;
+    submission_ms += s.device_submission_ms;
     pyramid_ms += s.pyramid_ms;
     input_ms += s.input_ms;
     total_ms += s.total_ms;
@@ -838,6 +844,8 @@ nlohmann::json time_track_solver(const BenchSolveFunction& solve, const std::vec
           {"pyramid_ms_per_frame", pyramid_ms / timed},
           {"input_ms_per_frame", input_ms / timed},
           {"total_ms_per_frame", total_ms / timed},
+          {"device_submissions_per_frame", submissions / timed},
+          {"device_submission_ms_per_frame", submission_ms / timed},
           {"mean_final_energy", final_energy / timed}};
 }
 

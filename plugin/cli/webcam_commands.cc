@@ -47,7 +47,23 @@ struct WebcamArgs {
   std::string mode = "reenact";
   std::string model;
   std::string camera_size = "640x480";
+  std::string solver = "auto";    // the trackers' solver (LiveSession::Options::solver)
+  std::string renderer = "cpu";   // cpu or vulkan: the re-rendered face's rasteriser
 };
+
+// The pipeline choices a live session takes from the command line (webcam --target, bench live).
+void apply_pipeline_args(const WebcamArgs& args, live::LiveSession::Options* o) {
+  o->solver = args.solver;
+  if (args.renderer != "cpu" && args.renderer != "vulkan") throw Error("--renderer must be cpu or vulkan (got '" + args.renderer + "')");
+  o->use_vulkan = args.renderer == "vulkan";
+}
+
+void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
+  cmd->add_option("--solver", args->solver,
+                  "the tracker's solver: auto (the Vulkan solver on a GPU, the CPU solver where Vulkan runs on the CPU), cpu or vulkan")
+      ->capture_default_str();
+  cmd->add_option("--renderer", args->renderer, "cpu or vulkan: the rasteriser of the re-rendered face")->capture_default_str();
+}
 
 void parse_size(const std::string& text, int* width, int* height) {
   int w = 0, h = 0;
@@ -87,6 +103,7 @@ void run_webcam(const WebcamArgs& args) {
       throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, overlay, raw");
     parse_size(args.camera_size, &live_options.camera_width, &live_options.camera_height);
     live_options.camera_fps = rate->fps();
+    apply_pipeline_args(args, &live_options);
     live::LiveSession::CheckInputs(live_options);  // a missing recording / key / model: exit 1 now
     auto live_session = std::make_unique<live::LiveSession>(std::move(live_options));
     session = live_session.get();
@@ -181,6 +198,7 @@ void add_webcam_command(CLI::App& app) {
   cmd->add_option("--model", args->model, "with --target: face model file (default: the installed/generated one)");
   cmd->add_option("--camera-size", args->camera_size, "with a camera --target: capture size WIDTHxHEIGHT")
       ->capture_default_str();
+  add_pipeline_options(cmd, args.get());
   cmd->add_option("--size", args->size, "output size WIDTHxHEIGHT (input is letterboxed into it)")
       ->capture_default_str();
   cmd->add_option("--fps", args->fps, "output frame rate")->capture_default_str();
@@ -237,6 +255,7 @@ void add_webcam_command(CLI::App& app) {
   bench_live->add_option("--key", live_args->key_file, "stream key file for udp://");
   bench_live->add_option("--mode", live_args->mode, "reenact, passthrough, overlay or raw")->capture_default_str();
   bench_live->add_option("--model", live_args->model, "face model file");
+  add_pipeline_options(bench_live, live_args.get());
   bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame (and the warm-up)")
       ->capture_default_str();
   auto live_overlap = std::make_shared<bool>(false);
@@ -254,6 +273,7 @@ void add_webcam_command(CLI::App& app) {
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
     o.overlap_frames = *live_overlap;
+    apply_pipeline_args(*live_args, &o);
     if (!live::parse_output_mode(live_args->mode, &o.mode))
       throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, raw");
     live::LiveSession::CheckInputs(o);
@@ -301,6 +321,8 @@ void add_webcam_command(CLI::App& app) {
     std::printf("bench live: %s\n", session.describe().c_str());
     std::printf("  target: %s\n", status.target.c_str());
     std::printf("  %s\n", status.Headline().c_str());
+    std::printf("  tracker solver: %s; renderer: %s\n", status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(),
+                o.use_vulkan ? "vulkan" : "cpu");
     std::printf("  output %.1f fps (%llu frames in %.1f s; target delivers %.1f fps), pipeline %.2f ms/frame, "
                 "capture-to-output latency mean %.2f ms, p95 %.2f ms\n",
                 double(last - first) / seconds, static_cast<unsigned long long>(last - first), seconds, status.target_fps,

@@ -5,6 +5,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/buffer.h"
+#include "face_reenact/gpu/command.h"
 #include "face_reenact/gpu/embedded_shaders.h"
 #include "face_reenact/gpu/pipeline.h"
 #include "face_reenact/gpu/vk_check.h"
@@ -242,6 +243,57 @@ TEST_F(GpuFoundationTest, EmbeddedShadersArePresentAndValidSpirv) {
 TEST_F(GpuFoundationTest, TimestampsAreAvailableOnLavapipe) {
   EXPECT_TRUE(context().timestamps_supported());
   EXPECT_GT(context().timestamp_period_ns(), 0.0);
+}
+
+// Only the queries written since the reset are read: waiting on an unwritten one never returns
+// on a real GPU (the tracker's energy-only pass writes 3 of its 6).
+TEST_F(GpuFoundationTest, TimestampsFetchOnlyTheQueriesWritten) {
+  TimestampQueries q(context(), 6, "partly written");
+  context().submit_and_wait(
+      [&](VkCommandBuffer cmd) {
+        q.reset(cmd);
+        q.write(cmd, 0);
+        q.write(cmd, 1);
+        q.write(cmd, 3);
+      },
+      "three of six timestamps");
+  q.fetch();
+  EXPECT_GE(q.elapsed_ms(0, 3), 0.0);
+  EXPECT_EQ(q.elapsed_ms(1, 2), -1.0);  // query 2 was never written
+  EXPECT_EQ(q.elapsed_ms(4, 5), -1.0);
+}
+
+// submit_and_wait keeps one command buffer and fence from one submission to the next; a
+// submission recorded inside another's recording gets its own, and a recording that throws
+// leaves the context usable. Every submission is counted, with its wall time.
+TEST_F(GpuFoundationTest, SubmissionsReuseTheirCommandBufferAndAreCounted) {
+  Buffer b(context(), 16, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT, BufferDomain::Readback,
+           "filled");
+  const uint64_t before = context().submissions();
+  const double ms_before = context().submission_ms();
+  auto fill = [&](uint32_t value) {
+    context().submit_and_wait(
+        [&](VkCommandBuffer cmd) {
+          vkCmdFillBuffer(cmd, b.handle(), 0, 16, value);
+          CommandRecorder rec(context(), cmd);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                             VK_ACCESS_2_HOST_READ_BIT);
+        },
+        "fill");
+    uint32_t back[4] = {};
+    b.read(back, sizeof(back));
+    return back[0] == value && back[3] == value;
+  };
+  for (uint32_t v : {1u, 2u, 3u}) EXPECT_TRUE(fill(v)) << v;
+  EXPECT_EQ(context().submissions() - before, 3u);
+  EXPECT_GT(context().submission_ms(), ms_before);
+  // Nested: the inner submission runs (and completes) while the outer one is being recorded.
+  bool inner_ok = false;
+  context().submit_and_wait([&](VkCommandBuffer) { inner_ok = fill(7); }, "outer");
+  EXPECT_TRUE(inner_ok);
+  EXPECT_EQ(context().submissions() - before, 5u);
+  EXPECT_THROW(context().submit_and_wait([](VkCommandBuffer) { throw Error("recording failed"); }, "throws"), Error);
+  EXPECT_TRUE(fill(9));  // the kept pair was replaced, the next submission works
 }
 
 }  // namespace

@@ -134,6 +134,13 @@ TEST(LiveOptionsTest, ValidationNamesTheProblem) {
   o.thread_name = "a-thread-name-that-is-too-long";
   EXPECT_FALSE(o.IsValid(&why));
   EXPECT_THROW(LiveSession bad(o), Error);
+  o.thread_name = "fr-live";
+  EXPECT_EQ(o.solver, "auto");  // the fastest solver for the machine, unless told otherwise
+  o.solver = "gpu";
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("solver must be auto, cpu or vulkan"), std::string::npos) << why;
+  o.solver = "vulkan";
+  EXPECT_TRUE(o.IsValid(&why)) << why;
   OutputMode mode;
   EXPECT_TRUE(parse_output_mode("pass-through", &mode));
   EXPECT_EQ(mode, OutputMode::kPassThrough);
@@ -766,6 +773,11 @@ TEST_F(WebcamLiveCliTest, BenchLiveReportsRateAndLatency) {
   ASSERT_EQ(run("bench live --target " + test::quote(dir) + " --mode raw --seconds 1", &out), 0) << out;
   EXPECT_NE(out.find("Raw input"), std::string::npos) << out;
   EXPECT_NE(out.find("capture-to-output latency mean"), std::string::npos) << out;
+  EXPECT_NE(out.find("tracker solver: (pipeline not loaded); renderer: cpu"), std::string::npos) << out;  // raw: no pipeline
+  EXPECT_EQ(run("bench live --target " + test::quote(dir) + " --mode raw --seconds 1 --solver gpu", &out), 1);
+  EXPECT_NE(out.find("solver must be auto, cpu or vulkan"), std::string::npos) << out;
+  EXPECT_EQ(run("bench live --target " + test::quote(dir) + " --mode raw --seconds 1 --renderer opengl", &out), 1);
+  EXPECT_NE(out.find("--renderer must be cpu or vulkan"), std::string::npos) << out;
   EXPECT_EQ(run("bench live --target /nonexistent/rec --mode raw --seconds 1", &out), 1);
   EXPECT_NE(out.find("no such file"), std::string::npos) << out;
 }

@@ -13,6 +13,7 @@
 #include <stop_token>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/tracker/face_tracker.h"
 #include "face_reenact/tracker/solver.h"
 #include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/vulkan_solver.h"
@@ -445,6 +446,31 @@ TEST_F(VulkanSolverTest, OwnLandmarkVerticesAndBrowsMatchTheCpu) {
   EXPECT_LT(rotation_error(fit, cpu_fit), 0.05 * M_PI / 180);
 }
 
+// TrackerOptions::solver is what a FaceTracker solves with: kAuto keeps the CPU solver where the
+// only Vulkan device is a CPU implementation, kVulkan takes the device, and a device that is not
+// there is a clear error for a forced choice.
+TEST(TrackerSolverOption, TheTrackerSolvesWithTheSolverItsOptionsName) {
+  if (!real_model()) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  TrackerOptions o;
+  EXPECT_EQ(o.solver, SolverBackend::kCpu);
+  EXPECT_EQ(FaceTracker(*real_model(), o).solver_description(), "cpu");
+  o.solver_device = "llvmpipe";
+  o.solver = SolverBackend::kAuto;
+  const std::string automatic = FaceTracker(*real_model(), o).solver_description();
+  EXPECT_EQ(automatic.rfind("cpu (auto: ", 0), 0u) << automatic;
+  EXPECT_NE(automatic.find("llvmpipe"), std::string::npos) << automatic;
+  o.solver = SolverBackend::kVulkan;
+  const std::string forced = FaceTracker(*real_model(), o).solver_description();
+  EXPECT_EQ(forced.rfind("vulkan on llvmpipe", 0), 0u) << forced;
+  o.solver_device = "no-such-vulkan-device";
+  try {
+    FaceTracker t(*real_model(), o);
+    ADD_FAILURE() << "a forced Vulkan solver on a missing device was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no usable Vulkan device for the tracker"), std::string::npos) << e.what();
+  }
+}
+
 // `face-reenact bench track` reports the Vulkan strategies next to the CPU reference.
 TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
   const std::string model = testing::real_model_path();
@@ -469,7 +495,12 @@ TEST(VulkanTrackBenchCli, ReportsBothStrategiesTheAutoChoiceAndRatios) {
     EXPECT_GT(double(s["total_ms_per_frame"]), 0.0);
     EXPECT_NEAR(double(s["mean_final_energy"]), cpu_energy, 1e-3 * std::max(1.0, cpu_energy)) << name;
     EXPECT_GT(double(doc["vulkan"]["ratio_to_cpu_matrix_free"][name]), 0.0);
+    // Submissions (each a host sync) are counted: at least one per Gauss-Newton iteration.
+    double iterations = 0;
+    for (const auto& l : s["levels"]) iterations += double(l["gauss_newton_per_frame"]);
+    EXPECT_GE(double(s["device_submissions_per_frame"]), iterations) << name;
   }
+  EXPECT_EQ(double(doc["solvers"]["cpu_matrix_free"]["device_submissions_per_frame"]), 0.0);
   const std::string chosen = doc["vulkan"]["auto_choice"]["chosen"];
   EXPECT_TRUE(chosen == "matrix-free" || chosen == "assembled") << chosen;
   // The calibration row on the device: the same joint solve as the CPU's, to the same energy.

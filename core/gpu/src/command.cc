@@ -173,22 +173,29 @@ TimestampQueries::~TimestampQueries() {
 
 void TimestampQueries::reset(VkCommandBuffer cmd) {
   fetched_ = false;
+  written_ = 0;
   if (pool_) vkCmdResetQueryPool(cmd, pool_, 0, count_);
 }
 
 void TimestampQueries::write(VkCommandBuffer cmd, uint32_t index) {
-  if (pool_ && index < count_) vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, pool_, index);
+  if (!pool_ || index >= count_) return;
+  vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, pool_, index);
+  written_ |= 1u << index;
 }
 
 void TimestampQueries::fetch() {
   if (!pool_) return;
-  FR_VK_CHECK(vkGetQueryPoolResults(context_.device(), pool_, 0, count_, count_ * sizeof(uint64_t), ticks_.data(),
-                                    sizeof(uint64_t), VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+  for (uint32_t i = 0; i < count_; ++i) {
+    if (!(written_ & (1u << i))) continue;
+    FR_VK_CHECK(vkGetQueryPoolResults(context_.device(), pool_, i, 1, sizeof(uint64_t), &ticks_[i], sizeof(uint64_t),
+                                      VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+  }
   fetched_ = true;
 }
 
 double TimestampQueries::elapsed_ms(uint32_t from, uint32_t to) const {
-  if (!pool_ || !fetched_ || from >= count_ || to >= count_) return -1.0;
+  if (!pool_ || !fetched_ || from >= count_ || to >= count_ || !(written_ & (1u << from)) || !(written_ & (1u << to)))
+    return -1.0;
   const uint32_t bits = context_.timestamp_valid_bits();
   const uint64_t mask = bits >= 64 ? ~0ull : ((1ull << bits) - 1);
   const uint64_t delta = (ticks_[to] - ticks_[from]) & mask;

@@ -1,5 +1,7 @@
 #include "face_reenact/gpu/context.h"
 
+#include <chrono>
+
 #include <algorithm>
 #include <cctype>
 #include <cstdio>
@@ -358,6 +360,9 @@ Context::~Context() { destroy(); }
 void Context::destroy() {
   if (device_) {
     vkDeviceWaitIdle(device_);
+    if (kept_fence_) vkDestroyFence(device_, kept_fence_, nullptr);
+    kept_fence_ = VK_NULL_HANDLE;
+    kept_command_buffer_ = VK_NULL_HANDLE;  // freed with its pool
     if (command_pool_) vkDestroyCommandPool(device_, command_pool_, nullptr);
     vkDestroyDevice(device_, nullptr);
     device_ = VK_NULL_HANDLE;
@@ -413,41 +418,93 @@ void Context::set_name(VkObjectType type, uint64_t handle, const std::string& na
 }
 
 void Context::submit_and_wait(const std::function<void(VkCommandBuffer)>& record, const char* what) const {
-  VkCommandBufferAllocateInfo ai{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
-  ai.commandPool = command_pool_;
-  ai.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
-  ai.commandBufferCount = 1;
-  VkCommandBuffer cmd = VK_NULL_HANDLE;
-  FR_VK_CHECK(vkAllocateCommandBuffers(device_, &ai, &cmd));
-  VkFence fence = VK_NULL_HANDLE;
-  auto cleanup = [&] {
-    if (fence) vkDestroyFence(device_, fence, nullptr);
-    vkFreeCommandBuffers(device_, command_pool_, 1, &cmd);
+  const auto start = std::chrono::steady_clock::now();
+  struct AddTime {  // on every way out, errors included
+    const std::chrono::steady_clock::time_point start;
+    std::atomic<uint64_t>& total;
+    ~AddTime() {
+      total.fetch_add(static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                                std::chrono::steady_clock::now() - start).count()),
+                      std::memory_order_relaxed);
+    }
+  } add_time{start, submission_ns_};
+  // The kept command buffer and fence, unless another submission holds them: allocating and
+  // destroying them for every submission cost a real GPU's driver a large part of a tracked
+  // frame's time (bench track on an H200, 2026-11-26: docs/real-time.md, "On a GPU").
+  bool kept = false;
+  {
+    std::lock_guard<std::mutex> lock(submit_mutex_);
+    if (!submit_in_use_) submit_in_use_ = kept = true;
+  }
+  VkCommandBuffer cmd = kept ? kept_command_buffer_ : VK_NULL_HANDLE;
+  VkFence fence = kept ? kept_fence_ : VK_NULL_HANDLE;
+  auto release = [&](bool failed) {
+    if (!kept) {
+      if (fence) vkDestroyFence(device_, fence, nullptr);
+      if (cmd) vkFreeCommandBuffers(device_, command_pool_, 1, &cmd);
+      return;
+    }
+    if (failed) {  // after an error the pair's state is unknown: make new ones next time
+      if (fence) vkDestroyFence(device_, fence, nullptr);
+      if (cmd) vkFreeCommandBuffers(device_, command_pool_, 1, &cmd);
+      cmd = VK_NULL_HANDLE;
+      fence = VK_NULL_HANDLE;
+    }
+    std::lock_guard<std::mutex> lock(submit_mutex_);
+    kept_command_buffer_ = cmd;
+    kept_fence_ = fence;
+    submit_in_use_ = false;
   };
   try {
+    if (!cmd) {
+      VkCommandBufferAllocateInfo ai{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
+      ai.commandPool = command_pool_;
+      ai.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+      ai.commandBufferCount = 1;
+      FR_VK_CHECK(vkAllocateCommandBuffers(device_, &ai, &cmd));
+    }
+    if (!fence) {
+      VkFenceCreateInfo fci{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+      FR_VK_CHECK(vkCreateFence(device_, &fci, nullptr, &fence));
+    } else {
+      FR_VK_CHECK(vkResetFences(device_, 1, &fence));
+    }
     set_name(VK_OBJECT_TYPE_COMMAND_BUFFER, cmd, what);
     VkCommandBufferBeginInfo bi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
     bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-    FR_VK_CHECK(vkBeginCommandBuffer(cmd, &bi));
+    FR_VK_CHECK(vkBeginCommandBuffer(cmd, &bi));  // the pool resets a recorded buffer implicitly
     record(cmd);
     FR_VK_CHECK(vkEndCommandBuffer(cmd));
-    VkFenceCreateInfo fci{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
-    FR_VK_CHECK(vkCreateFence(device_, &fci, nullptr, &fence));
     VkCommandBufferSubmitInfo cbsi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_SUBMIT_INFO};
     cbsi.commandBuffer = cmd;
     VkSubmitInfo2 si{VK_STRUCTURE_TYPE_SUBMIT_INFO_2};
     si.commandBufferInfoCount = 1;
     si.pCommandBufferInfos = &cbsi;
     FR_VK_CHECK(vkQueueSubmit2(queue_, 1, &si, fence));
-    // A generous bound so a hung device becomes an error instead of a hang (60 s).
-    const VkResult r = FR_VK_CHECK(vkWaitForFences(device_, 1, &fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
-    if (r == VK_TIMEOUT) throw Error(std::string("GPU work '") + what + "' did not finish within 60 s");
+    submissions_.fetch_add(1, std::memory_order_relaxed);
+    // On a real GPU the host polls the fence for a while before it sleeps on it: the tracker's
+    // submissions take a fraction of a millisecond, less than a sleeping thread takes to be woken
+    // in a virtual machine. Not on a CPU implementation (lavapipe), whose own worker threads
+    // need the cores that polling would take.
+    constexpr auto kPoll = std::chrono::milliseconds(20);
+    VkResult r = VK_NOT_READY;
+    if (device_info_.type != "cpu") {
+      const auto poll_end = std::chrono::steady_clock::now() + kPoll;
+      while ((r = vkGetFenceStatus(device_, fence)) == VK_NOT_READY && std::chrono::steady_clock::now() < poll_end) {
+      }
+      if (r != VK_SUCCESS && r != VK_NOT_READY) FR_VK_CHECK(r);
+    }
+    if (r != VK_SUCCESS) {
+      // A generous bound so a hung device becomes an error instead of a hang (60 s).
+      r = FR_VK_CHECK(vkWaitForFences(device_, 1, &fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
+      if (r == VK_TIMEOUT) throw Error(std::string("GPU work '") + what + "' did not finish within 60 s");
+    }
   } catch (...) {
     vkDeviceWaitIdle(device_);
-    cleanup();
+    release(true);
     throw;
   }
-  cleanup();
+  release(false);
 }
 
 uint32_t Context::find_memory_type(uint32_t type_bits, VkMemoryPropertyFlags required,

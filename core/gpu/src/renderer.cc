@@ -238,7 +238,8 @@ void Renderer::update_draw_list(const RenderOptions& options) {
   draw_list_parts_ = options.parts;
 }
 
-RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options) {
+RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options,
+                              const RecordAfterRender& then) {
   std::string why;
   if (!params.IsValid(&why, static_cast<int>(model_.identity_basis.cols()), static_cast<int>(model_.expression_basis.cols()),
                       static_cast<int>(model_.albedo_basis.cols()))) {
@@ -383,8 +384,9 @@ RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera
                    VK_ACCESS_2_MEMORY_READ_BIT);
         post.record(cmd);
         if (timestamps_) timestamps_->write(cmd, 3);
+        if (then) then(cmd, targets);
       },
-      "render G-buffer");
+      then ? "render G-buffer + follow-up" : "render G-buffer");
 
   identity_key_ = std::move(identity_key);
   identity_valid_ = true;

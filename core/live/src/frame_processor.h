@@ -52,6 +52,8 @@ class FrameProcessor {
                                              ActorOutcome* actor) = 0;
   virtual ProcessedFrame render(std::unique_ptr<StagedFrame> staged) = 0;
   virtual void request_calibration() = 0;
+  // The target tracker's solver in words (tracker::FaceTracker::solver_description), or "".
+  virtual std::string tracking_solver() const { return ""; }
 };
 
 // Output = input. Used for OutputMode::kRaw.
@@ -61,7 +63,9 @@ std::shared_ptr<FrameProcessor> make_raw_processor();
 // second pipeline tracking the source actor when `with_actor`. Throws face_reenact::Error when
 // the model cannot be loaded or this build has no reenactment pipeline. A requested `stop` ends a
 // process() call in progress within one Gauss-Newton iteration (the session is shutting down).
+// `solver` is LiveSession::Options::solver (already validated).
 std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
-                                                           bool use_vulkan, bool with_actor, std::stop_token stop);
+                                                           bool use_vulkan, const std::string& solver, bool with_actor,
+                                                           std::stop_token stop);
 
 }  // namespace face_reenact::live

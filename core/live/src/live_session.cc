@@ -22,6 +22,7 @@
 #include "face_reenact/stream/receiver.h"
 #include "face_reenact/stream/stream_key.h"
 #include "face_reenact/stream/udp.h"
+#include "face_reenact/tracker/solver_choice.h"
 #include "frame_processor.h"
 
 namespace face_reenact::live {
@@ -194,6 +195,8 @@ bool LiveSession::Options::IsValid(std::string* why) const {
     return fail("reopen interval must be in (0, 10 min]");
   if (thread_name.empty() || thread_name.size() > 15) return fail("thread name must have 1..15 characters");
   if (worker_nice < 0 || worker_nice > 19) return fail("worker nice increment must be in 0..19");
+  tracker::SolverBackend backend;
+  if (!tracker::parse_solver_backend(solver, &backend)) return fail("solver must be auto, cpu or vulkan (got '" + solver + "')");
   return true;
 }
 
@@ -444,10 +447,11 @@ void LiveSession::run() {
   auto start_loading = [&] {
     try {
       loading = std::async(std::launch::async, [model_path = options_.model_path, mode = options_.mode,
-                                                use_vulkan = options_.use_vulkan, with_actor = actor != nullptr,
+                                                use_vulkan = options_.use_vulkan, solver = options_.solver,
+                                                with_actor = actor != nullptr,
                                                 stop = stop_source_.get_token()] {
         pthread_setname_np(pthread_self(), "fr-live-load");  // niced like the worker that starts it
-        return make_reenactment_processor(resolve_model_path(model_path), mode, use_vulkan, with_actor, stop);
+        return make_reenactment_processor(resolve_model_path(model_path), mode, use_vulkan, solver, with_actor, stop);
       });
     } catch (const std::exception& e) {  // no thread could be started
       pipeline_error = e.what();
@@ -626,6 +630,7 @@ void LiveSession::run() {
     s.target_error = ts.error;
     s.target_fps = ts.fps;
     s.pipeline_ready = pipeline_ready;
+    s.solver = pipeline_ready ? processor->tracking_solver() : "";
     s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
     s.calibration_warning = pipeline_ready ? calibration_warning : "";

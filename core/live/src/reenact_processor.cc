@@ -6,6 +6,7 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
+#include "face_reenact/tracker/solver_choice.h"
 #include "frame_processor.h"
 
 namespace face_reenact::live {
@@ -43,7 +44,8 @@ LiveStageTimes stage_rows(const reenact::ReenactedFrame& r) {
 
 class ReenactProcessor : public FrameProcessor {
  public:
-  ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, bool with_actor, std::stop_token stop)
+  ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, const std::string& solver,
+                   bool with_actor, std::stop_token stop)
       : model_(load_face_model(model_path)) {
     // Loading is a few long steps; a session stopped meanwhile skips the ones left.
     auto check_stop = [&] {
@@ -55,6 +57,7 @@ class ReenactProcessor : public FrameProcessor {
     // The joint calibration solve takes seconds; on a thread of its own the worker keeps
     // publishing the input meanwhile instead of freezing the picture.
     options.tracker.background_calibration = true;
+    if (!tracker::parse_solver_backend(solver, &options.tracker.solver)) throw Error("unknown tracker solver '" + solver + "'");
     options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough
                    : mode == OutputMode::kOverlay   ? reenact::ReenactMode::kOverlay
                                                     : reenact::ReenactMode::kReenact;
@@ -137,6 +140,8 @@ class ReenactProcessor : public FrameProcessor {
     if (actor_) actor_->RequestCalibration();
   }
 
+  std::string tracking_solver() const override { return target_->tracking_solver(); }
+
  private:
   FaceModel model_;  // outlives the pipelines (declared first)
   std::unique_ptr<reenact::ReenactmentPipeline> target_;
@@ -148,8 +153,9 @@ class ReenactProcessor : public FrameProcessor {
 }  // namespace
 
 std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
-                                                           bool use_vulkan, bool with_actor, std::stop_token stop) {
-  return std::make_shared<ReenactProcessor>(model_path, mode, use_vulkan, with_actor, std::move(stop));
+                                                           bool use_vulkan, const std::string& solver, bool with_actor,
+                                                           std::stop_token stop) {
+  return std::make_shared<ReenactProcessor>(model_path, mode, use_vulkan, solver, with_actor, std::move(stop));
 }
 
 }  // namespace face_reenact::live

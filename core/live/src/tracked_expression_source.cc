@@ -51,9 +51,10 @@ TrackedExpressionSource::~TrackedExpressionSource() {
 }
 
 std::string TrackedExpressionSource::description() const {
-  if (recording_) return "tracked " + recording_->describe();
+  const std::string solver = " (solver: " + tracker_.solver_description() + ")";
+  if (recording_) return "tracked " + recording_->describe() + solver;
   const GrabberStatus s = grabber_->status();
-  return "tracked " + (s.description.empty() ? options_.grabber.input.describe() : s.description);
+  return "tracked " + (s.description.empty() ? options_.grabber.input.describe() : s.description) + solver;
 }
 
 bool TrackedExpressionSource::NextRecordingFrame(capture::RgbdFrame* frame, std::chrono::milliseconds max_wait,

@@ -144,7 +144,9 @@ void ReenactmentPipeline::SetOptions(const ReenactmentOptions& options) {
   const bool tracker_changed = options.use_ground_truth_target != im.options.use_ground_truth_target ||
                                options.input.landmark_source != im.options.input.landmark_source ||
                                options.input.use_depth != im.options.input.use_depth ||
-                               options.tracker.calibration_frames != im.options.tracker.calibration_frames;
+                               options.tracker.calibration_frames != im.options.tracker.calibration_frames ||
+                               options.tracker.solver != im.options.tracker.solver ||
+                               options.tracker.solver_device != im.options.tracker.solver_device;
   im.compositor.SetOptions(options);
   im.options = options;
   if (tracker_changed) {
@@ -163,6 +165,10 @@ std::string ReenactmentPipeline::calibration_warning() const {
 
 tracker::FaceTracker::FocalLengthReport ReenactmentPipeline::focal_length_report() const {
   return impl_->tracker ? impl_->tracker->focal_length_report() : tracker::FaceTracker::FocalLengthReport();
+}
+
+std::string ReenactmentPipeline::tracking_solver() const {
+  return impl_->tracker ? impl_->tracker->solver_description() : std::string();
 }
 
 tracker::FaceTracker::CalibrationProgress ReenactmentPipeline::calibration_progress() const {

@@ -13,6 +13,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
+#include "face_reenact/tracker/solver_choice.h"
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
@@ -400,6 +401,13 @@ FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
                 std::to_string(options_.calibration_albedo_components) + " albedo components but the model has " +
                 std::to_string(m.num_identity()) + " / " + std::to_string(m.num_albedo()));
   }
+  if (options_.solver != SolverBackend::kCpu) {
+    // Throws for a forced Vulkan solver without a usable device; kAuto falls back and says why.
+    TrackingSolverChoice choice = ChooseTrackingSolver(options_.solver, m, options_.solver_device);
+    tracking_solve_ = std::move(choice.solve);
+    calibration_solve_ = std::move(choice.calibrate);
+    solver_description_ = std::move(choice.description);
+  }
   Reset();
 }
 
@@ -442,6 +450,7 @@ void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
 void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) {
   CancelBackgroundCalibration();
   tracking_solve_ = std::move(solve);
+  solver_description_ = tracking_solve_ ? "set by the program" : "cpu";
 }
 
 void FaceTracker::SetCalibrationSolver(FramesSolveFunction solve) {

@@ -1,6 +1,8 @@
 #include "face_reenact/tracker/solver_choice.h"
 
+#include <algorithm>
 #include <memory>
+#include <vector>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/context.h"
@@ -39,6 +41,23 @@ TrackingSolverChoice ChooseTrackingSolver(SolverBackend backend, const TrackerMo
     choice.backend = SolverBackend::kCpu;
     choice.description = "cpu (forced)";
     return choice;
+  }
+  if (backend == SolverBackend::kAuto) {
+    // The device list alone says whether the pick is a CPU implementation: no device is
+    // created (every live pipeline and `send --input` asks, on lavapipe machines too).
+    std::vector<gpu::DeviceInfo> devices;
+    try {
+      devices = gpu::Context::enumerate_devices(device);
+    } catch (const Error& e) {
+      choice.description = std::string("cpu (auto: no usable Vulkan device: ") + e.what() + ")";
+      return choice;
+    }
+    const auto picked = std::find_if(devices.begin(), devices.end(), [](const gpu::DeviceInfo& d) { return d.would_pick; });
+    if (picked != devices.end() && picked->type == "cpu") {
+      choice.description = "cpu (auto: the Vulkan device '" + picked->name +
+                           "' is a CPU implementation, where the CPU solver is faster)";
+      return choice;
+    }
   }
   auto vulkan = std::make_shared<VulkanBackend>();
   try {

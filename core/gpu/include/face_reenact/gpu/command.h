@@ -84,7 +84,8 @@ class TimestampQueries {
   bool supported() const { return pool_ != VK_NULL_HANDLE; }
   void reset(VkCommandBuffer cmd);
   void write(VkCommandBuffer cmd, uint32_t index);
-  // Fetches the results of the last submission (waits for them).
+  // Fetches the results of the last submission (waits for them): the queries written since the
+  // last reset only (waiting on one never written would never end on a real GPU).
   void fetch();
   double elapsed_ms(uint32_t from, uint32_t to) const;
 
@@ -93,6 +94,7 @@ class TimestampQueries {
   uint32_t count_;
   VkQueryPool pool_ = VK_NULL_HANDLE;
   std::array<uint64_t, 32> ticks_{};
+  uint32_t written_ = 0;  // bit i: query i written since the last reset
   bool fetched_ = false;
 };
 

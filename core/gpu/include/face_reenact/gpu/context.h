@@ -95,6 +95,12 @@ class Context {
   // Records with `record`, submits, and waits for completion (fenced). For uploads, readbacks
   // and the synchronous render path.
   void submit_and_wait(const std::function<void(VkCommandBuffer)>& record, const char* what) const;
+  // Queue submissions made so far through submit_and_wait; each one is also a host wait for the
+  // device, which is what a solver's per-frame cost on a real GPU is made of (bench track).
+  uint64_t submissions() const { return submissions_.load(std::memory_order_relaxed); }
+  // Wall time spent inside submit_and_wait so far (recording, submission, the wait), in ms: what
+  // a frame's time outside it is, is host work between submissions.
+  double submission_ms() const { return submission_ns_.load(std::memory_order_relaxed) * 1e-6; }
 
   // Memory type index that has all `required` flags (and preferably `preferred`), or throws.
   uint32_t find_memory_type(uint32_t type_bits, VkMemoryPropertyFlags required,
@@ -125,6 +131,14 @@ class Context {
   bool debug_utils_ = false;
   PFN_vkSetDebugUtilsObjectNameEXT set_object_name_ = nullptr;
 
+  mutable std::atomic<uint64_t> submissions_{0};
+  mutable std::atomic<uint64_t> submission_ns_{0};
+  // submit_and_wait's command buffer and fence, kept from one submission to the next (a nested
+  // or concurrent call makes its own).
+  mutable std::mutex submit_mutex_;
+  mutable bool submit_in_use_ = false;  // guarded by submit_mutex_
+  mutable VkCommandBuffer kept_command_buffer_ = VK_NULL_HANDLE;
+  mutable VkFence kept_fence_ = VK_NULL_HANDLE;
   std::atomic<uint64_t> validation_errors_{0};
   std::atomic<uint64_t> validation_warnings_{0};
   mutable std::mutex message_mutex_;

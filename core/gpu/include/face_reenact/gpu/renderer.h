@@ -8,6 +8,7 @@
 // tracker's compute passes; read_gbuffer() copies it to the host for tests and tools.
 // Conventions and formats: image_formation.h and docs/renderer.md. The CPU twin is
 // cpu_renderer.h.
+#include <functional>
 #include <map>
 #include <memory>
 #include <utility>
@@ -66,8 +67,12 @@ class Renderer {
 
   // Renders S(P) at `camera`'s resolution and waits for the GPU. Invalid parameters (NaN,
   // infinity, too many coefficients), cameras or options throw face_reenact::Error before any
-  // GPU work is recorded.
-  RenderTimings render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options = {});
+  // GPU work is recorded. `then`, when given, records more work into the same submission after
+  // the render, with the G-buffer it wrote (images in GENERAL layout, writes made available to
+  // ALL_COMMANDS reads): a solver linearising the render saves a submission and a host wait.
+  using RecordAfterRender = std::function<void(VkCommandBuffer, const GBufferTargets&)>;
+  RenderTimings render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options = {},
+                       const RecordAfterRender& then = {});
 
   // The G-buffer of the last render() (throws if nothing was rendered yet).
   const GBufferTargets& targets() const;

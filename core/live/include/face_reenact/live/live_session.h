@@ -72,6 +72,7 @@ struct LiveStatus {
   OutputMode mode = OutputMode::kReenact;
   TrackingState tracking = TrackingState::kOff;
   bool pipeline_ready = false;    // the reenactment pipeline is loaded
+  std::string solver;             // the target tracker's solver once loaded ("vulkan on NVIDIA H200 (discrete, auto)")
   std::string pipeline_message;   // why frames pass unchanged (model missing, no face), or ""
   bool calibration_pending = false;
   // Non-empty when the last calibration saw a face that was not at rest (smiling, talking): part
@@ -174,6 +175,9 @@ class LiveSession : public output::FrameSource {
     bool loop = true;                // recordings loop (else the session output ends with them)
     std::chrono::milliseconds reopen_interval{1000};  // retry period for inputs, port, model
     bool use_vulkan = false;         // render with the Vulkan renderer instead of the CPU twin
+    // The trackers' Gauss-Newton solver: "auto" (the Vulkan solver on a real GPU, the CPU solver
+    // where Vulkan runs on the CPU), "cpu" or "vulkan" (tracker::parse_solver_backend).
+    std::string solver = "auto";
     // The worker's nice increment (0..19): the pipeline yields the CPU to the front-end's own
     // threads (OBS's render thread, the webcam's pacing thread) when the machine is saturated.
     int worker_nice = 5;

@@ -254,6 +254,8 @@ class ReenactmentPipeline {
   // Where the target's calibration stands (tracker::FaceTracker::calibration_progress(): frames
   // collected, a background solve running); nothing collecting or solving with ground truth.
   tracker::FaceTracker::CalibrationProgress calibration_progress() const;
+  // The tracker's solver in words (tracker::FaceTracker::solver_description; "" without a tracker).
+  std::string tracking_solver() const;
   PipelineSummary summary() const;
 
  private:

@@ -107,7 +107,17 @@ bool parse_calibration_start(const std::string& name, CalibrationStart* start);
 // gain swaps (so a still head keeps the earliest frames).
 int calibration_pose_swap(const std::vector<Eigen::Matrix3f>& kept, const Eigen::Matrix3f& candidate);
 
+// Which solver runs a FaceTracker's Gauss-Newton solves (solver_choice.h): the CPU reference,
+// the Vulkan compute solver, or kAuto: Vulkan on a real GPU, the CPU where the only Vulkan
+// device is a CPU implementation (lavapipe), on which the CPU solver is the faster.
+enum class SolverBackend { kAuto, kCpu, kVulkan };
+
 struct TrackerOptions {
+  // The per-frame and calibration solver (solver_choice.h). The CPU by default, so that a tracker
+  // made without a front-end opens no device; the programs (track, reenact, the live session
+  // behind OBS and the webcam, send --input) ask for kAuto: the fastest solver for the machine.
+  SolverBackend solver = SolverBackend::kCpu;
+  std::string solver_device;  // Vulkan device selector (gpu::Context); empty: FR_VULKAN_DEVICE or automatic
   // Calibration (Sec. 6.3): jointly over this many usable frames. 1 = the first usable frame.
   int calibration_frames = 5;
   // Usable frames are taken at least this many frames apart (the actor turning the head gives
@@ -421,6 +431,10 @@ class FaceTracker {
   const TrackerModel& model() const { return solver_.model(); }
   const CpuSolver& cpu_solver() const { return solver_; }
 
+  // The solver TrackerOptions::solver chose at construction, in words ("cpu", "vulkan on NVIDIA
+  // H200 (discrete, auto)", "cpu (auto: ... a CPU implementation ...)").
+  const std::string& solver_description() const { return solver_description_; }
+
   // Replace the per-frame (tracking and recovery) solver, e.g. by the Vulkan solver; an empty
   // function restores the CPU solver.
   void SetTrackingSolver(PyramidSolveFunction solve);
@@ -484,6 +498,7 @@ class FaceTracker {
   EyeOpennessReader eye_openness_;  // learns the actor's open eyes from the frames seen
   PyramidSolveFunction tracking_solve_;
   FramesSolveFunction calibration_solve_;
+  std::string solver_description_ = "cpu";
   std::atomic<bool> calibration_requested_{false};
   bool calibrated_ = false;
   bool collecting_ = true;  // gathering calibration frames (first calibration or requested)

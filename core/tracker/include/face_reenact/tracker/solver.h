@@ -90,6 +90,9 @@ struct SolverSummary {
   double synthesis_ms = 0;
   double analysis_ms = 0;
   double total_ms = 0;
+  // Device submissions this solve made, each waited for by the host (0 for the CPU solver).
+  int device_submissions = 0;
+  double device_submission_ms = 0;  // wall time inside those submissions (recording, submission, wait)
   std::string BriefReport() const;
   std::string FullReport() const;
 };

@@ -13,7 +13,6 @@
 
 namespace face_reenact::tracker {
 
-enum class SolverBackend { kAuto, kCpu, kVulkan };
 const char* solver_backend_name(SolverBackend backend);
 // "auto", "cpu", "vulkan"; false for anything else.
 bool parse_solver_backend(const std::string& text, SolverBackend* backend);

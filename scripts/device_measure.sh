@@ -1,0 +1,117 @@
+#!/usr/bin/env bash
+# The GPU measurements of issue #27, run ON a lent GPU machine from the bundle that
+# scripts/device_bundle.py made (docs/real-time.md, "On a GPU"). Each step's whole output goes to
+# $OUT/<step>.log; a short summary is printed last.
+#
+#   scripts/device_measure.sh unpack            # .device/bundle.tar.xz -> /tmp/fr
+#   scripts/device_measure.sh dlib              # .device/dlib.xz.* (one or both parts) -> /tmp/fr
+#   scripts/device_measure.sh track [FRAMES]    # bench track at 640x480 and 1280x960, every strategy
+#                                               # (and the baseline program's, when bundled)
+#   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track)
+#   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
+#   scripts/device_measure.sh reenact SRC TGT [N] # reenact N frames, both actors tracked, each solver
+set -uo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+FR=/tmp/fr
+OUT="${OUT:-/tmp/fr-out}"
+mkdir -p "$OUT"
+export LD_LIBRARY_PATH="$FR/lib"
+# The NVIDIA driver's Vulkan ICD on the lent machines (/work/.library/device/README.md).
+if [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
+  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+  export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+fi
+fr() { "$FR/bin/face-reenact" "$@"; }
+
+case "${1:-}" in
+  unpack)
+    # The GL/EGL dispatch libraries the NVIDIA Vulkan driver loads itself (without them its ICD
+    # gives no vkCreateInstance): Debian's, fetched here with `apt-get download` into .gl/
+    # (/work/.library/device/README.md), unpacked into / on the device.
+    for deb in "$ROOT"/.gl/*.deb; do [ -f "$deb" ] && dpkg -x "$deb" /; done
+    ldconfig
+    mkdir -p "$FR"
+    tar -xJf "$ROOT/.device/bundle.tar.xz" -C "$FR"
+    nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.mem,utilization.gpu --format=csv | tee "$OUT/gpu.log"
+    nproc | tee -a "$OUT/gpu.log"
+    ls /usr/local/nvidia/share/vulkan/icd.d /usr/share/vulkan/icd.d /etc/vulkan/icd.d 2>/dev/null | tee -a "$OUT/gpu.log"
+    fr devices 2>&1 | tee -a "$OUT/gpu.log"
+    ;;
+  dlib)
+    # Parts arrive over two calls; the second call finds the first in /tmp/fr. Once the parts
+    # make a whole xz stream, it is unpacked.
+    for part in "$ROOT"/.device/dlib.xz.*; do [ -f "$part" ] && cp "$part" "$FR/"; done
+    if cat "$FR"/dlib.xz.a? | xz -t 2>/dev/null; then
+      cat "$FR"/dlib.xz.a? | xz -d > "$FR/shape_predictor_68_face_landmarks.dat" && rm -f "$FR"/dlib.xz.a?
+    fi
+    ls -l "$FR"
+    ;;
+  track)
+    frames="${2:-12}"
+    programs=(face-reenact)
+    [ -x "$FR/bin/face-reenact-baseline" ] && programs+=(face-reenact-baseline)
+    for size in "640 480" "1280 960"; do
+      for program in "${programs[@]}"; do
+        set -- $size
+        log="$OUT/track_${program}_${1}x${2}.log"
+        "$FR/bin/$program" bench track --model "$FR/bin/face-model.frm" --frames "$frames" --width "$1" --height "$2" \
+            >"$log" 2>&1
+        echo "== $program: bench track ${1}x${2}, $frames frames (rc $?)"
+        grep -E "total per frame|vulkan device|CPU reference|auto:|calibration" "$log"
+      done
+    done
+    # Per-submission GPU times of one short run (timestamp queries; the NVIDIA driver's are real).
+    FR_TRACKER_PROFILE=1 fr bench track --model "$FR/bin/face-model.frm" --frames 3 --vulkan matrix-free \
+        >"$OUT/track_profile.log" 2>&1
+    grep "^tracker" "$OUT/track_profile.log" | tail -12
+    ;;
+  compare)
+    # This program against the bundled baseline, alternating (A B A B) at 640x480, then one run
+    # with the per-submission GPU times (FR_TRACKER_PROFILE=1).
+    frames="${2:-8}"
+    for round in 1 2; do
+      for program in face-reenact face-reenact-baseline; do
+        log="$OUT/compare_${program}_${round}.log"
+        "$FR/bin/$program" bench track --model "$FR/bin/face-model.frm" --frames "$frames" --vulkan matrix-free >"$log" 2>&1
+        echo "== $program, round $round (rc $?)"
+        grep -E "^(vulkan_matrix_free|cpu_matrix_free) .*total per frame" "$log"
+      done
+    done
+    FR_TRACKER_PROFILE=1 timeout 120 "$FR/bin/face-reenact" bench track --model "$FR/bin/face-model.frm" --frames 3 \
+        --vulkan matrix-free >"$OUT/track_profile.log" 2>&1
+    grep "^tracker" "$OUT/track_profile.log" | tail -12
+    ;;
+  live)
+    clip="$2"
+    seconds="${3:-15}"
+    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
+    export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
+    for solver in vulkan cpu; do
+      for renderer in cpu vulkan; do
+        log="$OUT/live_${solver}_${renderer}.log"
+        fr bench live --target "$clip" --mode passthrough --solver "$solver" --renderer "$renderer" \
+            --warmup 8 --seconds "$seconds" >"$log" 2>&1
+        echo "== bench live passthrough, solver $solver, renderer $renderer (rc $?)"
+        grep -E "tracker solver|output .* fps|frames:|analysis|synthesis|landmarks|render|composite|total|cores busy" "$log"
+      done
+    done
+    ;;
+  reenact)
+    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
+    frames="${4:-120}"
+    for solver in vulkan cpu; do
+      log="$OUT/reenact_${solver}.log"
+      start=$(date +%s%N)
+      fr reenact --model "$FR/bin/face-model.frm" --source "$2" --target "$3" --frames "$frames" --solver "$solver" \
+          --out "/tmp/reenact_${solver}.mp4" --report "$OUT/reenact_${solver}.json" >"$log" 2>&1
+      rc=$?
+      echo "== reenact $frames frames, solver $solver (rc $rc): $(( ($(date +%s%N) - start) / 1000000 )) ms wall"
+      tail -3 "$log"
+    done
+    ;;
+  *)
+    sed -n 2,12p "$0"
+    exit 2
+    ;;
+esac
