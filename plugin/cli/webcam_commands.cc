@@ -321,8 +321,9 @@ void add_webcam_command(CLI::App& app) {
     std::printf("bench live: %s\n", session.describe().c_str());
     std::printf("  target: %s\n", status.target.c_str());
     std::printf("  %s\n", status.Headline().c_str());
-    std::printf("  tracker solver: %s; renderer: %s\n", status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(),
-                o.use_vulkan ? "vulkan" : "cpu");
+    std::printf("  tracker solver: %s; renderer: %s; %s\n",
+                status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(), o.use_vulkan ? "vulkan" : "cpu",
+                status.frames_overlapped ? "render on its own thread" : "track and render on the worker");
     std::printf("  output %.1f fps (%llu frames in %.1f s; target delivers %.1f fps), pipeline %.2f ms/frame, "
                 "capture-to-output latency mean %.2f ms, p95 %.2f ms\n",
                 double(last - first) / seconds, static_cast<unsigned long long>(last - first), seconds, status.target_fps,

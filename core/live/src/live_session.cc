@@ -549,12 +549,18 @@ void LiveSession::run() {
   // Declared after everything `publish` uses, so it is joined (its job in hand finished) first.
   std::optional<RenderThread> render;
   if (options_.overlap_frames) render.emplace(publish);
+  bool solver_checked = false;  // overlap_frames_on_gpu: decided once the pipeline has loaded
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
     if (!pipeline_ready && options_.mode != OutputMode::kRaw) {
       poll_loading();
       if (!pipeline_ready && !loading.valid() && now >= next_pipeline_try) start_loading();
+    }
+    if (pipeline_ready && !solver_checked) {
+      solver_checked = true;
+      if (!render && options_.overlap_frames_on_gpu && processor->tracking_solver().rfind("vulkan", 0) == 0)
+        render.emplace(publish);
     }
     if (source_spec_.kind == InputKind::kUdp && !receiver && now >= next_receiver_try) try_receiver();
     if (calibration_requested_.exchange(false)) processor->request_calibration();
@@ -631,6 +637,7 @@ void LiveSession::run() {
     s.target_fps = ts.fps;
     s.pipeline_ready = pipeline_ready;
     s.solver = pipeline_ready ? processor->tracking_solver() : "";
+    s.frames_overlapped = render.has_value();
     s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
     s.calibration_warning = pipeline_ready ? calibration_warning : "";
