@@ -9,6 +9,7 @@
 #                                               # (and the baseline program's, when bundled)
 #   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track)
 #   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
+#   scripts/device_measure.sh udp CLIP ACTOR [S]  # bench live --mode reenact, ACTOR's expressions over UDP
 #   scripts/device_measure.sh reenact SRC TGT [N] # reenact N frames, both actors tracked, each solver
 set -uo pipefail
 
@@ -96,6 +97,23 @@ case "${1:-}" in
         grep -E "tracker solver|output .* fps|frames:|analysis|synthesis|landmarks|render|composite|total|cores busy" "$log"
       done
     done
+    ;;
+  udp)
+    # bench live --mode reenact with the source actor's expressions arriving over UDP, as the OBS
+    # source and the webcam get them (docs/real-time.md), every setting at its default.
+    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
+    export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
+    clip="$2" actor="$3" seconds="${4:-12}"
+    fr keygen --out "$FR/key" >/dev/null
+    fr track --input "$actor" --out "$FR/actor.jsonl" --quiet >"$OUT/udp_track.log" 2>&1
+    fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$FR/actor.jsonl" --rate 30 --loop >/dev/null 2>&1 &
+    sender=$!
+    fr bench live --target "$clip" --mode reenact --source udp://9123 --key "$FR/key" --warmup 8 --seconds "$seconds" \
+        >"$OUT/live_udp.log" 2>&1
+    echo "== bench live reenact, expressions over UDP (rc $?)"
+    kill "$sender"
+    grep -E "tracker solver|Tracking|output .* fps|frames:|landmarks|synthesis|analysis|gaze|render  |composite|total  |cores busy" \
+        "$OUT/live_udp.log"
     ;;
   reenact)
     export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
