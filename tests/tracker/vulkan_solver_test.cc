@@ -453,7 +453,7 @@ TEST(TrackerSolverOption, TheTrackerSolvesWithTheSolverItsOptionsName) {
   if (!real_model()) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   TrackerOptions o;
   EXPECT_EQ(o.solver, SolverBackend::kCpu);
-  EXPECT_EQ(FaceTracker(*real_model(), o).solver_description(), "cpu");
+  EXPECT_EQ(FaceTracker(*real_model(), o).solver_description(), "cpu (forced)");
   o.solver_device = "llvmpipe";
   o.solver = SolverBackend::kAuto;
   const std::string automatic = FaceTracker(*real_model(), o).solver_description();

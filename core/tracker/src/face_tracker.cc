@@ -401,8 +401,9 @@ FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
                 std::to_string(options_.calibration_albedo_components) + " albedo components but the model has " +
                 std::to_string(m.num_identity()) + " / " + std::to_string(m.num_albedo()));
   }
-  if (options_.solver != SolverBackend::kCpu) {
-    // Throws for a forced Vulkan solver without a usable device; kAuto falls back and says why.
+  {
+    // Throws for a forced Vulkan solver without a usable device; kAuto falls back and says why;
+    // kCpu opens no device.
     TrackingSolverChoice choice = ChooseTrackingSolver(options_.solver, m, options_.solver_device);
     tracking_solve_ = std::move(choice.solve);
     calibration_solve_ = std::move(choice.calibrate);

@@ -431,8 +431,8 @@ class FaceTracker {
   const TrackerModel& model() const { return solver_.model(); }
   const CpuSolver& cpu_solver() const { return solver_; }
 
-  // The solver TrackerOptions::solver chose at construction, in words ("cpu", "vulkan on NVIDIA
-  // H200 (discrete, auto)", "cpu (auto: ... a CPU implementation ...)").
+  // The solver TrackerOptions::solver chose at construction, in words ("cpu (forced)", "vulkan on
+  // NVIDIA H200 (discrete, auto)", "cpu (auto: ... a CPU implementation ...)").
   const std::string& solver_description() const { return solver_description_; }
 
   // Replace the per-frame (tracking and recovery) solver, e.g. by the Vulkan solver; an empty
