@@ -102,43 +102,11 @@ run_tests() {
       -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" \
       -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG"
   log "test suite (sanitizer build)"
-  # The sanitizer run checks memory and undefined behaviour on every code path; it does not
-  # repeat tests whose extra minutes under ASan (8-18x the release time) buy no new path. Left to
-  # the release run (one list, here):
-  # - the whole-demo end-to-end test (a minute in the release build, 8.6 minutes under ASan); its
-  #   code paths are covered here by the pipeline, compositor, receiver and live-session tests
-  #   and by `reenact` in ReenactCliTest.ExpressionStreamDrivesTheReenactment;
-  # - `track --solver vulkan` against the CPU (31 s in the release build, over 300 s under ASan
-  #   on a host where lavapipe runs 28x slower than the CPU solver); the Vulkan solver itself is
-  #   checked against the CPU one here by the VulkanSolverTest cases;
-  # - `track` runs that differ from the end-to-end and bad-frame ones (kept here) only in their
-  #   options and what they measure: the ablation, the calibration's frame choice, window, start
-  #   and warning, the gaze and lid readings (GazeEstimator runs here in tracker_gaze_test), and two
-  #   calibration-quality tests of FaceTracker (FaceTracker.CalibratesThenTracksASequence and
-  #   the window and recalibration tests run the calibration here). 1360 s of the 3800 s this
-  #   run took on 2 cores, measured 2026-11-25;
-  # - the live session's timings on one thread (its code path is every other live test's; the
-  #   two-thread variant, the only one with a render thread, runs here: 160-260 s each);
-  # - `track` over 262 frames of a real clip for its blinks (29 s in the release build, over 300 s
-  #   under ASan); the eye-point reader and the tracker writing it run here in the other
-  #   EyeOpenness tests;
-  # - the landmark tracker against detection on every frame over a whole talking-head clip (10 s
-  #   in the release build, 138 s under ASan); the other TrackerVideoTest cases run the same
-  #   tracker on video here.
-  local release_only=(
-    'ReenactCliTest[.]DemoAndReenactEndToEnd'
-    'TrackCli[.]VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe'
-    'TrackCli[.](AblationReportsEachEnergyConfiguration|ReadsTheGazeOfAnActorLookingAside|ReadsTheLidsOfAnActorClosingTheEyes)'
-    'TrackCli[.](CalibrationFramesAreTakenStrideApart|CalibrationWindowCalibratesAtItsEnd)'
-    'TrackCli[.](CalibrationWhileSmilingIsReported|LowerEnergyCalibrationSolvesBothStartsAndKeepsTheLower)'
-    'FaceTracker[.](CalibrationOfANeutralActorFindsANeutralExpression|TheCalibrationSolveDoesNotClimbAfterItsLowestEnergy)'
-    'OneOrTwoThreads/LiveSessionTimingsTest[.]TimingsCountEveryFrameAndSplitItsTimeIntoStages/false'
-    'EyeOpenness[.]BlinksOnARealClip'
-    'TrackerVideoTest[.]TrackingFindsTheFaceAndIsAsStableAsDetection'
-  )
-  local pattern
-  pattern="^($(IFS='|'; echo "${release_only[*]}"))\$"
-  ctest --test-dir "$BUILD_ASAN" -j "$JOBS" --output-on-failure -E "$pattern"
+  # The sanitizer run checks memory and undefined behaviour on every code path once: each test
+  # executable runs as one process and leaves the cases of tests/release_only.txt (whole programs
+  # and long runs whose paths shorter cases walk here; the file says which and why) to the
+  # release run above.
+  ctest --test-dir "$BUILD_ASAN" -j "$JOBS" --output-on-failure
 }
 
 # The .deb packages of the release build, with its face model, into $OUT/packages (emptied

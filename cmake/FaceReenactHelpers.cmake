@@ -28,6 +28,11 @@ endfunction()
 # registered test-by-test with CTest. Its main (tests/test_main.cc) puts FR_SOURCE_DIR,
 # FR_SHARED_DATA, FR_MODEL (+ FACE_REENACT_MODEL) and FR_CLI into the environment unless the
 # caller already set them, so tests and the programs they start see the same paths.
+# In the sanitizer build the executable is one CTest test that runs all its cases in one process
+# (a sanitized process takes about a second to start, and most cases are far shorter), leaving
+# out those of tests/release_only.txt; TIMEOUT then bounds the whole run, at least
+# FR_SANITIZER_TEST_TIMEOUT.
+set(FR_SANITIZER_TEST_TIMEOUT 1200 CACHE STRING "Seconds a whole test executable may run in the sanitizer build")
 function(fr_test name)
   cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
@@ -36,11 +41,19 @@ function(fr_test name)
   if(NOT ARG_TIMEOUT)
     set(ARG_TIMEOUT 600)
   endif()
+  if(FR_SANITIZE AND ARG_TIMEOUT LESS FR_SANITIZER_TEST_TIMEOUT)
+    set(ARG_TIMEOUT ${FR_SANITIZER_TEST_TIMEOUT})
+  endif()
   set(props TIMEOUT ${ARG_TIMEOUT})
   if(ARG_LABELS)
     list(APPEND props LABELS "${ARG_LABELS}")
   endif()
-  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES ${props})
+  if(FR_SANITIZE)
+    add_test(NAME ${name} COMMAND ${name})
+    set_tests_properties(${name} PROPERTIES ${props})
+  else()
+    gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES ${props})
+  endif()
 endfunction()
 
 # fr_fuzzer(name SOURCES ... DEPS ... [SEEDS dir-or-files...]): a libFuzzer target (only with

@@ -10,7 +10,8 @@
 #   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track)
 #   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
 #   scripts/device_measure.sh udp CLIP ACTOR [S]  # bench live --mode reenact, ACTOR's expressions over UDP
-#   scripts/device_measure.sh reenact SRC TGT [N] # reenact N frames, both actors tracked, each solver
+#   scripts/device_measure.sh reenact SRC TGT [N] # reenact N frames, both actors tracked, each solver,
+#                                                 # with contact sheets in $OUT/sheets_<solver>
 set -uo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -122,7 +123,8 @@ case "${1:-}" in
       log="$OUT/reenact_${solver}.log"
       start=$(date +%s%N)
       fr reenact --model "$FR/bin/face-model.frm" --source "$2" --target "$3" --frames "$frames" --solver "$solver" \
-          --out "/tmp/reenact_${solver}.mp4" --report "$OUT/reenact_${solver}.json" >"$log" 2>&1
+          --out "/tmp/reenact_${solver}.mp4" --report "$OUT/reenact_${solver}.json" --sheets "$OUT/sheets_${solver}" \
+          >"$log" 2>&1
       rc=$?
       echo "== reenact $frames frames, solver $solver (rc $rc): $(( ($(date +%s%N) - start) / 1000000 )) ms wall"
       tail -3 "$log"

@@ -3,7 +3,10 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <cstdlib>
+#include <fstream>
+#include <string>
 
 #if defined(__has_feature)
 #if __has_feature(address_sanitizer)
@@ -13,6 +16,33 @@
 
 namespace {
 void default_env(const char* key, const char* value) { setenv(key, value, /*overwrite=*/0); }
+
+#ifdef FR_ADDRESS_SANITIZER
+// The sanitizer build leaves the cases of tests/release_only.txt to the release build (the file
+// says why): their patterns join the negative part of the GoogleTest filter.
+void leave_release_only_cases_out() {
+  const char* all = std::getenv("FR_RUN_RELEASE_ONLY");
+  if (all && std::string(all) == "1") return;
+  const char* path = FR_TEST_SOURCE_DIR "/tests/release_only.txt";
+  std::ifstream in(path);
+  if (!in) {
+    std::fprintf(stderr, "warning: %s is missing; running every case under the sanitizers\n", path);
+    return;
+  }
+  std::string patterns;
+  for (std::string line; std::getline(in, line);) {
+    line = line.substr(0, line.find('#'));
+    const size_t first = line.find_first_not_of(" \t\r");
+    if (first == std::string::npos) continue;
+    line = line.substr(first, line.find_last_not_of(" \t\r") - first + 1);
+    patterns += (patterns.empty() ? "" : ":") + line;
+  }
+  if (patterns.empty()) return;
+  std::string filter = GTEST_FLAG_GET(filter);
+  filter += (filter.find('-') == std::string::npos ? "-" : ":") + patterns;
+  GTEST_FLAG_SET(filter, filter);
+}
+#endif
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -32,5 +62,8 @@ int main(int argc, char** argv) {
   default_env("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1");
   default_env("LSAN_OPTIONS", "suppressions=" FR_TEST_SOURCE_DIR "/tests/lsan.supp");
   ::testing::InitGoogleTest(&argc, argv);
+#ifdef FR_ADDRESS_SANITIZER
+  leave_release_only_cases_out();
+#endif
   return RUN_ALL_TESTS();
 }

@@ -585,7 +585,11 @@ TEST_F(WebSocketVendorTest, GetStatusAndListSourcesSayWhatTheSourceDoes) {
   for (size_t i = 0; i < obs_data_array_count(sources); ++i) {
     obs_data_t* item = obs_data_array_item(sources, i);
     names.push_back(obs_data_get_string(item, "sourceName"));
-    if (names.back() == "ws-raw") EXPECT_STREQ(obs_data_get_string(item, "state"), "raw");
+    if (names.back() == "ws-raw") {
+      EXPECT_STREQ(obs_data_get_string(item, "state"), "raw");
+      EXPECT_EQ(std::string(obs_data_get_string(item, "status")).rfind("Raw input", 0), 0u);
+      EXPECT_TRUE(obs_data_has_user_value(item, "calibrationsRequested"));
+    }
     obs_data_release(item);
   }
   obs_data_array_release(sources);

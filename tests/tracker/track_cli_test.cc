@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <atomic>
 #include <chrono>
 #include <thread>
 
@@ -683,20 +684,22 @@ TEST(TrackCli, AnOutputThatIsAPipeOrDeviceIsWrittenNotReplaced) {
   fs::create_directories(out);
   const fs::path fifo = out / "params.fifo";
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
-  // The reader opens first (non-blocking), so the writer's open never waits; it reads until the
-  // writer has come and gone, or 120 s pass.
+  // The reader opens first (non-blocking), so the writer's open never waits. It reads until the
+  // program has ended and the pipe is drained: no deadline of its own, which a slow (sanitizer)
+  // build overran while the program was still writing.
   const int fd = ::open(fifo.c_str(), O_RDONLY | O_NONBLOCK);
   ASSERT_GE(fd, 0);
   std::string received;
+  std::atomic<bool> writer_done{false};
   std::thread reader([&] {
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
     char buf[4096];
-    while (std::chrono::steady_clock::now() < deadline) {
+    for (;;) {
+      const bool done = writer_done.load();
       const ssize_t n = ::read(fd, buf, sizeof buf);
       if (n > 0) {
         received.append(buf, static_cast<size_t>(n));
-      } else if (n == 0 && !received.empty()) {
-        break;  // the writer closed
+      } else if (done) {
+        break;  // the program has ended and nothing is left in the pipe
       } else {
         std::this_thread::sleep_for(std::chrono::milliseconds(5));
       }
@@ -705,6 +708,7 @@ TEST(TrackCli, AnOutputThatIsAPipeOrDeviceIsWrittenNotReplaced) {
   const SubprocessResult r = run_subprocess({cli(), "track", "--input", fx.recording.string(), "--out", fifo.string(),
                                              "--landmarks", "recording", "--calibration-frames", "2", "--frames", "3",
                                              "--quiet", "--model", model()});
+  writer_done = true;
   reader.join();
   ::close(fd);
   EXPECT_EQ(r.exit_code, 0) << r.output;

@@ -453,15 +453,27 @@ TEST(TrackerSolverOption, TheTrackerSolvesWithTheSolverItsOptionsName) {
   if (!real_model()) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
   TrackerOptions o;
   EXPECT_EQ(o.solver, SolverBackend::kCpu);
-  EXPECT_EQ(FaceTracker(*real_model(), o).solver_description(), "cpu (forced)");
+  {
+    FaceTracker cpu(*real_model(), o);
+    EXPECT_EQ(cpu.solver_description(), "cpu (forced)");
+    EXPECT_FALSE(cpu.solves_on_gpu());
+  }
   o.solver_device = "llvmpipe";
   o.solver = SolverBackend::kAuto;
-  const std::string automatic = FaceTracker(*real_model(), o).solver_description();
-  EXPECT_EQ(automatic.rfind("cpu (auto: ", 0), 0u) << automatic;
-  EXPECT_NE(automatic.find("llvmpipe"), std::string::npos) << automatic;
+  {
+    FaceTracker automatic(*real_model(), o);
+    EXPECT_EQ(automatic.solver_description().rfind("cpu (auto: ", 0), 0u) << automatic.solver_description();
+    EXPECT_NE(automatic.solver_description().find("llvmpipe"), std::string::npos) << automatic.solver_description();
+    EXPECT_FALSE(automatic.solves_on_gpu());
+  }
   o.solver = SolverBackend::kVulkan;
-  const std::string forced = FaceTracker(*real_model(), o).solver_description();
-  EXPECT_EQ(forced.rfind("vulkan on llvmpipe", 0), 0u) << forced;
+  {
+    FaceTracker forced(*real_model(), o);
+    EXPECT_EQ(forced.solver_description().rfind("vulkan on llvmpipe", 0), 0u) << forced.solver_description();
+    EXPECT_TRUE(forced.solves_on_gpu());
+    forced.SetTrackingSolver({});  // the program takes the solve back to the CPU
+    EXPECT_FALSE(forced.solves_on_gpu());
+  }
   o.solver_device = "no-such-vulkan-device";
   try {
     FaceTracker t(*real_model(), o);

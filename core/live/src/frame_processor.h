@@ -54,6 +54,8 @@ class FrameProcessor {
   virtual void request_calibration() = 0;
   // The target tracker's solver in words (tracker::FaceTracker::solver_description), or "".
   virtual std::string tracking_solver() const { return ""; }
+  // Whether that tracker solves on a GPU (tracker::FaceTracker::solves_on_gpu).
+  virtual bool tracking_solves_on_gpu() const { return false; }
 };
 
 // Output = input. Used for OutputMode::kRaw.

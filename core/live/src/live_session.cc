@@ -550,6 +550,7 @@ void LiveSession::run() {
   std::optional<RenderThread> render;
   if (options_.overlap_frames) render.emplace(publish);
   bool solver_checked = false;  // overlap_frames_on_gpu: decided once the pipeline has loaded
+  std::string solver;           // the tracker's solver in words, read then
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
@@ -559,8 +560,8 @@ void LiveSession::run() {
     }
     if (pipeline_ready && !solver_checked) {
       solver_checked = true;
-      if (!render && options_.overlap_frames_on_gpu && processor->tracking_solver().rfind("vulkan", 0) == 0)
-        render.emplace(publish);
+      solver = processor->tracking_solver();
+      if (!render && options_.overlap_frames_on_gpu && processor->tracking_solves_on_gpu()) render.emplace(publish);
     }
     if (source_spec_.kind == InputKind::kUdp && !receiver && now >= next_receiver_try) try_receiver();
     if (calibration_requested_.exchange(false)) processor->request_calibration();
@@ -636,7 +637,7 @@ void LiveSession::run() {
     s.target_error = ts.error;
     s.target_fps = ts.fps;
     s.pipeline_ready = pipeline_ready;
-    s.solver = pipeline_ready ? processor->tracking_solver() : "";
+    s.solver = pipeline_ready ? solver : "";
     s.frames_overlapped = render.has_value();
     s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;

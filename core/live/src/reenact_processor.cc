@@ -141,6 +141,7 @@ class ReenactProcessor : public FrameProcessor {
   }
 
   std::string tracking_solver() const override { return target_->tracking_solver(); }
+  bool tracking_solves_on_gpu() const override { return target_->tracking_solves_on_gpu(); }
 
  private:
   FaceModel model_;  // outlives the pipelines (declared first)

@@ -171,6 +171,8 @@ std::string ReenactmentPipeline::tracking_solver() const {
   return impl_->tracker ? impl_->tracker->solver_description() : std::string();
 }
 
+bool ReenactmentPipeline::tracking_solves_on_gpu() const { return impl_->tracker && impl_->tracker->solves_on_gpu(); }
+
 tracker::FaceTracker::CalibrationProgress ReenactmentPipeline::calibration_progress() const {
   return impl_->tracker ? impl_->tracker->calibration_progress() : tracker::FaceTracker::CalibrationProgress();
 }

@@ -408,6 +408,7 @@ FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
     tracking_solve_ = std::move(choice.solve);
     calibration_solve_ = std::move(choice.calibrate);
     solver_description_ = std::move(choice.description);
+    solves_on_gpu_ = choice.backend == SolverBackend::kVulkan;
   }
   Reset();
 }
@@ -452,6 +453,7 @@ void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) {
   CancelBackgroundCalibration();
   tracking_solve_ = std::move(solve);
   solver_description_ = tracking_solve_ ? "set by the program" : "cpu";
+  solves_on_gpu_ = false;
 }
 
 void FaceTracker::SetCalibrationSolver(FramesSolveFunction solve) {

@@ -71,12 +71,6 @@ TrackingSolverChoice ChooseTrackingSolver(SolverBackend backend, const TrackerMo
     return choice;
   }
   const gpu::DeviceInfo& info = vulkan->context->device_info();
-  if (backend == SolverBackend::kAuto && info.type == "cpu") {
-    choice.backend = SolverBackend::kCpu;
-    choice.description = "cpu (auto: the Vulkan device '" + info.name +
-                         "' is a CPU implementation, where the CPU solver is faster)";
-    return choice;
-  }
   vulkan->solver = std::make_unique<VulkanSolver>(*vulkan->context, model);
   choice.backend = SolverBackend::kVulkan;
   choice.description = "vulkan on " + info.name + " (" + info.type + ", " +

@@ -66,13 +66,20 @@ class NamedSource {
   FaceReenactSource* impl_ = nullptr;
 };
 
+// The fields every answer about one source carries (GetStatus, Calibrate, each ListSources
+// item), from one reading of its status.
+void set_state(obs_data_t* out, const char* name, const FaceReenactSource& impl, bool has_session,
+               const live::LiveStatus& s) {
+  obs_data_set_string(out, "sourceName", name);
+  obs_data_set_string(out, "status", impl.status_line().c_str());
+  obs_data_set_string(out, "state", state_word(has_session, s));
+  obs_data_set_int(out, "calibrationsRequested", impl.calibrations_requested());
+}
+
 void set_state(obs_data_t* response, const NamedSource& source) {
   bool has_session = false;
-  live::LiveStatus s = source.impl()->live_status(&has_session);
-  obs_data_set_string(response, "sourceName", source.name().c_str());
-  obs_data_set_string(response, "status", source.impl()->status_line().c_str());
-  obs_data_set_string(response, "state", state_word(has_session, s));
-  obs_data_set_int(response, "calibrationsRequested", source.impl()->calibrations_requested());
+  const live::LiveStatus s = source.impl()->live_status(&has_session);
+  set_state(response, source.name().c_str(), *source.impl(), has_session, s);
 }
 
 // Catches what a handler throws: an exception must not cross into obs-websocket.
@@ -139,7 +146,7 @@ void vendor_get_status(obs_data_t* request, obs_data_t* response, void*) {
     bool has_session = false;
     live::LiveStatus s = source.impl()->live_status(&has_session);
     obs_data_set_bool(response, "ok", true);
-    set_state(response, source);
+    set_state(response, source.name().c_str(), *source.impl(), has_session, s);
     obs_data_set_bool(response, "running", has_session && s.running);
     obs_data_set_string(response, "mode", live::output_mode_name(s.mode));
     obs_data_set_string(response, "tracking", live::tracking_state_name(s.tracking));
@@ -188,9 +195,7 @@ void vendor_list_sources(obs_data_t*, obs_data_t* response, void*) {
           bool has_session = false;
           live::LiveStatus s = impl->live_status(&has_session);
           obs_data_t* item = obs_data_create();
-          obs_data_set_string(item, "sourceName", obs_source_get_name(source));
-          obs_data_set_string(item, "status", impl->status_line().c_str());
-          obs_data_set_string(item, "state", state_word(has_session, s));
+          set_state(item, obs_source_get_name(source), *impl, has_session, s);
           obs_data_array_push_back(static_cast<obs_data_array_t*>(param), item);
           obs_data_release(item);
           return true;

@@ -256,6 +256,8 @@ class ReenactmentPipeline {
   tracker::FaceTracker::CalibrationProgress calibration_progress() const;
   // The tracker's solver in words (tracker::FaceTracker::solver_description; "" without a tracker).
   std::string tracking_solver() const;
+  // Whether the tracker solves on a GPU (tracker::FaceTracker::solves_on_gpu; false without one).
+  bool tracking_solves_on_gpu() const;
   PipelineSummary summary() const;
 
  private:

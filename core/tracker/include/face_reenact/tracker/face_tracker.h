@@ -434,6 +434,9 @@ class FaceTracker {
   // The solver TrackerOptions::solver chose at construction, in words ("cpu (forced)", "vulkan on
   // NVIDIA H200 (discrete, auto)", "cpu (auto: ... a CPU implementation ...)").
   const std::string& solver_description() const { return solver_description_; }
+  // Whether that choice was the Vulkan solver (false for the CPU and for a solver set by the
+  // program): the live session overlaps frames on two threads when the tracker solves on a GPU.
+  bool solves_on_gpu() const { return solves_on_gpu_; }
 
   // Replace the per-frame (tracking and recovery) solver, e.g. by the Vulkan solver; an empty
   // function restores the CPU solver.
@@ -499,6 +502,7 @@ class FaceTracker {
   PyramidSolveFunction tracking_solve_;
   FramesSolveFunction calibration_solve_;
   std::string solver_description_ = "cpu";
+  bool solves_on_gpu_ = false;
   std::atomic<bool> calibration_requested_{false};
   bool calibrated_ = false;
   bool collecting_ = true;  // gathering calibration frames (first calibration or requested)
