@@ -7,10 +7,15 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <csignal>
 #include <cstdio>
+#include <fstream>
+#include <functional>
+#include <mutex>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -18,12 +23,14 @@
 #include "command_registry.h"
 #include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/process_resources.h"
 #include "face_reenact/common/thread_cpu.h"
 #include "face_reenact/live/live_session.h"
 #include "face_reenact/output/frame_source.h"
 #include "face_reenact/output/pixel_conversion.h"
 #include "face_reenact/output/v4l2_loopback_writer.h"
 #include "face_reenact/output/webcam_streamer.h"
+#include <nlohmann/json.hpp>
 
 namespace face_reenact::cli {
 namespace {
@@ -74,7 +81,23 @@ void parse_size(const std::string& text, int* width, int* height) {
   *height = h;
 }
 
-void run_webcam(const WebcamArgs& args) {
+// What `bench soak` adds to a webcam run: the frames may go nowhere (every frame is still
+// converted as for the device, so no loopback module is needed), and it hears the statistics and
+// the live session's headline about once a second.
+struct WebcamRunHooks {
+  bool discard_frames = false;
+  std::function<void(const StreamStatistics&, const std::string& live_headline)> on_status;
+};
+
+// A FrameSink that drops every frame (bench soak without --device).
+class DiscardSink final : public FrameSink {
+ public:
+  WriteOutcome write_frame(std::span<const uint8_t>, std::string*) override { return WriteOutcome::kWritten; }
+  bool reopen(std::string*) override { return true; }
+  void close() override {}
+};
+
+void run_webcam(const WebcamArgs& args, const WebcamRunHooks& hooks = {}) {
   V4l2LoopbackWriter::Options writer_options;
   writer_options.device = args.device;
   parse_size(args.size, &writer_options.width, &writer_options.height);
@@ -86,7 +109,9 @@ void run_webcam(const WebcamArgs& args) {
   writer_options.rate = *rate;
   if (!(args.reconnect_s > 0) || args.reconnect_s > 3600) throw Error("--reconnect must be in (0, 3600] seconds");
   std::string why;
-  if (!writer_options.IsValid(&why)) throw Error(why);
+  V4l2LoopbackWriter::Options checked = writer_options;
+  if (hooks.discard_frames) checked.device = "(none)";  // no device; size, format and rate still apply
+  if (!checked.IsValid(&why)) throw Error(why);
 
   // The source first: a bad input file is reported before the device is touched.
   std::unique_ptr<FrameSource> source;
@@ -116,13 +141,22 @@ void run_webcam(const WebcamArgs& args) {
     hold = capture::is_still_image(args.input);  // a picture stays up until stopped
   }
 
-  V4l2LoopbackWriter writer(writer_options);
-  writer.open();
-  const auto& info = writer.device_info();
-  std::fprintf(stderr, "webcam: %s (%s, %s): %dx%d %s at %.2f fps from %s\n", args.device.c_str(), info.card.c_str(),
-               info.bus_info.c_str(), writer_options.width, writer_options.height, pixel_format_name(writer_options.format),
-               rate->fps(), source->describe().c_str());
-  for (const auto& w : info.warnings) std::fprintf(stderr, "webcam: warning: %s\n", w.c_str());
+  std::optional<V4l2LoopbackWriter> writer;
+  DiscardSink discard;
+  FrameSink* sink = &discard;
+  if (hooks.discard_frames) {
+    std::fprintf(stderr, "webcam: no device: %dx%d %s at %.2f fps from %s, converted and dropped\n", writer_options.width,
+                 writer_options.height, pixel_format_name(writer_options.format), rate->fps(), source->describe().c_str());
+  } else {
+    writer.emplace(writer_options);
+    writer->open();
+    sink = &*writer;
+    const auto& info = writer->device_info();
+    std::fprintf(stderr, "webcam: %s (%s, %s): %dx%d %s at %.2f fps from %s\n", args.device.c_str(), info.card.c_str(),
+                 info.bus_info.c_str(), writer_options.width, writer_options.height, pixel_format_name(writer_options.format),
+                 rate->fps(), source->describe().c_str());
+    for (const auto& w : info.warnings) std::fprintf(stderr, "webcam: warning: %s\n", w.c_str());
+  }
 
   WebcamStreamer::Options options;
   options.width = writer_options.width;
@@ -131,11 +165,13 @@ void run_webcam(const WebcamArgs& args) {
   options.rate = *rate;
   options.reconnect_interval = std::chrono::nanoseconds(static_cast<int64_t>(args.reconnect_s * 1e9));
   options.hold_last_frame = hold;
-  if (args.status)
-    options.on_status = [session](const StreamStatistics& s) {
-      std::string live_line = session ? " | live: " + session->status().Headline() : "";
-      std::fprintf(stderr, "webcam: status: source frames %lld, %s%s\n", static_cast<long long>(s.source_frames),
-                   s.BriefReport().c_str(), live_line.c_str());
+  if (args.status || hooks.on_status)
+    options.on_status = [session, status = args.status, hook = hooks.on_status](const StreamStatistics& s) {
+      const std::string headline = session ? session->status().Headline() : "";
+      if (status)
+        std::fprintf(stderr, "webcam: status: source frames %lld, %s%s\n", static_cast<long long>(s.source_frames),
+                     s.BriefReport().c_str(), session ? (" | live: " + headline).c_str() : "");
+      if (hook) hook(s, headline);
     };
 
   StopSignalGuard signals;
@@ -155,7 +191,7 @@ void run_webcam(const WebcamArgs& args) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
   });
-  WebcamStreamer streamer(source.get(), &writer, options);
+  WebcamStreamer streamer(source.get(), sink, options);
   WebcamStreamer::Summary summary;
   try {
     summary = streamer.run(stop);
@@ -177,6 +213,163 @@ void run_webcam(const WebcamArgs& args) {
                                                                : "time limit reached";
   std::fprintf(stderr, "webcam: %s\n", summary.BriefReport().c_str());
   if (summary.source_failed) throw Error("webcam: " + summary.stop_reason);
+}
+
+// bench soak: the live session run as the virtual webcam runs it (through the writer, or with
+// every frame converted and dropped when no --device is given) for a long time, with what the
+// process holds sampled at intervals; the end says whether memory, open files or threads grew
+// after the warm-up (issue #29, "an hour of faults"). Exit status 1 when they did.
+struct SoakArgs {
+  WebcamArgs webcam;
+  double minutes = 60;
+  double every_s = 60;
+  double warmup_s = 120;
+  double rss_bound_percent = 2;
+  std::string json;
+};
+
+void run_soak(const SoakArgs& a) {
+  if (!(a.minutes > 0) || a.minutes > 24 * 60) throw Error("--minutes must be in (0, 1440]");
+  if (!(a.every_s >= 0.2) || a.every_s > 3600) throw Error("--every must be in [0.2, 3600] seconds");
+  ResourceTrendOptions trend_options;
+  trend_options.warmup_seconds = a.warmup_s;
+  trend_options.rss_bound = a.rss_bound_percent / 100;
+  std::string why;
+  if (!trend_options.IsValid(&why)) throw Error("bench soak: " + why);
+  if (a.warmup_s + 2 * a.every_s > a.minutes * 60)
+    throw Error("bench soak: --warmup plus two --every intervals must fit in --minutes (nothing would be judged)");
+  if (a.webcam.target.empty()) throw Error("bench soak: --target is required");
+  std::ofstream json_file;
+  if (!a.json.empty()) {
+    json_file.open(a.json, std::ios::binary | std::ios::trunc);
+    if (!json_file) throw Error("--json '" + a.json + "': cannot write");
+  }
+
+  WebcamArgs webcam = a.webcam;
+  webcam.seconds = a.minutes * 60;
+  std::mutex mu;
+  std::condition_variable wake;
+  bool finished = false;
+  StreamStatistics last_stats;
+  std::string last_headline;
+  WebcamRunHooks hooks;
+  hooks.discard_frames = webcam.device.empty();
+  hooks.on_status = [&](const StreamStatistics& s, const std::string& headline) {
+    std::lock_guard lock(mu);
+    last_stats = s;
+    last_headline = headline;
+  };
+
+  std::vector<ResourceSample> samples;
+  const auto start = std::chrono::steady_clock::now();
+  auto take_sample = [&] {
+    ResourceSample sample;
+    sample.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::string error;
+    if (!ReadProcessResources(&sample.resources, &error)) throw Error("bench soak: " + error);
+    {
+      std::lock_guard lock(mu);
+      sample.frames = last_stats.frames_written;
+      sample.note = last_headline;
+    }
+    const double fps = samples.empty() || sample.seconds <= samples.back().seconds
+                           ? 0
+                           : double(sample.frames - samples.back().frames) / (sample.seconds - samples.back().seconds);
+    std::printf("soak %7.1f s: resident %8.1f MB, open files %4d, threads %3d, frames out %8lld (%5.1f fps)%s%s\n",
+                sample.seconds, static_cast<double>(sample.resources.rss_bytes) / 1e6, sample.resources.open_files,
+                sample.resources.threads, static_cast<long long>(sample.frames), fps, sample.note.empty() ? "" : " | ",
+                sample.note.c_str());
+    std::fflush(stdout);
+    samples.push_back(std::move(sample));
+  };
+
+  // The sampler runs beside the webcam loop; a failure to read /proc ends the run with the error.
+  std::exception_ptr sampler_error;
+  std::thread sampler([&] {
+    try {
+      const auto period = std::chrono::nanoseconds(static_cast<int64_t>(a.every_s * 1e9));
+      auto next = start;
+      std::unique_lock lock(mu);
+      while (!finished) {
+        lock.unlock();
+        take_sample();
+        lock.lock();
+        next += period;
+        wake.wait_until(lock, next, [&] { return finished; });
+      }
+    } catch (...) {
+      sampler_error = std::current_exception();
+    }
+  });
+  std::exception_ptr run_error;
+  try {
+    run_webcam(webcam, hooks);
+  } catch (...) {
+    run_error = std::current_exception();
+  }
+  {
+    std::lock_guard lock(mu);
+    finished = true;
+  }
+  wake.notify_all();
+  sampler.join();
+  if (run_error) std::rethrow_exception(run_error);
+  if (sampler_error) std::rethrow_exception(sampler_error);
+  // No sample after the run: the session is gone by then, and its teardown is not the trend.
+
+  const ResourceTrend trend = AnalyseResourceTrend(samples, trend_options);
+  std::printf("bench soak: %s\n", trend.verdict.c_str());
+  if (json_file.is_open()) {
+    nlohmann::json doc;
+    doc["target"] = webcam.target;
+    doc["mode"] = webcam.mode;
+    doc["device"] = webcam.device.empty() ? nlohmann::json(nullptr) : nlohmann::json(webcam.device);
+    doc["minutes"] = a.minutes;
+    doc["warmup_s"] = a.warmup_s;
+    doc["rss_bound"] = trend_options.rss_bound;
+    doc["measured"] = trend.measured;
+    doc["grows"] = trend.grows;
+    doc["verdict"] = trend.verdict;
+    doc["rss_growth"] = trend.rss_growth;
+    doc["samples"] = nlohmann::json::array();
+    for (const ResourceSample& s : samples)
+      doc["samples"].push_back({{"seconds", s.seconds},
+                                {"rss_bytes", s.resources.rss_bytes},
+                                {"open_files", s.resources.open_files},
+                                {"threads", s.resources.threads},
+                                {"frames", s.frames},
+                                {"status", s.note}});
+    json_file << doc.dump(2) << "\n";
+    if (!json_file.flush()) throw Error("--json '" + a.json + "': write failed");
+  }
+  if (trend.grows) throw Error("bench soak: " + trend.verdict);
+}
+
+void add_bench_soak(CLI::App* bench) {
+  auto args = std::make_shared<SoakArgs>();
+  CLI::App* soak = bench->add_subcommand(
+      "soak", "Run the live session as the virtual webcam does for a long time and report whether memory, open files or "
+              "threads grow (exit 1 when they do)");
+  soak->add_option("--target", args->webcam.target, "camera or recording/video (looped)")->required();
+  soak->add_option("--source", args->webcam.source, "expression source (none, udp://PORT, camera, recording)")
+      ->capture_default_str();
+  soak->add_option("--key", args->webcam.key_file, "stream key file for udp://");
+  soak->add_option("--mode", args->webcam.mode, "reenact, passthrough, overlay or raw")->capture_default_str();
+  soak->add_option("--model", args->webcam.model, "face model file");
+  add_pipeline_options(soak, &args->webcam);
+  soak->add_option("--device", args->webcam.device,
+                   "v4l2loopback device to write to (default: none; every frame is converted as for a device and dropped)");
+  soak->add_option("--size", args->webcam.size, "output size WIDTHxHEIGHT")->capture_default_str();
+  soak->add_option("--fps", args->webcam.fps, "output frame rate")->capture_default_str();
+  soak->add_option("--minutes", args->minutes, "length of the run")->capture_default_str();
+  soak->add_option("--every", args->every_s, "seconds between samples")->capture_default_str();
+  soak->add_option("--warmup", args->warmup_s, "seconds at the start that are not judged (model load, calibration)")
+      ->capture_default_str();
+  soak->add_option("--rss-bound", args->rss_bound_percent,
+                   "resident-memory growth allowed after the warm-up, percent (open files and threads: none)")
+      ->capture_default_str();
+  soak->add_option("--json", args->json, "also write the samples and the verdict to this JSON file");
+  soak->callback([args] { run_soak(*args); });
 }
 
 void add_webcam_command(CLI::App& app) {
@@ -360,6 +553,8 @@ void add_webcam_command(CLI::App& app) {
     for (const auto& [name, used] : per_name)
       if (used >= 0.005) std::printf("    %-22s %5.1f %% of a core\n", name.c_str(), 100.0 * used / seconds);
   });
+
+  add_bench_soak(bench);
 }
 
 }  // namespace

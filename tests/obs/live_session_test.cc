@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <thread>
 
@@ -20,6 +21,7 @@
 #include "face_reenact/stream/stream_key.h"
 #include "face_reenact/stream/stream_state.h"
 #include "face_reenact/stream/udp.h"
+#include <nlohmann/json.hpp>
 #include "live_test_support.h"
 #include "face_reenact/live/usb_cameras.h"
 #include "support/openni_fixture.h"
@@ -802,6 +804,65 @@ TEST_F(WebcamLiveCliTest, BenchLiveReportsRateAndLatency) {
   EXPECT_NE(out.find("--renderer must be cpu or vulkan"), std::string::npos) << out;
   EXPECT_EQ(run("bench live --target /nonexistent/rec --mode raw --seconds 1", &out), 1);
   EXPECT_NE(out.find("no such file"), std::string::npos) << out;
+}
+
+// bench soak on a looped recording, frames converted and dropped (no loopback device here; the VM
+// test has one): a sample line every half second, a verdict, and the samples as JSON. Whether a
+// run of seconds grows is not asserted (the hour-long run on the CI machine is the measurement,
+// docs/virtual-webcam.md); that the verdict, the exit status and the JSON agree is.
+TEST_F(WebcamLiveCliTest, BenchSoakSamplesTheProcessAndJudgesTheRun) {
+  REQUIRE_RECORDING(dir);
+  const face_reenact::testing::TempDir tmp("fr-soak");
+  const std::string json_path = tmp / "soak.json";
+  std::string out;
+  const int rc = run("bench soak --target " + test::quote(dir) + " --mode raw --minutes 0.1 --every 0.5 --warmup 2 --json " +
+                         test::quote(json_path),
+                     &out);
+  ASSERT_TRUE(rc == 0 || rc == 1) << out;
+  EXPECT_NE(out.find("no device: 1280x720 yuyv at 30.00 fps"), std::string::npos) << out;
+  EXPECT_NE(out.find("resident"), std::string::npos) << out;
+  const bool said_growth = out.find("bench soak: grows after the warm-up") != std::string::npos;
+  EXPECT_NE(said_growth, out.find("bench soak: no growth after the warm-up") != std::string::npos) << out;
+  EXPECT_EQ(rc == 1, said_growth) << out;
+
+  std::ifstream in(json_path);
+  ASSERT_TRUE(in) << out;
+  const auto doc = nlohmann::json::parse(in);
+  EXPECT_TRUE(doc["measured"].get<bool>());
+  EXPECT_EQ(doc["grows"].get<bool>(), said_growth);
+  EXPECT_TRUE(doc["device"].is_null());
+  const auto& samples = doc["samples"];
+  ASSERT_GE(samples.size(), 10u) << out;  // 6 s every 0.5 s, and one at the end
+  double last_seconds = -1;
+  for (const auto& s : samples) {
+    EXPECT_GT(s["rss_bytes"].get<int64_t>(), 1 << 20);
+    EXPECT_GE(s["open_files"].get<int>(), 3);
+    EXPECT_GE(s["threads"].get<int>(), 2);  // the webcam loop and the live session's worker at least
+    EXPECT_GT(s["seconds"].get<double>(), last_seconds);
+    last_seconds = s["seconds"].get<double>();
+  }
+  EXPECT_GE(last_seconds, 5.5);
+  // The looped recording kept streaming through the run.
+  EXPECT_GT(samples.back()["frames"].get<int64_t>(), samples[samples.size() / 2]["frames"].get<int64_t>()) << out;
+}
+
+TEST_F(WebcamLiveCliTest, BenchSoakRefusesRunsItCannotJudge) {
+  std::string out;
+  EXPECT_EQ(run("bench soak --target /nonexistent/rec --mode raw --minutes 1 --every 0.1", &out), 1);
+  EXPECT_NE(out.find("--every must be in [0.2, 3600]"), std::string::npos) << out;
+  EXPECT_EQ(run("bench soak --target /nonexistent/rec --mode raw --minutes 0", &out), 1);
+  EXPECT_NE(out.find("--minutes must be in (0, 1440]"), std::string::npos) << out;
+  EXPECT_EQ(run("bench soak --target /nonexistent/rec --mode raw --minutes 1 --every 30 --warmup 30", &out), 1);
+  EXPECT_NE(out.find("nothing would be judged"), std::string::npos) << out;
+  EXPECT_EQ(run("bench soak --target /nonexistent/rec --mode raw --minutes 1 --every 1 --rss-bound -1", &out), 1);
+  EXPECT_NE(out.find("resident-memory bound"), std::string::npos) << out;
+  EXPECT_EQ(run("bench soak --target /nonexistent/rec --mode raw --minutes 1 --every 1 --warmup 10 --json /nonexistent/dir/x.json", &out), 1);
+  EXPECT_NE(out.find("cannot write"), std::string::npos) << out;
+  EXPECT_EQ(run("bench soak --target /nonexistent/rec --mode raw --minutes 1 --every 1 --warmup 10", &out), 1);
+  EXPECT_NE(out.find("no such file"), std::string::npos) << out;
+  REQUIRE_RECORDING(dir);
+  EXPECT_EQ(run("bench soak --target " + test::quote(dir) + " --mode raw --minutes 1 --every 1 --warmup 10 --device /dev/null", &out), 1);
+  EXPECT_NE(out.find("not a V4L2 video device"), std::string::npos) << out;
 }
 
 }  // namespace
