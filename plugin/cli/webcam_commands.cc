@@ -238,7 +238,6 @@ void run_soak(const SoakArgs& a) {
   if (!trend_options.IsValid(&why)) throw Error("bench soak: " + why);
   if (a.warmup_s + 2 * a.every_s > a.minutes * 60)
     throw Error("bench soak: --warmup plus two --every intervals must fit in --minutes (nothing would be judged)");
-  if (a.webcam.target.empty()) throw Error("bench soak: --target is required");
   std::ofstream json_file;
   if (!a.json.empty()) {
     json_file.open(a.json, std::ios::binary | std::ios::trunc);
