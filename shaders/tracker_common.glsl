@@ -37,6 +37,16 @@ const uint kRowsPerPixel = 8u;
 // tracker_jtj.comp needs n + 1 invocations).
 const uint kMaxUnknowns = 255u;
 
+// A push constant size of kSizeFromParams: the pass takes it from the TrackParams of its level,
+// which the device-driven loop's counts stage writes (tracker_loop.comp), since the host that
+// records the frame's whole schedule ahead does not know the counts.
+const uint kSizeFromParams = 0xffffffffu;
+// Rows of the system (zero rows included): 8 per pixel item, 2 per landmark, then the prior.
+uint system_rows(uint pixels, uint landmarks, uint regularizer) { return kRowsPerPixel * pixels + 2u * landmarks + regularizer; }
+// Rows per workgroup of tracker_jt.comp and tracker_jtj.comp (vulkan_solver.cc: kJtChunk, kJtjRowsPerChunk).
+const uint kJtChunkRows = 256u;
+const uint kJtjChunkRows = 1024u;
+
 mat3 rows3(vec3 a, vec3 b, vec3 c) { return transpose(mat3(a, b, c)); }
 
 // R = Rz(rz) Ry(ry) Rx(rx) and dR / d(rx, ry, rz) (math_internal.cc).

@@ -17,12 +17,13 @@ layout(std430, set = 0, binding = 1) readonly buffer Residuals { float residuals
 layout(std430, set = 0, binding = 2) readonly buffer State { float state[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Partials { float partials[]; };
 layout(std430, set = 0, binding = 4) readonly buffer JacobianColumns { vec4 jacobian_columns[]; };  // column-major
+layout(std430, set = 0, binding = 5) readonly buffer Params { TrackParams params; };  // rows = kSizeFromParams
 
 layout(push_constant) uniform Push {
   uint rows, n, mode, p_offset, done_index, col_stride;
 } pc;
 
-const uint kChunk = 256u;  // 64 invocations x 4 rows
+const uint kChunk = kJtChunkRows;  // 64 invocations x 4 rows
 shared vec4 weights[kChunk / 4u];
 shared float p_shared[kMaxUnknowns];
 
@@ -30,17 +31,20 @@ void main() {
   const uint lid = gl_LocalInvocationID.x;
   const uint chunk = gl_WorkGroupID.x;
   const uint row0 = chunk * kChunk;
+  const bool from_params = pc.rows == kSizeFromParams;
+  const uint rows = from_params ? system_rows(params.num_pixels, params.num_landmarks, params.num_regularizer) : pc.rows;
+  const uint col_stride = from_params ? params.rows : pc.col_stride;
   if (pc.mode == 1u && state[pc.done_index] != 0.0) return;  // uniform over the workgroup
   if (pc.mode == 1u) {
     for (uint i = lid; i < pc.n; i += 64u) p_shared[i] = state[pc.p_offset + i];
     barrier();
   }
-  const uint count = min(kChunk, pc.rows - row0);
+  const uint count = min(kChunk, rows - row0);
   // Rows row0 + 4 lid .. + 3 of this invocation; those past the end weigh 0 and their
   // (unwritten) J entries are masked out below.
   const bvec4 valid = lessThan(uvec4(4u * lid) + uvec4(0u, 1u, 2u, 3u), uvec4(count));
   const uint quad = (row0 >> 2) + lid;
-  const uint stride4 = pc.col_stride >> 2;
+  const uint stride4 = col_stride >> 2;
   vec4 w = vec4(0.0);
   if (pc.mode == 0u) {
     for (uint k = 0u; k < 4u; ++k) {

@@ -13,6 +13,7 @@ layout(local_size_x = 256) in;
 layout(std430, set = 0, binding = 0) readonly buffer JacobianColumns { vec4 jacobian_columns[]; };  // column-major
 layout(std430, set = 0, binding = 1) readonly buffer Residuals { float residuals[]; };
 layout(std430, set = 0, binding = 2) writeonly buffer Partials { float partials[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Params { TrackParams params; };  // rows = kSizeFromParams
 
 layout(push_constant) uniform Push {
   uint rows, n, rows_per_chunk, col_stride;  // rows_per_chunk: a multiple of 4
@@ -27,8 +28,10 @@ void main() {
   const uint chunk = gl_WorkGroupID.x;
   const uint a0 = gl_WorkGroupID.y * kColumnsPerGroup;
   const uint row_start = chunk * pc.rows_per_chunk;
-  const uint row_end = min(pc.rows, row_start + pc.rows_per_chunk);
-  const uint stride4 = pc.col_stride >> 2;
+  const bool from_params = pc.rows == kSizeFromParams;
+  const uint rows = from_params ? system_rows(params.num_pixels, params.num_landmarks, params.num_regularizer) : pc.rows;
+  const uint row_end = min(rows, row_start + pc.rows_per_chunk);
+  const uint stride4 = (from_params ? params.rows : pc.col_stride) >> 2;
   float acc[kColumnsPerGroup];
   for (uint k = 0u; k < kColumnsPerGroup; ++k) acc[k] = 0.0;
   const uint count = min(kColumnsPerGroup, n - a0);

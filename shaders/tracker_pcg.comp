@@ -17,6 +17,7 @@ layout(local_size_x = 256) in;
 layout(std430, set = 0, binding = 0) readonly buffer Input { float input_vector[]; };
 layout(std430, set = 0, binding = 1) buffer State { float state[]; };
 layout(std430, set = 0, binding = 2) buffer XVectors { float xs[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Params { TrackParams params; };  // groups = kSizeFromParams
 
 layout(push_constant) uniform Push {
   uint stage, n, max_iterations, num_trials;
@@ -41,10 +42,15 @@ float reduce_sum(float v) {
   return result;
 }
 
-// Sum over the chunks of entry e of partials laid out as groups x stride.
+// Sum over the chunks of entry e of partials laid out as groups x stride (the chunks of
+// tracker_jt.comp over the level's rows when the device-driven loop decides them).
 float chunk_sum(uint e, uint stride) {
+  const uint groups = pc.groups != kSizeFromParams
+                          ? pc.groups
+                          : (system_rows(params.num_pixels, params.num_landmarks, params.num_regularizer) + kJtChunkRows - 1u) /
+                                kJtChunkRows;
   float s = 0.0;
-  for (uint g = 0u; g < pc.groups; ++g) s += input_vector[g * stride + e];
+  for (uint g = 0u; g < groups; ++g) s += input_vector[g * stride + e];
   return s;
 }
 

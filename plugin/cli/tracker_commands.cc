@@ -699,7 +699,8 @@ void add_tracker_commands(CLI::App& app) {
       ->check(CLI::Range(1, 64));
   track->add_flag("--json", args->json, "Machine-readable output");
   track->add_option("--vulkan", args->vulkan.strategies,
-                    "Vulkan solver strategies to run: all (default), auto, matrix-free, assembled, none");
+                    "Vulkan solver strategies to run: all (default), auto, matrix-free (driven from the device, and "
+                    "from the host for comparison), assembled, none");
   track->add_option("--device", args->vulkan.device, "Vulkan device: index or name part (see 'face-reenact devices')");
   track->callback([args] { run_bench_track(*args); });
 

@@ -70,6 +70,16 @@ void CommandRecorder::draw(uint32_t vertex_count) {
   vkCmdDraw(cmd_, vertex_count, 1, 0, 0);
 }
 
+void CommandRecorder::dispatch_indirect(const Buffer& args, VkDeviceSize offset) {
+  flush_descriptors();
+  vkCmdDispatchIndirect(cmd_, args.handle(), offset);
+}
+
+void CommandRecorder::draw_indirect(const Buffer& args, VkDeviceSize offset) {
+  flush_descriptors();
+  vkCmdDrawIndirect(cmd_, args.handle(), offset, 1, 0);
+}
+
 void CommandRecorder::memory_barrier(VkPipelineStageFlags2 src_stage, VkAccessFlags2 src_access,
                                      VkPipelineStageFlags2 dst_stage, VkAccessFlags2 dst_access) {
   VkMemoryBarrier2 barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER_2};

@@ -238,13 +238,8 @@ void Renderer::update_draw_list(const RenderOptions& options) {
   draw_list_parts_ = options.parts;
 }
 
-RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options,
-                              const RecordAfterRender& then) {
+void Renderer::check_camera(const PinholeCamera& camera, const RenderOptions& options) const {
   std::string why;
-  if (!params.IsValid(&why, static_cast<int>(model_.identity_basis.cols()), static_cast<int>(model_.expression_basis.cols()),
-                      static_cast<int>(model_.albedo_basis.cols()))) {
-    throw Error("invalid face parameters: " + why);
-  }
   if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
   if (!options.IsValid(&why)) throw Error("invalid render options: " + why);
   const VkPhysicalDeviceLimits& limits = context_.properties().limits;
@@ -254,6 +249,37 @@ RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera
     throw Error("camera size " + std::to_string(camera.width) + "x" + std::to_string(camera.height) +
                 " exceeds the device's framebuffer limit " + std::to_string(max_w) + "x" + std::to_string(max_h));
   }
+}
+
+Renderer::DeviceRenderSizes Renderer::prepare_device_render(const PinholeCamera& camera, const RenderOptions& options) {
+  check_camera(camera, options);
+  update_draw_list(options);
+  targets_for(camera.width, camera.height);
+  raster_pipeline(options.cull_back_faces);
+  const uint32_t rows = 3 * num_vertices_;
+  return {(rows + kLocalSize - 1) / kLocalSize, (rows + kLocalSize - 1) / kLocalSize,
+          (num_vertices_ + kLocalSize - 1) / kLocalSize, 3 * draw_count_};
+}
+
+void Renderer::record_device_render(VkCommandBuffer cmd, const PinholeCamera& camera, const RenderOptions& options,
+                                    const IndirectStages& stages) {
+  if (!stages.args) throw Error("GPU renderer: a device-driven render needs its indirect arguments");
+  if (options.parts != draw_list_parts_) throw Error("GPU renderer: prepare_device_render was not called for these options");
+  GBufferTargets& targets = targets_for(camera.width, camera.height);
+  record_stages(cmd, targets, camera, raster_pipeline(options.cull_back_faces), true, &stages);
+  identity_valid_ = false;  // the identity pass (if its arguments ran it) used the device's coefficients
+  last_targets_ = &targets;
+  last_camera_ = camera;
+}
+
+RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options,
+                              const RecordAfterRender& then) {
+  std::string why;
+  if (!params.IsValid(&why, static_cast<int>(model_.identity_basis.cols()), static_cast<int>(model_.expression_basis.cols()),
+                      static_cast<int>(model_.albedo_basis.cols()))) {
+    throw Error("invalid face parameters: " + why);
+  }
+  check_camera(camera, options);
   const auto start = std::chrono::steady_clock::now();
 
   // Per-frame data: coefficients and pose + lighting (host-visible, read by the shaders).
@@ -282,108 +308,7 @@ RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera
 
   context_.submit_and_wait(
       [&](VkCommandBuffer cmd) {
-        CommandRecorder rec(context_, cmd);
-        if (timestamps_) {
-          timestamps_->reset(cmd);
-          timestamps_->write(cmd, 0);
-        }
-
-        if (run_identity) {
-          rec.bind(*identity_pipeline_);
-          const Buffer* identity_buffers[] = {&mean_shape_, &identity_basis_, &mean_albedo_, &albedo_basis_,
-                                              &coefficients_, &base_shape_, &albedo_};
-          for (uint32_t i = 0; i < 7; ++i) rec.set_storage_buffer(i, *identity_buffers[i]);
-          rec.push_constants(IdentityEvalPush{3 * num_vertices_, static_cast<uint32_t>(kid),
-                                              static_cast<uint32_t>(model_.albedo_basis.cols()),
-                                              static_cast<uint32_t>(kid + kexp)});
-          rec.dispatch_1d(3 * num_vertices_, kLocalSize);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
-        }
-        rec.bind(*model_pipeline_);
-        const Buffer* model_buffers[] = {&base_shape_, &expression_basis_, &coefficients_, &shape_};
-        for (uint32_t i = 0; i < 4; ++i) rec.set_storage_buffer(i, *model_buffers[i]);
-        rec.push_constants(ModelEvalPush{3 * num_vertices_, static_cast<uint32_t>(kexp), static_cast<uint32_t>(kid), 0});
-        rec.dispatch_1d(3 * num_vertices_, kLocalSize);
-        rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                           VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
-        if (timestamps_) timestamps_->write(cmd, 1);
-
-        rec.bind(*shade_pipeline_);
-        const Buffer* shade_buffers[] = {&shape_, &albedo_, &triangles_, &adjacency_offsets_, &adjacency_,
-                                         &frame_, &camera_positions_, &camera_normals_, &colors_};
-        for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *shade_buffers[i]);
-        rec.push_constants(ShadePush{num_vertices_});
-        rec.dispatch_1d(num_vertices_, kLocalSize);
-        if (timestamps_) timestamps_->write(cmd, 2);
-
-        // One barrier: vertex results -> vertex shader, and every target -> attachment. The
-        // targets are cleared, so their old contents need not survive (UNDEFINED); the source
-        // scope covers readers of the previous frame's G-buffer (write-after-read).
-        Image* colour_targets[] = {&targets.color, &targets.position, &targets.normal, &targets.barycentric, &targets.ids};
-        BarrierBatch pre;
-        pre.memory(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                   VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                   VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
-        for (Image* image : colour_targets) {
-          image->layout = VK_IMAGE_LAYOUT_UNDEFINED;
-          pre.image(*image, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                    VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_COLOR_ATTACHMENT_OUTPUT_BIT,
-                    VK_ACCESS_2_COLOR_ATTACHMENT_WRITE_BIT);
-        }
-        targets.depth.layout = VK_IMAGE_LAYOUT_UNDEFINED;
-        pre.image(targets.depth, VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                  VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_EARLY_FRAGMENT_TESTS_BIT | VK_PIPELINE_STAGE_2_LATE_FRAGMENT_TESTS_BIT,
-                  VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_READ_BIT | VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT);
-        pre.record(cmd);
-
-        VkRenderingAttachmentInfo colour_attachments[5];
-        for (int i = 0; i < 5; ++i) {
-          colour_attachments[i] = {VK_STRUCTURE_TYPE_RENDERING_ATTACHMENT_INFO};
-          colour_attachments[i].imageView = colour_targets[i]->view();
-          colour_attachments[i].imageLayout = VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL;
-          colour_attachments[i].loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
-          colour_attachments[i].storeOp = VK_ATTACHMENT_STORE_OP_STORE;
-          colour_attachments[i].clearValue = {};  // zeros (float and uint alike)
-        }
-        VkRenderingAttachmentInfo depth_attachment{VK_STRUCTURE_TYPE_RENDERING_ATTACHMENT_INFO};
-        depth_attachment.imageView = targets.depth.view();
-        depth_attachment.imageLayout = VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL;
-        depth_attachment.loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
-        depth_attachment.storeOp = VK_ATTACHMENT_STORE_OP_STORE;
-        depth_attachment.clearValue.depthStencil = {1.0f, 0};
-        VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
-        rendering.renderArea = {{0, 0}, {static_cast<uint32_t>(camera.width), static_cast<uint32_t>(camera.height)}};
-        rendering.layerCount = 1;
-        rendering.colorAttachmentCount = 5;
-        rendering.pColorAttachments = colour_attachments;
-        rendering.pDepthAttachment = &depth_attachment;
-        vkCmdBeginRendering(cmd, &rendering);
-        VkViewport viewport{0.f, 0.f, static_cast<float>(camera.width), static_cast<float>(camera.height), 0.f, 1.f};
-        VkRect2D scissor = rendering.renderArea;
-        vkCmdSetViewport(cmd, 0, 1, &viewport);
-        vkCmdSetScissor(cmd, 0, 1, &scissor);
-        rec.bind(raster);
-        rec.set_storage_buffer(0, camera_positions_);
-        rec.set_storage_buffer(1, camera_normals_);
-        rec.set_storage_buffer(2, colors_);
-        rec.set_storage_buffer(3, draw_list_);
-        rec.push_constants(RasterPush{camera.fx, camera.fy, camera.cx, camera.cy, static_cast<float>(camera.width),
-                                      static_cast<float>(camera.height), camera.near_plane, camera.far_plane});
-        rec.draw(3 * draw_count_);
-        vkCmdEndRendering(cmd);
-
-        BarrierBatch post;
-        for (Image* image : colour_targets) {
-          post.image(*image, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_COLOR_ATTACHMENT_OUTPUT_BIT,
-                     VK_ACCESS_2_COLOR_ATTACHMENT_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                     VK_ACCESS_2_MEMORY_READ_BIT);
-        }
-        post.image(targets.depth, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_LATE_FRAGMENT_TESTS_BIT,
-                   VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                   VK_ACCESS_2_MEMORY_READ_BIT);
-        post.record(cmd);
-        if (timestamps_) timestamps_->write(cmd, 3);
+        record_stages(cmd, targets, camera, raster, run_identity, nullptr);
         if (then) then(cmd, targets);
       },
       then ? "render G-buffer + follow-up" : "render G-buffer");
@@ -404,6 +329,126 @@ RenderTimings Renderer::render(const FaceParameters& params, const PinholeCamera
   last_targets_ = &targets;
   last_camera_ = camera;
   return timings;
+}
+
+void Renderer::record_stages(VkCommandBuffer cmd, GBufferTargets& targets, const PinholeCamera& camera,
+                             const GraphicsPipeline& raster, bool run_identity, const IndirectStages* stages) {
+  CommandRecorder rec(context_, cmd);
+  const Eigen::Index kid = model_.identity_basis.cols(), kexp = model_.expression_basis.cols();
+  // A device-driven render is one part of its caller's submission: the caller times it.
+  TimestampQueries* stamps = stages ? nullptr : timestamps_.get();
+  if (stamps) {
+    stamps->reset(cmd);
+    stamps->write(cmd, 0);
+  }
+  auto dispatch = [&](uint32_t threads, VkDeviceSize Renderer::IndirectStages::*offset) {
+    if (stages) {
+      rec.dispatch_indirect(*stages->args, stages->*offset);
+    } else {
+      rec.dispatch_1d(threads, kLocalSize);
+    }
+  };
+
+  if (run_identity) {
+    rec.bind(*identity_pipeline_);
+    const Buffer* identity_buffers[] = {&mean_shape_, &identity_basis_, &mean_albedo_, &albedo_basis_,
+                                        &coefficients_, &base_shape_, &albedo_};
+    for (uint32_t i = 0; i < 7; ++i) rec.set_storage_buffer(i, *identity_buffers[i]);
+    rec.push_constants(IdentityEvalPush{3 * num_vertices_, static_cast<uint32_t>(kid),
+                                        static_cast<uint32_t>(model_.albedo_basis.cols()),
+                                        static_cast<uint32_t>(kid + kexp)});
+    dispatch(3 * num_vertices_, &IndirectStages::identity);
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+  }
+  rec.bind(*model_pipeline_);
+  const Buffer* model_buffers[] = {&base_shape_, &expression_basis_, &coefficients_, &shape_};
+  for (uint32_t i = 0; i < 4; ++i) rec.set_storage_buffer(i, *model_buffers[i]);
+  rec.push_constants(ModelEvalPush{3 * num_vertices_, static_cast<uint32_t>(kexp), static_cast<uint32_t>(kid), 0});
+  dispatch(3 * num_vertices_, &IndirectStages::model);
+  rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+  if (stamps) stamps->write(cmd, 1);
+
+  rec.bind(*shade_pipeline_);
+  const Buffer* shade_buffers[] = {&shape_, &albedo_, &triangles_, &adjacency_offsets_, &adjacency_,
+                                   &frame_, &camera_positions_, &camera_normals_, &colors_};
+  for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *shade_buffers[i]);
+  rec.push_constants(ShadePush{num_vertices_});
+  dispatch(num_vertices_, &IndirectStages::shade);
+  if (stamps) stamps->write(cmd, 2);
+
+  // One barrier: vertex results -> vertex shader, and every target -> attachment. The
+  // targets are cleared, so their old contents need not survive (UNDEFINED); the source
+  // scope covers readers of the previous frame's G-buffer (write-after-read).
+  Image* colour_targets[] = {&targets.color, &targets.position, &targets.normal, &targets.barycentric, &targets.ids};
+  BarrierBatch pre;
+  pre.memory(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+             VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+             VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+  for (Image* image : colour_targets) {
+    image->layout = VK_IMAGE_LAYOUT_UNDEFINED;
+    pre.image(*image, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+              VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_COLOR_ATTACHMENT_OUTPUT_BIT,
+              VK_ACCESS_2_COLOR_ATTACHMENT_WRITE_BIT);
+  }
+  targets.depth.layout = VK_IMAGE_LAYOUT_UNDEFINED;
+  pre.image(targets.depth, VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+            VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_EARLY_FRAGMENT_TESTS_BIT | VK_PIPELINE_STAGE_2_LATE_FRAGMENT_TESTS_BIT,
+            VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_READ_BIT | VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT);
+  pre.record(cmd);
+
+  VkRenderingAttachmentInfo colour_attachments[5];
+  for (int i = 0; i < 5; ++i) {
+    colour_attachments[i] = {VK_STRUCTURE_TYPE_RENDERING_ATTACHMENT_INFO};
+    colour_attachments[i].imageView = colour_targets[i]->view();
+    colour_attachments[i].imageLayout = VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL;
+    colour_attachments[i].loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
+    colour_attachments[i].storeOp = VK_ATTACHMENT_STORE_OP_STORE;
+    colour_attachments[i].clearValue = {};  // zeros (float and uint alike)
+  }
+  VkRenderingAttachmentInfo depth_attachment{VK_STRUCTURE_TYPE_RENDERING_ATTACHMENT_INFO};
+  depth_attachment.imageView = targets.depth.view();
+  depth_attachment.imageLayout = VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL;
+  depth_attachment.loadOp = VK_ATTACHMENT_LOAD_OP_CLEAR;
+  depth_attachment.storeOp = VK_ATTACHMENT_STORE_OP_STORE;
+  depth_attachment.clearValue.depthStencil = {1.0f, 0};
+  VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
+  rendering.renderArea = {{0, 0}, {static_cast<uint32_t>(camera.width), static_cast<uint32_t>(camera.height)}};
+  rendering.layerCount = 1;
+  rendering.colorAttachmentCount = 5;
+  rendering.pColorAttachments = colour_attachments;
+  rendering.pDepthAttachment = &depth_attachment;
+  vkCmdBeginRendering(cmd, &rendering);
+  VkViewport viewport{0.f, 0.f, static_cast<float>(camera.width), static_cast<float>(camera.height), 0.f, 1.f};
+  VkRect2D scissor = rendering.renderArea;
+  vkCmdSetViewport(cmd, 0, 1, &viewport);
+  vkCmdSetScissor(cmd, 0, 1, &scissor);
+  rec.bind(raster);
+  rec.set_storage_buffer(0, camera_positions_);
+  rec.set_storage_buffer(1, camera_normals_);
+  rec.set_storage_buffer(2, colors_);
+  rec.set_storage_buffer(3, draw_list_);
+  rec.push_constants(RasterPush{camera.fx, camera.fy, camera.cx, camera.cy, static_cast<float>(camera.width),
+                                static_cast<float>(camera.height), camera.near_plane, camera.far_plane});
+  if (stages) {
+    rec.draw_indirect(*stages->args, stages->draw);
+  } else {
+    rec.draw(3 * draw_count_);
+  }
+  vkCmdEndRendering(cmd);
+
+  BarrierBatch post;
+  for (Image* image : colour_targets) {
+    post.image(*image, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_COLOR_ATTACHMENT_OUTPUT_BIT,
+               VK_ACCESS_2_COLOR_ATTACHMENT_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+               VK_ACCESS_2_MEMORY_READ_BIT);
+  }
+  post.image(targets.depth, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_LATE_FRAGMENT_TESTS_BIT,
+             VK_ACCESS_2_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+             VK_ACCESS_2_MEMORY_READ_BIT);
+  post.record(cmd);
+  if (stamps) stamps->write(cmd, 3);
 }
 
 const GBufferTargets& Renderer::targets() const {

@@ -21,6 +21,35 @@ bool EndIfStopRequested(const SolverOptions& options, int level, int iteration, 
 
 }  // namespace
 
+std::string LevelConvergedWords(int level, int iteration) {
+  return "level " + std::to_string(level) + " converged at iteration " + std::to_string(iteration) +
+         " (no step along the Gauss-Newton direction lowered the energy); ";
+}
+
+std::string NoDataWords(int level, int frames) {
+  return "level " + std::to_string(level) + ": no pixel or landmark of the input overlaps the rendered face" +
+         (frames > 1 ? " in at least one frame" : "") + "; parameters left unchanged";
+}
+
+std::string StepLostFaceWords(int level) {
+  return "level " + std::to_string(level) + ": a step moved the face out of the input; kept the parameters before it";
+}
+
+std::string NonFiniteWords(int level, int iteration) {
+  return "level " + std::to_string(level) + " iteration " + std::to_string(iteration) +
+         ": the linear solve produced a non-finite step; kept the last good parameters";
+}
+
+void FinishSummary(int schedule_levels, int accepted_steps, int attempted_steps, SolverSummary* summary) {
+  if (attempted_steps > 0 && accepted_steps == 0) {
+    summary->termination = Termination::kNoProgress;
+    summary->message += "no Gauss-Newton step lowered the energy: the start is already a (local) minimum";
+  } else {
+    summary->message += "ran the schedule of " + std::to_string(schedule_levels) + " level(s), " +
+                        std::to_string(accepted_steps) + " of " + std::to_string(attempted_steps) + " steps accepted";
+  }
+}
+
 void ClampExpressions(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, Eigen::VectorXd* x) {
   if (!options.clamp_expression) return;
   for (const ExpressionSpan& span : expressions) {
@@ -112,9 +141,7 @@ SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<Exp
     summary.final_energy = energy;
     if (!lin.has_data) {
       summary.termination = Termination::kNoValidResiduals;
-      summary.message += "level " + std::to_string(level.level) +
-                         ": no pixel or landmark of the input overlaps the rendered face" +
-                         (frames > 1 ? " in at least one frame" : "") + "; parameters left unchanged";
+      summary.message += NoDataWords(level.level, frames);
       stop_all = true;
       break;
     }
@@ -132,8 +159,7 @@ SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<Exp
       backend->SolveStep(level, *x, &dx, &rec);
       if (!dx.allFinite()) {
         summary.termination = Termination::kNonFinite;
-        summary.message += "level " + std::to_string(level.level) + " iteration " + std::to_string(it) +
-                           ": the linear solve produced a non-finite step; kept the last good parameters";
+        summary.message += NonFiniteWords(level.level, it);
         keep(rec);
         stop_all = true;
         break;
@@ -160,8 +186,7 @@ SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<Exp
       if (!accepted) {
         rec.energy_after = energy;
         keep(rec);
-        summary.message += "level " + std::to_string(level.level) + " converged at iteration " + std::to_string(it) +
-                           " (no step along the Gauss-Newton direction lowered the energy); ";
+        summary.message += LevelConvergedWords(level.level, it);
         break;  // next level
       }
       ++accepted_steps;
@@ -178,8 +203,7 @@ SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<Exp
       if (!lin.has_data) {
         *x = x_before;  // a step that loses the face is not kept
         summary.termination = Termination::kNoValidResiduals;
-        summary.message += "level " + std::to_string(level.level) +
-                           ": a step moved the face out of the input; kept the parameters before it";
+        summary.message += StepLostFaceWords(level.level);
         stop_all = true;
         break;
       }
@@ -188,13 +212,7 @@ SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<Exp
     summary.analysis_ms += backend->TakeUnusedStepMs();
     if (stop_all) break;
   }
-  if (!stop_all && attempted_steps > 0 && accepted_steps == 0) {
-    summary.termination = Termination::kNoProgress;
-    summary.message += "no Gauss-Newton step lowered the energy: the start is already a (local) minimum";
-  } else if (!stop_all) {
-    summary.message += "ran the schedule of " + std::to_string(options.schedule.size()) + " level(s), " +
-                       std::to_string(accepted_steps) + " of " + std::to_string(attempted_steps) + " steps accepted";
-  }
+  if (!stop_all) FinishSummary(static_cast<int>(options.schedule.size()), accepted_steps, attempted_steps, &summary);
   return summary;
 }
 

@@ -91,6 +91,18 @@ void CheckJointSolve(const TrackerModel& model, const ParameterLayout& layout, c
                      const std::vector<const std::vector<InputFrame>*>& pyramids,
                      const std::vector<gpu::FaceParameters>& params);
 
+// The summary's words for each way a level or the solve ends, appended to summary.message:
+// RunGaussNewton's, and the Vulkan solver's device-driven loop (which makes the same decisions on
+// the device) reports its events in the same words. `frames` > 1 only changes the wording of a
+// face-less frame.
+std::string LevelConvergedWords(int level, int iteration);
+std::string NoDataWords(int level, int frames);
+std::string StepLostFaceWords(int level);
+std::string NonFiniteWords(int level, int iteration);
+// The solve's last words when nothing stopped it: kNoProgress when steps were tried and none was
+// accepted, else the schedule's count of accepted steps.
+void FinishSummary(int schedule_levels, int accepted_steps, int attempted_steps, SolverSummary* summary);
+
 // Runs options.schedule from *x (validated by the caller) and leaves the parameters of the
 // last accepted step in *x. `frames` > 1 only changes the wording of a face-less frame.
 SolverSummary RunGaussNewton(const SolverOptions& options, const std::vector<ExpressionSpan>& expressions, int frames,

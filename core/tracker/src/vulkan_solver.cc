@@ -1,6 +1,7 @@
 #include "face_reenact/tracker/vulkan_solver.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <chrono>
 #include <cmath>
@@ -9,6 +10,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <numeric>
+#include <optional>
 #include <unordered_map>
 #include <utility>
 
@@ -215,6 +217,90 @@ static_assert(offsetof(PcgPush, tolerance) == 32);
 static_assert(offsetof(PcgPush, damping) == 36);
 static_assert(sizeof(PcgPush) == 40);
 
+// tracker_loop.comp, push constant block Push.
+struct LoopPush {
+  glm::uint stage, level_index, block, iterations;
+  glm::uint level, first_level, num_trials, identity_every_block;
+  glm::uint vertex_groups, shade_groups, draw_vertices, classify_groups;
+  glm::uint num_regularizer, capacity_rows, assembled, pad0;
+  float w_point, w_plane, w_col, w_lan;
+  float inverse_unit, landmark_scale, function_tolerance, pad1;
+};
+static_assert(offsetof(LoopPush, stage) == 0);
+static_assert(offsetof(LoopPush, level_index) == 4);
+static_assert(offsetof(LoopPush, block) == 8);
+static_assert(offsetof(LoopPush, iterations) == 12);
+static_assert(offsetof(LoopPush, level) == 16);
+static_assert(offsetof(LoopPush, first_level) == 20);
+static_assert(offsetof(LoopPush, num_trials) == 24);
+static_assert(offsetof(LoopPush, identity_every_block) == 28);
+static_assert(offsetof(LoopPush, vertex_groups) == 32);
+static_assert(offsetof(LoopPush, shade_groups) == 36);
+static_assert(offsetof(LoopPush, draw_vertices) == 40);
+static_assert(offsetof(LoopPush, classify_groups) == 44);
+static_assert(offsetof(LoopPush, num_regularizer) == 48);
+static_assert(offsetof(LoopPush, capacity_rows) == 52);
+static_assert(offsetof(LoopPush, assembled) == 56);
+static_assert(offsetof(LoopPush, pad0) == 60);
+static_assert(offsetof(LoopPush, w_point) == 64);
+static_assert(offsetof(LoopPush, w_plane) == 68);
+static_assert(offsetof(LoopPush, w_col) == 72);
+static_assert(offsetof(LoopPush, w_lan) == 76);
+static_assert(offsetof(LoopPush, inverse_unit) == 80);
+static_assert(offsetof(LoopPush, landmark_scale) == 84);
+static_assert(offsetof(LoopPush, function_tolerance) == 88);
+static_assert(offsetof(LoopPush, pad1) == 92);
+static_assert(sizeof(LoopPush) == 96);
+
+// tracker_loop.comp's state (floats), its indices.
+enum LoopIndex : uint32_t {
+  kLoopRunning = 0,
+  kLoopTermination = 4,
+  kLoopTermLevel = 5,
+  kLoopTermIteration = 6,
+  kLoopAccepted = 7,
+  kLoopAttempted = 8,
+  kLoopRecords = 9,
+  kLoopOpenRecord = 10,
+  kLoopOverflowRows = 11,
+  kLoopInitial = 12,
+  kLoopFinal = 17,
+  kLoopConvergedAt = 24,  // one per scheduled level, at most kMaxDeviceLoopLevels
+  kLoopHeader = 32,       // floats the host initialises
+  kLoopRecordBase = 288,  // after x before the last step (kMaxUnknowns + 1 floats)
+  kLoopRecordFloats = 18,
+};
+constexpr size_t kMaxDeviceLoopLevels = 8;
+// tracker_loop.comp's terminations.
+enum class DeviceTermination { kDone = 0, kNoDataAtStart = 1, kStepLostFace = 2, kNonFinite = 3, kOverflow = 4 };
+// tracker_loop.comp's indirect argument slots, 16 bytes each (a VkDispatchIndirectCommand, or for
+// kArgDraw a VkDrawIndirectCommand).
+enum ArgSlot : int {
+  kArgIdentity = 0,
+  kArgModel,
+  kArgShade,
+  kArgDraw,
+  kArgClassify,
+  kArgLandmarks,
+  kArgVertices,
+  kArgEvaluateJ,
+  kArgEvaluateEnergy,
+  kArgJt,
+  kArgPcg,
+  kArgTrialVertices,
+  kArgTrialEvaluate,
+  kArgJtj,
+  kArgReduce,
+  kArgCount,
+  kDirect = -1,  // sizes from the host
+};
+static_assert(sizeof(VkDispatchIndirectCommand) <= 16 && sizeof(VkDrawIndirectCommand) == 16);
+// tracker_common.glsl: a push-constant size the pass reads from its level's TrackParams.
+constexpr uint32_t kSizeFromParams = 0xffffffffu;
+// J's rows the device-driven loop allocates at first (grown when a frame needs more): the whole
+// of the paper's level 1 of a 640x480 frame fits (8 rows per pixel, 85 columns: 209 MB).
+constexpr uint64_t kDeviceLoopJacobianBudget = 256ull << 20;
+
 // tracker_landmarks.comp, element of the Candidates buffer (vec4 candidates[]): the vertex index's
 // bits (floatBitsToUint), u, v, confidence.
 using LandmarkCandidate = glm::vec4;
@@ -317,7 +403,7 @@ struct VulkanSolver::Impl {
   VulkanStrategyChoice choice;
   gpu::Renderer renderer;
 
-  std::unique_ptr<gpu::ComputePipeline> classify, landmarks, vertices_pass, evaluate, jt, reduce, jtj, pcg;
+  std::unique_ptr<gpu::ComputePipeline> classify, landmarks, vertices_pass, evaluate, jt, reduce, jtj, pcg, loop;
   gpu::Buffer mean_shape, identity_basis, expression_basis, mean_albedo, albedo_basis;  // row-major
   gpu::Buffer vertex_parts;  // per vertex its FacePart, one uint each (classify: EnergyOptions::color_parts)
   gpu::Buffer identity_columns, expression_columns, albedo_columns;  // column-major (tracker_vertices.comp)
@@ -329,6 +415,17 @@ struct VulkanSolver::Impl {
   gpu::Buffer jtj_partials, jtj_reduced, state, readback;
   // FR_TRACKER_PROFILE=1: GPU time per analysis stage on stderr (timestamp queries).
   std::unique_ptr<gpu::TimestampQueries> profile;
+  // The device-driven loop (solve_device_loop): its state and records, the indirect arguments
+  // tracker_loop.comp writes, one TrackParams per scheduled level (the host writes what it
+  // knows ahead, the device the counts and scales), J's rows (0: not sized yet), and the
+  // timestamps that split its one submission into synthesis and analysis per iteration.
+  gpu::Buffer loop_state, loop_args;
+  std::vector<gpu::Buffer> level_params;
+  uint64_t loop_capacity_rows = 0;
+  std::unique_ptr<gpu::TimestampQueries> loop_timestamps;
+  // Where the recorded passes take their sizes: the host's counts and `params` (host-driven), or
+  // tracker_loop.comp's arguments and the level's TrackParams (device-driven: `device_params` set).
+  const gpu::Buffer* device_params = nullptr;
 
   // The linearisation the buffers currently hold.
   Counts counts;
@@ -382,12 +479,19 @@ struct VulkanSolver::Impl {
                                                             "tracker vertex positions + albedo");
     evaluate = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_evaluate_comp, 16, sizeof(EvaluatePush),
                                                        "tracker residuals + Jacobian");
-    jt = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_jt_comp, 5, sizeof(JtPush), "tracker J^T products");
-    reduce = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_reduce_comp, 2, sizeof(ReducePush),
+    jt = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_jt_comp, 6, sizeof(JtPush), "tracker J^T products");
+    reduce = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_reduce_comp, 3, sizeof(ReducePush),
                                                      "tracker reduction");
-    jtj = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_jtj_comp, 3, sizeof(JtjPush),
+    jtj = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_jtj_comp, 4, sizeof(JtjPush),
                                                   "tracker J^T J assembly");
-    pcg = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_pcg_comp, 3, sizeof(PcgPush), "tracker PCG");
+    pcg = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_pcg_comp, 4, sizeof(PcgPush), "tracker PCG");
+    loop = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_loop_comp, 10, sizeof(LoopPush),
+                                                   "tracker Gauss-Newton loop control");
+    loop_args = gpu::Buffer(context, kArgCount * 16, kStorage | VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, gpu::BufferDomain::Device,
+                            "tracker loop indirect arguments");
+    if (context.timestamps_supported()) {
+      loop_timestamps = std::make_unique<gpu::TimestampQueries>(context, 32, "tracker device-driven loop");
+    }
     counters = gpu::Buffer(context, sizeof(Counters), kStorage, gpu::BufferDomain::Device, "tracker counters");
     counters_readback = gpu::Buffer(context, sizeof(Counters), kStorage, gpu::BufferDomain::Readback,
                                     "tracker counters readback");
@@ -464,6 +568,89 @@ struct VulkanSolver::Impl {
     if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(LandmarkCandidate));
   }
 
+  // After a render: its G-buffer copied into the buffers the per-pixel pass reads, the pass
+  // (classification, compaction) and the landmark pruning, recorded into the render's
+  // submission. Host-driven: the counters are zeroed first and copied for the host after;
+  // device-driven (`device`): tracker_loop.comp zeroes and reads them, and sizes the two passes.
+  void record_linearization(gpu::CommandRecorder& rec, const gpu::GBufferTargets& targets, const LevelInput& li,
+                            const EnergyOptions& e, bool device) {
+    const InputFrame& f = *li.frame;
+    const VkCommandBuffer cmd = rec.handle();
+    const uint32_t w = static_cast<uint32_t>(f.width()), h = static_cast<uint32_t>(f.height());
+    const std::pair<const gpu::Image*, const gpu::Buffer*> copies[] = {
+        {&targets.position, &g_position}, {&targets.normal, &g_normal}, {&targets.barycentric, &g_bary},
+        {&targets.ids, &g_ids}, {&targets.color, &g_color}};
+    constexpr uint32_t kCopies = 5;
+    // GENERAL -> TRANSFER_SRC for the copies and back, so the renderer's bookkeeping
+    // (Image::layout == GENERAL after render) stays true.
+    auto transition = [&](VkImageLayout from, VkImageLayout to, VkPipelineStageFlags2 src_stage,
+                          VkAccessFlags2 src_access, VkPipelineStageFlags2 dst_stage, VkAccessFlags2 dst_access) {
+      VkImageMemoryBarrier2 barriers[kCopies];
+      for (uint32_t k = 0; k < kCopies; ++k) {
+        barriers[k] = {VK_STRUCTURE_TYPE_IMAGE_MEMORY_BARRIER_2};
+        barriers[k].srcStageMask = src_stage;
+        barriers[k].srcAccessMask = src_access;
+        barriers[k].dstStageMask = dst_stage;
+        barriers[k].dstAccessMask = dst_access;
+        barriers[k].oldLayout = from;
+        barriers[k].newLayout = to;
+        barriers[k].srcQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+        barriers[k].dstQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+        barriers[k].image = copies[k].first->handle();
+        barriers[k].subresourceRange = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
+      }
+      VkDependencyInfo dep{VK_STRUCTURE_TYPE_DEPENDENCY_INFO};
+      dep.imageMemoryBarrierCount = kCopies;
+      dep.pImageMemoryBarriers = barriers;
+      vkCmdPipelineBarrier2(cmd, &dep);
+    };
+    transition(VK_IMAGE_LAYOUT_GENERAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+               VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+    for (const auto& [image, buffer] : copies) {
+      VkBufferImageCopy region{};
+      region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
+      region.imageExtent = {w, h, 1};
+      vkCmdCopyImageToBuffer(cmd, image->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, buffer->handle(), 1, &region);
+    }
+    transition(VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_COPY_BIT,
+               VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT);
+    if (!device) vkCmdFillBuffer(cmd, counters.handle(), 0, sizeof(Counters), 0);  // device-driven: tracker_loop.comp zeroes them
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+    if (cache_identity && !device) record_vertices(rec, 0, 1, 1);  // device-driven: once per frame
+    rec.bind(*classify);
+    const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids,   &li.data,
+                               &items,      &counters, &g_color, &vertex_parts};
+    for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *cb[i]);
+    const bool geometry = f.has_depth() && (e.use_point || e.use_plane);
+    rec.push_constants(ClassifyPush{w, h, f.has_depth() ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
+                                    geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
+                                    static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot),
+                                    ColorFollowsProjection(e, f) ? static_cast<float>(e.color_robust_threshold) : 0.f,
+                                    e.color_parts});
+    dispatch(rec, device ? kArgClassify : kDirect, (w * h + 63) / 64, 1);
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+    rec.bind(*landmarks);
+    rec.set_storage_buffer(0, li.candidates);
+    rec.set_storage_buffer(1, renderer.camera_positions());
+    rec.set_storage_buffer(2, g_position);
+    rec.set_storage_buffer(3, landmark_items);
+    rec.set_storage_buffer(4, counters);
+    rec.push_constants(LandmarkPush{li.num_candidates, f.camera.near_plane, w, h, f.camera.fx, f.camera.fy, f.camera.cx,
+                                    f.camera.cy, static_cast<float>(e.landmark_occlusion_m)});
+    dispatch(rec, device ? kArgLandmarks : kDirect, 1, 1);
+    if (device) return;  // tracker_loop.comp reads the counters on the device
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                       VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+    VkBufferCopy copy{0, 0, sizeof(Counters)};
+    vkCmdCopyBuffer(cmd, counters.handle(), counters_readback.handle(), 1, &copy);
+    rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                       VK_ACCESS_2_HOST_READ_BIT);
+  }
+
   // Renders `p` for the level and runs the linearisation pass; returns its counts.
   // `regularize_shared` false: a calibration frame after the first, whose identity/albedo prior
   // rows the first frame carries (energy.h, Linearization::regularize_shared).
@@ -488,82 +675,11 @@ struct VulkanSolver::Impl {
     ensure(vertices, static_cast<VkDeviceSize>(model.num_vertices()) * 24, gpu::BufferDomain::Device, "tracker vertices");
     // The render and the linearisation of its G-buffer in one submission: one host wait fewer
     // per Gauss-Newton iteration (on a real GPU the waits, not the work, set the pace).
-    renderer.render(
-        p, f.camera, o.render, [&](VkCommandBuffer cmd, const gpu::GBufferTargets& targets) {
-          gpu::CommandRecorder rec(context, cmd);
-          record_after_everything_before(rec);
-          const std::pair<const gpu::Image*, const gpu::Buffer*> copies[] = {
-              {&targets.position, &g_position}, {&targets.normal, &g_normal}, {&targets.barycentric, &g_bary},
-              {&targets.ids, &g_ids}, {&targets.color, &g_color}};
-          constexpr uint32_t kCopies = 5;
-          // GENERAL -> TRANSFER_SRC for the copies and back, so the renderer's bookkeeping
-          // (Image::layout == GENERAL after render) stays true.
-          auto transition = [&](VkImageLayout from, VkImageLayout to, VkPipelineStageFlags2 src_stage,
-                                VkAccessFlags2 src_access, VkPipelineStageFlags2 dst_stage, VkAccessFlags2 dst_access) {
-            VkImageMemoryBarrier2 barriers[kCopies];
-            for (uint32_t k = 0; k < kCopies; ++k) {
-              barriers[k] = {VK_STRUCTURE_TYPE_IMAGE_MEMORY_BARRIER_2};
-              barriers[k].srcStageMask = src_stage;
-              barriers[k].srcAccessMask = src_access;
-              barriers[k].dstStageMask = dst_stage;
-              barriers[k].dstAccessMask = dst_access;
-              barriers[k].oldLayout = from;
-              barriers[k].newLayout = to;
-              barriers[k].srcQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
-              barriers[k].dstQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
-              barriers[k].image = copies[k].first->handle();
-              barriers[k].subresourceRange = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
-            }
-            VkDependencyInfo dep{VK_STRUCTURE_TYPE_DEPENDENCY_INFO};
-            dep.imageMemoryBarrierCount = kCopies;
-            dep.pImageMemoryBarriers = barriers;
-            vkCmdPipelineBarrier2(cmd, &dep);
-          };
-          transition(VK_IMAGE_LAYOUT_GENERAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
-                     VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
-          for (const auto& [image, buffer] : copies) {
-            VkBufferImageCopy region{};
-            region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
-            region.imageExtent = {w, h, 1};
-            vkCmdCopyImageToBuffer(cmd, image->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, buffer->handle(), 1, &region);
-          }
-          transition(VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_GENERAL, VK_PIPELINE_STAGE_2_COPY_BIT,
-                     VK_ACCESS_2_NONE, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT);
-          vkCmdFillBuffer(cmd, counters.handle(), 0, sizeof(Counters), 0);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-          if (cache_identity) record_vertices(rec, 0, 1, 1);
-          rec.bind(*classify);
-          const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids,   &li.data,
-                                     &items,      &counters, &g_color, &vertex_parts};
-          for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *cb[i]);
-          const bool geometry = f.has_depth() && (e.use_point || e.use_plane);
-          rec.push_constants(ClassifyPush{w, h, f.has_depth() ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
-                                          geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
-                                          static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot),
-                                          ColorFollowsProjection(e, f) ? static_cast<float>(e.color_robust_threshold) : 0.f,
-                                          e.color_parts});
-          rec.dispatch_1d(w * h, 64);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-          rec.bind(*landmarks);
-          rec.set_storage_buffer(0, li.candidates);
-          rec.set_storage_buffer(1, renderer.camera_positions());
-          rec.set_storage_buffer(2, g_position);
-          rec.set_storage_buffer(3, landmark_items);
-          rec.set_storage_buffer(4, counters);
-          rec.push_constants(LandmarkPush{li.num_candidates, f.camera.near_plane, w, h, f.camera.fx, f.camera.fy, f.camera.cx,
-                                          f.camera.cy, static_cast<float>(e.landmark_occlusion_m)});
-          rec.dispatch(1, 1, 1);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
-          VkBufferCopy copy{0, 0, sizeof(Counters)};
-          vkCmdCopyBuffer(cmd, counters.handle(), counters_readback.handle(), 1, &copy);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
-                             VK_ACCESS_2_HOST_READ_BIT);
-        });
+    renderer.render(p, f.camera, o.render, [&](VkCommandBuffer cmd, const gpu::GBufferTargets& targets) {
+      gpu::CommandRecorder rec(context, cmd);
+      record_after_everything_before(rec);
+      record_linearization(rec, targets, li, e, false);
+    });
     // The submission's time is the synthesis row's: the render and the pass that classifies its pixels.
     *synthesis_ms += ms_since(t0);
     const auto t1 = Clock::now();
@@ -582,8 +698,10 @@ struct VulkanSolver::Impl {
     return out;
   }
 
+  // The TrackParams of a linearisation into `target` (default: `params`) and the base
+  // coefficients into `base`.
   void write_params(const Counts& c, const ParameterLayout& l, const gpu::FaceParameters& p, const EnergyOptions& e,
-                    const gpu::PinholeCamera& cam, bool regularize_shared) {
+                    const gpu::PinholeCamera& cam, bool regularize_shared, gpu::Buffer* target = nullptr) {
     counts = c;
     layout = l;
     n = static_cast<uint32_t>(l.num_parameters());
@@ -627,7 +745,7 @@ struct VulkanSolver::Impl {
     for (int i = 0; i < 3; ++i) {
       for (int j = 0; j < 3; ++j) t.r0[3 * i + j] = r0(i, j);
     }
-    params.write(&t, sizeof(t));
+    (target ? *target : params).write(&t, sizeof(t));
     // alpha | beta | delta (the base, zero-padded) | 1/sigma_id | 1/sigma_alb
     const int kid = model.num_identity(), kalb = model.num_albedo(), kexp = model.num_expression();
     std::vector<float> b(static_cast<size_t>(2 * kid + 2 * kalb + kexp) + 1, 0.f);
@@ -645,19 +763,30 @@ struct VulkanSolver::Impl {
 
   uint32_t evaluate_groups() const { return (counts.items() + kEvaluateGroup - 1) / kEvaluateGroup; }
 
+  const gpu::Buffer& track_params() const { return device_params ? *device_params : params; }
+
+  // A pass's dispatch: groups from the host, or from tracker_loop.comp's arguments (`arg`).
+  void dispatch(gpu::CommandRecorder& rec, int arg, uint32_t x, uint32_t y) const {
+    if (arg == kDirect) {
+      rec.dispatch(x, y, 1);
+    } else {
+      rec.dispatch_indirect(loop_args, VkDeviceSize{16} * static_cast<uint32_t>(arg));
+    }
+  }
+
   void compute_barrier(gpu::CommandRecorder& rec) const {
     rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
   }
 
-  void record_vertices(gpu::CommandRecorder& rec, uint32_t first, uint32_t mode, uint32_t count) const {
+  void record_vertices(gpu::CommandRecorder& rec, uint32_t first, uint32_t mode, uint32_t count, int arg = kDirect) const {
     rec.bind(*vertices_pass);
-    const gpu::Buffer* vb[] = {&params,      &xs,         &base,          &mean_shape,    &identity_columns,
+    const gpu::Buffer* vb[] = {&track_params(), &xs,         &base,          &mean_shape,    &identity_columns,
                                &expression_columns, &mean_albedo, &albedo_columns, &vertices, &identity_cache};
     for (uint32_t i = 0; i < 10; ++i) rec.set_storage_buffer(i, *vb[i]);
     rec.push_constants(VerticesPush{first, mode});
-    rec.dispatch((3 * static_cast<uint32_t>(model.num_vertices()) + 63) / 64, count, 1);
+    dispatch(rec, arg, (3 * static_cast<uint32_t>(model.num_vertices()) + 63) / 64, count);
   }
 
   // Vertex positions/albedos of x slots [first, first + count), then their residuals (and J,
@@ -668,8 +797,14 @@ struct VulkanSolver::Impl {
     record_vertices(rec, first, cache_identity ? 2u : 0u, count);
     compute_barrier(rec);
     if (evaluate_groups() == 0) return;
+    record_evaluate_pass(rec, first, write_jacobian, count, kDirect);
+  }
+
+  // The residual (and J) pass alone, for x slots [first, first + count) whose vertices are there.
+  void record_evaluate_pass(gpu::CommandRecorder& rec, uint32_t first, uint32_t write_jacobian, uint32_t count,
+                            int arg) const {
     rec.bind(*evaluate);
-    const gpu::Buffer* b[] = {&params,       &xs,           &base,    &vertices,       &identity_basis,
+    const gpu::Buffer* b[] = {&track_params(), &xs,           &base,    &vertices,       &identity_basis,
                               &expression_basis, &mean_albedo, &albedo_basis, &items,  &landmark_items,
                               nullptr,       &renderer.camera_normals(), &residuals, &jacobian, &energy_partials};
     for (uint32_t i = 0; i < 15; ++i) {
@@ -678,7 +813,7 @@ struct VulkanSolver::Impl {
     rec.set_storage_buffer(10, *current_input);
     rec.set_storage_buffer(15, jacobian_columns);
     rec.push_constants(EvaluatePush{first, write_jacobian});
-    rec.dispatch(evaluate_groups(), count, 1);
+    dispatch(rec, arg, evaluate_groups(), count);
   }
 
   // [J^T J | J^T r]: n rows of n + 1 (tracker_jtj.comp).
@@ -703,46 +838,58 @@ struct VulkanSolver::Impl {
     ensure(product, VkDeviceSize{n} * 4, gpu::BufferDomain::Device, "tracker J^T J p");
   }
 
+  // `groups`: the partials to sum (kSizeFromParams: tracker_jtj.comp's chunks of the level's rows).
   void record_reduce(gpu::CommandRecorder& rec, const gpu::Buffer& partials, const gpu::Buffer& out, uint32_t count,
-                     uint32_t groups) const {
+                     uint32_t groups, int arg = kDirect) const {
+    if (count == 0) return;
     rec.bind(*reduce);
     rec.set_storage_buffer(0, partials);
     rec.set_storage_buffer(1, out);
+    rec.set_storage_buffer(2, track_params());
     rec.push_constants(ReducePush{count, groups});
-    rec.dispatch_1d(count, 64);
+    dispatch(rec, arg, (count + 63) / 64, 1);
   }
 
-  void record_jt(gpu::CommandRecorder& rec, uint32_t mode) const {
+  // Device-driven (`arg` given): the rows and J's column stride come from the level's TrackParams.
+  void record_jt(gpu::CommandRecorder& rec, uint32_t mode, int arg = kDirect) const {
     rec.bind(*jt);
     rec.set_storage_buffer(0, jacobian);
     rec.set_storage_buffer(1, residuals);
     rec.set_storage_buffer(2, state);
     rec.set_storage_buffer(3, jt_partials);
     rec.set_storage_buffer(4, jacobian_columns);
-    rec.push_constants(JtPush{static_cast<uint32_t>(counts.rows()), n, mode, kStateX + 3 * n, kDone, column_stride()});
-    rec.dispatch(jt_chunks(), 1, 1);
+    rec.set_storage_buffer(5, track_params());
+    const bool device = arg != kDirect;
+    rec.push_constants(JtPush{device ? kSizeFromParams : static_cast<uint32_t>(counts.rows()), n, mode, kStateX + 3 * n,
+                              kDone, device ? kSizeFromParams : column_stride()});
+    dispatch(rec, arg, jt_chunks(), 1);
   }
 
-  void record_jtj(gpu::CommandRecorder& rec) const {
+  void record_jtj(gpu::CommandRecorder& rec, int arg = kDirect) const {
     rec.bind(*jtj);
     rec.set_storage_buffer(0, jacobian_columns);
     rec.set_storage_buffer(1, residuals);
     rec.set_storage_buffer(2, jtj_partials);
-    rec.push_constants(JtjPush{static_cast<uint32_t>(counts.rows()), n, kJtjRowsPerChunk, column_stride()});
-    rec.dispatch(jtj_chunks(), (n + kJtjColumnsPerGroup - 1) / kJtjColumnsPerGroup, 1);
+    rec.set_storage_buffer(3, track_params());
+    const bool device = arg != kDirect;
+    rec.push_constants(JtjPush{device ? kSizeFromParams : static_cast<uint32_t>(counts.rows()), n, kJtjRowsPerChunk,
+                               device ? kSizeFromParams : column_stride()});
+    dispatch(rec, arg, jtj_chunks(), (n + kJtjColumnsPerGroup - 1) / kJtjColumnsPerGroup);
   }
 
+  // `groups`: jt partials to sum in stages 0 and 2 (kSizeFromParams: the chunks of the level's rows).
   void record_pcg(gpu::CommandRecorder& rec, uint32_t stage, const gpu::Buffer& input, const SolverOptions& o,
-                  int iterations, uint32_t trials, uint32_t groups = 1) const {
+                  int iterations, uint32_t trials, uint32_t groups = 1, int arg = kDirect) const {
     rec.bind(*pcg);
     rec.set_storage_buffer(0, input);
     rec.set_storage_buffer(1, state);
     rec.set_storage_buffer(2, xs);
+    rec.set_storage_buffer(3, track_params());
     rec.push_constants(PcgPush{stage, n, static_cast<uint32_t>(iterations), trials,
                                static_cast<uint32_t>(layout.offset(Block::kExpression)),
                                static_cast<uint32_t>(layout.num_expression), o.clamp_expression ? 1u : 0u, groups,
                                static_cast<float>(o.pcg_relative_tolerance), static_cast<float>(o.damping)});
-    rec.dispatch(1, 1, 1);
+    dispatch(rec, arg, 1, 1);
   }
 
   void ensure_assembled_buffers() {
@@ -969,6 +1116,299 @@ struct VulkanSolver::Impl {
     choice.residuals = counts.residuals();
     choice.chosen = matrix_free.wall_ms <= assembled.wall_ms ? VulkanStrategy::kMatrixFree : VulkanStrategy::kAssembled;
     return choice.chosen == VulkanStrategy::kMatrixFree ? matrix_free : assembled;
+  }
+
+  // Whether Solve drives this frame's loop from the device (solve_device_loop): on by default
+  // once the strategy is known (kAuto times both on a first, host-driven step), and not when a
+  // stop is already requested (the host loop ends before its first iteration).
+  bool device_loop_applies(const SolverOptions& o) const {
+    return options.device_loop && resolve(o) != VulkanStrategy::kAuto && !o.stop.stop_requested() &&
+           !o.schedule.empty() && o.schedule.size() <= kMaxDeviceLoopLevels;
+  }
+
+  // The frame's whole schedule recorded into one command buffer and submitted once: per level,
+  // blocks 0 .. iterations, each a render at x, its linearisation, and (while the level goes on)
+  // the PCG step and its trial energies, with tracker_loop.comp's three stages making
+  // RunGaussNewton's decisions between them on the device. The host reads x and the records
+  // back once. Returns nothing when a linearisation needed more rows than J holds: J grows for
+  // the next frame and the caller solves this one host-driven.
+  std::optional<SolverSummary> solve_device_loop(const ParameterLayout& l, const SolverOptions& o,
+                                                 std::unordered_map<int, LevelInput>& inputs,
+                                                 const gpu::FaceParameters& base_params, Eigen::VectorXd* x) {
+    const auto start = Clock::now();
+    const EnergyOptions& e = o.energy;
+    const bool assembled = resolve(o) == VulkanStrategy::kAssembled;
+    const uint32_t trials = static_cast<uint32_t>(o.max_step_halvings) + 1, slots = 1 + trials;
+    const uint32_t regularizer = e.use_regularizer ? static_cast<uint32_t>(RegularizerRows(l, true)) : 0;
+    cache_identity = l.num_identity == 0 && l.num_albedo == 0;
+    counts = Counts{};
+    layout = l;
+    n = static_cast<uint32_t>(l.num_parameters());
+    // Sizes: the largest scheduled level; J with `capacity` rows.
+    uint64_t max_pixels = 0, max_items = 0, rows_bound = 0;
+    uint32_t blocks = 0, max_records = 0;
+    for (const LevelSchedule& s : o.schedule) {
+      const LevelInput& li = inputs.at(s.level);
+      const uint64_t pixels = uint64_t(li.frame->width()) * li.frame->height();
+      max_pixels = std::max(max_pixels, pixels);
+      max_items = std::max(max_items, pixels + li.num_candidates + regularizer);
+      rows_bound = std::max<uint64_t>(rows_bound, kRowsPerPixel * pixels + 2ull * li.num_candidates + regularizer);
+      blocks += static_cast<uint32_t>(s.gauss_newton_iterations) + 1;
+      max_records += static_cast<uint32_t>(s.gauss_newton_iterations);
+    }
+    const VkDeviceSize range = context.properties().limits.maxStorageBufferRange;
+    const uint64_t range_rows = range / (4ull * n) / 4 * 4;
+    if (loop_capacity_rows == 0) {
+      loop_capacity_rows = options.device_loop_rows > 0 ? options.device_loop_rows : kDeviceLoopJacobianBudget / (4ull * n) / 4 * 4;
+    }
+    const uint64_t capacity = std::min({loop_capacity_rows, (rows_bound + 3) / 4 * 4, range_rows});
+    ensure(g_position, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer positions");
+    ensure(g_normal, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer normals");
+    ensure(g_bary, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer barycentrics");
+    ensure(g_ids, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer ids");
+    ensure(g_color, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer colours");
+    ensure(items, max_pixels * kPixelItemWords * 4, gpu::BufferDomain::Device, "tracker pixel items");
+    ensure(xs, VkDeviceSize{slots} * n * 4, gpu::BufferDomain::Upload, "tracker parameter vectors");
+    ensure(vertices, VkDeviceSize{slots} * model.num_vertices() * 24, gpu::BufferDomain::Device, "tracker vertices");
+    ensure(residuals, capacity * 4, gpu::BufferDomain::Device, "tracker residuals");
+    ensure(jacobian, 16, gpu::BufferDomain::Device, "tracker Jacobian (row-major)");
+    ensure(jacobian_columns, capacity * n * 4, gpu::BufferDomain::Device, "tracker Jacobian (column-major)");
+    ensure(energy_partials, VkDeviceSize{slots} * ((max_items + kEvaluateGroup - 1) / kEvaluateGroup) * 5 * 4,
+           gpu::BufferDomain::Device, "tracker energy partials");
+    ensure(jt_partials, (capacity + kJtChunk - 1) / kJtChunk * 2 * n * 4, gpu::BufferDomain::Device,
+           "tracker J^T partials");
+    ensure(reduced, VkDeviceSize{2} * n * 4, gpu::BufferDomain::Device, "tracker J^T r | diag");
+    if (assembled) {
+      ensure(jtj_partials, (capacity + kJtjRowsPerChunk - 1) / kJtjRowsPerChunk * entry_count() * 4,
+             gpu::BufferDomain::Device, "tracker J^T J partials");
+      ensure(jtj_reduced, VkDeviceSize{entry_count()} * 4, gpu::BufferDomain::Device, "tracker J^T J | J^T r");
+    }
+    const VkDeviceSize loop_bytes = (kLoopRecordBase + VkDeviceSize{max_records} * kLoopRecordFloats) * 4;
+    ensure(loop_state, loop_bytes, gpu::BufferDomain::Device, "tracker loop state");
+    ensure(readback, loop_bytes, gpu::BufferDomain::Readback, "tracker readback");
+    while (level_params.size() < o.schedule.size()) {
+      level_params.emplace_back(context, sizeof(TrackParams), kStorage, gpu::BufferDomain::Upload, "tracker level parameters");
+    }
+    // What the host knows ahead: x, the base, each level's camera and model sizes.
+    write_points({x});
+    std::vector<gpu::Renderer::DeviceRenderSizes> render_sizes;
+    for (size_t li = 0; li < o.schedule.size(); ++li) {
+      const InputFrame& f = *inputs.at(o.schedule[li].level).frame;
+      write_params(Counts{}, l, base_params, e, f.camera, true, &level_params[li]);
+      render_sizes.push_back(renderer.prepare_device_render(f.camera, o.render));
+    }
+    std::array<float, kLoopHeader> header{};
+    header[kLoopRunning] = 1.f;
+    header[kLoopOpenRecord] = -1.f;
+    for (size_t li = 0; li < kMaxDeviceLoopLevels; ++li) header[kLoopConvergedAt + li] = -1.f;
+    gpu::TimestampQueries* stamps = loop_timestamps && 2 * blocks + 1 <= 32 ? loop_timestamps.get() : nullptr;
+    const gpu::Renderer::IndirectStages stages{&loop_args, 16 * kArgIdentity, 16 * kArgModel, 16 * kArgShade,
+                                               16 * kArgDraw};
+    const uint32_t vertex_mode = cache_identity ? 2u : 0u;
+    context.submit_and_wait(
+        [&](VkCommandBuffer cmd) {
+          gpu::CommandRecorder rec(context, cmd);
+          record_after_everything_before(rec);
+          vkCmdUpdateBuffer(cmd, loop_state.handle(), 0, sizeof(header), header.data());
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+          if (stamps) {
+            stamps->reset(cmd);
+            stamps->write(cmd, 0);
+          }
+          device_params = &level_params[0];
+          if (cache_identity) {  // the base's identity and albedo: the same for the whole frame
+            record_vertices(rec, 0, 1, 1);
+            compute_barrier(rec);
+          }
+          // After a loop stage: its writes visible to the next passes, their indirect arguments included.
+          auto loop_barrier = [&] {
+            rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                               VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT |
+                                   VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT,
+                               VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT |
+                                   VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+          };
+          uint32_t stamp = 1;
+          for (size_t li = 0; li < o.schedule.size(); ++li) {
+            const LevelSchedule& s = o.schedule[li];
+            LevelInput& in = inputs.at(s.level);
+            const InputFrame& f = *in.frame;
+            current_input = &in.data;
+            device_params = &level_params[li];
+            LoopPush push{};
+            push.level_index = static_cast<uint32_t>(li);
+            push.iterations = static_cast<uint32_t>(s.gauss_newton_iterations);
+            push.level = static_cast<uint32_t>(s.level);
+            push.first_level = li == 0 ? 1u : 0u;
+            push.num_trials = trials;
+            push.identity_every_block = cache_identity ? 0u : 1u;
+            push.vertex_groups = render_sizes[li].model_groups;
+            push.shade_groups = render_sizes[li].shade_groups;
+            push.draw_vertices = render_sizes[li].draw_vertices;
+            push.classify_groups = static_cast<uint32_t>((uint64_t(f.width()) * f.height() + 63) / 64);
+            push.num_regularizer = regularizer;
+            push.capacity_rows = static_cast<uint32_t>(capacity);
+            push.assembled = assembled ? 1u : 0u;
+            push.w_point = static_cast<float>(e.w_point);
+            push.w_plane = static_cast<float>(e.w_plane);
+            push.w_col = static_cast<float>(e.w_col);
+            push.w_lan = static_cast<float>(e.w_lan);
+            push.inverse_unit = static_cast<float>(1.0 / e.geometry_unit_m);
+            push.landmark_scale = static_cast<float>(e.landmark_reference_width / f.camera.width);
+            push.function_tolerance = static_cast<float>(o.function_tolerance);
+            auto record_loop = [&](uint32_t stage) {
+              rec.bind(*loop);
+              const gpu::Buffer* b[] = {&track_params(), &xs,      &base,     &energy_partials,
+                                        &state,          &counters, &loop_state, &loop_args,
+                                        &renderer.device_coefficients(), &renderer.device_frame()};
+              for (uint32_t i = 0; i < 10; ++i) rec.set_storage_buffer(i, *b[i]);
+              push.stage = stage;
+              rec.push_constants(push);
+              rec.dispatch(1, 1, 1);
+              loop_barrier();
+            };
+            for (uint32_t block = 0; block <= push.iterations; ++block) {
+              push.block = block;
+              // The last block's readers (the draw's vertex shader, the per-pixel pass) before
+              // this block's writers (the shading pass, the G-buffer copies): what a submission
+              // boundary ordered on the host-driven path.
+              record_after_everything_before(rec);
+              record_loop(0);  // prepare
+              renderer.record_device_render(cmd, f.camera, o.render, stages);
+              record_linearization(rec, renderer.targets(), in, e, true);
+              compute_barrier(rec);
+              record_loop(1);  // counts
+              if (stamps) stamps->write(cmd, stamp++);
+              record_vertices(rec, 0, vertex_mode, 1, kArgVertices);
+              compute_barrier(rec);
+              record_evaluate_pass(rec, 0, 1u, 1, kArgEvaluateJ);  // a step follows: J too
+              compute_barrier(rec);
+              record_evaluate_pass(rec, 0, 0u, 1, kArgEvaluateEnergy);  // the level's last linearisation
+              compute_barrier(rec);
+              if (assembled) {
+                record_jtj(rec, kArgJtj);
+                compute_barrier(rec);
+                record_reduce(rec, jtj_partials, jtj_reduced, entry_count(), kSizeFromParams, kArgReduce);
+                compute_barrier(rec);
+                record_pcg(rec, 1, jtj_reduced, o, s.pcg_iterations, 0, 1, kArgPcg);
+              } else {
+                record_jt(rec, 0, kArgJt);
+                compute_barrier(rec);
+                record_pcg(rec, 0, jt_partials, o, s.pcg_iterations, 0, kSizeFromParams, kArgPcg);
+                for (int it = 0; it < s.pcg_iterations; ++it) {
+                  compute_barrier(rec);
+                  record_jt(rec, 1, kArgJt);
+                  compute_barrier(rec);
+                  record_pcg(rec, 2, jt_partials, o, s.pcg_iterations, 0, kSizeFromParams, kArgPcg);
+                }
+              }
+              compute_barrier(rec);
+              record_pcg(rec, 3, reduced, o, s.pcg_iterations, trials, 1, kArgPcg);
+              compute_barrier(rec);
+              record_vertices(rec, 1, vertex_mode, trials, kArgTrialVertices);
+              compute_barrier(rec);
+              record_evaluate_pass(rec, 1, 0u, trials, kArgTrialEvaluate);
+              compute_barrier(rec);
+              record_loop(2);  // control
+              if (stamps) stamps->write(cmd, stamp++);
+            }
+          }
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                             VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_HOST_BIT,
+                             VK_ACCESS_2_TRANSFER_READ_BIT | VK_ACCESS_2_HOST_READ_BIT);
+          const VkBufferCopy copy{0, 0, loop_bytes};
+          vkCmdCopyBuffer(cmd, loop_state.handle(), readback.handle(), 1, &copy);
+          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                             VK_ACCESS_2_HOST_READ_BIT);
+        },
+        "tracker frame (device-driven Gauss-Newton loop)");
+    device_params = nullptr;
+    current_input = nullptr;
+    std::vector<float> st(loop_bytes / 4);
+    readback.read(st.data(), loop_bytes);
+    const auto termination = static_cast<DeviceTermination>(static_cast<int>(st[kLoopTermination]));
+    if (termination == DeviceTermination::kOverflow) {
+      // The rows that level needed, scaled to the largest scheduled level (the face covers about
+      // the same share of each), and a quarter more.
+      const InputFrame& f = *inputs.at(o.schedule[static_cast<size_t>(st[kLoopTermLevel])].level).frame;
+      const double scale = static_cast<double>(max_pixels) / (double(f.width()) * f.height());
+      const uint64_t needed = static_cast<uint64_t>(st[kLoopOverflowRows] * scale * 1.25);
+      loop_capacity_rows = std::max(loop_capacity_rows, (needed + 3) / 4 * 4);
+      return std::nullopt;
+    }
+    // Synthesis (render + linearisation) and analysis (the rest) per block, from the timestamps.
+    std::vector<double> synthesis(blocks, 0.0), analysis(blocks, 0.0);
+    if (stamps) {
+      stamps->fetch();
+      for (uint32_t b = 0; b < blocks; ++b) {
+        synthesis[b] = stamps->elapsed_ms(2 * b, 2 * b + 1);
+        analysis[b] = stamps->elapsed_ms(2 * b + 1, 2 * b + 2);
+      }
+    }
+    std::vector<float> xf(n);
+    xs.read(xf.data(), xf.size() * sizeof(float));
+    for (uint32_t i = 0; i < n; ++i) (*x)[i] = xf[i];
+    SolverSummary summary;
+    auto energy_at = [&](size_t at) {
+      TermEnergies t;
+      for (int k = 0; k < kNumTerms; ++k) t.value[k] = st[at + static_cast<size_t>(k)];
+      return t;
+    };
+    summary.initial_energy = energy_at(kLoopInitial);
+    summary.final_energy = energy_at(kLoopFinal);
+    // The records, and each one's block: the first block of its level plus its iteration.
+    std::vector<uint32_t> first_block;
+    for (uint32_t b = 0; const LevelSchedule& s : o.schedule) {
+      first_block.push_back(b);
+      b += static_cast<uint32_t>(s.gauss_newton_iterations) + 1;
+    }
+    const int records = static_cast<int>(st[kLoopRecords]);
+    for (int r = 0; r < records; ++r) {
+      const size_t at = kLoopRecordBase + static_cast<size_t>(r) * kLoopRecordFloats;
+      IterationRecord rec;
+      rec.level = static_cast<int>(st[at]);
+      rec.iteration = static_cast<int>(st[at + 1]);
+      rec.residuals = static_cast<Eigen::Index>(st[at + 2]);
+      rec.energy_before = energy_at(at + 3);
+      rec.energy_after = energy_at(at + 8);
+      rec.pcg_iterations = static_cast<int>(st[at + 13]);
+      rec.pcg_relative_residual = st[at + 14];
+      rec.step_norm = st[at + 15];
+      rec.step_halvings = static_cast<int>(st[at + 16]);
+      const uint32_t b = first_block[static_cast<size_t>(st[at + 17])] + static_cast<uint32_t>(rec.iteration);
+      rec.analysis_ms = analysis[b];
+      if (b + 1 < blocks) rec.synthesis_ms = synthesis[b + 1];
+      summary.iterations.push_back(rec);
+    }
+    for (size_t li = 0; li < o.schedule.size(); ++li) {
+      const int at = static_cast<int>(st[kLoopConvergedAt + li]);
+      if (at >= 0) summary.message += internal::LevelConvergedWords(o.schedule[li].level, at);
+    }
+    const int term_level = o.schedule[static_cast<size_t>(st[kLoopTermLevel])].level;
+    const int term_iteration = static_cast<int>(st[kLoopTermIteration]);
+    switch (termination) {
+      case DeviceTermination::kNoDataAtStart:
+        summary.termination = Termination::kNoValidResiduals;
+        summary.message += internal::NoDataWords(term_level, 1);
+        break;
+      case DeviceTermination::kStepLostFace:
+        summary.termination = Termination::kNoValidResiduals;
+        summary.message += internal::StepLostFaceWords(term_level);
+        break;
+      case DeviceTermination::kNonFinite:
+        summary.termination = Termination::kNonFinite;
+        summary.message += internal::NonFiniteWords(term_level, term_iteration);
+        break;
+      default:
+        internal::FinishSummary(static_cast<int>(o.schedule.size()), static_cast<int>(st[kLoopAccepted]),
+                                static_cast<int>(st[kLoopAttempted]), &summary);
+    }
+    const double wall_ms = ms_since(start);
+    for (uint32_t b = 0; b < blocks; ++b) summary.synthesis_ms += synthesis[b];
+    summary.analysis_ms = wall_ms - summary.synthesis_ms;  // without timestamps: all of it
+    return summary;
   }
 
   const gpu::Buffer* current_input = nullptr;
@@ -1221,11 +1661,19 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
     prepared[level.level] = true;
   }
   const double input_ms = ms_since(start);
-  Impl::GaussNewton backend(m, layout, options, inputs, base);
-  SolverSummary summary = internal::RunGaussNewton(
-      options, {{layout.offset(Block::kExpression), layout.num_expression}}, 1, &backend, &x);
+  std::optional<SolverSummary> device_driven;
+  if (m.device_loop_applies(options)) device_driven = m.solve_device_loop(layout, options, inputs, base, &x);
+  SolverSummary summary;
+  if (device_driven) {
+    summary = std::move(*device_driven);
+  } else {
+    Impl::GaussNewton backend(m, layout, options, inputs, base);
+    summary = internal::RunGaussNewton(options, {{layout.offset(Block::kExpression), layout.num_expression}}, 1, &backend,
+                                       &x);
+  }
   const VulkanStrategy used = m.resolve(options);
-  summary.message += std::string("; Vulkan (") + m.context.device_info().name + ", " + vulkan_strategy_name(used) + ")";
+  summary.message += std::string("; Vulkan (") + m.context.device_info().name + ", " + vulkan_strategy_name(used) +
+                     (device_driven ? ", device-driven loop" : "") + ")";
   *params = layout.Unpack(x, base);
   summary.input_ms = input_ms;
   summary.total_ms = ms_since(start);

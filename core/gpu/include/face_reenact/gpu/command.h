@@ -34,6 +34,11 @@ class CommandRecorder {
   void dispatch_1d(uint32_t threads, uint32_t local_size);
   void dispatch(uint32_t x, uint32_t y, uint32_t z);
   void draw(uint32_t vertex_count);
+  // The same with the sizes read on the device from `args` at `offset` (a
+  // VkDispatchIndirectCommand / VkDrawIndirectCommand written by an earlier pass; zero groups or
+  // vertices skip the work): passes whose sizes a device pass decides, recorded ahead of it.
+  void dispatch_indirect(const Buffer& args, VkDeviceSize offset);
+  void draw_indirect(const Buffer& args, VkDeviceSize offset);
 
   // A global memory dependency (buffers), sync2 stage/access masks.
   void memory_barrier(VkPipelineStageFlags2 src_stage, VkAccessFlags2 src_access, VkPipelineStageFlags2 dst_stage,

@@ -74,6 +74,30 @@ class Renderer {
   RenderTimings render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options = {},
                        const RecordAfterRender& then = {});
 
+  // Device-driven rendering, for a solver whose parameters live on the device (the Vulkan
+  // tracker records a frame's whole Gauss-Newton schedule into one submission): the caller's
+  // passes write device_coefficients() (alpha | delta | beta, the model's counts, floats) and
+  // device_frame() (FrameBlock of shaders/common.glsl: rotation rows, translation, SH) before
+  // the recorded render reads them, and `args` holds each stage's VkDispatchIndirectCommand /
+  // VkDrawIndirectCommand, so that a pass can skip a render (zero groups and vertices) that a
+  // converged iteration does not need. prepare_device_render does the host work (validation,
+  // draw list, targets, pipelines) before recording; record_device_render records the stages
+  // into `cmd` without waiting. The identity pass runs where its arguments say, from the device
+  // coefficients; the next render() re-evaluates the identity.
+  struct IndirectStages {
+    const Buffer* args = nullptr;  // VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT
+    VkDeviceSize identity = 0, model = 0, shade = 0, draw = 0;  // byte offsets into args
+  };
+  const Buffer& device_coefficients() const { return coefficients_; }
+  const Buffer& device_frame() const { return frame_; }
+  struct DeviceRenderSizes {
+    uint32_t identity_groups = 0, model_groups = 0, shade_groups = 0;  // full-size dispatches
+    uint32_t draw_vertices = 0;                                          // 3 per drawn triangle
+  };
+  DeviceRenderSizes prepare_device_render(const PinholeCamera& camera, const RenderOptions& options);
+  void record_device_render(VkCommandBuffer cmd, const PinholeCamera& camera, const RenderOptions& options,
+                            const IndirectStages& stages);
+
   // The G-buffer of the last render() (throws if nothing was rendered yet).
   const GBufferTargets& targets() const;
   const PinholeCamera& last_camera() const { return last_camera_; }
@@ -92,6 +116,10 @@ class Renderer {
 
  private:
   GBufferTargets& targets_for(int width, int height);
+  void check_camera(const PinholeCamera& camera, const RenderOptions& options) const;
+  // Records stages 1-3 (sizes from `stages->args` when given) and leaves the targets in GENERAL.
+  void record_stages(VkCommandBuffer cmd, GBufferTargets& targets, const PinholeCamera& camera,
+                     const GraphicsPipeline& raster, bool run_identity, const IndirectStages* stages);
   void update_draw_list(const RenderOptions& options);
   const GraphicsPipeline& raster_pipeline(bool cull);
 

@@ -13,10 +13,19 @@
 //                             reductions (tracker_jtj.comp), then PCG on the small dense system
 //                             inside one workgroup;
 //   step       the trial parameters x + 2^-h dx for every allowed halving are formed and their
-//              energies evaluated on the device in the same submission; the host reads back only
-//              these energies, dx and the PCG summary, and applies the CPU solver's rule.
-// Per Gauss-Newton step there are three submissions: the render, the linearisation (whose
-// counts the host reads to size J), and the analysis + solve + step energies.
+//              energies evaluated on the device, and the CPU solver's rule picks the step.
+// Two ways to drive that loop:
+//   device-driven (Solve, the default once the strategy is known): the frame's whole schedule is
+//              recorded into one command buffer and submitted once; tracker_loop.comp makes the
+//              loop's decisions on the device (the counts that size J and scale the terms, the step
+//              control, convergence, a face lost), indirect dispatches skip the iterations a
+//              converged level does not need, and the host reads back x and the iteration
+//              records once at the end. Its J is sized ahead (capacity_rows): a frame whose
+//              linearisation needs more rows is solved again host-driven, and J grows.
+//   host-driven (SolveFrames, the first Solve under kAuto, VulkanSolverOptions::device_loop
+//              off): two submissions per Gauss-Newton step, the render with the linearisation
+//              (whose counts the host reads to size J) and the analysis + solve + step energies,
+//              whose energies, dx and PCG summary the host reads to apply the rule itself.
 // docs/tracker.md ("Vulkan solver") lists the differences to the CPU reference and the accuracy.
 #include <Eigen/Core>
 #include <memory>
@@ -46,6 +55,13 @@ const char* vulkan_strategy_name(VulkanStrategy s);
 
 struct VulkanSolverOptions {
   VulkanStrategy strategy = VulkanStrategy::kAuto;
+  // Solve drives the Gauss-Newton loop from the device, one submission per frame (above); off:
+  // from the host, two submissions per step (bench track compares the two).
+  bool device_loop = true;
+  // Rows of J the device-driven loop allocates at first (0: as many as 256 MiB hold, the whole
+  // of the paper's level 1 of a 640x480 frame). A frame that needs more is solved host-driven
+  // and J grows for the next.
+  uint64_t device_loop_rows = 0;
   bool IsValid(std::string* why) const;
 };
 
