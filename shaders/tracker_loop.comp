@@ -18,7 +18,10 @@
 //              step control (the largest of dx, dx/2, ... that lowers the energy with the
 //              correspondences held), the convergence test and the new record.
 // State (Loop, floats; vulkan_solver.cc mirrors the indices) and the records go back to the host
-// once, at the end of the frame's submission.
+// at the end of the submission. The host records a level's blocks only as far as recent frames
+// needed them: a level still going at the end of its recorded blocks suspends the rest of the
+// submission (prepare, at the next level's block 0, with previous_cut), and the host submits its
+// remaining blocks and the levels after them; the state carries over.
 layout(local_size_x = 256) in;
 #include "tracker_common.glsl"
 #include "common.glsl"
@@ -46,13 +49,13 @@ layout(push_constant) uniform Push {
   uint stage, level_index, block, iterations;  // block 0 .. iterations of the level
   uint level, first_level, num_trials, identity_every_block;
   uint vertex_groups, shade_groups, draw_vertices, classify_groups;
-  uint num_regularizer, capacity_rows, assembled, pad0;
+  uint num_regularizer, capacity_rows, assembled, previous_cut;  // previous_cut: the level before was cut short
   float w_point, w_plane, w_col, w_lan;
   float inverse_unit, landmark_scale, function_tolerance, pad1;  // 1 / geometry_unit_m, reference width / width
 } pc;
 
 // Loop state indices (vulkan_solver.cc: LoopIndex).
-const uint kRunning = 0u, kLevelActive = 1u, kNextSolve = 2u, kTermination = 4u, kTermLevel = 5u,
+const uint kRunning = 0u, kLevelActive = 1u, kNextSolve = 2u, kSuspended = 3u, kTermination = 4u, kTermLevel = 5u,
            kTermIteration = 6u, kAccepted = 7u, kAttempted = 8u, kRecords = 9u, kOpenRecord = 10u,
            kOverflowRows = 11u, kInitial = 12u, kFinal = 17u, kHasData = 22u, kSolved = 23u, kConvergedAt = 24u,
            kXBefore = 32u, kRecordBase = 288u, kRecordFloats = 18u;
@@ -89,12 +92,19 @@ float reduce_sum(float v) {
   return result;
 }
 
+// A level still going where its recorded blocks ended: the rest of the submission waits for the
+// host to record that level's remaining blocks (loop[kSuspended] = its index + 1).
+bool suspended() { return loop[kSuspended] != 0.0; }
+
 void prepare() {
   const uint lid = gl_LocalInvocationID.x;
-  const bool block_runs = (pc.block == 0u ? loop[kRunning] : loop[kLevelActive]) != 0.0;
+  const bool was_suspended = suspended();
+  const bool suspend = !was_suspended && pc.block == 0u && pc.previous_cut != 0u && loop[kLevelActive] != 0.0;
+  const bool block_runs = !was_suspended && !suspend && (pc.block == 0u ? loop[kRunning] : loop[kLevelActive]) != 0.0;
   barrier();  // every invocation has read the state before it changes
   if (lid == 0u) {
-    if (pc.block == 0u) {  // a new level: RunGaussNewton's loop over the schedule
+    if (suspend) loop[kSuspended] = float(pc.level_index);  // the level before this one, plus one
+    if (pc.block == 0u && !was_suspended && !suspend) {  // a new level: RunGaussNewton's loop over the schedule
       loop[kLevelActive] = block_runs ? 1.0 : 0.0;
       loop[kNextSolve] = pc.iterations > 0u ? 1.0 : 0.0;
     }
@@ -148,7 +158,7 @@ void prepare() {
 
 void counts() {
   if (gl_LocalInvocationID.x != 0u) return;
-  const bool block_runs = loop[kLevelActive] != 0.0;
+  const bool block_runs = loop[kLevelActive] != 0.0 && !suspended();
   if (!block_runs) {
     for (uint s = kArgVertices; s <= kArgReduce; ++s) set_args(s, 0u, 1u, 1u);
     return;
@@ -217,7 +227,7 @@ void write_energy(uint at, const float e[5]) {
 
 void control() {
   const uint lid = gl_LocalInvocationID.x;
-  if (loop[kLevelActive] == 0.0) return;  // uniform
+  if (loop[kLevelActive] == 0.0 || suspended()) return;  // uniform
   const uint n = params.n;
   const uint groups = (params.num_pixels + params.num_landmarks + params.num_regularizer + 63u) / 64u;
   float e[5];

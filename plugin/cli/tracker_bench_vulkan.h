@@ -47,9 +47,11 @@ struct VulkanTrackBenchArgs {
 // VulkanSolver::SolveFrames, as doc["calibration"] holds the CPU's). Frame 0 is the untimed
 // warm-up, as for the CPU. A missing Vulkan device is reported in doc["vulkan"]["error"], not
 // thrown; bad arguments throw.
+// `options`: the per-frame solve's, as the CPU rows have them.
 void add_vulkan_track_bench(const tracker::TrackerModel& model, const std::vector<tracker::InputFrame>& frames,
                             const gpu::FaceParameters& start, const tracker::ParameterLayout& layout,
-                            const CalibrationBench& calibration, const VulkanTrackBenchArgs& args, nlohmann::json* doc);
+                            const tracker::SolverOptions& options, const CalibrationBench& calibration,
+                            const VulkanTrackBenchArgs& args, nlohmann::json* doc);
 
 // Prints the Vulkan summary lines (device, ratios, auto choice) after the table.
 void print_vulkan_track_bench(const nlohmann::json& doc);

@@ -60,6 +60,7 @@ struct TrackBenchArgs {
   int height = 480;
   float distance = 0.55f;
   int calibration_frames = 5;  // frames of the timed calibration
+  double tracking_tolerance = 0;  // SolverOptions::function_tolerance of every row (0: the paper's whole schedule)
   bool json = false;
   VulkanTrackBenchArgs vulkan;  // the Vulkan columns (tracker_vulkan_bench_commands.cc)
 };
@@ -115,8 +116,12 @@ void run_bench_track(const TrackBenchArgs& a) {
   std::vector<CpuRow> rows = {{"cpu_matrix_free", LinearSolverType::kMatrixFree, threads},
                               {"cpu_assembled", LinearSolverType::kAssembled, threads}};
   if (threads > 1) rows.push_back({"cpu_matrix_free_1_thread", LinearSolverType::kMatrixFree, 1});  // else the same row
+  // The paper's schedule, ended early per level where --tracking-tolerance asks (as the tracker does).
+  SolverOptions schedule;
+  if (a.tracking_tolerance > 0) schedule.function_tolerance = a.tracking_tolerance;
+  doc["tracking_tolerance"] = a.tracking_tolerance;
   for (const CpuRow& row : rows) {
-    SolverOptions options;
+    SolverOptions options = schedule;
     options.linear_solver = row.type;
     options.threads = row.threads;
     // Frame 0 is the warm-up from the truth.
@@ -152,14 +157,17 @@ void run_bench_track(const TrackBenchArgs& a) {
     const double n = std::max<double>(1.0, static_cast<double>(frames.size()) - 1);
     doc["gaze"] = {{"ms_per_frame", ms / n}, {"frames", frames.size() - 1}, {"readings", readings}, {"lids_readings", lids}};
   }
-  add_vulkan_track_bench(model, frames, truths[0], layout, calibration, a.vulkan, &doc);
+  add_vulkan_track_bench(model, frames, truths[0], layout, schedule, calibration, a.vulkan, &doc);
   if (a.json) {
     std::printf("%s\n", doc.dump(2).c_str());
     return;
   }
-  std::printf("bench track: %dx%d synthetic frames, %d frames, %d unknowns, paper schedule (7x4 on level 2, 1x4 on level 1), "
+  std::printf("bench track: %dx%d synthetic frames, %d frames, %d unknowns, paper schedule (7x4 on level 2, 1x4 on level 1)%s, "
               "%d CPU threads\n",
-              a.width, a.height, a.frames, layout.num_parameters(), int(doc["cpu_threads"]));
+              a.width, a.height, a.frames, layout.num_parameters(),
+              a.tracking_tolerance > 0 ? (", a level ended once a step gains under " + std::to_string(a.tracking_tolerance)).c_str()
+                                       : "",
+              int(doc["cpu_threads"]));
   std::printf("%-24s %5s %6s %10s %13s %13s\n", "solver", "level", "GN/fr", "residuals", "synthesis ms", "analysis ms");
   for (const auto& [name, s] : doc["solvers"].items()) {
     for (const auto& l : s["levels"]) {
@@ -697,6 +705,11 @@ void add_tracker_commands(CLI::App& app) {
   track->add_option("--distance", args->distance, "Face distance from the camera (m)")->check(CLI::Range(0.2, 5.0));
   track->add_option("--calibration-frames", args->calibration_frames, "Frames of the timed calibration (default 5)")
       ->check(CLI::Range(1, 64));
+  track->add_option("--tracking-tolerance", args->tracking_tolerance,
+                    "End a level once an accepted step lowers the energy by less than this fraction, as the tracker "
+                    "does (default 0: the paper's whole schedule; the tracker's own is " +
+                        std::to_string(TrackerOptions{}.tracking_solver.function_tolerance) + ")")
+      ->check(CLI::Range(0.0, 1.0));
   track->add_flag("--json", args->json, "Machine-readable output");
   track->add_option("--vulkan", args->vulkan.strategies,
                     "Vulkan solver strategies to run: all (default), auto, matrix-free (driven from the device, and "

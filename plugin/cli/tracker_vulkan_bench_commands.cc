@@ -47,7 +47,7 @@ std::string json_name(const std::string& strategy) {
 }  // namespace
 
 void add_vulkan_track_bench(const TrackerModel& model, const std::vector<InputFrame>& frames,
-                            const gpu::FaceParameters& start, const ParameterLayout& layout,
+                            const gpu::FaceParameters& start, const ParameterLayout& layout, const SolverOptions& options,
                             const CalibrationBench& calibration, const VulkanTrackBenchArgs& args, nlohmann::json* doc) {
   const auto strategies = strategies_of(args.strategies);
   nlohmann::json& v = (*doc)["vulkan"];
@@ -75,7 +75,6 @@ void add_vulkan_track_bench(const TrackerModel& model, const std::vector<InputFr
   for (const auto& [name, strategy, device_loop] : strategies) {
     VulkanSolver& s = device_loop ? solver : host_loop_solver;
     s.set_strategy(strategy);
-    SolverOptions options;
     (*doc)["solvers"][json_name(name)] = time_track_solver(
         [&](const InputFrame& frame, gpu::FaceParameters* p) { return s.Solve(frame, layout, options, p); }, frames,
         start);

@@ -127,6 +127,31 @@ TEST(TrackerPyramid, LevelsAreTheSameOnAnyThreadCount) {
   }
 }
 
+// A schedule that starts on a coarser level never reads level 0: without it the other levels are
+// the same, and level 0 keeps the frame's camera and landmarks, not its pixels.
+TEST(TrackerPyramid, WithoutLevelZeroTheCoarserLevelsAreTheSame) {
+  InputFrame f = flat_frame(160, 120, 0.6f, 0.3f);
+  for (size_t p = 0; p < f.depth.size(); ++p) f.depth[p] = 0.6f + 0.001f * static_cast<float>(p % 23);
+  f.landmarks = {{30, {80.f, 60.f}, 1.f}, {8, {82.f, 100.f}, 0.5f}};
+  f.timestamp_s = 2.5;
+  const auto full = BuildPyramid(f, PyramidOptions{}, 2);
+  const auto coarse = BuildPyramid(f, PyramidOptions{}, 2, /*keep_level0=*/false);
+  ASSERT_EQ(coarse.size(), full.size());
+  EXPECT_TRUE(coarse[0].color.empty());
+  EXPECT_TRUE(coarse[0].depth.empty());
+  EXPECT_EQ(coarse[0].width(), 160);
+  EXPECT_EQ(coarse[0].landmarks.size(), 2u);
+  EXPECT_EQ(coarse[0].timestamp_s, 2.5);
+  for (size_t l = 1; l < full.size(); ++l) {
+    EXPECT_EQ(coarse[l].color, full[l].color) << "level " << l;
+    EXPECT_EQ(coarse[l].depth, full[l].depth) << "level " << l;
+    EXPECT_EQ(coarse[l].width(), full[l].width()) << "level " << l;
+    ASSERT_EQ(coarse[l].landmarks.size(), full[l].landmarks.size());
+    EXPECT_EQ(coarse[l].landmarks[1].position, full[l].landmarks[1].position) << "level " << l;
+  }
+  EXPECT_THROW(BuildPyramid(flat_frame(2, 2, 0.5f, 0.5f), PyramidOptions{4}, 1, false), Error);
+}
+
 TEST(TrackerPyramid, RejectsBadFramesWithClearErrors) {
   InputFrame f = flat_frame(16, 16, 0.5f, 0.5f);
   InputFrame bad = f;

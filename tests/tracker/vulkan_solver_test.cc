@@ -245,6 +245,50 @@ TEST_F(VulkanSolverTest, TheDeviceDrivenLoopTakesTheHostDrivenLoopsSteps) {
   }
 }
 
+// The device-driven loop records a level's blocks only as far as the last frames needed them (a
+// converged level's skipped iterations would cost their barriers and recording). A frame that
+// needs more - a start a few degrees and a centimetre away, after frames tracked at rest - stops
+// where the recorded blocks end and its remaining blocks follow in a second submission: the same
+// steps as the host-driven loop. The next such frame records enough at once.
+TEST_F(VulkanSolverTest, AFrameNeedingMoreStepsThanTheLastFramesResumesInASecondSubmission) {
+  const TrackerModel& model = model_for_tests();
+  const gpu::FaceParameters truth = truth_for_tests();
+  const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(320, 240));
+  const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
+  SolverOptions options;
+  options.function_tolerance = 0.03;  // the tracker's
+  VulkanSolverOptions matrix_free;
+  matrix_free.strategy = VulkanStrategy::kMatrixFree;
+  VulkanSolverOptions host_options = matrix_free;
+  host_options.device_loop = false;
+  VulkanSolver device_driven(context(), model, matrix_free), host_driven(context(), model, host_options);
+  SolverSummary rest;
+  for (int k = 0; k < 3; ++k) {
+    gpu::FaceParameters p = truth;
+    rest = device_driven.Solve(frame, layout, options, &p);
+  }
+  gpu::FaceParameters d_fit = start_for_tests(truth), h_fit = d_fit;
+  const SolverSummary d = device_driven.Solve(frame, layout, options, &d_fit);
+  const SolverSummary h = host_driven.Solve(frame, layout, options, &h_fit);
+  std::cout << "at rest: " << rest.BriefReport() << "\nresumed: " << d.FullReport() << "\n";
+  ASSERT_GT(d.iterations.size(), rest.iterations.size()) << "the far start needs no more steps: nothing resumes";
+  EXPECT_EQ(rest.device_submissions, 1);
+  EXPECT_EQ(d.device_submissions, 2);
+  EXPECT_EQ(d.termination, h.termination);
+  ASSERT_EQ(d.iterations.size(), h.iterations.size()) << d.FullReport() << "\n" << h.FullReport();
+  for (size_t i = 0; i < d.iterations.size(); ++i) {
+    EXPECT_EQ(d.iterations[i].level, h.iterations[i].level) << i;
+    EXPECT_EQ(d.iterations[i].iteration, h.iterations[i].iteration) << i;
+    EXPECT_EQ(d.iterations[i].step_halvings, h.iterations[i].step_halvings) << i;
+    EXPECT_NEAR(d.iterations[i].step_norm, h.iterations[i].step_norm, 1e-3 * h.iterations[i].step_norm + 1e-9) << i;
+  }
+  EXPECT_NEAR(d.final_energy.total(), h.final_energy.total(), 2e-2 * h.final_energy.total());  // see above
+  EXPECT_LT(rotation_error(d_fit, h_fit), 0.01 * M_PI / 180);
+  EXPECT_LT((d_fit.translation - h_fit.translation).norm(), 2e-5);
+  gpu::FaceParameters again = start_for_tests(truth);
+  EXPECT_EQ(device_driven.Solve(frame, layout, options, &again).device_submissions, 1);
+}
+
 // The device-driven loop sizes J ahead. A frame whose linearisation needs more rows is solved
 // host-driven (the same result), J grows, and the next frame is driven from the device again.
 TEST_F(VulkanSolverTest, AFrameBeyondTheDeviceLoopsJacobianIsSolvedHostDrivenAndJGrows) {

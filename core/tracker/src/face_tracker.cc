@@ -512,7 +512,7 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
                               LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px),
       stop);
   const auto t_pyr = Clock::now();
-  const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid, so.ResolvedThreads());
+  const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid, so.ResolvedThreads(), so.SolvesFullResolution());
   times->pyramid_ms += ms_since(t_pyr);
   const ParameterLayout layout = ParameterLayout::Tracking(m.num_expression());
   a.params = start;

@@ -90,7 +90,9 @@ FramePyramids BuildFramePyramids(const std::vector<InputFrame>& frames, const So
   const auto start = Clock::now();
   FramePyramids out;
   out.pyramids.reserve(frames.size());
-  for (const InputFrame& f : frames) out.pyramids.push_back(BuildPyramid(f, options.pyramid, options.ResolvedThreads()));
+  for (const InputFrame& f : frames) {
+    out.pyramids.push_back(BuildPyramid(f, options.pyramid, options.ResolvedThreads(), options.SolvesFullResolution()));
+  }
   for (const auto& p : out.pyramids) out.pointers.push_back(&p);
   out.ms = ms_since(start);
   return out;

@@ -126,19 +126,30 @@ bool PyramidOptions::IsValid(std::string* why) const {
   return true;
 }
 
-std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads) {
+std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads,
+                                     bool keep_level0) {
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   if (!frame.IsValid(&why)) throw Error(why);
   std::vector<InputFrame> levels;
   levels.reserve(options.levels);
-  levels.push_back(frame);
+  if (keep_level0) {
+    levels.push_back(frame);
+  } else {
+    InputFrame header;
+    header.camera = frame.camera;
+    header.landmarks = frame.landmarks;
+    header.timestamp_s = frame.timestamp_s;
+    header.new_face = frame.new_face;
+    levels.push_back(std::move(header));
+  }
   for (int l = 1; l < options.levels; ++l) {
-    if (levels.back().width() < 2 || levels.back().height() < 2) {
+    const InputFrame& finer = l == 1 ? frame : levels.back();
+    if (finer.width() < 2 || finer.height() < 2) {
       throw Error("pyramid: a " + std::to_string(frame.width()) + "x" + std::to_string(frame.height()) +
                   " frame is too small for " + std::to_string(options.levels) + " levels");
     }
-    levels.push_back(downsample(levels.back(), options, threads));
+    levels.push_back(downsample(finer, options, threads));
   }
   return levels;
 }

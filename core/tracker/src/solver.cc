@@ -213,6 +213,10 @@ bool SolverOptions::IsValid(std::string* why) const {
 
 int SolverOptions::ResolvedThreads() const { return ResolvedThreadCount(threads); }
 
+bool SolverOptions::SolvesFullResolution() const {
+  return std::any_of(schedule.begin(), schedule.end(), [](const LevelSchedule& l) { return l.level == 0; });
+}
+
 std::string SolverSummary::BriefReport() const {
   char buf[160];
   std::snprintf(buf, sizeof(buf), "%zu iterations, %.1f ms (synthesis %.1f, analysis %.1f): ", iterations.size(), total_ms,
@@ -262,7 +266,8 @@ SolverSummary SolveOnPyramidOf(const InputFrame& frame, const SolverOptions& opt
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   const auto start = Clock::now();
-  const std::vector<InputFrame> pyramid = BuildPyramid(frame, options.pyramid, options.ResolvedThreads());
+  const std::vector<InputFrame> pyramid =
+      BuildPyramid(frame, options.pyramid, options.ResolvedThreads(), options.SolvesFullResolution());
   const double pyramid_ms = ms_since(start);
   SolverSummary s = solve(pyramid);
   s.pyramid_ms = pyramid_ms;

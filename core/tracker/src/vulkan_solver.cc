@@ -9,6 +9,8 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <deque>
+#include <map>
 #include <numeric>
 #include <optional>
 #include <unordered_map>
@@ -222,7 +224,7 @@ struct LoopPush {
   glm::uint stage, level_index, block, iterations;
   glm::uint level, first_level, num_trials, identity_every_block;
   glm::uint vertex_groups, shade_groups, draw_vertices, classify_groups;
-  glm::uint num_regularizer, capacity_rows, assembled, pad0;
+  glm::uint num_regularizer, capacity_rows, assembled, previous_cut;
   float w_point, w_plane, w_col, w_lan;
   float inverse_unit, landmark_scale, function_tolerance, pad1;
 };
@@ -241,7 +243,7 @@ static_assert(offsetof(LoopPush, classify_groups) == 44);
 static_assert(offsetof(LoopPush, num_regularizer) == 48);
 static_assert(offsetof(LoopPush, capacity_rows) == 52);
 static_assert(offsetof(LoopPush, assembled) == 56);
-static_assert(offsetof(LoopPush, pad0) == 60);
+static_assert(offsetof(LoopPush, previous_cut) == 60);
 static_assert(offsetof(LoopPush, w_point) == 64);
 static_assert(offsetof(LoopPush, w_plane) == 68);
 static_assert(offsetof(LoopPush, w_col) == 72);
@@ -255,6 +257,7 @@ static_assert(sizeof(LoopPush) == 96);
 // tracker_loop.comp's state (floats), its indices.
 enum LoopIndex : uint32_t {
   kLoopRunning = 0,
+  kLoopSuspended = 3,  // a level still going where its recorded blocks ended: its index + 1
   kLoopTermination = 4,
   kLoopTermLevel = 5,
   kLoopTermIteration = 6,
@@ -271,6 +274,8 @@ enum LoopIndex : uint32_t {
   kLoopRecordFloats = 18,
 };
 constexpr size_t kMaxDeviceLoopLevels = 8;
+// Frames whose block counts predict how many blocks of a level the next frame records.
+constexpr size_t kLoopHistoryFrames = 8;
 // tracker_loop.comp's terminations.
 enum class DeviceTermination { kDone = 0, kNoDataAtStart = 1, kStepLostFace = 2, kNonFinite = 3, kOverflow = 4 };
 // tracker_loop.comp's indirect argument slots, 16 bytes each (a VkDispatchIndirectCommand, or for
@@ -423,6 +428,11 @@ struct VulkanSolver::Impl {
   std::vector<gpu::Buffer> level_params;
   uint64_t loop_capacity_rows = 0;
   std::unique_ptr<gpu::TimestampQueries> loop_timestamps;
+  // Per schedule (its levels and iterations: the tracker's per-frame and recovery schedules
+  // differ) and per scheduled level, the blocks the last frames used (at most
+  // kLoopHistoryFrames): a frame records as many as the most of them, not the iterations a
+  // converged level skips.
+  std::map<std::vector<int>, std::vector<std::deque<uint32_t>>> loop_history;
   // Where the recorded passes take their sizes: the host's counts and `params` (host-driven), or
   // tracker_loop.comp's arguments and the level's TrackParams (device-driven: `device_params` set).
   const gpu::Buffer* device_params = nullptr;
@@ -1201,133 +1211,182 @@ struct VulkanSolver::Impl {
     header[kLoopRunning] = 1.f;
     header[kLoopOpenRecord] = -1.f;
     for (size_t li = 0; li < kMaxDeviceLoopLevels; ++li) header[kLoopConvergedAt + li] = -1.f;
-    gpu::TimestampQueries* stamps = loop_timestamps && 2 * blocks + 1 <= 32 ? loop_timestamps.get() : nullptr;
     const gpu::Renderer::IndirectStages stages{&loop_args, 16 * kArgIdentity, 16 * kArgModel, 16 * kArgShade,
                                                16 * kArgDraw};
     const uint32_t vertex_mode = cache_identity ? 2u : 0u;
-    context.submit_and_wait(
-        [&](VkCommandBuffer cmd) {
-          gpu::CommandRecorder rec(context, cmd);
-          record_after_everything_before(rec);
-          vkCmdUpdateBuffer(cmd, loop_state.handle(), 0, sizeof(header), header.data());
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-          if (stamps) {
-            stamps->reset(cmd);
-            stamps->write(cmd, 0);
-          }
-          device_params = &level_params[0];
-          if (cache_identity) {  // the base's identity and albedo: the same for the whole frame
-            record_vertices(rec, 0, 1, 1);
-            compute_barrier(rec);
-          }
-          // After a loop stage: its writes visible to the next passes, their indirect arguments included.
-          auto loop_barrier = [&] {
-            rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                               VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT |
-                                   VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT,
-                               VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT |
-                                   VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
-          };
-          uint32_t stamp = 1;
-          for (size_t li = 0; li < o.schedule.size(); ++li) {
-            const LevelSchedule& s = o.schedule[li];
-            LevelInput& in = inputs.at(s.level);
-            const InputFrame& f = *in.frame;
-            current_input = &in.data;
-            device_params = &level_params[li];
-            LoopPush push{};
-            push.level_index = static_cast<uint32_t>(li);
-            push.iterations = static_cast<uint32_t>(s.gauss_newton_iterations);
-            push.level = static_cast<uint32_t>(s.level);
-            push.first_level = li == 0 ? 1u : 0u;
-            push.num_trials = trials;
-            push.identity_every_block = cache_identity ? 0u : 1u;
-            push.vertex_groups = render_sizes[li].model_groups;
-            push.shade_groups = render_sizes[li].shade_groups;
-            push.draw_vertices = render_sizes[li].draw_vertices;
-            push.classify_groups = static_cast<uint32_t>((uint64_t(f.width()) * f.height() + 63) / 64);
-            push.num_regularizer = regularizer;
-            push.capacity_rows = static_cast<uint32_t>(capacity);
-            push.assembled = assembled ? 1u : 0u;
-            push.w_point = static_cast<float>(e.w_point);
-            push.w_plane = static_cast<float>(e.w_plane);
-            push.w_col = static_cast<float>(e.w_col);
-            push.w_lan = static_cast<float>(e.w_lan);
-            push.inverse_unit = static_cast<float>(1.0 / e.geometry_unit_m);
-            push.landmark_scale = static_cast<float>(e.landmark_reference_width / f.camera.width);
-            push.function_tolerance = static_cast<float>(o.function_tolerance);
-            auto record_loop = [&](uint32_t stage) {
-              rec.bind(*loop);
-              const gpu::Buffer* b[] = {&track_params(), &xs,      &base,     &energy_partials,
-                                        &state,          &counters, &loop_state, &loop_args,
-                                        &renderer.device_coefficients(), &renderer.device_frame()};
-              for (uint32_t i = 0; i < 10; ++i) rec.set_storage_buffer(i, *b[i]);
-              push.stage = stage;
-              rec.push_constants(push);
-              rec.dispatch(1, 1, 1);
-              loop_barrier();
-            };
-            for (uint32_t block = 0; block <= push.iterations; ++block) {
-              push.block = block;
-              // The last block's readers (the draw's vertex shader, the per-pixel pass) before
-              // this block's writers (the shading pass, the G-buffer copies): what a submission
-              // boundary ordered on the host-driven path.
-              record_after_everything_before(rec);
-              record_loop(0);  // prepare
-              renderer.record_device_render(cmd, f.camera, o.render, stages);
-              record_linearization(rec, renderer.targets(), in, e, true);
-              compute_barrier(rec);
-              record_loop(1);  // counts
-              if (stamps) stamps->write(cmd, stamp++);
-              record_vertices(rec, 0, vertex_mode, 1, kArgVertices);
-              compute_barrier(rec);
-              record_evaluate_pass(rec, 0, 1u, 1, kArgEvaluateJ);  // a step follows: J too
-              compute_barrier(rec);
-              record_evaluate_pass(rec, 0, 0u, 1, kArgEvaluateEnergy);  // the level's last linearisation
-              compute_barrier(rec);
-              if (assembled) {
-                record_jtj(rec, kArgJtj);
-                compute_barrier(rec);
-                record_reduce(rec, jtj_partials, jtj_reduced, entry_count(), kSizeFromParams, kArgReduce);
-                compute_barrier(rec);
-                record_pcg(rec, 1, jtj_reduced, o, s.pcg_iterations, 0, 1, kArgPcg);
-              } else {
-                record_jt(rec, 0, kArgJt);
-                compute_barrier(rec);
-                record_pcg(rec, 0, jt_partials, o, s.pcg_iterations, 0, kSizeFromParams, kArgPcg);
-                for (int it = 0; it < s.pcg_iterations; ++it) {
-                  compute_barrier(rec);
-                  record_jt(rec, 1, kArgJt);
-                  compute_barrier(rec);
-                  record_pcg(rec, 2, jt_partials, o, s.pcg_iterations, 0, kSizeFromParams, kArgPcg);
-                }
-              }
-              compute_barrier(rec);
-              record_pcg(rec, 3, reduced, o, s.pcg_iterations, trials, 1, kArgPcg);
-              compute_barrier(rec);
-              record_vertices(rec, 1, vertex_mode, trials, kArgTrialVertices);
-              compute_barrier(rec);
-              record_evaluate_pass(rec, 1, 0u, trials, kArgTrialEvaluate);
-              compute_barrier(rec);
-              record_loop(2);  // control
-              if (stamps) stamps->write(cmd, stamp++);
-            }
-          }
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                             VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_HOST_BIT,
-                             VK_ACCESS_2_TRANSFER_READ_BIT | VK_ACCESS_2_HOST_READ_BIT);
-          const VkBufferCopy copy{0, 0, loop_bytes};
-          vkCmdCopyBuffer(cmd, loop_state.handle(), readback.handle(), 1, &copy);
-          rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
-                             VK_ACCESS_2_HOST_READ_BIT);
-        },
-        "tracker frame (device-driven Gauss-Newton loop)");
-    device_params = nullptr;
-    current_input = nullptr;
+    // Blocks per level: the first of each in the frame's numbering, all of them, and how many to
+    // record (as many as the last frames needed; all while there is no history).
+    std::vector<int> schedule_key;
+    for (const LevelSchedule& s : o.schedule) schedule_key.insert(schedule_key.end(), {s.level, s.gauss_newton_iterations});
+    std::vector<std::deque<uint32_t>>& history = loop_history[schedule_key];
+    history.resize(o.schedule.size());
+    std::vector<uint32_t> first_block, all_blocks, predicted;
+    for (uint32_t b = 0, li = 0; li < o.schedule.size(); ++li) {
+      first_block.push_back(b);
+      all_blocks.push_back(static_cast<uint32_t>(o.schedule[li].gauss_newton_iterations) + 1);
+      const auto& h = history[li];
+      predicted.push_back(h.empty() ? all_blocks[li] : std::min(all_blocks[li], *std::max_element(h.begin(), h.end())));
+      b += all_blocks[li];
+    }
+    std::vector<double> synthesis(blocks, 0.0), analysis(blocks, 0.0);
     std::vector<float> st(loop_bytes / 4);
-    readback.read(st.data(), loop_bytes);
+    size_t start_level = 0;
+    uint32_t start_block = 0;
+    for (bool first_chunk = true;; first_chunk = false) {
+      // This submission: from (start_level, start_block), each level up to its predicted end (the
+      // resumed level to its last block).
+      std::vector<uint32_t> end(o.schedule.size(), 0);
+      uint32_t recorded = 0;
+      for (size_t li = start_level; li < o.schedule.size(); ++li) {
+        const uint32_t begin = li == start_level ? start_block : 0;
+        end[li] = li == start_level && !first_chunk ? all_blocks[li] : std::max(begin + 1, predicted[li]);
+        recorded += end[li] - begin;
+      }
+      gpu::TimestampQueries* stamps = loop_timestamps && 2 * recorded + 1 <= 32 ? loop_timestamps.get() : nullptr;
+      std::vector<uint32_t> stamped;  // the frame's block number of each recorded block, in order
+      context.submit_and_wait(
+          [&](VkCommandBuffer cmd) {
+            gpu::CommandRecorder rec(context, cmd);
+            record_after_everything_before(rec);
+            if (first_chunk) {
+              vkCmdUpdateBuffer(cmd, loop_state.handle(), 0, sizeof(header), header.data());
+            } else {
+              const float resume = 0.f;
+              vkCmdUpdateBuffer(cmd, loop_state.handle(), 4 * kLoopSuspended, sizeof(resume), &resume);
+            }
+            rec.memory_barrier(VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                               VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                               VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+            if (stamps) {
+              stamps->reset(cmd);
+              stamps->write(cmd, 0);
+            }
+            device_params = &level_params[0];
+            if (first_chunk && cache_identity) {  // the base's identity and albedo: the same for the whole frame
+              record_vertices(rec, 0, 1, 1);
+              compute_barrier(rec);
+            }
+            // After a loop stage: its writes visible to the next passes, their indirect arguments included.
+            auto loop_barrier = [&] {
+              rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                                 VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT |
+                                     VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT,
+                                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT |
+                                     VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+            };
+            uint32_t stamp = 1;
+            for (size_t li = start_level; li < o.schedule.size(); ++li) {
+              const LevelSchedule& s = o.schedule[li];
+              LevelInput& in = inputs.at(s.level);
+              const InputFrame& f = *in.frame;
+              current_input = &in.data;
+              device_params = &level_params[li];
+              LoopPush push{};
+              push.level_index = static_cast<uint32_t>(li);
+              push.iterations = static_cast<uint32_t>(s.gauss_newton_iterations);
+              push.level = static_cast<uint32_t>(s.level);
+              push.first_level = li == 0 ? 1u : 0u;
+              push.num_trials = trials;
+              push.identity_every_block = cache_identity ? 0u : 1u;
+              push.vertex_groups = render_sizes[li].model_groups;
+              push.shade_groups = render_sizes[li].shade_groups;
+              push.draw_vertices = render_sizes[li].draw_vertices;
+              push.classify_groups = static_cast<uint32_t>((uint64_t(f.width()) * f.height() + 63) / 64);
+              push.num_regularizer = regularizer;
+              push.capacity_rows = static_cast<uint32_t>(capacity);
+              push.assembled = assembled ? 1u : 0u;
+              push.w_point = static_cast<float>(e.w_point);
+              push.w_plane = static_cast<float>(e.w_plane);
+              push.w_col = static_cast<float>(e.w_col);
+              push.w_lan = static_cast<float>(e.w_lan);
+              push.inverse_unit = static_cast<float>(1.0 / e.geometry_unit_m);
+              push.landmark_scale = static_cast<float>(e.landmark_reference_width / f.camera.width);
+              push.function_tolerance = static_cast<float>(o.function_tolerance);
+              auto record_loop = [&](uint32_t stage) {
+                rec.bind(*loop);
+                const gpu::Buffer* b[] = {&track_params(), &xs,      &base,     &energy_partials,
+                                          &state,          &counters, &loop_state, &loop_args,
+                                          &renderer.device_coefficients(), &renderer.device_frame()};
+                for (uint32_t i = 0; i < 10; ++i) rec.set_storage_buffer(i, *b[i]);
+                push.stage = stage;
+                rec.push_constants(push);
+                rec.dispatch(1, 1, 1);
+                loop_barrier();
+              };
+              const uint32_t begin = li == start_level ? start_block : 0;
+              for (uint32_t block = begin; block < end[li]; ++block) {
+                push.block = block;
+                push.previous_cut = block == 0 && li > start_level && end[li - 1] < all_blocks[li - 1] ? 1u : 0u;
+                // The last block's readers (the draw's vertex shader, the per-pixel pass) before
+                // this block's writers (the shading pass, the G-buffer copies): what a submission
+                // boundary ordered on the host-driven path.
+                record_after_everything_before(rec);
+                record_loop(0);  // prepare
+                renderer.record_device_render(cmd, f.camera, o.render, stages);
+                record_linearization(rec, renderer.targets(), in, e, true);
+                compute_barrier(rec);
+                record_loop(1);  // counts
+                if (stamps) stamps->write(cmd, stamp++);
+                record_vertices(rec, 0, vertex_mode, 1, kArgVertices);
+                compute_barrier(rec);
+                record_evaluate_pass(rec, 0, 1u, 1, kArgEvaluateJ);  // a step follows: J too
+                compute_barrier(rec);
+                record_evaluate_pass(rec, 0, 0u, 1, kArgEvaluateEnergy);  // the level's last linearisation
+                compute_barrier(rec);
+                if (assembled) {
+                  record_jtj(rec, kArgJtj);
+                  compute_barrier(rec);
+                  record_reduce(rec, jtj_partials, jtj_reduced, entry_count(), kSizeFromParams, kArgReduce);
+                  compute_barrier(rec);
+                  record_pcg(rec, 1, jtj_reduced, o, s.pcg_iterations, 0, 1, kArgPcg);
+                } else {
+                  record_jt(rec, 0, kArgJt);
+                  compute_barrier(rec);
+                  record_pcg(rec, 0, jt_partials, o, s.pcg_iterations, 0, kSizeFromParams, kArgPcg);
+                  for (int it = 0; it < s.pcg_iterations; ++it) {
+                    compute_barrier(rec);
+                    record_jt(rec, 1, kArgJt);
+                    compute_barrier(rec);
+                    record_pcg(rec, 2, jt_partials, o, s.pcg_iterations, 0, kSizeFromParams, kArgPcg);
+                  }
+                }
+                compute_barrier(rec);
+                record_pcg(rec, 3, reduced, o, s.pcg_iterations, trials, 1, kArgPcg);
+                compute_barrier(rec);
+                record_vertices(rec, 1, vertex_mode, trials, kArgTrialVertices);
+                compute_barrier(rec);
+                record_evaluate_pass(rec, 1, 0u, trials, kArgTrialEvaluate);
+                compute_barrier(rec);
+                record_loop(2);  // control
+                if (stamps) stamps->write(cmd, stamp++);
+                stamped.push_back(first_block[li] + block);
+              }
+            }
+            rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                               VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_HOST_BIT,
+                               VK_ACCESS_2_TRANSFER_READ_BIT | VK_ACCESS_2_HOST_READ_BIT);
+            const VkBufferCopy copy{0, 0, loop_bytes};
+            vkCmdCopyBuffer(cmd, loop_state.handle(), readback.handle(), 1, &copy);
+            rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                               VK_ACCESS_2_HOST_READ_BIT);
+          },
+          "tracker frame (device-driven Gauss-Newton loop)");
+      device_params = nullptr;
+      current_input = nullptr;
+      readback.read(st.data(), loop_bytes);
+      // Synthesis (render + linearisation) and analysis (the rest) per block, from the timestamps.
+      if (stamps) {
+        stamps->fetch();
+        for (size_t k = 0; k < stamped.size(); ++k) {
+          synthesis[stamped[k]] = stamps->elapsed_ms(static_cast<uint32_t>(2 * k), static_cast<uint32_t>(2 * k + 1));
+          analysis[stamped[k]] = stamps->elapsed_ms(static_cast<uint32_t>(2 * k + 1), static_cast<uint32_t>(2 * k + 2));
+        }
+      }
+      const int suspended = static_cast<int>(st[kLoopSuspended]);
+      if (suspended == 0) break;
+      start_level = static_cast<size_t>(suspended) - 1;  // its blocks after those recorded, then the levels after it
+      start_block = end[start_level];
+    }
     const auto termination = static_cast<DeviceTermination>(static_cast<int>(st[kLoopTermination]));
     if (termination == DeviceTermination::kOverflow) {
       // The rows that level needed, scaled to the largest scheduled level (the face covers about
@@ -1337,15 +1396,6 @@ struct VulkanSolver::Impl {
       const uint64_t needed = static_cast<uint64_t>(st[kLoopOverflowRows] * scale * 1.25);
       loop_capacity_rows = std::max(loop_capacity_rows, (needed + 3) / 4 * 4);
       return std::nullopt;
-    }
-    // Synthesis (render + linearisation) and analysis (the rest) per block, from the timestamps.
-    std::vector<double> synthesis(blocks, 0.0), analysis(blocks, 0.0);
-    if (stamps) {
-      stamps->fetch();
-      for (uint32_t b = 0; b < blocks; ++b) {
-        synthesis[b] = stamps->elapsed_ms(2 * b, 2 * b + 1);
-        analysis[b] = stamps->elapsed_ms(2 * b + 1, 2 * b + 2);
-      }
     }
     std::vector<float> xf(n);
     xs.read(xf.data(), xf.size() * sizeof(float));
@@ -1359,12 +1409,8 @@ struct VulkanSolver::Impl {
     summary.initial_energy = energy_at(kLoopInitial);
     summary.final_energy = energy_at(kLoopFinal);
     // The records, and each one's block: the first block of its level plus its iteration.
-    std::vector<uint32_t> first_block;
-    for (uint32_t b = 0; const LevelSchedule& s : o.schedule) {
-      first_block.push_back(b);
-      b += static_cast<uint32_t>(s.gauss_newton_iterations) + 1;
-    }
     const int records = static_cast<int>(st[kLoopRecords]);
+    std::vector<uint32_t> records_per_level(o.schedule.size(), 0);
     for (int r = 0; r < records; ++r) {
       const size_t at = kLoopRecordBase + static_cast<size_t>(r) * kLoopRecordFloats;
       IterationRecord rec;
@@ -1377,7 +1423,9 @@ struct VulkanSolver::Impl {
       rec.pcg_relative_residual = st[at + 14];
       rec.step_norm = st[at + 15];
       rec.step_halvings = static_cast<int>(st[at + 16]);
-      const uint32_t b = first_block[static_cast<size_t>(st[at + 17])] + static_cast<uint32_t>(rec.iteration);
+      const size_t level_index = static_cast<size_t>(st[at + 17]);
+      ++records_per_level[level_index];
+      const uint32_t b = first_block[level_index] + static_cast<uint32_t>(rec.iteration);
       rec.analysis_ms = analysis[b];
       if (b + 1 < blocks) rec.synthesis_ms = synthesis[b + 1];
       summary.iterations.push_back(rec);
@@ -1385,6 +1433,15 @@ struct VulkanSolver::Impl {
     for (size_t li = 0; li < o.schedule.size(); ++li) {
       const int at = static_cast<int>(st[kLoopConvergedAt + li]);
       if (at >= 0) summary.message += internal::LevelConvergedWords(o.schedule[li].level, at);
+    }
+    // The blocks each level used (its steps and the linearisation after the last), for the next
+    // frames' recording.
+    if (termination == DeviceTermination::kDone) {
+      for (size_t li = 0; li < o.schedule.size(); ++li) {
+        auto& h = history[li];
+        h.push_back(std::min(all_blocks[li], records_per_level[li] + 1));
+        if (h.size() > kLoopHistoryFrames) h.pop_front();
+      }
     }
     const int term_level = o.schedule[static_cast<size_t>(st[kLoopTermLevel])].level;
     const int term_iteration = static_cast<int>(st[kLoopTermIteration]);

@@ -61,8 +61,11 @@ struct PyramidOptions {
 // PinholeCamera::Downsampled puts them. Depth averages only valid samples near the block's
 // nearest depth; landmarks move with the camera convention. Throws face_reenact::Error on an
 // invalid frame or options. Up to `threads` threads share each level's rows (the same result for
-// any count).
-std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads = 1);
+// any count). `keep_level0` false: level 0 has the frame's camera, timestamp and landmarks but no
+// pixels, for a solve whose schedule starts on a coarser level (the paper's never reads level 0,
+// and copying a 640x480 frame into it was a third of the pyramid's time).
+std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads = 1,
+                                     bool keep_level0 = true);
 
 // The input normal N_I(p): the cross product of the central differences of X_I along i and j,
 // oriented towards the camera. False where a neighbour is missing or across a depth jump larger

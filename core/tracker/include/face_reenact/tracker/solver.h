@@ -54,6 +54,8 @@ struct SolverOptions {
   bool IsValid(std::string* why) const;
   // `threads` with 0 resolved.
   int ResolvedThreads() const;
+  // Whether the schedule solves on pyramid level 0, the input itself (BuildPyramid's keep_level0).
+  bool SolvesFullResolution() const;
 };
 
 enum class Termination {
