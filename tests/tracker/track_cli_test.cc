@@ -646,8 +646,11 @@ TEST(TrackCli, VideoFilesAreTrackedWithoutDepth) {
   EXPECT_NE(bad.output.find("recording folder"), std::string::npos) << bad.output;
 }
 
-// The Vulkan compute solver behind the whole tracking loop (calibration stays on the CPU) gives
-// the CPU reference's fit; `auto` on lavapipe (a CPU Vulkan driver) picks the CPU solver.
+// The Vulkan compute solver behind the whole tracking loop (the calibration's joint solve too)
+// gives the CPU reference's fit; `auto` on lavapipe (a CPU Vulkan driver) picks the CPU solver.
+// The calibration solves on its schedule's own levels (--calibration-min-face-width 0), not the
+// finer ones a small face moves it to: on lavapipe the joint solve's per-frame J^T J on the finer
+// levels took 430 of this test's 455 s on the 2-core machine (2026-11-27), past its timeout.
 TEST(TrackCli, VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe) {
   REQUIRE_FIXTURE();
   std::map<std::string, nlohmann::json> reports;
@@ -657,7 +660,8 @@ TEST(TrackCli, VulkanSolverTracksLikeTheCpuSolverAndAutoPicksTheCpuOnLavapipe) {
     const SubprocessResult r = run_subprocess(
         {cli(), "track", "--input", fx.recording.string(), "--out", (out / "params.jsonl").string(), "--report",
          (out / "report.json").string(), "--landmarks", "recording", "--calibration-frames", "2", "--frames", "4",
-         "--min-face-width", "20", "--solver", solver, "--device", "llvmpipe", "--model", model(), "--quiet"});
+         "--min-face-width", "20", "--calibration-min-face-width", "0", "--solver", solver, "--device", "llvmpipe",
+         "--model", model(), "--quiet"});
     ASSERT_EQ(r.exit_code, 0) << solver << ": " << r.output;
     reports[solver] = read_json(out / "report.json");
   }
