@@ -48,10 +48,11 @@ layout(std430, set = 0, binding = 9) writeonly buffer Frame { FrameBlock frame; 
 layout(push_constant) uniform Push {
   uint stage, level_index, block, iterations;  // block 0 .. iterations of the level
   uint level, first_level, num_trials, identity_every_block;
-  uint vertex_groups, shade_groups, draw_vertices, classify_groups;
+  uint vertex_groups, shade_groups, draw_vertices, classify_groups;  // the renderer's and the per-pixel pass's
   uint num_regularizer, capacity_rows, assembled, previous_cut;  // previous_cut: the level before was cut short
   float w_point, w_plane, w_col, w_lan;
-  float inverse_unit, landmark_scale, function_tolerance, pad1;  // 1 / geometry_unit_m, reference width / width
+  float inverse_unit, landmark_scale, function_tolerance;  // 1 / geometry_unit_m, reference width / width
+  uint tracker_vertex_groups;  // tracker_vertices.comp's
 } pc;
 
 // Loop state indices (vulkan_solver.cc: LoopIndex).
@@ -198,13 +199,13 @@ void counts() {
   loop[kSolved] = solve ? 1.0 : 0.0;
   const uint groups = (pixels + landmarks + regularizer + 63u) / 64u;  // tracker_evaluate.comp items
   const uint on = solve ? 1u : 0u;
-  set_args(kArgVertices, pc.vertex_groups, 1u, 1u);
+  set_args(kArgVertices, pc.tracker_vertex_groups, 1u, 1u);
   set_args(kArgEvaluateJ, on * groups, 1u, 1u);
   set_args(kArgEvaluateEnergy, (1u - on) * groups, 1u, 1u);
   const uint matrix_free = pc.assembled == 0u ? on : 0u, assembled = pc.assembled != 0u ? on : 0u;
   set_args(kArgJt, matrix_free * ((rows + kJtChunkRows - 1u) / kJtChunkRows), 1u, 1u);
   set_args(kArgPcg, on, 1u, 1u);
-  set_args(kArgTrialVertices, on * pc.vertex_groups, pc.num_trials, 1u);
+  set_args(kArgTrialVertices, on * pc.tracker_vertex_groups, pc.num_trials, 1u);
   set_args(kArgTrialEvaluate, on * groups, pc.num_trials, 1u);
   set_args(kArgJtj, assembled * ((rows + kJtjChunkRows - 1u) / kJtjChunkRows), (params.n + 7u) / 8u, 1u);
   set_args(kArgReduce, assembled * ((params.n * (params.n + 1u) + 63u) / 64u), 1u, 1u);

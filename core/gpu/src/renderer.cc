@@ -257,8 +257,7 @@ Renderer::DeviceRenderSizes Renderer::prepare_device_render(const PinholeCamera&
   targets_for(camera.width, camera.height);
   raster_pipeline(options.cull_back_faces);
   const uint32_t rows = 3 * num_vertices_;
-  return {(rows + kLocalSize - 1) / kLocalSize, (rows + kLocalSize - 1) / kLocalSize,
-          (num_vertices_ + kLocalSize - 1) / kLocalSize, 3 * draw_count_};
+  return {(rows + kLocalSize - 1) / kLocalSize, (num_vertices_ + kLocalSize - 1) / kLocalSize, 3 * draw_count_};
 }
 
 void Renderer::record_device_render(VkCommandBuffer cmd, const PinholeCamera& camera, const RenderOptions& options,

@@ -226,7 +226,8 @@ struct LoopPush {
   glm::uint vertex_groups, shade_groups, draw_vertices, classify_groups;
   glm::uint num_regularizer, capacity_rows, assembled, previous_cut;
   float w_point, w_plane, w_col, w_lan;
-  float inverse_unit, landmark_scale, function_tolerance, pad1;
+  float inverse_unit, landmark_scale, function_tolerance;
+  glm::uint tracker_vertex_groups;  // tracker_vertices.comp's groups (the renderer's are render_*)
 };
 static_assert(offsetof(LoopPush, stage) == 0);
 static_assert(offsetof(LoopPush, level_index) == 4);
@@ -251,7 +252,7 @@ static_assert(offsetof(LoopPush, w_lan) == 76);
 static_assert(offsetof(LoopPush, inverse_unit) == 80);
 static_assert(offsetof(LoopPush, landmark_scale) == 84);
 static_assert(offsetof(LoopPush, function_tolerance) == 88);
-static_assert(offsetof(LoopPush, pad1) == 92);
+static_assert(offsetof(LoopPush, tracker_vertex_groups) == 92);
 static_assert(sizeof(LoopPush) == 96);
 
 // tracker_loop.comp's state (floats), its indices.
@@ -453,6 +454,17 @@ struct VulkanSolver::Impl {
     }
     b = gpu::Buffer();  // free first: the old one may be large
     b = gpu::Buffer(context, std::min<VkDeviceSize>(limit, bytes + bytes / 4), kStorage, domain, name);
+  }
+
+  // The G-buffer copies the per-pixel pass reads and its compacted items, for `pixels` pixels.
+  void ensure_pixel_buffers(VkDeviceSize pixels) {
+    const VkDeviceSize plane = pixels * 16;  // one vec4 per pixel
+    ensure(g_position, plane, gpu::BufferDomain::Device, "tracker G-buffer positions");
+    ensure(g_normal, plane, gpu::BufferDomain::Device, "tracker G-buffer normals");
+    ensure(g_bary, plane, gpu::BufferDomain::Device, "tracker G-buffer barycentrics");
+    ensure(g_ids, plane, gpu::BufferDomain::Device, "tracker G-buffer ids");
+    ensure(g_color, plane, gpu::BufferDomain::Device, "tracker G-buffer colours");
+    ensure(items, pixels * kPixelItemWords * 4, gpu::BufferDomain::Device, "tracker pixel items");
   }
 
   void init() {
@@ -669,13 +681,7 @@ struct VulkanSolver::Impl {
     const InputFrame& f = *li.frame;
     const auto t0 = Clock::now();
     const uint32_t w = static_cast<uint32_t>(f.width()), h = static_cast<uint32_t>(f.height());
-    const VkDeviceSize plane = VkDeviceSize{w} * h * 16;
-    ensure(g_position, plane, gpu::BufferDomain::Device, "tracker G-buffer positions");
-    ensure(g_normal, plane, gpu::BufferDomain::Device, "tracker G-buffer normals");
-    ensure(g_bary, plane, gpu::BufferDomain::Device, "tracker G-buffer barycentrics");
-    ensure(g_ids, plane, gpu::BufferDomain::Device, "tracker G-buffer ids");
-    ensure(g_color, plane, gpu::BufferDomain::Device, "tracker G-buffer colours");
-    ensure(items, VkDeviceSize{w} * h * kPixelItemWords * 4, gpu::BufferDomain::Device, "tracker pixel items");
+    ensure_pixel_buffers(VkDeviceSize{w} * h);
     const EnergyOptions& e = o.energy;
     // Model sizes and base coefficients now (the identity cache pass reads them); the counts
     // and scales follow once the linearisation has run.
@@ -790,13 +796,16 @@ struct VulkanSolver::Impl {
                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
   }
 
+  // tracker_vertices.comp's workgroups: one invocation per coordinate row, 64 per group.
+  uint32_t vertex_groups() const { return (3 * static_cast<uint32_t>(model.num_vertices()) + 63) / 64; }
+
   void record_vertices(gpu::CommandRecorder& rec, uint32_t first, uint32_t mode, uint32_t count, int arg = kDirect) const {
     rec.bind(*vertices_pass);
     const gpu::Buffer* vb[] = {&track_params(), &xs,         &base,          &mean_shape,    &identity_columns,
                                &expression_columns, &mean_albedo, &albedo_columns, &vertices, &identity_cache};
     for (uint32_t i = 0; i < 10; ++i) rec.set_storage_buffer(i, *vb[i]);
     rec.push_constants(VerticesPush{first, mode});
-    dispatch(rec, arg, (3 * static_cast<uint32_t>(model.num_vertices()) + 63) / 64, count);
+    dispatch(rec, arg, vertex_groups(), count);
   }
 
   // Vertex positions/albedos of x slots [first, first + count), then their residuals (and J,
@@ -1172,12 +1181,7 @@ struct VulkanSolver::Impl {
       loop_capacity_rows = options.device_loop_rows > 0 ? options.device_loop_rows : kDeviceLoopJacobianBudget / (4ull * n) / 4 * 4;
     }
     const uint64_t capacity = std::min({loop_capacity_rows, (rows_bound + 3) / 4 * 4, range_rows});
-    ensure(g_position, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer positions");
-    ensure(g_normal, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer normals");
-    ensure(g_bary, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer barycentrics");
-    ensure(g_ids, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer ids");
-    ensure(g_color, max_pixels * 16, gpu::BufferDomain::Device, "tracker G-buffer colours");
-    ensure(items, max_pixels * kPixelItemWords * 4, gpu::BufferDomain::Device, "tracker pixel items");
+    ensure_pixel_buffers(max_pixels);
     ensure(xs, VkDeviceSize{slots} * n * 4, gpu::BufferDomain::Upload, "tracker parameter vectors");
     ensure(vertices, VkDeviceSize{slots} * model.num_vertices() * 24, gpu::BufferDomain::Device, "tracker vertices");
     ensure(residuals, capacity * 4, gpu::BufferDomain::Device, "tracker residuals");
@@ -1289,6 +1293,7 @@ struct VulkanSolver::Impl {
               push.num_trials = trials;
               push.identity_every_block = cache_identity ? 0u : 1u;
               push.vertex_groups = render_sizes[li].model_groups;
+              push.tracker_vertex_groups = vertex_groups();
               push.shade_groups = render_sizes[li].shade_groups;
               push.draw_vertices = render_sizes[li].draw_vertices;
               push.classify_groups = static_cast<uint32_t>((uint64_t(f.width()) * f.height() + 63) / 64);

@@ -91,7 +91,7 @@ class Renderer {
   const Buffer& device_coefficients() const { return coefficients_; }
   const Buffer& device_frame() const { return frame_; }
   struct DeviceRenderSizes {
-    uint32_t identity_groups = 0, model_groups = 0, shade_groups = 0;  // full-size dispatches
+    uint32_t model_groups = 0, shade_groups = 0;  // full-size dispatches (the identity pass: model_groups)
     uint32_t draw_vertices = 0;                                          // 3 per drawn triangle
   };
   DeviceRenderSizes prepare_device_render(const PinholeCamera& camera, const RenderOptions& options);
