@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -185,6 +186,7 @@ struct ReenactArgs {
   CameraArgs camera;               // --fov / --intrinsics of both actors' videos (none: estimated)
   double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
   double target_rest_s = -1;       // the same for the target
+  std::string mouth = "auto";      // --mouth: auto, a frame index of the target, or model
   bool quiet = false;
 };
 
@@ -264,6 +266,15 @@ void run_reenact(const ReenactArgs& a) {
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
   ro.tracker.calibration_window_frames = a.calibration_window;
+  if (a.mouth == "model") {
+    ro.mouth_exemplar = false;
+  } else if (a.mouth != "auto") {
+    char* end = nullptr;
+    const long long frame = std::strtoll(a.mouth.c_str(), &end, 10);
+    if (a.mouth.empty() || *end != '\0' || frame < 0)
+      throw Error("reenact: --mouth must be auto, model or the index of a target frame (got '" + a.mouth + "')");
+    ro.mouth_exemplar_frame = frame;
+  }
   if (!tracker::parse_solver_backend(a.solver, &ro.tracker.solver)) throw Error("reenact: --solver must be auto, cpu or vulkan");
   // The options are checked before anything is opened (a bad --calibration-window says so at once).
   std::string why;
@@ -415,6 +426,7 @@ void run_reenact(const ReenactArgs& a) {
               info.camera.width, info.camera.height, seconds);
   std::printf("%s\n", s.BriefReport().c_str());
   std::printf("%s\n", stage_report(s, source_ms).c_str());
+  std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
   if (source_rec && source_by_time.skipped() > 0)
     std::printf("source: %d frames tracked, %d skipped to keep its timing\n", source_tracker->frames, source_by_time.skipped());
   if (!a.sheets.empty()) {
@@ -457,6 +469,7 @@ void run_reenact(const ReenactArgs& a) {
                       {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
                       {"target_total", s.mean_times.total_ms}}},
         {"renderer", s.renderer},
+        {"mouth_interior", s.mouth_interior},
         {"solver", pipeline.tracking_solver()},
         {"camera", {{"target", target_camera}, {"source", source_camera}}},
         {"intrinsics", {{"target", intrinsics_description(a.target, info, target_camera)},
@@ -893,6 +906,10 @@ void add_reenact_commands(CLI::App& app) {
         ->check(CLI::Range(0.0, 1e6));
     c->add_option("--target-rest", args->target_rest_s, "The same for the target actor (seconds into the target)")
         ->check(CLI::Range(0.0, 1e6));
+    c->add_option("--mouth", args->mouth,
+                  "Interior of an opened mouth: auto (default: the target's own open mouth, from the first frame where it "
+                  "opens wide facing the camera, or a later, wider one), N (the target frame with index N), or model "
+                  "(the model's teeth and a dark cavity)");
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_flag("--quiet", args->quiet, "No progress bar");
     c->callback([args] { run_reenact(*args); });

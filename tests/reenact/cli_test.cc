@@ -68,6 +68,11 @@ TEST(ReenactCliTest, MissingRecordingsAndBadUrlsAreClearErrors) {
   r = run_cli({"reenact", "--source", dir.string(), "--target", dir.string(), "--out", out, "--mode", "sideways"});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("sideways"), std::string::npos) << r.output;
+  for (const std::string mouth : {"teeth", "12x", ""}) {
+    r = run_cli({"reenact", "--source", dir.string(), "--target", dir.string(), "--out", out, "--mouth", mouth});
+    EXPECT_EQ(r.exit_code, 1) << mouth;
+    EXPECT_NE(r.output.find("--mouth"), std::string::npos) << r.output;
+  }
   r = run_cli({"demo", "--out", (dir / "d").string(), "--size", "10x10"});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--size"), std::string::npos) << r.output;
@@ -177,6 +182,7 @@ TEST(ReenactCliTest, PairsSourceAndTargetByTimeAndReportsEveryFrame) {
     EXPECT_TRUE(down.at("stage_ms").at(key).is_number()) << key;
   EXPECT_TRUE(down.at("agreement").at("fit_frames").is_number());
   EXPECT_TRUE(down.contains("target_calibration_warning") && down.contains("source_calibration_warning"));
+  EXPECT_TRUE(down.at("mouth_interior").is_string()) << "where an opened mouth's interior came from";
 
   const auto [up, up_lines] = reenact("slow", "fast", "up");
   EXPECT_EQ(up.at("frames"), 12) << up.dump(2);

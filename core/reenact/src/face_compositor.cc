@@ -171,6 +171,19 @@ struct FaceCompositor::Impl {
       }
   }
 
+  // The inner-lip polygon of a evaluated face in pixels (empty: no such landmarks, or a lip
+  // point at or behind the near plane).
+  std::vector<Eigen::Vector2f> Opening(const gpu::PinholeCamera& camera, const gpu::VertexState& state) const {
+    std::vector<Eigen::Vector2f> polygon;
+    if (inner_lip_vertices.size() < 3) return polygon;
+    for (int32_t v : inner_lip_vertices) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+      if (!(x.z() > camera.near_plane)) return {};
+      polygon.push_back(project(camera, x));
+    }
+    return polygon;
+  }
+
   // in_mouth from the mean shape (model space: x to the person's left, y up, z towards the
   // viewer): every face vertex between the mouth corners, within 5 mm of the inner lip line's
   // height and more than 0.5 mm behind it (the line's depth interpolated along x over the upper
@@ -542,6 +555,15 @@ FaceCompositor::FaceCompositor(const FaceModel& model, const ReenactmentOptions&
 
 FaceCompositor::~FaceCompositor() = default;
 
+std::vector<Eigen::Vector2f> FaceCompositor::MouthOpening(const gpu::PinholeCamera& camera,
+                                                          const gpu::FaceParameters& params) const {
+  const Impl& im = *impl_;
+  if (im.inner_lip_vertices.size() < 3) return {};
+  std::string why;
+  if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
+  return im.Opening(camera, im.renderer.evaluate(params, nullptr, im.threads()));
+}
+
 void FaceCompositor::SetOptions(const ReenactmentOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) throw Error("reenactment options: " + why);
@@ -560,7 +582,8 @@ std::string FaceCompositor::renderer_description() const {
 
 CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                                         const gpu::FaceParameters& target, const gpu::FaceParameters& output,
-                                        const AlbedoMap* albedo, const cv::Mat* target_depth) const {
+                                        const AlbedoMap* albedo, const cv::Mat* target_depth,
+                                        const MouthExemplar* mouth) const {
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   if (target_bgr.type() != CV_8UC3 || target_bgr.cols != camera.width || target_bgr.rows != camera.height)
@@ -652,24 +675,28 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // opening shows the inside of the head or nothing at all.
   start = Clock::now();
   if (mouth_pass && mouth_alpha > 0.f) {
-    std::vector<cv::Point> polygon;
+    const std::vector<Eigen::Vector2f> opening_px = im.Opening(camera, state);
     float lip_z = 0.f;
-    bool in_front = true;
-    for (int32_t v : im.inner_lip_vertices) {
-      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
-      if (!(x.z() > camera.near_plane)) in_front = false;
-      lip_z += x.z();
-      const Eigen::Vector2f uv = project(camera, x);
-      polygon.emplace_back(static_cast<int>(std::lround(uv.x())), static_cast<int>(std::lround(uv.y())));
-    }
+    for (int32_t v : im.inner_lip_vertices) lip_z += state.camera_positions[3 * v + 2];
     lip_z /= static_cast<float>(im.inner_lip_vertices.size());
-    if (in_front) {
+    if (!opening_px.empty()) {
+      // The opening's coverage of each pixel, anti-aliased at 1/16 px: a hard-edged polygon drew
+      // the lip line as a staircase of interior and lip pixels (seen on the webcam clip).
+      constexpr int kSubpixelBits = 4;
+      std::vector<cv::Point> polygon;
+      for (const Eigen::Vector2f& uv : opening_px)
+        polygon.emplace_back(static_cast<int>(std::lround(uv.x() * (1 << kSubpixelBits))),
+                             static_cast<int>(std::lround(uv.y() * (1 << kSubpixelBits))));
       cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
-      cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255));
+      cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255), cv::LINE_AA, kSubpixelBits);
       // Light reaching the cavity: the part of the target's lighting that enters the opening.
       Eigen::Vector3f cavity_rgb;
       for (int c = 0; c < 3; ++c) cavity_rgb[c] = Impl::entering_light(light, c) * kCavityAlbedo[c];
-      int drawn = 0;
+      // The actor's own open mouth, when there is one, in place of the model's teeth and the
+      // cavity: darker as the opening narrows, since less light enters it.
+      const bool use_exemplar = mouth && !mouth->empty() && mouth->opening.size() == opening_px.size();
+      const float exemplar_light = use_exemplar ? MouthInteriorBrightness(PolygonArea(opening_px), mouth->area_px) : 1.f;
+      int drawn = 0, from_exemplar = 0;
       for (int j = 0; j < h; ++j) {
         const uchar* orow = opening.ptr<uchar>(j);
         for (int i = 0; i < w; ++i) {
@@ -697,16 +724,24 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           } else {
             continue;  // the lips themselves
           }
+          Eigen::Vector3f exemplar_rgb;
+          if (use_exemplar && SampleMouthExemplar(*mouth, opening_px,
+                                                  Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)), &exemplar_rgb)) {
+            interior = exemplar_light * exemplar_rgb;
+            ++from_exemplar;
+          }
+          const float alpha = mouth_alpha * static_cast<float>(orow[i]) / 255.0f;
           for (int c = 0; c < 3; ++c)
-            px[2 - c] = mouth_alpha * 255.0f * srgb_encode(interior[c]) + (1.0f - mouth_alpha) * px[2 - c];
-          result.mouth_mask.at<uchar>(j, i) = 255;
+            px[2 - c] = alpha * 255.0f * srgb_encode(interior[c]) + (1.0f - alpha) * px[2 - c];
+          if (orow[i] >= 128) result.mouth_mask.at<uchar>(j, i) = 255;
           result.face_mask.at<uchar>(j, i) = 255;
           // The output depth has no surface in an opening that shows mostly the interior.
-          if (mouth_alpha >= 0.5f) result.face_depth.at<float>(j, i) = 0.0f;
+          if (alpha >= 0.5f) result.face_depth.at<float>(j, i) = 0.0f;
           ++drawn;
         }
       }
       result.mouth_drawn = drawn > 0;
+      result.mouth_from_exemplar = from_exemplar > 0;
     }
   }
   result.mouth_ms = ms_since(start);

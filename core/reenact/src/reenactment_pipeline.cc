@@ -72,7 +72,9 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
       depth_occluder_m < 0.f)
     return fail("depth_background_m and depth_occluder_m must be finite and >= 0");
   if (render_threads < 0 || render_threads > 64) return fail("render_threads must be 0..64 (0 = one per hardware thread)");
+  if (mouth_exemplar_frame < -1) return fail("mouth_exemplar_frame must be -1 (automatic) or a frame index");
   std::string sub;
+  if (!mouth_exemplar_options.IsValid(&sub)) return fail(sub);
   if (!use_ground_truth_target) {
     if (!tracker.IsValid(&sub)) return fail("tracker: " + sub);
     if (!input.IsValid(&sub)) return fail("input: " + sub);
@@ -102,6 +104,7 @@ struct ReenactmentPipeline::Impl {
   gpu::FaceParameters neutral;
   AlbedoMap albedo;
   int albedo_observations = 0;
+  MouthExemplar mouth;
   int tracked_frames = 0;
   int frames_without_face = 0;
   PipelineSummary summary;
@@ -123,7 +126,53 @@ struct ReenactmentPipeline::Impl {
   void ForgetActor() {
     albedo = AlbedoMap{};
     albedo_observations = 0;
+    mouth = MouthExemplar{};
     tracked_frames = 0;
+  }
+
+  // Takes this tracked frame's open mouth as the interior when it is the one to keep
+  // (ReenactmentOptions::mouth_exemplar*). The model is evaluated only for frames whose jawOpen
+  // could beat the current still.
+  void ConsiderMouthExemplar(const cv::Mat& frame_bgr, int64_t frame_index, const gpu::PinholeCamera& camera,
+                             const gpu::FaceParameters& params) {
+    if (!options.mouth_exemplar || !options.render_mouth) return;
+    const float jaw = expression_weight(params.delta, kJawOpenIndex);
+    MouthExemplarOptions eo = options.mouth_exemplar_options;
+    if (options.mouth_exemplar_frame >= 0) {
+      // The named frame, whatever its pose, as long as its mouth is open at all.
+      if (frame_index != options.mouth_exemplar_frame || !mouth.empty()) return;
+      eo.min_jaw_open = 0.f;
+      eo.min_area_px = 1.0;
+      eo.max_turn_deg = 90.f;
+    } else if (jaw < eo.min_jaw_open || (!mouth.empty() && jaw <= mouth.jaw_open)) {
+      return;
+    }
+    // The turn away from the camera: the angle between the face's forward axis and the view ray.
+    const Eigen::Vector3f forward = gpu::rotation_from_euler(params.euler) * Eigen::Vector3f::UnitZ();
+    const Eigen::Vector3f to_camera = -params.translation.normalized();
+    const float turn_deg =
+        static_cast<float>(std::acos(std::clamp(forward.dot(to_camera), -1.0f, 1.0f)) * 180.0 / 3.14159265358979323846);
+    const std::vector<Eigen::Vector2f> opening = compositor.MouthOpening(camera, params);
+    if (!IsBetterMouthExemplar(mouth, opening, jaw, turn_deg, eo)) return;
+    MouthExemplar e = CaptureMouthExemplar(frame_bgr, opening, jaw, frame_index, eo);
+    if (!e.empty()) mouth = std::move(e);
+  }
+
+  std::string MouthInteriorDescription() const {
+    if (!options.render_mouth) return "none: the mouth pass is off";
+    if (!mouth.empty()) {
+      std::ostringstream s;
+      s.setf(std::ios::fixed);
+      s.precision(2);
+      s << "the target's own mouth, frame " << mouth.frame_index << " (jawOpen " << mouth.jaw_open << ", "
+        << static_cast<int>(std::lround(mouth.area_px)) << " px opening)";
+      return s.str();
+    }
+    if (!options.mouth_exemplar) return "the model's teeth and a dark cavity (the target's own mouth is off)";
+    if (options.mouth_exemplar_frame >= 0)
+      return "the model's teeth and a dark cavity: frame " + std::to_string(options.mouth_exemplar_frame) +
+             " was not tracked with an open mouth in the frame";
+    return "the model's teeth and a dark cavity: the target has not opened the mouth wide enough while facing the camera";
   }
 };
 
@@ -180,6 +229,7 @@ tracker::FaceTracker::CalibrationProgress ReenactmentPipeline::calibration_progr
 PipelineSummary ReenactmentPipeline::summary() const {
   PipelineSummary s = impl_->summary;
   s.renderer = impl_->compositor.renderer_description();
+  s.mouth_interior = impl_->MouthInteriorDescription();
   if (s.frames > 0) {
     const double n = s.frames;
     const StageTimes& t = impl_->time_sums;
@@ -188,6 +238,8 @@ PipelineSummary ReenactmentPipeline::summary() const {
   }
   return s;
 }
+
+const MouthExemplar& ReenactmentPipeline::mouth_exemplar() const { return impl_->mouth; }
 
 ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, const SourceExpression* source) {
   std::string why;
@@ -354,12 +406,17 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     out.output_params = transfer ? TransferParameters(target_params, tracked.neutral, *source) : target_params;
     out.times.transfer_ms = ms_since(t0);
 
+    // --- the target's own open mouth, for the interior (Sec. 7.4.1).
+    t0 = Clock::now();
+    im.ConsiderMouthExemplar(out.bgr, out.frame_index, fit_camera, target_params);
+    const double exemplar_ms = ms_since(t0);
+
     // --- re-render, mouth, composite.
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
     CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
-                                              input_depth.empty() ? nullptr : &input_depth);
+                                              input_depth.empty() ? nullptr : &input_depth, &im.mouth);
     out.times.render_ms += c.render_ms;
-    out.times.mouth_ms = c.mouth_ms;
+    out.times.mouth_ms = c.mouth_ms + exemplar_ms;
     out.times.composite_ms = c.composite_ms;
     if (!c.drawn) return pass_through(TrackingStatus::kTracking, "the tracked face is outside the frame");
     out.bgr = c.bgr;
@@ -369,6 +426,7 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
       c.face_depth.copyTo(out.depth, c.face_mask);
     }
     out.mouth_drawn = c.mouth_drawn;
+    out.mouth_from_exemplar = c.mouth_from_exemplar;
     out.reenacted = true;
   } catch (const Error& e) {
     // Non-finite or out-of-range tracked parameters: show the input, say why.

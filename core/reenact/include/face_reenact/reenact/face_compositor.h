@@ -7,11 +7,13 @@
 // drive it directly with ground-truth parameters.
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
 
 namespace face_reenact {
@@ -43,6 +45,7 @@ struct CompositeResult {
   bool drawn = false;     // false: nothing of the face is in the frame; bgr = target
   bool mouth_drawn = false;
   bool mouth_opened_wider = false;  // the output's jawOpen exceeds the target's (by the threshold)
+  bool mouth_from_exemplar = false;  // the interior drawn was the actor's own open mouth (mouth_interior.h)
   double render_ms = 0, mouth_ms = 0, composite_ms = 0;
 };
 
@@ -65,9 +68,18 @@ class FaceCompositor {
   // `target_depth` (optional, CV_32FC1 metres, 0/NaN = none): pixels where the input is far
   // behind the rendered surface (the fit overshoots onto the background) or in front of it (an
   // occluder) keep the target (ReenactmentOptions::depth_background_m / depth_occluder_m).
+  // `mouth` (optional): the target actor's own open mouth, warped into the opening in place of
+  // the model's teeth and the dark cavity (Sec. 7.4.1), darker as the opening narrows
+  // (MouthInteriorBrightness).
   CompositeResult Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                           const gpu::FaceParameters& target, const gpu::FaceParameters& output,
-                          const AlbedoMap* albedo = nullptr, const cv::Mat* target_depth = nullptr) const;
+                          const AlbedoMap* albedo = nullptr, const cv::Mat* target_depth = nullptr,
+                          const MouthExemplar* mouth = nullptr) const;
+
+  // The inner-lip polygon (iBUG 60-67, the model's landmark vertices projected) of the face at
+  // `params`, in pixels; empty when the model has no such landmarks or the mouth is behind the
+  // camera. The opening the mouth pass fills, and a MouthExemplar's polygon.
+  std::vector<Eigen::Vector2f> MouthOpening(const gpu::PinholeCamera& camera, const gpu::FaceParameters& params) const;
 
   // Adds the observation of `frame_bgr` at the tracked `params` to `map` (started from the model
   // albedo of params.beta when empty): each visible, camera-facing vertex's colour divided by

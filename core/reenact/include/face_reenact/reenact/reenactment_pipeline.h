@@ -24,6 +24,7 @@
 
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "face_reenact/tracker/rgbd_input.h"
 
@@ -111,6 +112,17 @@ struct ReenactmentOptions {
   // exceeds this: the re-rendered face covers the target's own mouth, so an opened mouth never
   // shows the target's closed lips.
   float mouth_open_threshold = 0.02f;
+  // The target actor's own open mouth (Sec. 7.4.1, mouth_interior.h): a still of its teeth,
+  // tongue and cavity from one of its tracked frames, warped into every opened mouth in place of
+  // the model's teeth and a dark cavity. mouth_exemplar_frame -1 takes the first frame that
+  // opens the mouth wide enough while facing the camera (mouth_exemplar_options) and a later one
+  // that opens it clearly wider; N >= 0 takes the frame with that index (a recording may name
+  // the frame where the actor opened the mouth) and no other. Until there is one, and with
+  // mouth_exemplar false, the model's teeth and the dark cavity (PipelineSummary::mouth_interior
+  // says which).
+  bool mouth_exemplar = true;
+  int64_t mouth_exemplar_frame = -1;
+  MouthExemplarOptions mouth_exemplar_options;
 
   // --- frame texture (Appearance::kFrameTexture) ---
   // A frame sample is distrusted near an occluding boundary of the target's own rendering (the
@@ -174,6 +186,7 @@ struct ReenactedFrame {
   TrackingStatus status = TrackingStatus::kLost;
   bool reenacted = false;     // a face was rendered and composited into `bgr`
   bool mouth_drawn = false;   // the mouth interior was drawn
+  bool mouth_from_exemplar = false;  // ... from the target's own open-mouth still (mouth_interior.h)
   std::string message;        // why the input was passed through (empty when reenacted)
   gpu::FaceParameters target_params;  // the target's tracked P (meaningful when tracking)
   gpu::FaceParameters output_params;  // P that was rendered (target with the transferred expression)
@@ -199,6 +212,9 @@ struct PipelineSummary {
   int calibrating_frames = 0;
   StageTimes mean_times;  // mean over all processed frames
   std::string renderer;   // which rasteriser ran: "cpu", "vulkan (<device>)", "cpu (Vulkan unavailable: ...)"
+  // Where an opened mouth's interior comes from: "the target's own mouth, frame N (jawOpen J)",
+  // or "the model's teeth and a dark cavity: ..." with the reason (ReenactmentOptions::mouth_exemplar).
+  std::string mouth_interior;
   std::string BriefReport() const;
 };
 
@@ -259,6 +275,8 @@ class ReenactmentPipeline {
   // Whether the tracker solves on a GPU (tracker::FaceTracker::solves_on_gpu; false without one).
   bool tracking_solves_on_gpu() const;
   PipelineSummary summary() const;
+  // The target's open-mouth still in use (empty: none yet, or mouth_exemplar off).
+  const MouthExemplar& mouth_exemplar() const;
 
  private:
   struct Impl;

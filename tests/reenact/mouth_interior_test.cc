@@ -1,0 +1,305 @@
+// The mouth interior of Sec. 7.4.1 (mouth_interior.h): mean-value coordinates, the warp of the
+// actor's open-mouth still into another opening, the choice of the still, and the compositor and
+// pipeline drawing it.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include <opencv2/imgproc.hpp>
+
+#include "face_reenact/common/srgb.h"
+#include "face_reenact/reenact/face_compositor.h"
+#include "face_reenact/reenact/mouth_interior.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
+#include "face_reenact/reenact/transfer.h"
+#include "reenact_test_support.h"
+
+namespace face_reenact::reenact {
+namespace {
+
+using testing::render_target;
+using testing::test_camera;
+using testing::test_face;
+using testing::test_model;
+
+// An inner-lip-like octagon (iBUG 60-67 order: left corner, upper lip to the right corner, lower
+// lip back), made non-convex by a dent in the upper lip's middle (a philtrum's dip).
+std::vector<Eigen::Vector2f> lip_polygon() {
+  return {{10.f, 20.f}, {20.f, 14.f}, {30.f, 17.f}, {40.f, 14.f}, {50.f, 20.f}, {40.f, 28.f}, {30.f, 30.f}, {20.f, 28.f}};
+}
+
+bool inside(const std::vector<Eigen::Vector2f>& poly, const Eigen::Vector2f& p) {
+  std::vector<cv::Point2f> c;
+  for (const auto& v : poly) c.emplace_back(v.x(), v.y());
+  return cv::pointPolygonTest(c, cv::Point2f(p.x(), p.y()), false) > 0;
+}
+
+TEST(MouthInteriorTest, MeanValueCoordinatesReproduceEveryPointAndEveryVertex) {
+  const std::vector<Eigen::Vector2f> poly = lip_polygon();
+  std::vector<float> w;
+  // Each vertex: its indicator (the warp carries the landmarks exactly).
+  for (size_t k = 0; k < poly.size(); ++k) {
+    ASSERT_TRUE(MeanValueCoordinates(poly, poly[k], &w));
+    for (size_t i = 0; i < poly.size(); ++i) EXPECT_EQ(w[i], i == k ? 1.f : 0.f) << "vertex " << k;
+  }
+  // An edge's point: the interpolation of its ends.
+  ASSERT_TRUE(MeanValueCoordinates(poly, 0.25f * poly[2] + 0.75f * poly[3], &w));
+  EXPECT_NEAR(w[2], 0.25f, 1e-5f);
+  EXPECT_NEAR(w[3], 0.75f, 1e-5f);
+  // Inside (the dent included, where a convex-only formula goes wrong): weights sum to 1 and
+  // reproduce the point.
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> x(10.f, 50.f), y(14.f, 30.f);
+  int tested = 0;
+  for (int k = 0; k < 2000 && tested < 300; ++k) {
+    const Eigen::Vector2f p(x(rng), y(rng));
+    if (!inside(poly, p)) continue;
+    ++tested;
+    ASSERT_TRUE(MeanValueCoordinates(poly, p, &w)) << p.transpose();
+    float sum = 0.f;
+    Eigen::Vector2f q = Eigen::Vector2f::Zero();
+    for (size_t i = 0; i < poly.size(); ++i) {
+      sum += w[i];
+      q += w[i] * poly[i];
+    }
+    EXPECT_NEAR(sum, 1.f, 1e-5f);
+    EXPECT_LT((q - p).norm(), 1e-3f) << p.transpose();
+  }
+  EXPECT_GE(tested, 300);
+  // Either orientation.
+  std::vector<Eigen::Vector2f> reversed(poly.rbegin(), poly.rend());
+  ASSERT_TRUE(MeanValueCoordinates(reversed, Eigen::Vector2f(30.f, 22.f), &w));
+  Eigen::Vector2f q = Eigen::Vector2f::Zero();
+  for (size_t i = 0; i < reversed.size(); ++i) q += w[i] * reversed[i];
+  EXPECT_LT((q - Eigen::Vector2f(30.f, 22.f)).norm(), 1e-3f);
+}
+
+TEST(MouthInteriorTest, MeanValueCoordinatesRefuseDegenerateInput) {
+  std::vector<float> w = {42.f};
+  EXPECT_FALSE(MeanValueCoordinates({{0.f, 0.f}, {1.f, 1.f}}, {0.5f, 0.2f}, &w));
+  EXPECT_FALSE(MeanValueCoordinates({{0.f, 0.f}, {1.f, 1.f}, {2.f, 2.f}}, {0.5f, 0.2f}, &w)) << "zero area";
+  EXPECT_FALSE(MeanValueCoordinates(lip_polygon(), {std::nanf(""), 20.f}, &w));
+  std::vector<Eigen::Vector2f> bad = lip_polygon();
+  bad[3].x() = std::numeric_limits<float>::infinity();
+  EXPECT_FALSE(MeanValueCoordinates(bad, {30.f, 22.f}, &w));
+  EXPECT_EQ(w, std::vector<float>{42.f}) << "untouched on failure";
+  EXPECT_DOUBLE_EQ(PolygonArea({{0.f, 0.f}, {4.f, 0.f}, {4.f, 3.f}, {0.f, 3.f}}), 12.0);
+}
+
+// An exemplar whose colour encodes the position: red = x, green = y (sRGB bytes).
+MouthExemplar position_coded_exemplar(std::vector<Eigen::Vector2f> opening) {
+  cv::Mat frame(60, 80, CV_8UC3);
+  for (int j = 0; j < frame.rows; ++j)
+    for (int i = 0; i < frame.cols; ++i) frame.at<cv::Vec3b>(j, i) = cv::Vec3b(40, static_cast<uchar>(3 * j), static_cast<uchar>(3 * i));
+  return CaptureMouthExemplar(frame, opening, 0.5f, 12);
+}
+
+TEST(MouthInteriorTest, TheWarpCarriesTheLandmarksExactlyAndAnAffineOpeningAlong) {
+  const std::vector<Eigen::Vector2f> poly = lip_polygon();
+  const MouthExemplar e = position_coded_exemplar(poly);
+  ASSERT_FALSE(e.empty());
+  EXPECT_EQ(e.frame_index, 12);
+  EXPECT_NEAR(e.area_px, PolygonArea(poly), 1e-9);
+  // The crop keeps the opening with its margin; the polygon moves with it.
+  EXPECT_LE(e.bgr.cols, 40 + 2 * 3 + 1);
+  EXPECT_LE(e.bgr.rows, 16 + 2 * 3 + 1);
+  // The output opening: the same mouth opened 1.6x taller, 1.2x wider and moved (an affine map).
+  auto affine = [](const Eigen::Vector2f& v) { return Eigen::Vector2f(1.2f * v.x() + 100.f, 1.6f * v.y() + 40.f); };
+  std::vector<Eigen::Vector2f> out;
+  for (const auto& v : poly) out.push_back(affine(v));
+  Eigen::Vector3f rgb;
+  Eigen::Vector2f q;
+  // Each output landmark samples exactly its exemplar landmark.
+  for (size_t k = 0; k < out.size(); ++k) {
+    ASSERT_TRUE(SampleMouthExemplar(e, out, out[k], &rgb, &q));
+    EXPECT_LT((q - e.opening[k]).norm(), 1e-5f) << "landmark " << k;
+  }
+  // Inside, the map is the inverse affine map exactly (mean-value coordinates reproduce affine
+  // functions), and the colour read there is the frame's at that place.
+  const Eigen::Vector2f p = affine(Eigen::Vector2f(27.f, 23.f));
+  ASSERT_TRUE(SampleMouthExemplar(e, out, p, &rgb, &q));
+  const Eigen::Vector2f frame_point = q + (poly[0] - e.opening[0]);
+  EXPECT_LT((frame_point - Eigen::Vector2f(27.f, 23.f)).norm(), 1e-3f);
+  EXPECT_NEAR(255.f * srgb_encode(rgb[0]), 3.f * 27.f, 0.6f) << "red codes x";
+  EXPECT_NEAR(255.f * srgb_encode(rgb[1]), 3.f * 23.f, 0.6f) << "green codes y";
+  // Another vertex count is refused.
+  out.pop_back();
+  EXPECT_FALSE(SampleMouthExemplar(e, out, p, &rgb));
+  EXPECT_FALSE(SampleMouthExemplar(MouthExemplar{}, poly, {30.f, 22.f}, &rgb));
+}
+
+TEST(MouthInteriorTest, CaptureRefusesOpeningsCutByTheFrameOrDegenerate) {
+  cv::Mat frame(60, 80, CV_8UC3, cv::Scalar(1, 2, 3));
+  std::vector<Eigen::Vector2f> poly = lip_polygon();
+  EXPECT_FALSE(CaptureMouthExemplar(frame, poly, 0.5f, 0).empty());
+  for (auto& v : poly) v.x() += 35.f;  // the right corner at x = 85, past the frame
+  EXPECT_TRUE(CaptureMouthExemplar(frame, poly, 0.5f, 0).empty());
+  EXPECT_TRUE(CaptureMouthExemplar(frame, {{1.f, 1.f}, {2.f, 2.f}, {3.f, 3.f}}, 0.5f, 0).empty());
+  EXPECT_TRUE(CaptureMouthExemplar(cv::Mat(), lip_polygon(), 0.5f, 0).empty());
+  EXPECT_TRUE(CaptureMouthExemplar(cv::Mat(60, 80, CV_8UC1), lip_polygon(), 0.5f, 0).empty());
+}
+
+TEST(MouthInteriorTest, TheStillIsAWideFrontalOpeningAndOnlyAClearlyWiderOneReplacesIt) {
+  MouthExemplarOptions o;
+  std::string why;
+  ASSERT_TRUE(o.IsValid(&why)) << why;
+  const std::vector<Eigen::Vector2f> poly = lip_polygon();  // area 400 px
+  const MouthExemplar none;
+  EXPECT_TRUE(IsBetterMouthExemplar(none, poly, 0.4f, 10.f, o));
+  EXPECT_FALSE(IsBetterMouthExemplar(none, poly, 0.1f, 10.f, o)) << "barely open";
+  EXPECT_FALSE(IsBetterMouthExemplar(none, poly, 0.4f, 35.f, o)) << "turned away";
+  EXPECT_FALSE(IsBetterMouthExemplar(none, poly, std::nanf(""), 10.f, o));
+  std::vector<Eigen::Vector2f> slit;
+  for (const auto& v : poly) slit.emplace_back(v.x(), 22.f + 0.1f * (v.y() - 22.f));  // 40 px
+  EXPECT_FALSE(IsBetterMouthExemplar(none, slit, 0.4f, 10.f, o)) << "too small an opening";
+  const MouthExemplar current = CaptureMouthExemplar(cv::Mat(60, 80, CV_8UC3, cv::Scalar::all(9)), poly, 0.4f, 3);
+  ASSERT_FALSE(current.empty());
+  std::vector<Eigen::Vector2f> wider, slightly;
+  for (const auto& v : poly) {
+    wider.emplace_back(v.x(), 22.f + 1.4f * (v.y() - 22.f));
+    slightly.emplace_back(v.x(), 22.f + 1.1f * (v.y() - 22.f));
+  }
+  EXPECT_TRUE(IsBetterMouthExemplar(current, wider, 0.6f, 5.f, o));
+  EXPECT_FALSE(IsBetterMouthExemplar(current, slightly, 0.6f, 5.f, o)) << "a still that flickers";
+  o.replace_area_ratio = 0.5;
+  EXPECT_FALSE(o.IsValid(&why));
+  o = MouthExemplarOptions{};
+  o.margin_px = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+}
+
+TEST(MouthInteriorTest, BrightnessFollowsTheOpening) {
+  EXPECT_FLOAT_EQ(MouthInteriorBrightness(500.0, 400.0), 1.f);
+  EXPECT_FLOAT_EQ(MouthInteriorBrightness(400.0, 400.0), 1.f);
+  EXPECT_NEAR(MouthInteriorBrightness(100.0, 400.0), 0.5f, 1e-6f);
+  EXPECT_FLOAT_EQ(MouthInteriorBrightness(1.0, 400.0), 0.35f);
+  EXPECT_FLOAT_EQ(MouthInteriorBrightness(100.0, 0.0), 1.f);
+}
+
+// The compositor: an opened mouth shows the exemplar, not the model's teeth and cavity, and
+// darker where the output opens less than the still did.
+TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.45f);
+  ReenactmentOptions o;
+  o.appearance = Appearance::kAlbedoMap;  // the interior wherever the rendered mouth opens
+  const FaceCompositor fc(*test_model(), o);
+  const cv::Mat frame = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(frame, cam, target, &albedo);
+
+  // The still: the actor's frame with the mouth wide open, its opening painted green (the teeth
+  // and cavity a camera would see there).
+  gpu::FaceParameters wide = target;
+  wide.delta[kJawOpenIndex] = 0.8f;
+  const std::vector<Eigen::Vector2f> wide_opening = fc.MouthOpening(cam, wide);
+  ASSERT_EQ(wide_opening.size(), 8u);
+  cv::Mat still = render_target(wide, cam);
+  std::vector<cv::Point> poly;
+  for (const auto& v : wide_opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  cv::fillPoly(still, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
+  const MouthExemplar e = CaptureMouthExemplar(still, wide_opening, 0.8f, 0);
+  ASSERT_FALSE(e.empty());
+
+  auto green_share = [&](const CompositeResult& c) {
+    int green = 0, n = 0;
+    for (int j = 0; j < cam.height; ++j)
+      for (int i = 0; i < cam.width; ++i) {
+        if (!c.mouth_mask.at<uchar>(j, i)) continue;
+        ++n;
+        const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+        if (px[1] > px[0] + 40 && px[1] > px[2] + 40) ++green;
+      }
+    return n ? static_cast<double>(green) / n : 0.0;
+  };
+  const CompositeResult with = fc.Compose(frame, cam, target, wide, &albedo, nullptr, &e);
+  const CompositeResult without = fc.Compose(frame, cam, target, wide, &albedo);
+  ASSERT_TRUE(with.mouth_drawn && without.mouth_drawn);
+  EXPECT_TRUE(with.mouth_from_exemplar);
+  EXPECT_FALSE(without.mouth_from_exemplar);
+  RecordProperty("green_share_with", std::to_string(green_share(with)));
+  EXPECT_GT(green_share(with), 0.8) << "the opening shows the still's interior";
+  EXPECT_EQ(green_share(without), 0.0) << "the model's teeth and cavity";
+  // The same opening: the still at full brightness (its green within a few levels).
+  const cv::Scalar mean_with = cv::mean(with.rendered_bgr, with.mouth_mask);
+  EXPECT_NEAR(mean_with[1], 200.0, 25.0);
+  // Half as open: less light enters, the interior is darker.
+  gpu::FaceParameters half = target;
+  half.delta[kJawOpenIndex] = 0.4f;
+  const CompositeResult narrower = fc.Compose(frame, cam, target, half, &albedo, nullptr, &e);
+  ASSERT_TRUE(narrower.mouth_from_exemplar);
+  const cv::Scalar mean_half = cv::mean(narrower.rendered_bgr, narrower.mouth_mask);
+  EXPECT_LT(mean_half[1], mean_with[1] - 15.0);
+  EXPECT_GT(green_share(narrower), 0.8);
+  // A still with another vertex count (a model without the eight inner-lip points) is not used.
+  MouthExemplar odd = e;
+  odd.opening.pop_back();
+  EXPECT_FALSE(fc.Compose(frame, cam, target, wide, &albedo, nullptr, &odd).mouth_from_exemplar);
+}
+
+// The pipeline keeps a still of the target's own open mouth (ground-truth target: frames rendered
+// with known P) and says where the interior comes from.
+TEST(MouthInteriorTest, ThePipelineTakesTheTargetsWidestFrontalOpening) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  auto frame = [&](float jaw, int index) {
+    gpu::FaceParameters p = test_face(0.45f);
+    p.delta[kJawOpenIndex] = jaw;
+    capture::RgbdFrame f;
+    f.index = index;
+    f.timestamp_s = index / 30.0;
+    f.camera = cam;
+    f.color = render_target(p, cam);
+    f.ground_truth.params = p;
+    return f;
+  };
+  SourceExpression open;
+  open.weights[kJawOpenIndex] = 0.9f;
+  {
+    ReenactmentPipeline pipeline(*test_model(), o);
+    pipeline.Process(frame(0.0f, 0), &open);
+    EXPECT_TRUE(pipeline.mouth_exemplar().empty()) << "a closed mouth is no interior";
+    EXPECT_NE(pipeline.summary().mouth_interior.find("not opened the mouth"), std::string::npos)
+        << pipeline.summary().mouth_interior;
+    pipeline.Process(frame(0.5f, 1), &open);
+    ASSERT_FALSE(pipeline.mouth_exemplar().empty());
+    EXPECT_EQ(pipeline.mouth_exemplar().frame_index, 1);
+    pipeline.Process(frame(0.55f, 2), &open);
+    EXPECT_EQ(pipeline.mouth_exemplar().frame_index, 1) << "barely wider: the still stays";
+    ReenactedFrame r = pipeline.Process(frame(0.9f, 3), &open);
+    EXPECT_EQ(pipeline.mouth_exemplar().frame_index, 3) << "clearly wider";
+    EXPECT_FALSE(r.mouth_drawn) << "the target's own mouth is as open as the output's: the frame shows it";
+    EXPECT_NE(pipeline.summary().mouth_interior.find("frame 3"), std::string::npos) << pipeline.summary().mouth_interior;
+    r = pipeline.Process(frame(0.0f, 4), &open);  // the target closes its mouth, the source keeps it open
+    EXPECT_TRUE(r.mouth_drawn && r.mouth_from_exemplar);
+    pipeline.RequestCalibration();  // a new person: the still was the other's
+    pipeline.Process(frame(0.0f, 5), &open);
+    EXPECT_TRUE(pipeline.mouth_exemplar().empty());
+  }
+  {
+    o.mouth_exemplar_frame = 2;  // named: that frame only
+    ReenactmentPipeline pipeline(*test_model(), o);
+    for (int k = 0; k < 4; ++k) pipeline.Process(frame(k == 2 ? 0.3f : 0.9f, k), &open);
+    EXPECT_EQ(pipeline.mouth_exemplar().frame_index, 2);
+  }
+  {
+    o.mouth_exemplar_frame = -1;
+    o.mouth_exemplar = false;
+    ReenactmentPipeline pipeline(*test_model(), o);
+    pipeline.Process(frame(0.9f, 0), &open);
+    EXPECT_TRUE(pipeline.mouth_exemplar().empty());
+    EXPECT_NE(pipeline.summary().mouth_interior.find("off"), std::string::npos);
+  }
+  o.mouth_exemplar = true;
+  o.mouth_exemplar_frame = -2;
+  std::string why;
+  EXPECT_FALSE(o.IsValid(&why));
+}
+
+}  // namespace
+}  // namespace face_reenact::reenact
