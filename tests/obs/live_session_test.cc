@@ -191,6 +191,27 @@ TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
   EXPECT_EQ(s.Headline().find("not at rest"), std::string::npos) << s.Headline();
 }
 
+// Tracking without a still of the target's own open mouth yet (reenact/mouth_interior.h): the line
+// asks for one, before any calibration warning (the request goes away once the mouth opened);
+// the state line (logged on change) says it too, so the log shows when the still was taken.
+TEST(LiveStatusTest, HeadlineAsksForAnOpenMouthUntilTheTeethAreSeen) {
+  LiveStatus s;
+  s.target_open = true;
+  s.pipeline_ready = true;
+  s.tracking = TrackingState::kTracking;
+  s.output_fps = 30;
+  s.wants_open_mouth = true;
+  EXPECT_EQ(s.Headline(), "Tracking: open your mouth wide once, facing the camera (for the teeth) | 30.0 fps");
+  EXPECT_EQ(s.StateLine(), "Tracking: open your mouth wide once, facing the camera (for the teeth)");
+  s.calibration_warning = "the face was not at rest while calibrating (cheekPuff 0.74)";
+  EXPECT_NE(s.Headline().find("open your mouth"), std::string::npos) << s.Headline();
+  s.wants_open_mouth = false;
+  EXPECT_NE(s.Headline().find("not at rest"), std::string::npos) << s.Headline();
+  s.wants_open_mouth = true;
+  s.tracking = TrackingState::kCalibrating;
+  EXPECT_EQ(s.Headline().find("open your mouth"), std::string::npos) << s.Headline();
+}
+
 // While calibrating, the line says what to do and how far it is; the state line that front-ends
 // log on change leaves out what moves on its own (rates, progress, a lost frame's measurements).
 TEST(LiveStatusTest, CalibratingSaysHoldStillAndTheStateLineLeavesOutTheNumbers) {

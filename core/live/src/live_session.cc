@@ -136,7 +136,11 @@ std::string status_line(const LiveStatus& s, bool numbers) {
     } else if (s.tracking != TrackingState::kTracking && numbers && !s.pipeline_message.empty()) {
       line += " (" + s.pipeline_message + ")";  // a per-frame reason, with its measurements
     }
-    if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty())
+    // The open-mouth request first: it goes away by itself once the mouth opened, and then a
+    // warning of the calibration shows.
+    if (s.tracking == TrackingState::kTracking && s.wants_open_mouth)
+      line += ": open your mouth wide once, facing the camera (for the teeth)";
+    else if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty())
       line += " (calibrated while the face was not at rest: calibrate again with a relaxed face)";
   }
   bool stream = s.source_description.rfind("udp", 0) == 0;
@@ -499,6 +503,7 @@ void LiveSession::run() {
     uint64_t sequence = 0;
     TrackingState tracking = TrackingState::kOff;
     std::string message, calibration_warning, calibration_progress;
+    bool wants_open_mouth = false;
     Clock::time_point window_start = Clock::now();
     int64_t window_frames = 0;
     double window_ms = 0;
@@ -520,6 +525,7 @@ void LiveSession::run() {
       shown.message = out.message;
       shown.calibration_warning = out.calibration_warning;
       shown.calibration_progress = out.calibration_progress;
+      shown.wants_open_mouth = out.wants_open_mouth;
       ++shown.window_frames;
       shown.window_ms += ms_since(job.started, published.produced);
       latest_ = published;
@@ -607,6 +613,7 @@ void LiveSession::run() {
     now = Clock::now();
     TrackingState tracking;
     std::string frame_message, calibration_warning, calibration_progress;
+    bool wants_open_mouth = false;
     double output_fps, process_ms;
     {
       std::lock_guard lock(mu_);
@@ -622,6 +629,7 @@ void LiveSession::run() {
       frame_message = shown.message;
       calibration_warning = shown.calibration_warning;
       calibration_progress = shown.calibration_progress;
+      wants_open_mouth = shown.wants_open_mouth;
       output_fps = shown.output_fps;
       process_ms = shown.process_ms;
     }
@@ -643,6 +651,7 @@ void LiveSession::run() {
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
     s.calibration_warning = pipeline_ready ? calibration_warning : "";
     s.calibration_progress = pipeline_ready && tracking == TrackingState::kCalibrating ? calibration_progress : "";
+    s.wants_open_mouth = pipeline_ready && tracking == TrackingState::kTracking && wants_open_mouth;
     s.output_fps = ts.open ? output_fps : 0;
     s.process_ms = process_ms;
     if (source_spec_.kind == InputKind::kUdp) {

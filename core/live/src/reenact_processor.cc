@@ -132,6 +132,11 @@ class ReenactProcessor : public FrameProcessor {
     out.message = result.message;
     out.calibration_warning = staged.calibration_warning;
     if (result.status == reenact::TrackingStatus::kCalibrating) out.calibration_progress = staged.calibration_progress;
+    // The reenacted mouth wants a still of the target's own open mouth (mouth_interior.h); until
+    // there is one the status asks for it. Render's side owns the still: read here.
+    const reenact::ReenactmentOptions& o = target_->options();
+    out.wants_open_mouth = result.status == reenact::TrackingStatus::kTracking && o.mode == reenact::ReenactMode::kReenact &&
+                           o.render_mouth && o.mouth_exemplar && o.mouth_exemplar_frame < 0 && target_->mouth_exemplar().empty();
     return out;
   }
 

@@ -82,6 +82,10 @@ struct LiveStatus {
   // While tracking == kCalibrating: "3 of 5 frames", "fitting the identity over 5 frames, 1.2 s"
   // (tracker::FaceTracker::CalibrationProgress::Brief()).
   std::string calibration_progress;
+  // While tracking in the reenact mode: no still of the target's own open mouth yet
+  // (reenact/mouth_interior.h), so an opened mouth shows the model's teeth and a dark cavity; the
+  // status line asks the target to open the mouth wide once, facing the camera.
+  bool wants_open_mouth = false;
   // Expression source.
   SourceState source = SourceState::kNone;
   std::string source_description;  // "udp port 9000", "recording 'actor'"
