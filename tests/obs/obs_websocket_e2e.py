@@ -344,6 +344,8 @@ def check_vendor(ws, config):
         raise Failure(f"GetStatus {SOURCE_NAME} does not say what the source does (raw input): {answer}")
     if answer.get("mode") != "raw" or not answer.get("targetOpen") or answer.get("framesOut", 0) <= 0:
         raise Failure(f"GetStatus {SOURCE_NAME}: unexpected fields {answer}")
+    if answer.get("wantsOpenMouth") is not False:  # raw input tracks nothing: no still is wanted
+        raise Failure(f"GetStatus {SOURCE_NAME}: wantsOpenMouth should be false in raw mode: {answer}")
 
     status, answer = vendor(ws, "ListSources", None, "l1")
     names = sorted(item.get("sourceName") for item in answer.get("sources", []))

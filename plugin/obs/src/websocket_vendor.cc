@@ -156,6 +156,7 @@ void vendor_get_status(obs_data_t* request, obs_data_t* response, void*) {
     obs_data_set_bool(response, "calibrationPending", s.calibration_pending);
     obs_data_set_string(response, "calibrationProgress", s.calibration_progress.c_str());
     obs_data_set_string(response, "calibrationWarning", s.calibration_warning.c_str());
+    obs_data_set_bool(response, "wantsOpenMouth", s.wants_open_mouth);
     obs_data_set_int(response, "framesOut", s.frames_out);
     obs_data_set_double(response, "outputFps", s.output_fps);
     obs_data_set_double(response, "targetFps", s.target_fps);
