@@ -94,6 +94,8 @@ nlohmann::json describe(const LoadedModel& l) {
           {"landmarks_silhouette", silhouette},
           {"landmarks_inner", inner},
           {"landmark_vertices", landmarks},
+          // The hm08 base-mesh index of every model vertex (data/ibug68_landmarks.json binds hm08 indices).
+          {"base_vertex", m.base_vertex},
           {"mean_face_extent", {hi.x() - lo.x(), hi.y() - lo.y(), hi.z() - lo.z()}},
           {"eye_centre_distance", eye_centre_distance(m)}};
 }

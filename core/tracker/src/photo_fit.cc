@@ -178,6 +178,7 @@ nlohmann::json FitEvalReport::ToJson() const {
       p["fit_nme"] = errors_json(e.fit);
       p["tracking_status"] = e.tracking_status;
       p["euler_deg"] = {e.euler_deg.x(), e.euler_deg.y(), e.euler_deg.z()};
+      p["expression"] = std::vector<float>(e.expression.data(), e.expression.data() + e.expression.size());
       p["pose_disagreement_deg"] = json_number(e.pose_disagreement_deg);
     }
     p["detect_ms"] = e.detect_ms;
@@ -239,6 +240,7 @@ FitEvalReport EvaluateFitOnAnnotatedPhotos(const std::string& folder, PhotoFitte
         e.fit = MeasureShapeErrors(fit.fitted.points, truth);
         e.tracking_status = tracking_status_name(fit.tracked.status);
         e.euler_deg = fit.params.euler.cast<double>() * (180.0 / M_PI);
+        e.expression = fit.params.delta;
         e.pose_disagreement_deg = fit.tracked.agreement.pose_disagreement_deg;
         ++report.scored;
         det_all.push_back(e.detector.all);

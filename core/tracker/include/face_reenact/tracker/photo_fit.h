@@ -110,6 +110,7 @@ struct FitEvalImage {
   ShapeErrors detector, fit;
   std::string tracking_status;  // the tracker's status name for the fitted photo
   Eigen::Vector3d euler_deg = Eigen::Vector3d::Zero();  // the fitted head rotation (FaceParameters::euler)
+  Eigen::VectorXf expression;  // the fitted blendshape weights (FaceParameters::delta)
   double pose_disagreement_deg = FitAgreement::kNaN;  // fit_agreement.h's, against the detector's points
   double detect_ms = 0, fit_ms = 0;
 };
