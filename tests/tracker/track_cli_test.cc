@@ -390,12 +390,15 @@ TEST(TrackCli, ReadsTheLidsOfAnActorClosingTheEyes) {
   const auto [report, frames] = track("on", true);
   EXPECT_EQ(report["lids"], true);
   ASSERT_EQ(frames.size(), 5u);
+  // Closed (1.0) lids read 0.7-0.9 on the left eye and 0.9-1.0 on the right (the reading steps by
+  // 0.1; the left read 0.8-1.0 before the lip points were re-bound, 2026-11-27, which moved this
+  // actor's fitted identity); --no-lids below reads them under 0.3.
   for (size_t f = 2; f < frames.size(); ++f) {
     SCOPED_TRACE(frames[f].dump());
     ASSERT_TRUE(frames[f]["lids"].is_object());
-    EXPECT_GT(frames[f]["lids"]["blink"][0].get<double>(), 0.7);
-    EXPECT_GT(frames[f]["expression"][left].get<double>(), 0.7);
-    EXPECT_GT(frames[f]["expression"][right].get<double>(), 0.7);
+    EXPECT_GE(frames[f]["lids"]["blink"][0].get<double>(), 0.7 - 1e-6);
+    EXPECT_GE(frames[f]["expression"][left].get<double>(), 0.7 - 1e-6);
+    EXPECT_GE(frames[f]["expression"][right].get<double>(), 0.7 - 1e-6);
   }
   const auto [off_report, off_frames] = track("off", false);
   EXPECT_EQ(off_report["lids"], false);
