@@ -176,14 +176,20 @@ TEST(LiveOptionsTest, CheckInputsReportsMissingFilesUpFront) {
   EXPECT_NO_THROW(LiveSession::CheckInputs(o));
 }
 
-// The status bar (OBS properties, the webcam's log) asks for a new calibration when the last one
-// saw a face that was not at rest; while calibrating, or without the warning, it does not.
-TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
+// A session tracking the target at 30 fps, as the status reports it.
+LiveStatus tracking_at_30_fps() {
   LiveStatus s;
   s.target_open = true;
   s.pipeline_ready = true;
   s.tracking = TrackingState::kTracking;
   s.output_fps = 30;
+  return s;
+}
+
+// The status bar (OBS properties, the webcam's log) asks for a new calibration when the last one
+// saw a face that was not at rest; while calibrating, or without the warning, it does not.
+TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
+  LiveStatus s = tracking_at_30_fps();
   EXPECT_EQ(s.Headline(), "Tracking | 30.0 fps");
   s.calibration_warning = "the face was not at rest while calibrating (mouthSmileLeft 0.56)";
   EXPECT_EQ(s.Headline(), "Tracking (calibrated while the face was not at rest: calibrate again with a relaxed face) | 30.0 fps");
@@ -195,11 +201,7 @@ TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
 // asks for one, before any calibration warning (the request goes away once the mouth opened);
 // the state line (logged on change) says it too, so the log shows when the still was taken.
 TEST(LiveStatusTest, HeadlineAsksForAnOpenMouthUntilTheTeethAreSeen) {
-  LiveStatus s;
-  s.target_open = true;
-  s.pipeline_ready = true;
-  s.tracking = TrackingState::kTracking;
-  s.output_fps = 30;
+  LiveStatus s = tracking_at_30_fps();
   s.wants_open_mouth = true;
   EXPECT_EQ(s.Headline(), "Tracking: open your mouth wide once, facing the camera (for the teeth) | 30.0 fps");
   EXPECT_EQ(s.StateLine(), "Tracking: open your mouth wide once, facing the camera (for the teeth)");
