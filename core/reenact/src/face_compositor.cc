@@ -17,12 +17,15 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/reenact/laplacian_blend.h"
 #include "face_reenact/reenact/transfer.h"
+#include "image_sampling.h"
 #include "face_reenact/common/timing.h"
 
 namespace face_reenact::reenact {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+using internal::sample_float;
+using internal::sample_linear;
 
 constexpr gpu::PartMask part_bit(FacePart p) { return gpu::PartMask{1} << static_cast<int>(p); }
 constexpr gpu::PartMask kMouthParts =
@@ -78,43 +81,6 @@ float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
   for (int k = 0; k < gpu::kNumShCoefficients; ++k) e += gamma[static_cast<size_t>(c * 9 + k)] * basis[static_cast<size_t>(k)];
   const float ambient = gamma[static_cast<size_t>(c * 9)] * basis[0];
   return std::max(e, 0.15f * ambient);
-}
-
-// The four pixels around the sub-pixel position (x, y) of a cols x rows image (x, y within
-// [0, cols-1] x [0, rows-1]) and their bilinear weights: value = mix(mix(a, b, fx), mix(c, d, fx), fy).
-struct Bilinear {
-  int i0, j0, i1, j1;
-  float fx, fy;
-  Bilinear(int cols, int rows, float x, float y) {
-    i0 = std::min(static_cast<int>(x), std::max(cols - 2, 0));
-    j0 = std::min(static_cast<int>(y), std::max(rows - 2, 0));
-    i1 = std::min(i0 + 1, cols - 1);
-    j1 = std::min(j0 + 1, rows - 1);
-    fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f);
-    fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
-  }
-  float mix(float a, float b, float c, float d) const { return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d); }
-};
-
-// `m` (CV_32FC1) at the sub-pixel position (x, y), bilinear, clamped to its border.
-float sample_float(const cv::Mat& m, float x, float y) {
-  const Bilinear s(m.cols, m.rows, std::clamp(x, 0.0f, static_cast<float>(m.cols - 1)),
-                   std::clamp(y, 0.0f, static_cast<float>(m.rows - 1)));
-  return s.mix(m.at<float>(s.j0, s.i0), m.at<float>(s.j0, s.i1), m.at<float>(s.j1, s.i0), m.at<float>(s.j1, s.i1));
-}
-
-// Linear colour of `bgr` at the sub-pixel position (x, y), bilinear (0 <= x <= w-1, 0 <= y <= h-1).
-Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
-  const auto& lut = srgb_decode_table();
-  const Bilinear s(bgr.cols, bgr.rows, x, y);
-  const cv::Vec3b a = bgr.at<cv::Vec3b>(s.j0, s.i0), b = bgr.at<cv::Vec3b>(s.j0, s.i1), c = bgr.at<cv::Vec3b>(s.j1, s.i0),
-                  d = bgr.at<cv::Vec3b>(s.j1, s.i1);
-  Eigen::Vector3f out;
-  for (int ch = 0; ch < 3; ++ch) {
-    const int k = 2 - ch;  // BGR -> RGB
-    out[ch] = s.mix(lut[a[k]], lut[b[k]], lut[c[k]], lut[d[k]]);
-  }
-  return out;
 }
 
 // The pixel position (u, v) of camera-space point x (in front of the camera).
@@ -709,8 +675,13 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                                               part == FacePart::Tongue);
           const float depth_behind = covered ? g.position[3 * p + 2] - lip_z : 1.0f;
           cv::Vec3f& px = rendered.at<cv::Vec3f>(j, i);
+          if (!mouth_part && covered && depth_behind <= kCavityDepthM) continue;  // the lips themselves
           Eigen::Vector3f interior;
-          if (mouth_part) {
+          if (use_exemplar && SampleMouthExemplar(*mouth, opening_px,
+                                                  Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)), &interior)) {
+            interior *= exemplar_light;
+            ++from_exemplar;
+          } else if (mouth_part) {
             const float occlusion =
                 part == FacePart::Tongue
                     ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
@@ -719,16 +690,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
             // No darker than the cavity wall behind them: the fit's floor left edge-on teeth and
             // the tongue near black (see irradiance_at).
             for (int c = 0; c < 3; ++c) interior[c] = std::max(occlusion * g.color[3 * p + static_cast<size_t>(c)], cavity_rgb[c]);
-          } else if (!covered || depth_behind > kCavityDepthM) {
-            interior = cavity_rgb;
           } else {
-            continue;  // the lips themselves
-          }
-          Eigen::Vector3f exemplar_rgb;
-          if (use_exemplar && SampleMouthExemplar(*mouth, opening_px,
-                                                  Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)), &exemplar_rgb)) {
-            interior = exemplar_light * exemplar_rgb;
-            ++from_exemplar;
+            interior = cavity_rgb;
           }
           const float alpha = mouth_alpha * static_cast<float>(orow[i]) / 255.0f;
           for (int c = 0; c < 3; ++c)

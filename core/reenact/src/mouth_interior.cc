@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "face_reenact/common/srgb.h"
+#include "image_sampling.h"
 
 namespace face_reenact::reenact {
 namespace {
@@ -127,20 +127,8 @@ bool SampleMouthExemplar(const MouthExemplar& exemplar, const std::vector<Eigen:
   if (exemplar_point) *exemplar_point = q;
   // Bilinear in linear light; the crop's margin keeps the rim's neighbours inside.
   const cv::Mat& img = exemplar.bgr;
-  const float x = std::clamp(q.x(), 0.f, static_cast<float>(img.cols - 1));
-  const float y = std::clamp(q.y(), 0.f, static_cast<float>(img.rows - 1));
-  const int i0 = std::min(static_cast<int>(x), img.cols - 1), j0 = std::min(static_cast<int>(y), img.rows - 1);
-  const int i1 = std::min(i0 + 1, img.cols - 1), j1 = std::min(j0 + 1, img.rows - 1);
-  const float fx = x - static_cast<float>(i0), fy = y - static_cast<float>(j0);
-  const auto& decode = srgb_decode_table();
-  Eigen::Vector3f rgb = Eigen::Vector3f::Zero();
-  const std::pair<int, int> taps[4] = {{i0, j0}, {i1, j0}, {i0, j1}, {i1, j1}};
-  const float weights[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
-  for (int k = 0; k < 4; ++k) {
-    const cv::Vec3b& px = img.at<cv::Vec3b>(taps[k].second, taps[k].first);
-    for (int c = 0; c < 3; ++c) rgb[c] += weights[k] * decode[px[2 - c]];
-  }
-  *linear_rgb = rgb;
+  *linear_rgb = internal::sample_linear(img, std::clamp(q.x(), 0.f, static_cast<float>(img.cols - 1)),
+                                        std::clamp(q.y(), 0.f, static_cast<float>(img.rows - 1)));
   return true;
 }
 

@@ -37,7 +37,7 @@ struct MouthExemplar {
 struct MouthExemplarOptions {
   // A frame is a candidate when its tracked jawOpen is at least this, its opening at least
   // min_area_px (a barely parted mouth shows lips, not an interior) and its head within
-  // max_turn_deg of facing the camera (yaw and pitch: a turned mouth shows one side's teeth).
+  // max_turn_deg of facing the camera (any turn: a turned mouth shows one side's teeth).
   float min_jaw_open = 0.2f;
   double min_area_px = 60.0;
   float max_turn_deg = 20.0f;
@@ -50,8 +50,8 @@ struct MouthExemplarOptions {
 };
 
 // Whether a frame whose opening is `opening` (full-frame pixels), with tracked `jaw_open` and
-// head rotation `turn_deg` (the larger of |yaw| and |pitch|), should become the exemplar in place
-// of `current` (empty: none yet).
+// head turn `turn_deg` (the angle between the face's forward axis and its ray to the camera),
+// should become the exemplar in place of `current` (empty: none yet).
 bool IsBetterMouthExemplar(const MouthExemplar& current, const std::vector<Eigen::Vector2f>& opening, float jaw_open,
                            float turn_deg, const MouthExemplarOptions& options);
 

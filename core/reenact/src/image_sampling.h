@@ -1,0 +1,51 @@
+#pragma once
+// Sub-pixel sampling of images, shared by the compositor's frame texture and the mouth interior's
+// warp (internal to fr_reenact).
+#include <algorithm>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "face_reenact/common/srgb.h"
+
+namespace face_reenact::reenact::internal {
+
+// The four pixels around the sub-pixel position (x, y) of a cols x rows image (x, y within
+// [0, cols-1] x [0, rows-1]) and their bilinear weights: value = mix(mix(a, b, fx), mix(c, d, fx), fy).
+struct Bilinear {
+  int i0, j0, i1, j1;
+  float fx, fy;
+  Bilinear(int cols, int rows, float x, float y) {
+    i0 = std::min(static_cast<int>(x), std::max(cols - 2, 0));
+    j0 = std::min(static_cast<int>(y), std::max(rows - 2, 0));
+    i1 = std::min(i0 + 1, cols - 1);
+    j1 = std::min(j0 + 1, rows - 1);
+    fx = std::clamp(x - static_cast<float>(i0), 0.0f, 1.0f);
+    fy = std::clamp(y - static_cast<float>(j0), 0.0f, 1.0f);
+  }
+  float mix(float a, float b, float c, float d) const { return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d); }
+};
+
+// `m` (CV_32FC1) at the sub-pixel position (x, y), bilinear, clamped to its border.
+inline float sample_float(const cv::Mat& m, float x, float y) {
+  const Bilinear s(m.cols, m.rows, std::clamp(x, 0.0f, static_cast<float>(m.cols - 1)),
+                   std::clamp(y, 0.0f, static_cast<float>(m.rows - 1)));
+  return s.mix(m.at<float>(s.j0, s.i0), m.at<float>(s.j0, s.i1), m.at<float>(s.j1, s.i0), m.at<float>(s.j1, s.i1));
+}
+
+// Linear colour of `bgr` (CV_8UC3, sRGB) at the sub-pixel position (x, y), bilinear in linear
+// light (0 <= x <= w-1, 0 <= y <= h-1).
+inline Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
+  const auto& lut = srgb_decode_table();
+  const Bilinear s(bgr.cols, bgr.rows, x, y);
+  const cv::Vec3b a = bgr.at<cv::Vec3b>(s.j0, s.i0), b = bgr.at<cv::Vec3b>(s.j0, s.i1), c = bgr.at<cv::Vec3b>(s.j1, s.i0),
+                  d = bgr.at<cv::Vec3b>(s.j1, s.i1);
+  Eigen::Vector3f out;
+  for (int ch = 0; ch < 3; ++ch) {
+    const int k = 2 - ch;  // BGR -> RGB
+    out[ch] = s.mix(lut[a[k]], lut[b[k]], lut[c[k]], lut[d[k]]);
+  }
+  return out;
+}
+
+}  // namespace face_reenact::reenact::internal
