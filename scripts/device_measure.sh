@@ -7,7 +7,8 @@
 #   scripts/device_measure.sh dlib              # .device/dlib.xz.* (one or both parts) -> /tmp/fr
 #   scripts/device_measure.sh track [FRAMES]    # bench track at 640x480 and 1280x960, every strategy
 #                                               # (and the baseline program's, when bundled)
-#   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track)
+#   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track,
+#                                               # the paper's whole schedule and the tracker's 3 %)
 #   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
 #   scripts/device_measure.sh udp CLIP ACTOR [S]  # bench live --mode reenact, ACTOR's expressions over UDP
 #   scripts/device_measure.sh reenact SRC TGT [N] # reenact N frames, both actors tracked, each solver,
@@ -71,13 +72,17 @@ case "${1:-}" in
   compare)
     # This program against the bundled baseline, alternating (A B A B) at 640x480, then one run
     # with the per-submission GPU times (FR_TRACKER_PROFILE=1).
+    # Both schedules: the paper's whole one (tolerance 0) and the tracker's (3 %).
     frames="${2:-8}"
-    for round in 1 2; do
-      for program in face-reenact face-reenact-baseline; do
-        log="$OUT/compare_${program}_${round}.log"
-        "$FR/bin/$program" bench track --model "$FR/bin/face-model.frm" --frames "$frames" --vulkan matrix-free >"$log" 2>&1
-        echo "== $program, round $round (rc $?)"
-        grep -E "^(vulkan_matrix_free|cpu_matrix_free) .*total per frame" "$log"
+    for tolerance in 0 0.03; do
+      for round in 1 2; do
+        for program in face-reenact face-reenact-baseline; do
+          log="$OUT/compare_${program}_${tolerance}_${round}.log"
+          "$FR/bin/$program" bench track --model "$FR/bin/face-model.frm" --frames "$frames" --vulkan matrix-free \
+              --tracking-tolerance "$tolerance" >"$log" 2>&1
+          echo "== $program, tolerance $tolerance, round $round (rc $?)"
+          grep -E "^(vulkan_matrix_free|cpu_matrix_free) .*total per frame|submissions" "$log"
+        done
       done
     done
     FR_TRACKER_PROFILE=1 timeout 120 "$FR/bin/face-reenact" bench track --model "$FR/bin/face-model.frm" --frames 3 \

@@ -1,8 +1,10 @@
 // Energy, Jacobians, gradient checker, pyramid and input validation of the tracker.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 
 #include "face_reenact/common/error.h"
@@ -123,6 +125,55 @@ TEST(TrackerPyramid, LevelsAreTheSameOnAnyThreadCount) {
       ASSERT_EQ(many[l].depth.size(), one[l].depth.size());
       EXPECT_EQ(std::memcmp(many[l].depth.data(), one[l].depth.data(), one[l].depth.size() * sizeof(float)), 0)
           << "level " << l << ", " << threads << " threads";
+    }
+  }
+}
+
+// Each coarse pixel is the [1 3 3 1] / 8 kernel over the fine pixels 2i-1 .. 2i+2 (clamped at the
+// border) in both directions, computed here directly, tap by tap; depth the same over the valid
+// samples near the inner block's nearest one. The pyramid filters rows first (the kernel is
+// separable): the same values up to rounding, on odd sizes and at every border too.
+TEST(TrackerPyramid, EachCoarsePixelIsTheKernelOverItsFineBlock) {
+  const int fw = 37, fh = 23;
+  InputFrame f = flat_frame(fw, fh, 0.6f, 0.3f);
+  for (int j = 0; j < fh; ++j) {
+    for (int i = 0; i < fw; ++i) {
+      const size_t p = static_cast<size_t>(j) * fw + i;
+      for (int k = 0; k < 3; ++k) f.color[3 * p + k] = static_cast<float>((i * 31 + j * 17 + k * 7) % 23) / 23.f;
+      f.depth[p] = i > 25 ? 1.3f : 0.6f + 0.002f * static_cast<float>((i * 5 + j * 3) % 7);
+      if ((i + 2 * j) % 13 == 0) f.depth[p] = std::nanf("");
+    }
+  }
+  const PyramidOptions options;
+  const auto levels = BuildPyramid(f, options, 3);
+  const InputFrame& c = levels[1];
+  constexpr float kTap[4] = {1.f / 8, 3.f / 8, 3.f / 8, 1.f / 8};
+  for (int j = 0; j < c.height(); ++j) {
+    for (int i = 0; i < c.width(); ++i) {
+      double rgb[3] = {0, 0, 0};
+      float nearest = std::numeric_limits<float>::infinity();
+      for (int fj : {2 * j, 2 * j + 1}) {
+        for (int fi : {2 * i, 2 * i + 1}) {
+          if (f.depth_valid(std::min(fi, fw - 1), std::min(fj, fh - 1))) {
+            nearest = std::min(nearest, f.depth[static_cast<size_t>(std::min(fj, fh - 1)) * fw + std::min(fi, fw - 1)]);
+          }
+        }
+      }
+      double dsum = 0, dw = 0;
+      for (int b = 0; b < 4; ++b) {
+        for (int a = 0; a < 4; ++a) {
+          const int fi = std::clamp(2 * i - 1 + a, 0, fw - 1), fj = std::clamp(2 * j - 1 + b, 0, fh - 1);
+          const size_t p = static_cast<size_t>(fj) * fw + fi;
+          for (int k = 0; k < 3; ++k) rgb[k] += kTap[a] * kTap[b] * f.color[3 * p + k];
+          if (f.depth_valid(fi, fj) && std::abs(f.depth[p] - nearest) <= options.depth_edge_threshold) {
+            dsum += kTap[a] * kTap[b] * f.depth[p];
+            dw += kTap[a] * kTap[b];
+          }
+        }
+      }
+      const size_t q = static_cast<size_t>(j) * c.width() + i;
+      for (int k = 0; k < 3; ++k) ASSERT_NEAR(c.color[3 * q + k], rgb[k], 1e-6) << "pixel " << i << ", " << j;
+      ASSERT_NEAR(c.depth[q], dw > 0 ? dsum / dw : 0.0, 1e-6) << "pixel " << i << ", " << j;
     }
   }
 }

@@ -633,10 +633,10 @@ TEST(FaceTracker, UsesAReplacementSolver) {
   FaceTracker tracker(*model, fast_options(1));
   std::atomic<int> calls{0};
   const CpuSolver& cpu = tracker.cpu_solver();
-  tracker.SetTrackingSolver([&](const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
-                                const SolverOptions& options, gpu::FaceParameters* params) {
+  tracker.SetTrackingSolver([&](const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                                gpu::FaceParameters* params) {
     ++calls;
-    return cpu.Solve(pyramid, layout, options, params);
+    return cpu.Solve(frame, layout, options, params);
   });
   tracker.Track(render_frame(cpu, sequence_parameters(*model, 0)));
   const TrackedFrame t = tracker.Track(render_frame(cpu, sequence_parameters(*model, 1)));
@@ -647,7 +647,7 @@ TEST(FaceTracker, UsesAReplacementSolver) {
   tracker.Track(render_frame(cpu, sequence_parameters(*model, 2)));
   EXPECT_EQ(calls.load(), 3);
   // A solver that fails (throws) makes that frame kBadInput, not a crash.
-  tracker.SetTrackingSolver([](const std::vector<InputFrame>&, const ParameterLayout&, const SolverOptions&,
+  tracker.SetTrackingSolver([](const InputFrame&, const ParameterLayout&, const SolverOptions&,
                                gpu::FaceParameters*) -> SolverSummary { throw Error("device lost"); });
   const TrackedFrame failed = tracker.Track(render_frame(cpu, sequence_parameters(*model, 3)));
   EXPECT_EQ(failed.status, TrackingStatus::kBadInput);
@@ -702,10 +702,10 @@ TEST(FaceTracker, AStopDuringTrackEndsTheCalibrationWithoutApplyingIt) {
   FaceTracker tracker(*model, o);
   const CpuSolver& cpu = tracker.cpu_solver();
   int solves = 0;
-  tracker.SetTrackingSolver([&](const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
-                                const SolverOptions& options, gpu::FaceParameters* params) {
+  tracker.SetTrackingSolver([&](const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                                gpu::FaceParameters* params) {
     EXPECT_TRUE(options.stop.stop_possible());  // the tracker's stop reaches every solve
-    SolverSummary s = cpu.Solve(pyramid, layout, options, params);
+    SolverSummary s = cpu.Solve(frame, layout, options, params);
     if (++solves == 2) stop.request_stop();
     return s;
   });
@@ -955,9 +955,9 @@ TEST(FaceTracker, AFitTurnedAwayFromTheLandmarksIsNeverReportedTracking) {
     FaceTracker tracker(*model, o);
     const CpuSolver& cpu = tracker.cpu_solver();
     int frame = 0;
-    tracker.SetTrackingSolver([&](const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
-                                  const SolverOptions& options, gpu::FaceParameters* params) {
-      SolverSummary s = cpu.Solve(pyramid, layout, options, params);
+    tracker.SetTrackingSolver([&](const InputFrame& input, const ParameterLayout& layout, const SolverOptions& options,
+                                  gpu::FaceParameters* params) {
+      SolverSummary s = cpu.Solve(input, layout, options, params);
       if (frame == 4) params->euler.y() += static_cast<float>(40.0 / kDeg);
       return s;
     });

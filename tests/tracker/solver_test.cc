@@ -16,14 +16,11 @@ namespace face_reenact::tracker {
 namespace {
 
 using testing::real_model;
+using testing::rotation_error;
 using testing::sphere_model;
 using testing::test_camera;
 using testing::true_parameters;
 
-double rotation_error(const gpu::FaceParameters& a, const gpu::FaceParameters& b) {
-  const Eigen::Matrix3f d = gpu::rotation_from_euler(a.euler).transpose() * gpu::rotation_from_euler(b.euler);
-  return std::acos(std::clamp((d.trace() - 1.0f) / 2.0f, -1.0f, 1.0f));
-}
 
 // Mean camera-space distance (m) of the skin vertices, and mean absolute vertex colour error.
 struct FitError {

@@ -2,6 +2,7 @@
 // Shared fixtures of the tracker tests: the real face model when one is built (FR_MODEL, which
 // tests/test_main.cc defaults to the build's model), a deformable test sphere otherwise, and
 // synthetic ground truth.
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -84,6 +85,16 @@ inline gpu::FaceParameters true_parameters(const TrackerModel& m, float distance
 
 // Runs a shell command (the CLI tests use redirections such as 2>&1) and returns its stdout;
 // *status receives pclose's wait status.
+// The angle (rad) between the rotations of `a` and `b`, from the sine (the skew part of
+// R_a^T R_b) and the cosine, in double: acos of the trace alone, in float, reads any angle below
+// 2^-11 rad (0.028 deg) as 0 or 2^-11.
+inline double rotation_error(const gpu::FaceParameters& a, const gpu::FaceParameters& b) {
+  const Eigen::Matrix3d d = gpu::rotation_from_euler(a.euler).cast<double>().transpose() *
+                            gpu::rotation_from_euler(b.euler).cast<double>();
+  const Eigen::Vector3d sine(d(2, 1) - d(1, 2), d(0, 2) - d(2, 0), d(1, 0) - d(0, 1));
+  return std::atan2(0.5 * sine.norm(), 0.5 * (d.trace() - 1.0));
+}
+
 inline std::string run_shell_command(const std::string& command, int* status) {
   std::string out;
   FILE* pipe = popen(command.c_str(), "r");

@@ -472,9 +472,13 @@ void Context::submit_and_wait(const std::function<void(VkCommandBuffer)>& record
     set_name(VK_OBJECT_TYPE_COMMAND_BUFFER, cmd, what);
     VkCommandBufferBeginInfo bi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
     bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    const auto record_start = std::chrono::steady_clock::now();
     FR_VK_CHECK(vkBeginCommandBuffer(cmd, &bi));  // the pool resets a recorded buffer implicitly
     record(cmd);
     FR_VK_CHECK(vkEndCommandBuffer(cmd));
+    recording_ns_.fetch_add(static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                                      std::chrono::steady_clock::now() - record_start).count()),
+                            std::memory_order_relaxed);
     VkCommandBufferSubmitInfo cbsi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_SUBMIT_INFO};
     cbsi.commandBuffer = cmd;
     VkSubmitInfo2 si{VK_STRUCTURE_TYPE_SUBMIT_INFO_2};

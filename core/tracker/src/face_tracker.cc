@@ -449,7 +449,7 @@ void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
 
 // A background calibration reads both solvers: it is ended (not applied) before either changes;
 // its set was taken out when it started, so the collection starts afresh.
-void FaceTracker::SetTrackingSolver(PyramidSolveFunction solve) {
+void FaceTracker::SetTrackingSolver(FrameSolveFunction solve) {
   CancelBackgroundCalibration();
   tracking_solve_ = std::move(solve);
   solver_description_ = tracking_solve_ ? "set by the program" : "cpu";
@@ -511,12 +511,10 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
       AdaptScheduleToFaceSize(reinit ? options_.recovery_solver : options_.tracking_solver,
                               LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px),
       stop);
-  const auto t_pyr = Clock::now();
-  const std::vector<InputFrame> pyramid = BuildPyramid(input, so.pyramid, so.ResolvedThreads(), so.SolvesFullResolution());
-  times->pyramid_ms += ms_since(t_pyr);
   const ParameterLayout layout = ParameterLayout::Tracking(m.num_expression());
   a.params = start;
-  a.summary = tracking_solve_ ? tracking_solve_(pyramid, layout, so, &a.params) : solver_.Solve(pyramid, layout, so, &a.params);
+  a.summary = tracking_solve_ ? tracking_solve_(input, layout, so, &a.params) : solver_.Solve(input, layout, so, &a.params);
+  times->pyramid_ms += a.summary.pyramid_ms;
   times->synthesis_ms += a.summary.synthesis_ms;
   times->analysis_ms += a.summary.analysis_ms;
   a.landmark_error_px = LandmarkReprojectionError(m, input, a.params, options_.loss.min_landmark_confidence,

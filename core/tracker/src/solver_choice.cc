@@ -75,9 +75,9 @@ TrackingSolverChoice ChooseTrackingSolver(SolverBackend backend, const TrackerMo
   choice.backend = SolverBackend::kVulkan;
   choice.description = "vulkan on " + info.name + " (" + info.type + ", " +
                        (backend == SolverBackend::kAuto ? "auto" : "forced") + ")";
-  choice.solve = [vulkan](const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
-                          const SolverOptions& options, gpu::FaceParameters* params) {
-    return vulkan->solver->Solve(pyramid, layout, options, params);
+  choice.solve = [vulkan](const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                          gpu::FaceParameters* params) {
+    return vulkan->solver->Solve(frame, layout, options, params);
   };
   choice.calibrate = [vulkan](const std::vector<InputFrame>& frames, const ParameterLayout& layout,
                               const SolverOptions& options, std::vector<gpu::FaceParameters>* params) {

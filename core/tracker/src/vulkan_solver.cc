@@ -1,6 +1,7 @@
 #include "face_reenact/tracker/vulkan_solver.h"
 
 #include <algorithm>
+#include <atomic>
 #include <array>
 #include <bit>
 #include <chrono>
@@ -152,6 +153,34 @@ static_assert(offsetof(LandmarkPush, cx) == 24);
 static_assert(offsetof(LandmarkPush, cy) == 28);
 static_assert(offsetof(LandmarkPush, occlusion_m) == 32);
 static_assert(sizeof(LandmarkPush) == 36);
+
+// tracker_input.comp, push constant block Push.
+struct InputPush {
+  glm::uint width, height, gradient;
+  float fx, fy, cx, cy;
+  float max_depth_jump;
+};
+static_assert(offsetof(InputPush, width) == 0);
+static_assert(offsetof(InputPush, height) == 4);
+static_assert(offsetof(InputPush, gradient) == 8);
+static_assert(offsetof(InputPush, fx) == 12);
+static_assert(offsetof(InputPush, fy) == 16);
+static_assert(offsetof(InputPush, cx) == 20);
+static_assert(offsetof(InputPush, cy) == 24);
+static_assert(offsetof(InputPush, max_depth_jump) == 28);
+static_assert(sizeof(InputPush) == 32);
+
+// tracker_pyramid.comp, push constant block Push.
+struct PyramidPush {
+  glm::uint fine_width, fine_height, width, height;
+  float depth_edge_threshold;
+};
+static_assert(offsetof(PyramidPush, fine_width) == 0);
+static_assert(offsetof(PyramidPush, fine_height) == 4);
+static_assert(offsetof(PyramidPush, width) == 8);
+static_assert(offsetof(PyramidPush, height) == 12);
+static_assert(offsetof(PyramidPush, depth_edge_threshold) == 16);
+static_assert(sizeof(PyramidPush) == 20);
 
 // tracker_vertices.comp, push constant block Push.
 struct VerticesPush {
@@ -352,12 +381,28 @@ struct Analysis {
   double wall_ms = 0;
 };
 
-// One pyramid level of the input, uploaded once per solve.
+// One pyramid level of the input: its colour and depth per pixel, uploaded (a level the host
+// built, or level 0) or made on the device from the next finer level (tracker_pyramid.comp), and
+// what the per-pixel passes read, which tracker_input.comp makes from them. Both passes are
+// recorded into the first submission that linearises the frame (record_linearization).
 struct LevelInput {
-  const InputFrame* frame = nullptr;
+  const InputFrame* frame = nullptr;  // its camera and landmarks; its pixels only when uploaded
+  gpu::Buffer raw;   // uploaded: per pixel linear colour, depth (0 where InputFrame::depth_valid is false)
+  gpu::Buffer made;  // the same made on the device (tracker_pyramid.comp)
+  const gpu::Buffer* pixels = nullptr;  // `raw` or `made`: this frame's
   gpu::Buffer data;        // per pixel: point (w = valid depth), normal (w = exists), colour, its gradient
+  bool data_pending = false;  // `pixels` is newer than `data`
+  bool has_depth = false;     // the frame has depth (InputFrame::has_depth)
+  bool gradient = false;      // the colour gradient is made (ColorFollowsProjection)
   gpu::Buffer candidates;  // landmark candidates: vertex bits, u, v, confidence
   uint32_t num_candidates = 0;
+};
+
+// A pyramid level to make on the device before the frame's first linearisation.
+struct PendingDownsample {
+  const gpu::Buffer* fine = nullptr;
+  const gpu::Buffer* coarse = nullptr;
+  glm::uint fine_width = 0, fine_height = 0, width = 0, height = 0;
 };
 
 }  // namespace
@@ -366,14 +411,16 @@ namespace {
 // The device submissions a solve makes (each one a host wait) and the wall time inside them, for
 // its summary (bench track's columns).
 struct SubmissionMeter {
-  explicit SubmissionMeter(const gpu::Context& c) : context(c), count(c.submissions()), ms(c.submission_ms()) {}
+  explicit SubmissionMeter(const gpu::Context& c)
+      : context(c), count(c.submissions()), ms(c.submission_ms()), recording_ms(c.recording_ms()) {}
   void Fill(SolverSummary* s) const {
     s->device_submissions = static_cast<int>(context.submissions() - count);
     s->device_submission_ms = context.submission_ms() - ms;
+    s->device_recording_ms = context.recording_ms() - recording_ms;
   }
   const gpu::Context& context;
   const uint64_t count;
-  const double ms;
+  const double ms, recording_ms;
 };
 }  // namespace
 
@@ -409,7 +456,7 @@ struct VulkanSolver::Impl {
   VulkanStrategyChoice choice;
   gpu::Renderer renderer;
 
-  std::unique_ptr<gpu::ComputePipeline> classify, landmarks, vertices_pass, evaluate, jt, reduce, jtj, pcg, loop;
+  std::unique_ptr<gpu::ComputePipeline> downsample, input, classify, landmarks, vertices_pass, evaluate, jt, reduce, jtj, pcg, loop;
   gpu::Buffer mean_shape, identity_basis, expression_basis, mean_albedo, albedo_basis;  // row-major
   gpu::Buffer vertex_parts;  // per vertex its FacePart, one uint each (classify: EnergyOptions::color_parts)
   gpu::Buffer identity_columns, expression_columns, albedo_columns;  // column-major (tracker_vertices.comp)
@@ -493,6 +540,10 @@ struct VulkanSolver::Impl {
                                "tracker vertex parts");
     if (!parts.empty()) vertex_parts.write(parts.data(), parts.size() * 4);
     namespace sh = gpu::shaders;
+    downsample = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_pyramid_comp, 2, sizeof(PyramidPush),
+                                                         "tracker input pyramid");
+    input = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_input_comp, 2, sizeof(InputPush),
+                                                    "tracker level input");
     classify = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_classify_comp, 9, sizeof(ClassifyPush),
                                                        "tracker linearisation");
     landmarks = std::make_unique<gpu::ComputePipeline>(context, sh::tracker_landmarks_comp, 5, sizeof(LandmarkPush),
@@ -528,44 +579,88 @@ struct VulkanSolver::Impl {
                                  gpu::BufferDomain::Device, "tracker landmark items");
   }
 
-  // Fills `li` for frame `f`: the per-pixel input (point, normal, colour) written straight into
-  // its upload buffer, rows split over `threads`, and the landmark candidates. The buffers are
-  // kept from frame to frame and grow only when a level gets larger: allocating them per frame
-  // cost a real GPU's driver more than the level's whole analysis (bench track, 2026-11-24).
+  // Fills `li` for frame `f`, a level the host built: its colour and depth per pixel written
+  // straight into the upload buffer (tracker_input.comp makes the rest on the device), and the
+  // landmark candidates. The buffers are kept from frame to frame and grow only when a level
+  // gets larger: allocating them per frame cost a real GPU's driver more than the level's whole
+  // analysis (bench track, 2026-11-24).
   void prepare_level(const InputFrame& f, const EnergyOptions& energy, int threads, LevelInput* out) {
     LevelInput& li = *out;
     li.frame = &f;
+    upload_pixels(f, threads, &li);  // `f` is valid (checked by the caller)
+    prepare_level_input(f, f.has_depth(), ColorFollowsProjection(energy, f), energy, &li);
+  }
+
+  // The solve's pyramid made on the device from `frame` (level 0, uploaded): `levels` are its
+  // levels without pixels (PyramidLevelsWithoutPixels), each level down to the coarsest scheduled
+  // one is made from the one above it before the frame's first linearisation. Uploading the
+  // 640x480 frame once costs the host less than building the levels (BuildPyramid) and uploading
+  // them.
+  void prepare_pyramid_on_device(const InputFrame& frame, const std::vector<InputFrame>& levels,
+                                 const SolverOptions& o, std::unordered_map<int, LevelInput>& inputs) {
+    int coarsest = 0;
+    for (const LevelSchedule& s : o.schedule) coarsest = std::max(coarsest, s.level);
+    LevelInput& top = inputs[0];
+    top.frame = &levels[0];
+    if (!upload_pixels(frame, o.threads, &top)) throw Error(kNonFiniteColorMessage);
+    pending_downsamples.clear();
+    for (int l = 1; l <= coarsest; ++l) {
+      LevelInput& fine = inputs.at(l - 1);
+      LevelInput& li = inputs[l];
+      const InputFrame& f = levels[static_cast<size_t>(l)];
+      li.frame = &f;
+      ensure(li.made, static_cast<VkDeviceSize>(f.width()) * f.height() * sizeof(glm::vec4), gpu::BufferDomain::Device,
+             "tracker level colour and depth (made on the device)");
+      li.pixels = &li.made;
+      pending_downsamples.push_back({fine.pixels, &li.made, static_cast<glm::uint>(fine.frame->width()),
+                                     static_cast<glm::uint>(fine.frame->height()), static_cast<glm::uint>(f.width()),
+                                     static_cast<glm::uint>(f.height())});
+    }
+    pyramid_edge_threshold = o.pyramid.depth_edge_threshold;
+    for (const LevelSchedule& s : o.schedule) {
+      LevelInput& li = inputs.at(s.level);
+      prepare_level_input(*li.frame, frame.has_depth(), ColorFollowsProjection(o.energy, frame), o.energy, &li);
+    }
+  }
+
+  // `li.raw`: the colour and the depth of `f` (0 where not valid), rows split over `threads`.
+  // False when a colour value is not finite (InputFrame::IsValid's check, made while the values
+  // pass by: reading a 640x480 frame's colour once more cost a real GPU's host 0.4 ms).
+  bool upload_pixels(const InputFrame& f, int threads, LevelInput* out) {
+    LevelInput& li = *out;
     const int w = f.width(), h = f.height();
-    const size_t pixels = static_cast<size_t>(w) * h;
-    ensure(li.data, kInputVec4sPerPixel * pixels * sizeof(glm::vec4), gpu::BufferDomain::Upload, "tracker level input");
-    auto* data = static_cast<glm::vec4*>(li.data.mapped());
-    const bool gradient = ColorFollowsProjection(energy, f);
-    constexpr int kRowsPerItem = 16;
+    ensure(li.raw, static_cast<size_t>(w) * h * sizeof(glm::vec4), gpu::BufferDomain::Upload,
+           "tracker level colour and depth");
+    li.pixels = &li.raw;
+    auto* raw = static_cast<glm::vec4*>(li.raw.mapped());
+    constexpr int kRowsPerItem = 32;
+    std::atomic<bool> finite{true};
     ParallelFor((h + kRowsPerItem - 1) / kRowsPerItem, ResolvedThreadCount(threads), [&](int item) {
+      bool item_finite = true;
       for (int j = item * kRowsPerItem; j < std::min(h, (item + 1) * kRowsPerItem); ++j) {
         for (int i = 0; i < w; ++i) {
           const size_t p = static_cast<size_t>(j) * w + i;
-          // point (w = valid depth), normal (w = exists), colour, colour gradient along u, along v
-          glm::vec4 d[kInputVec4sPerPixel] = {};
-          if (f.has_depth() && f.depth_valid(i, j)) {
-            const Eigen::Vector3f x = f.point(i, j).cast<float>();
-            d[0] = glm::vec4(x.x(), x.y(), x.z(), 1.f);
-            Eigen::Vector3d nrm;
-            if (InputNormal(f, i, j, energy.max_depth_jump_m, &nrm)) {
-              const Eigen::Vector3f n = nrm.cast<float>();
-              d[1] = glm::vec4(n.x(), n.y(), n.z(), 1.f);
-            }
-          }
-          d[2] = glm::vec4(f.color[3 * p], f.color[3 * p + 1], f.color[3 * p + 2], 1.f);
-          if (gradient) {
-            const Eigen::Matrix<float, 3, 2> g = InputColorGradient(f, i, j).cast<float>();
-            d[3] = glm::vec4(g(0, 0), g(1, 0), g(2, 0), 0.f);
-            d[4] = glm::vec4(g(0, 1), g(1, 1), g(2, 1), 0.f);
-          }
-          std::memcpy(data + kInputVec4sPerPixel * p, d, sizeof(d));  // whole pixels: the mapping may be write-combined
+          const float depth = f.depth_valid(i, j) ? f.depth[p] : 0.f;
+          const glm::vec4 pixel(f.color[3 * p], f.color[3 * p + 1], f.color[3 * p + 2], depth);
+          item_finite &= std::isfinite(pixel.x) && std::isfinite(pixel.y) && std::isfinite(pixel.z);
+          raw[p] = pixel;  // whole pixels: the mapping may be write-combined
         }
       }
+      if (!item_finite) finite = false;
     });
+    return finite;
+  }
+
+  // The level's per-pixel input buffer (made by tracker_input.comp) and its landmark candidates
+  // (from `f`'s landmarks; `f` may have no pixels).
+  void prepare_level_input(const InputFrame& f, bool has_depth, bool gradient, const EnergyOptions& energy,
+                           LevelInput* out) {
+    LevelInput& li = *out;
+    const size_t pixels = static_cast<size_t>(f.width()) * f.height();
+    ensure(li.data, kInputVec4sPerPixel * pixels * sizeof(glm::vec4), gpu::BufferDomain::Device, "tracker level input");
+    li.data_pending = true;
+    li.has_depth = has_depth;
+    li.gradient = gradient;
     // Landmark candidates exactly as Linearize filters them before visibility.
     std::unordered_map<int, int> vertex_of;
     for (const auto& l : model.landmarks) {
@@ -590,15 +685,40 @@ struct VulkanSolver::Impl {
     if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(LandmarkCandidate));
   }
 
+  void record_pending_downsamples(gpu::CommandRecorder& rec) {
+    for (const PendingDownsample& d : pending_downsamples) {
+      rec.bind(*downsample);
+      rec.set_storage_buffer(0, *d.fine);
+      rec.set_storage_buffer(1, *d.coarse);
+      rec.push_constants(PyramidPush{d.fine_width, d.fine_height, d.width, d.height, pyramid_edge_threshold});
+      rec.dispatch((d.width * d.height + 63) / 64, 1, 1);
+      compute_barrier(rec);
+    }
+    pending_downsamples.clear();
+  }
+
   // After a render: its G-buffer copied into the buffers the per-pixel pass reads, the pass
   // (classification, compaction) and the landmark pruning, recorded into the render's
   // submission. Host-driven: the counters are zeroed first and copied for the host after;
   // device-driven (`device`): tracker_loop.comp zeroes and reads them, and sizes the two passes.
-  void record_linearization(gpu::CommandRecorder& rec, const gpu::GBufferTargets& targets, const LevelInput& li,
+  void record_linearization(gpu::CommandRecorder& rec, const gpu::GBufferTargets& targets, LevelInput& li,
                             const EnergyOptions& e, bool device) {
     const InputFrame& f = *li.frame;
     const VkCommandBuffer cmd = rec.handle();
     const uint32_t w = static_cast<uint32_t>(f.width()), h = static_cast<uint32_t>(f.height());
+    // The frame's pyramid levels made on the device, then this level's input from its colour and
+    // depth: once per frame (per calibration frame).
+    record_pending_downsamples(rec);
+    if (li.data_pending) {
+      rec.bind(*input);
+      rec.set_storage_buffer(0, *li.pixels);
+      rec.set_storage_buffer(1, li.data);
+      rec.push_constants(InputPush{w, h, li.gradient ? 1u : 0u, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy,
+                                   static_cast<float>(e.max_depth_jump_m)});
+      rec.dispatch((w * h + 63) / 64, 1, 1);
+      compute_barrier(rec);
+      li.data_pending = false;
+    }
     const std::pair<const gpu::Image*, const gpu::Buffer*> copies[] = {
         {&targets.position, &g_position}, {&targets.normal, &g_normal}, {&targets.barycentric, &g_bary},
         {&targets.ids, &g_ids}, {&targets.color, &g_color}};
@@ -645,11 +765,11 @@ struct VulkanSolver::Impl {
     const gpu::Buffer* cb[] = {&g_position, &g_normal, &g_bary, &g_ids,   &li.data,
                                &items,      &counters, &g_color, &vertex_parts};
     for (uint32_t i = 0; i < 9; ++i) rec.set_storage_buffer(i, *cb[i]);
-    const bool geometry = f.has_depth() && (e.use_point || e.use_plane);
-    rec.push_constants(ClassifyPush{w, h, f.has_depth() ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
+    const bool geometry = li.has_depth && (e.use_point || e.use_plane);
+    rec.push_constants(ClassifyPush{w, h, li.has_depth ? 1u : 0u, geometry && e.use_point ? 1u : 0u,
                                     geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
                                     static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot),
-                                    ColorFollowsProjection(e, f) ? static_cast<float>(e.color_robust_threshold) : 0.f,
+                                    li.gradient ? static_cast<float>(e.color_robust_threshold) : 0.f,
                                     e.color_parts});
     dispatch(rec, device ? kArgClassify : kDirect, (w * h + 63) / 64, 1);
     rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
@@ -1476,6 +1596,9 @@ struct VulkanSolver::Impl {
   const gpu::Buffer* current_input = nullptr;
   // Per pyramid level, the input buffers of the frame being solved, kept for the next frame.
   std::unordered_map<int, LevelInput> level_inputs;
+  // The levels Solve(frame) makes on the device, recorded before its first linearisation.
+  std::vector<PendingDownsample> pending_downsamples;
+  float pyramid_edge_threshold = 0;
 
   class GaussNewton;
   class JointGaussNewton;
@@ -1685,17 +1808,10 @@ void VulkanSolver::set_strategy(VulkanStrategy strategy) {
   impl_->choice = VulkanStrategyChoice{};
 }
 
-SolverSummary VulkanSolver::Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
-                                  gpu::FaceParameters* params) {
-  return SolveOnPyramidOf(frame, options, [&](const std::vector<InputFrame>& pyramid) {
-    return Solve(pyramid, layout, options, params);
-  });
-}
-
-SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
-                                  const SolverOptions& options, gpu::FaceParameters* params) {
-  Impl& m = *impl_;
-  const TrackerModel& model = m.model;
+// Solve's arguments, checked before anything is uploaded.
+void VulkanSolver::CheckSolveArguments(const ParameterLayout& layout, const SolverOptions& options,
+                                       const gpu::FaceParameters* params) const {
+  const TrackerModel& model = impl_->model;
   std::string why;
   if (!params) throw Error("Vulkan solver: no parameters given");
   if (!options.IsValid(&why)) throw Error(why);
@@ -1707,22 +1823,53 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
   if (!params->IsValid(&why, model.num_identity(), model.num_expression(), model.num_albedo())) {
     throw Error("tracker start parameters: " + why);
   }
+}
+
+SolverSummary VulkanSolver::Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                                  gpu::FaceParameters* params) {
+  CheckSolveArguments(layout, options, params);
+  Impl& m = *impl_;
+  m.pending_downsamples.clear();
+  const auto start = Clock::now();
+  const std::vector<InputFrame> levels = PyramidLevelsWithoutPixels(frame, options.pyramid);
+  const double pyramid_ms = ms_since(start);
+  m.prepare_pyramid_on_device(frame, levels, options, m.level_inputs);
+  SolverSummary summary = SolvePrepared(layout, options, params, ms_since(start) - pyramid_ms);
+  summary.pyramid_ms = pyramid_ms;
+  summary.total_ms = ms_since(start);
+  return summary;
+}
+
+SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
+                                  const SolverOptions& options, gpu::FaceParameters* params) {
+  CheckSolveArguments(layout, options, params);
+  Impl& m = *impl_;
+  m.pending_downsamples.clear();
+  std::string why;
   for (const auto& level : options.schedule) {
     if (level.level >= static_cast<int>(pyramid.size())) throw Error("solver: the pyramid has fewer levels than the schedule uses");
     if (!pyramid[level.level].IsValid(&why)) throw Error(why);
   }
   const auto start = Clock::now();
+  std::unordered_map<int, bool> prepared;
+  for (const auto& level : options.schedule) {
+    if (prepared[level.level]) continue;
+    m.prepare_level(pyramid[level.level], options.energy, options.threads, &m.level_inputs[level.level]);
+    prepared[level.level] = true;
+  }
+  SolverSummary summary = SolvePrepared(layout, options, params, ms_since(start));
+  summary.total_ms = ms_since(start);
+  return summary;
+}
+
+// The frame's solve once its levels are prepared (m.level_inputs).
+SolverSummary VulkanSolver::SolvePrepared(const ParameterLayout& layout, const SolverOptions& options,
+                                          gpu::FaceParameters* params, double input_ms) {
+  Impl& m = *impl_;
   const SubmissionMeter submissions(m.context);
   const gpu::FaceParameters base = *params;
   Eigen::VectorXd x = layout.Pack(base);
   std::unordered_map<int, LevelInput>& inputs = m.level_inputs;
-  std::unordered_map<int, bool> prepared;
-  for (const auto& level : options.schedule) {
-    if (prepared[level.level]) continue;
-    m.prepare_level(pyramid[level.level], options.energy, options.threads, &inputs[level.level]);
-    prepared[level.level] = true;
-  }
-  const double input_ms = ms_since(start);
   std::optional<SolverSummary> device_driven;
   if (m.device_loop_applies(options)) device_driven = m.solve_device_loop(layout, options, inputs, base, &x);
   SolverSummary summary;
@@ -1738,7 +1885,6 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
                      (device_driven ? ", device-driven loop" : "") + ")";
   *params = layout.Unpack(x, base);
   summary.input_ms = input_ms;
-  summary.total_ms = ms_since(start);
   submissions.Fill(&summary);
   m.current_input = nullptr;
   return summary;
@@ -1889,6 +2035,52 @@ VulkanLinearSystem VulkanSolver::Inspect(const InputFrame& level_frame, const Pa
     out.normal_product[i] = prod[i];
   }
   return out;
+}
+
+std::vector<InputFrame> VulkanSolver::InspectPyramid(const InputFrame& frame, const PyramidOptions& options) {
+  Impl& m = *impl_;
+  std::vector<InputFrame> levels = PyramidLevelsWithoutPixels(frame, options);
+  SolverOptions o;
+  o.pyramid = options;
+  o.schedule = {{static_cast<int>(levels.size()) - 1, 1, 1}};
+  std::unordered_map<int, LevelInput> inputs;
+  m.pending_downsamples.clear();
+  m.prepare_pyramid_on_device(frame, levels, o, inputs);
+  VkDeviceSize bytes = 0;
+  for (size_t l = 1; l < levels.size(); ++l) bytes += VkDeviceSize(levels[l].width()) * levels[l].height() * sizeof(glm::vec4);
+  gpu::Buffer readback(m.context, std::max<VkDeviceSize>(bytes, 16), VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                       gpu::BufferDomain::Readback, "tracker pyramid readback");
+  m.context.submit_and_wait(
+      [&](VkCommandBuffer cmd) {
+        gpu::CommandRecorder rec(m.context, cmd);
+        m.record_pending_downsamples(rec);
+        rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                           VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
+        VkDeviceSize at = 0;
+        for (size_t l = 1; l < levels.size(); ++l) {
+          const VkDeviceSize size = VkDeviceSize(levels[l].width()) * levels[l].height() * sizeof(glm::vec4);
+          const VkBufferCopy copy{0, at, size};
+          vkCmdCopyBuffer(cmd, inputs.at(static_cast<int>(l)).made.handle(), readback.handle(), 1, &copy);
+          at += size;
+        }
+        rec.memory_barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT,
+                           VK_ACCESS_2_HOST_READ_BIT);
+      },
+      "tracker pyramid (inspect)");
+  std::vector<glm::vec4> pixels(bytes / sizeof(glm::vec4));
+  readback.read(pixels.data(), bytes);
+  size_t at = 0;
+  for (size_t l = 1; l < levels.size(); ++l) {
+    InputFrame& f = levels[l];
+    const size_t n = static_cast<size_t>(f.width()) * f.height();
+    f.color.resize(3 * n);
+    if (frame.has_depth()) f.depth.resize(n);
+    for (size_t p = 0; p < n; ++p, ++at) {
+      for (int k = 0; k < 3; ++k) f.color[3 * p + static_cast<size_t>(k)] = pixels[at][k];
+      if (frame.has_depth()) f.depth[p] = pixels[at].w;
+    }
+  }
+  return levels;
 }
 
 }  // namespace face_reenact::tracker

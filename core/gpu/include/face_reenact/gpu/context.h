@@ -101,6 +101,8 @@ class Context {
   // Wall time spent inside submit_and_wait so far (recording, submission, the wait), in ms: what
   // a frame's time outside it is, is host work between submissions.
   double submission_ms() const { return submission_ns_.load(std::memory_order_relaxed) * 1e-6; }
+  // Of that, the time spent recording the command buffers (the host's share of a submission).
+  double recording_ms() const { return recording_ns_.load(std::memory_order_relaxed) * 1e-6; }
 
   // Memory type index that has all `required` flags (and preferably `preferred`), or throws.
   uint32_t find_memory_type(uint32_t type_bits, VkMemoryPropertyFlags required,
@@ -133,6 +135,7 @@ class Context {
 
   mutable std::atomic<uint64_t> submissions_{0};
   mutable std::atomic<uint64_t> submission_ns_{0};
+  mutable std::atomic<uint64_t> recording_ns_{0};
   // submit_and_wait's command buffer and fence, kept from one submission to the next (a nested
   // or concurrent call makes its own).
   mutable std::mutex submit_mutex_;

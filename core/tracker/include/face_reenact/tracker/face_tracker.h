@@ -353,11 +353,11 @@ struct TrackedFrame {
   }
 };
 
-// Solve function with CpuSolver::Solve's pyramid signature; lets a caller put another solver
-// (the Vulkan one) behind the tracking loop.
-using PyramidSolveFunction =
-    std::function<SolverSummary(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
-                                const SolverOptions& options, gpu::FaceParameters* params)>;
+// Solve function with CpuSolver::Solve's frame signature; lets a caller put another solver (the
+// Vulkan one, which makes the frame's pyramid on the device) behind the tracking loop. The
+// solver builds the pyramid (SolverSummary::pyramid_ms).
+using FrameSolveFunction = std::function<SolverSummary(const InputFrame& frame, const ParameterLayout& layout,
+                                                       const SolverOptions& options, gpu::FaceParameters* params)>;
 // Solve function with CpuSolver::SolveFrames' signature (the joint calibration over frames); lets
 // a caller put the Vulkan solver behind the calibration.
 using FramesSolveFunction =
@@ -440,7 +440,7 @@ class FaceTracker {
 
   // Replace the per-frame (tracking and recovery) solver, e.g. by the Vulkan solver; an empty
   // function restores the CPU solver.
-  void SetTrackingSolver(PyramidSolveFunction solve);
+  void SetTrackingSolver(FrameSolveFunction solve);
   // Replace the calibration's joint solver likewise (VulkanSolver::SolveFrames); empty = the CPU's.
   void SetCalibrationSolver(FramesSolveFunction solve);
 
@@ -499,7 +499,7 @@ class FaceTracker {
   CpuSolver solver_;
   GazeEstimator gaze_;  // reads solver_'s model
   EyeOpennessReader eye_openness_;  // learns the actor's open eyes from the frames seen
-  PyramidSolveFunction tracking_solve_;
+  FrameSolveFunction tracking_solve_;
   FramesSolveFunction calibration_solve_;
   std::string solver_description_ = "cpu";
   bool solves_on_gpu_ = false;

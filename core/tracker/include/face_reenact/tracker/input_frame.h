@@ -43,11 +43,17 @@ struct InputFrame {
   Eigen::Vector3d point(int i, int j) const;
 
   bool IsValid(std::string* why) const;
+  // IsValid without reading the colour values (their number is checked): for a caller that reads
+  // every value anyway and checks them as it goes (VulkanSolver::Solve, while uploading them).
+  bool IsValidExceptColorValues(std::string* why) const;
 
   // Fills `color` from 8-bit sRGB (3 bytes per pixel, row-major) with the sRGB transfer
   // function undone, so that C_I is linear like the renderer's C_S.
   void SetColorFromSrgb8(const uint8_t* rgb, size_t size_bytes);
 };
+
+// What IsValid says of a frame whose colour has a NaN or an infinity.
+inline constexpr const char* kNonFiniteColorMessage = "input frame: colour contains NaN or infinity";
 
 struct PyramidOptions {
   int levels = 3;                     // level 0 = the input itself
@@ -66,6 +72,13 @@ struct PyramidOptions {
 // and copying a 640x480 frame into it was a third of the pyramid's time).
 std::vector<InputFrame> BuildPyramid(const InputFrame& frame, const PyramidOptions& options, int threads = 1,
                                      bool keep_level0 = true);
+
+// The levels BuildPyramid makes, without their pixels: each level's camera and landmarks (level
+// 0 also the frame's timestamp), for a solver that makes the pixels itself (VulkanSolver builds
+// them on the device with the same kernel). Throws like BuildPyramid, except that the colour
+// values are not read (InputFrame::IsValidExceptColorValues): the caller that reads them checks
+// them.
+std::vector<InputFrame> PyramidLevelsWithoutPixels(const InputFrame& frame, const PyramidOptions& options);
 
 // The input normal N_I(p): the cross product of the central differences of X_I along i and j,
 // oriented towards the camera. False where a neighbour is missing or across a depth jump larger

@@ -95,6 +95,7 @@ struct SolverSummary {
   // Device submissions this solve made, each waited for by the host (0 for the CPU solver).
   int device_submissions = 0;
   double device_submission_ms = 0;  // wall time inside those submissions (recording, submission, wait)
+  double device_recording_ms = 0;   // of it, recording their command buffers on the host
   std::string BriefReport() const;
   std::string FullReport() const;
 };

@@ -21,7 +21,7 @@ struct TrackingSolverChoice {
   SolverBackend backend = SolverBackend::kCpu;  // what was chosen (never kAuto)
   // For FaceTracker::SetTrackingSolver; empty = the tracker's own CPU solver. A Vulkan choice
   // owns its device context and solver (shared by copies of the function).
-  PyramidSolveFunction solve;
+  FrameSolveFunction solve;
   // For FaceTracker::SetCalibrationSolver, from the same device and solver (empty for the CPU).
   FramesSolveFunction calibrate;
   std::string description;  // "vulkan on NVIDIA ... (auto: a GPU)", "cpu (auto: only a CPU Vulkan device)"

@@ -103,7 +103,10 @@ class VulkanSolver {
   const VulkanStrategyChoice& strategy_choice() const;
 
   // As CpuSolver::Solve (same options, termination rules and summary; errors are thrown as
-  // face_reenact::Error). Not const: the device buffers are reused from call to call.
+  // face_reenact::Error). Not const: the device buffers are reused from call to call. From a
+  // frame, the pyramid is made on the device (tracker_pyramid.comp: BuildPyramid's kernel in
+  // float) from the frame's colour and depth, uploaded once; from a pyramid the host built, each
+  // scheduled level is uploaded.
   SolverSummary Solve(const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
                       gpu::FaceParameters* params);
   SolverSummary Solve(const std::vector<InputFrame>& pyramid, const ParameterLayout& layout,
@@ -124,7 +127,16 @@ class VulkanSolver {
                              const EnergyOptions& energy, const gpu::FaceParameters& params,
                              const Eigen::VectorXd& v, const gpu::RenderOptions& render = kTrackedParts);
 
+  // The pyramid Solve(frame) makes on the device, read back (slow; for tests and tools): as
+  // BuildPyramid(frame, options, threads, false), level 0 without pixels.
+  std::vector<InputFrame> InspectPyramid(const InputFrame& frame, const PyramidOptions& options);
+
  private:
+  void CheckSolveArguments(const ParameterLayout& layout, const SolverOptions& options,
+                           const gpu::FaceParameters* params) const;
+  SolverSummary SolvePrepared(const ParameterLayout& layout, const SolverOptions& options, gpu::FaceParameters* params,
+                              double input_ms);
+
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
