@@ -54,6 +54,22 @@ double relative(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
   return (a - b).norm() / scale;
 }
 
+// The CPU's system linearised on the render the device made (same pixels, same vertex normals).
+struct CpuSystem {
+  Linearization lin;
+  Eigen::VectorXd r;
+  JacobianMatrix j;
+  TermEnergies e;
+};
+CpuSystem CpuSystemOnTheDevicesRender(const TrackerModel& model, const ParameterLayout& layout,
+                                      const gpu::FaceParameters& start, const VulkanLinearSystem& device,
+                                      const InputFrame& frame, const EnergyOptions& energy) {
+  CpuSystem c;
+  c.lin = Linearize(model, layout, start, device.vertex_state, device.gbuffer, frame, energy);
+  EvaluateResiduals(model, c.lin, energy, layout.Pack(start), &c.r, &c.j, &c.e);
+  return c;
+}
+
 // The device's residuals, Jacobian rows and energy per term against the CPU's on the same
 // linearisation.
 void ExpectTheCpusRowsPerTerm(const VulkanLinearSystem& gpu_system, const Linearization& lin, const Eigen::VectorXd& r,
@@ -96,13 +112,7 @@ TEST_F(VulkanSolverTest, ResidualsAndJacobianRowsMatchTheCpuOnTheSameLinearisati
   EnergyOptions energy;
   const Eigen::VectorXd v = Eigen::VectorXd::LinSpaced(layout.num_parameters(), -1.0, 1.0);
   const VulkanLinearSystem gpu_system = solver().Inspect(frame, layout, energy, start, v);
-
-  // The CPU linearised on the render the device made (same pixels, same vertex normals).
-  const Linearization lin = Linearize(model, layout, start, gpu_system.vertex_state, gpu_system.gbuffer, frame, energy);
-  Eigen::VectorXd r;
-  JacobianMatrix j;
-  TermEnergies e;
-  EvaluateResiduals(model, lin, energy, layout.Pack(start), &r, &j, &e);
+  const auto [lin, r, j, e] = CpuSystemOnTheDevicesRender(model, layout, start, gpu_system, frame, energy);
   ASSERT_GT(lin.num_point, 100);
   ASSERT_GT(lin.num_plane, 100);
   ASSERT_GT(lin.landmarks.size(), 5u);
@@ -146,11 +156,7 @@ TEST_F(VulkanSolverTest, InputWithHolesAndDepthStepsGivesTheCpusRows) {
   ASSERT_TRUE(energy.color_follows_projection);
   const Eigen::VectorXd v = Eigen::VectorXd::Ones(layout.num_parameters());
   const VulkanLinearSystem g = solver().Inspect(frame, layout, energy, start, v);
-  const Linearization lin = Linearize(model, layout, start, g.vertex_state, g.gbuffer, frame, energy);
-  Eigen::VectorXd r;
-  JacobianMatrix j;
-  TermEnergies e;
-  EvaluateResiduals(model, lin, energy, layout.Pack(start), &r, &j, &e);
+  const auto [lin, r, j, e] = CpuSystemOnTheDevicesRender(model, layout, start, g, frame, energy);
   ASSERT_GT(lin.num_plane, 100);
   ASSERT_LT(lin.num_plane, lin.num_point);  // some pixels lost their normal to a hole or the step
   ExpectTheCpusRowsPerTerm(g, lin, r, j, e);
@@ -170,10 +176,7 @@ TEST_F(VulkanSolverTest, ColourOnlyFrameMatchesTheCpu) {
   energy.w_expression_sparsity = 0.1;  // (the reweighted L1 reads the base expression)
   const Eigen::VectorXd v = Eigen::VectorXd::Ones(layout.num_parameters());
   const VulkanLinearSystem g = solver().Inspect(frame, layout, energy, start, v);
-  const Linearization lin = Linearize(model, layout, start, g.vertex_state, g.gbuffer, frame, energy);
-  Eigen::VectorXd r;
-  JacobianMatrix j;
-  EvaluateResiduals(model, lin, energy, layout.Pack(start), &r, &j);
+  const auto [lin, r, j, e] = CpuSystemOnTheDevicesRender(model, layout, start, g, frame, energy);
   EXPECT_EQ(lin.num_point, 0);
   for (int t = 0; t <= kNumTerms; ++t) ASSERT_EQ(g.term_rows[t], lin.term_rows[t]) << "term boundary " << t;
   EXPECT_LT(relative(g.residuals, r), 1e-4);
