@@ -17,6 +17,10 @@ using internal::fail;
 namespace {
 size_t pixel_count(const gpu::PinholeCamera& c) { return static_cast<size_t>(c.width) * static_cast<size_t>(c.height); }
 
+// A depth sample inside the camera's near/far range: what makes a sample valid (depth_valid).
+// NaN and infinity fail one of the comparisons; branch-free, so loops over rows vectorise.
+bool depth_in_range(float d, float near, float far) { return d > near && d < far; }
+
 // Taps of the [1 3 3 1] / 8 kernel around coarse sample k: fine indices 2k-1 .. 2k+2.
 constexpr float kTap[4] = {1.f / 8, 3.f / 8, 3.f / 8, 1.f / 8};
 
@@ -68,10 +72,10 @@ InputFrame downsample(const InputFrame& fine, const PyramidOptions& options, int
         }
       }
       if (!fine.has_depth()) continue;
-      // InputFrame::depth_valid without its bounds checks (NaN fails both comparisons).
+      // InputFrame::depth_valid without its bounds checks.
       const float* depth = &fine.depth[static_cast<size_t>(fj) * fw];
       float* vd = &valid_depth[static_cast<size_t>(r) * fw];
-      for (int fi = 0; fi < fw; ++fi) vd[fi] = depth[fi] > near && depth[fi] < far ? depth[fi] : inf;
+      for (int fi = 0; fi < fw; ++fi) vd[fi] = depth_in_range(depth[fi], near, far) ? depth[fi] : inf;
     }
     for (int j = j0; j < j1; ++j) {
       const size_t row0 = static_cast<size_t>(2 * (j - j0));  // fine row 2j - 1 (clamped) in `filtered`
@@ -129,7 +133,7 @@ void check_level_size(const InputFrame& frame, const InputFrame& finer, const Py
 bool InputFrame::depth_valid(int i, int j) const {
   if (depth.empty() || i < 0 || j < 0 || i >= camera.width || j >= camera.height) return false;
   const float d = depth[static_cast<size_t>(j) * camera.width + i];
-  return std::isfinite(d) && d > camera.near_plane && d < camera.far_plane;
+  return depth_in_range(d, camera.near_plane, camera.far_plane);
 }
 
 Eigen::Vector3d InputFrame::point(int i, int j) const {

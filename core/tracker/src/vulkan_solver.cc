@@ -384,25 +384,20 @@ struct Analysis {
 // One pyramid level of the input: its colour and depth per pixel, uploaded (a level the host
 // built, or level 0) or made on the device from the next finer level (tracker_pyramid.comp), and
 // what the per-pixel passes read, which tracker_input.comp makes from them. Both passes are
-// recorded into the first submission that linearises the frame (record_linearization).
+// recorded into the first submission that linearises the level (record_linearization).
 struct LevelInput {
   const InputFrame* frame = nullptr;  // its camera and landmarks; its pixels only when uploaded
   gpu::Buffer raw;   // uploaded: per pixel linear colour, depth (0 where InputFrame::depth_valid is false)
-  gpu::Buffer made;  // the same made on the device (tracker_pyramid.comp)
+  gpu::Buffer made;  // the same made on the device from `made_from` (tracker_pyramid.comp)
   const gpu::Buffer* pixels = nullptr;  // `raw` or `made`: this frame's
+  LevelInput* made_from = nullptr;      // the next finer level, while `made` is still to be made
+  float depth_edge_threshold = 0;       // PyramidOptions::depth_edge_threshold, for making it
   gpu::Buffer data;        // per pixel: point (w = valid depth), normal (w = exists), colour, its gradient
   bool data_pending = false;  // `pixels` is newer than `data`
   bool has_depth = false;     // the frame has depth (InputFrame::has_depth)
   bool gradient = false;      // the colour gradient is made (ColorFollowsProjection)
   gpu::Buffer candidates;  // landmark candidates: vertex bits, u, v, confidence
   uint32_t num_candidates = 0;
-};
-
-// A pyramid level to make on the device before the frame's first linearisation.
-struct PendingDownsample {
-  const gpu::Buffer* fine = nullptr;
-  const gpu::Buffer* coarse = nullptr;
-  glm::uint fine_width = 0, fine_height = 0, width = 0, height = 0;
 };
 
 }  // namespace
@@ -593,7 +588,7 @@ struct VulkanSolver::Impl {
 
   // The solve's pyramid made on the device from `frame` (level 0, uploaded): `levels` are its
   // levels without pixels (PyramidLevelsWithoutPixels), each level down to the coarsest scheduled
-  // one is made from the one above it before the frame's first linearisation. Uploading the
+  // one is made from the one above it before the first linearisation that reads it. Uploading the
   // 640x480 frame once costs the host less than building the levels (BuildPyramid) and uploading
   // them.
   void prepare_pyramid_on_device(const InputFrame& frame, const std::vector<InputFrame>& levels,
@@ -603,20 +598,16 @@ struct VulkanSolver::Impl {
     LevelInput& top = inputs[0];
     top.frame = &levels[0];
     if (!upload_pixels(frame, o.threads, &top)) throw Error(kNonFiniteColorMessage);
-    pending_downsamples.clear();
     for (int l = 1; l <= coarsest; ++l) {
-      LevelInput& fine = inputs.at(l - 1);
       LevelInput& li = inputs[l];
       const InputFrame& f = levels[static_cast<size_t>(l)];
       li.frame = &f;
       ensure(li.made, static_cast<VkDeviceSize>(f.width()) * f.height() * sizeof(glm::vec4), gpu::BufferDomain::Device,
              "tracker level colour and depth (made on the device)");
       li.pixels = &li.made;
-      pending_downsamples.push_back({fine.pixels, &li.made, static_cast<glm::uint>(fine.frame->width()),
-                                     static_cast<glm::uint>(fine.frame->height()), static_cast<glm::uint>(f.width()),
-                                     static_cast<glm::uint>(f.height())});
+      li.made_from = &inputs.at(l - 1);
+      li.depth_edge_threshold = o.pyramid.depth_edge_threshold;
     }
-    pyramid_edge_threshold = o.pyramid.depth_edge_threshold;
     for (const LevelSchedule& s : o.schedule) {
       LevelInput& li = inputs.at(s.level);
       prepare_level_input(*li.frame, frame.has_depth(), ColorFollowsProjection(o.energy, frame), o.energy, &li);
@@ -632,6 +623,7 @@ struct VulkanSolver::Impl {
     ensure(li.raw, static_cast<size_t>(w) * h * sizeof(glm::vec4), gpu::BufferDomain::Upload,
            "tracker level colour and depth");
     li.pixels = &li.raw;
+    li.made_from = nullptr;
     auto* raw = static_cast<glm::vec4*>(li.raw.mapped());
     constexpr int kRowsPerItem = 32;
     std::atomic<bool> finite{true};
@@ -685,16 +677,21 @@ struct VulkanSolver::Impl {
     if (!cand.empty()) li.candidates.write(cand.data(), cand.size() * sizeof(LandmarkCandidate));
   }
 
-  void record_pending_downsamples(gpu::CommandRecorder& rec) {
-    for (const PendingDownsample& d : pending_downsamples) {
-      rec.bind(*downsample);
-      rec.set_storage_buffer(0, *d.fine);
-      rec.set_storage_buffer(1, *d.coarse);
-      rec.push_constants(PyramidPush{d.fine_width, d.fine_height, d.width, d.height, pyramid_edge_threshold});
-      rec.dispatch((d.width * d.height + 63) / 64, 1, 1);
-      compute_barrier(rec);
-    }
-    pending_downsamples.clear();
+  // The level's colour and depth made on the device from the next finer level's, that one's
+  // first when it is still to be made too: once per frame.
+  void record_made_pixels(gpu::CommandRecorder& rec, LevelInput& li) {
+    if (!li.made_from) return;
+    LevelInput& fine = *li.made_from;
+    record_made_pixels(rec, fine);
+    const auto w = static_cast<glm::uint>(li.frame->width()), h = static_cast<glm::uint>(li.frame->height());
+    rec.bind(*downsample);
+    rec.set_storage_buffer(0, *fine.pixels);
+    rec.set_storage_buffer(1, li.made);
+    rec.push_constants(PyramidPush{static_cast<glm::uint>(fine.frame->width()),
+                                   static_cast<glm::uint>(fine.frame->height()), w, h, li.depth_edge_threshold});
+    rec.dispatch((w * h + 63) / 64, 1, 1);
+    compute_barrier(rec);
+    li.made_from = nullptr;
   }
 
   // After a render: its G-buffer copied into the buffers the per-pixel pass reads, the pass
@@ -706,10 +703,10 @@ struct VulkanSolver::Impl {
     const InputFrame& f = *li.frame;
     const VkCommandBuffer cmd = rec.handle();
     const uint32_t w = static_cast<uint32_t>(f.width()), h = static_cast<uint32_t>(f.height());
-    // The frame's pyramid levels made on the device, then this level's input from its colour and
-    // depth: once per frame (per calibration frame).
-    record_pending_downsamples(rec);
+    // This level's input from its colour and depth (made on the device first, where they are
+    // made there): once per frame (per calibration frame).
     if (li.data_pending) {
+      record_made_pixels(rec, li);
       rec.bind(*input);
       rec.set_storage_buffer(0, *li.pixels);
       rec.set_storage_buffer(1, li.data);
@@ -1596,9 +1593,6 @@ struct VulkanSolver::Impl {
   const gpu::Buffer* current_input = nullptr;
   // Per pyramid level, the input buffers of the frame being solved, kept for the next frame.
   std::unordered_map<int, LevelInput> level_inputs;
-  // The levels Solve(frame) makes on the device, recorded before its first linearisation.
-  std::vector<PendingDownsample> pending_downsamples;
-  float pyramid_edge_threshold = 0;
 
   class GaussNewton;
   class JointGaussNewton;
@@ -1829,7 +1823,6 @@ SolverSummary VulkanSolver::Solve(const InputFrame& frame, const ParameterLayout
                                   gpu::FaceParameters* params) {
   CheckSolveArguments(layout, options, params);
   Impl& m = *impl_;
-  m.pending_downsamples.clear();
   const auto start = Clock::now();
   const std::vector<InputFrame> levels = PyramidLevelsWithoutPixels(frame, options.pyramid);
   const double pyramid_ms = ms_since(start);
@@ -1844,7 +1837,6 @@ SolverSummary VulkanSolver::Solve(const std::vector<InputFrame>& pyramid, const 
                                   const SolverOptions& options, gpu::FaceParameters* params) {
   CheckSolveArguments(layout, options, params);
   Impl& m = *impl_;
-  m.pending_downsamples.clear();
   std::string why;
   for (const auto& level : options.schedule) {
     if (level.level >= static_cast<int>(pyramid.size())) throw Error("solver: the pyramid has fewer levels than the schedule uses");
@@ -2044,7 +2036,6 @@ std::vector<InputFrame> VulkanSolver::InspectPyramid(const InputFrame& frame, co
   o.pyramid = options;
   o.schedule = {{static_cast<int>(levels.size()) - 1, 1, 1}};
   std::unordered_map<int, LevelInput> inputs;
-  m.pending_downsamples.clear();
   m.prepare_pyramid_on_device(frame, levels, o, inputs);
   VkDeviceSize bytes = 0;
   for (size_t l = 1; l < levels.size(); ++l) bytes += VkDeviceSize(levels[l].width()) * levels[l].height() * sizeof(glm::vec4);
@@ -2053,7 +2044,7 @@ std::vector<InputFrame> VulkanSolver::InspectPyramid(const InputFrame& frame, co
   m.context.submit_and_wait(
       [&](VkCommandBuffer cmd) {
         gpu::CommandRecorder rec(m.context, cmd);
-        m.record_pending_downsamples(rec);
+        m.record_made_pixels(rec, inputs.at(static_cast<int>(levels.size()) - 1));
         rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                            VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT);
         VkDeviceSize at = 0;
