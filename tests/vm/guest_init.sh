@@ -12,8 +12,11 @@ for name in mc videodev virtio_ring virtio virtio_pci_legacy_dev virtio_pci_mode
             9pnet 9pnet_virtio netfs fscache 9p; do
   insmod /modules/$name.ko || echo "init: insmod $name failed"
 done
-insmod /modules/v4l2loopback.ko exclusive_caps=1 video_nr=0 card_label="face-reenact test" \
+# The label users see (packaging/modprobe.conf); the kernel needs the quotes to keep its space.
+insmod /modules/v4l2loopback.ko exclusive_caps=1 video_nr=0 'card_label="Face Reenact"' \
   || echo "init: insmod v4l2loopback failed"
+# The loopback network interface, for the browser check's page on http://127.0.0.1.
+ip link set lo up || echo "init: bringing up lo failed"
 
 mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=524288 host /host || echo "init: mounting host root failed"
 # The exchange folder hides the host's own /tmp; keep that reachable as /tmp/.host-tmp inside the
@@ -25,6 +28,7 @@ mount -t devtmpfs devtmpfs /host/dev
 mount -t proc proc /host/proc
 mount -t sysfs sysfs /host/sys
 mount -t tmpfs tmpfs /host/run 2>/dev/null
+mkdir -p /host/dev/shm && mount -t tmpfs tmpfs /host/dev/shm 2>/dev/null  # Chromium's shared memory
 
 chroot /host /bin/bash /tmp/guest.sh >/host/tmp/guest.log 2>&1
 echo $? >/host/tmp/guest.status

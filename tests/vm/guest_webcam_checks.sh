@@ -148,6 +148,31 @@ if start_writer camsrc --size 320x240 --fps 30; then
   stop_writer camsrc
 fi
 
+# --- a real browser picks the camera: Chromium's getUserMedia ---------------------------------
+# The writer sends the reenacted video made on the host (FR_VM_REENACTED); headless Chromium opens
+# browser_camera.html, which picks the camera labelled "Face Reenact", reads its frames for 4 s and
+# POSTs what it saw to browser_camera_server.py (browser.json, browser-N.png).
+if [[ -n ${FR_VM_REENACTED:-} && -f ${FR_VM_REENACTED}/reenacted.mp4 ]] && command -v chromium >/dev/null; then
+  step "browser (Chromium getUserMedia)"
+  if start_writer browser --input "$FR_VM_REENACTED/reenacted.mp4" --loop --size 320x240 --fps 30 --format yuyv; then
+    echo started >browser-started.txt
+    python3 "$FR_VM_TEST_DIR/browser_camera_server.py" 8765 "$results/browser.json" 240 >browser-server.log 2>&1 &
+    server_pid=$!
+    # Root in a chroot: no sandbox. Its temporary files on tmpfs (the exchange folder's 9p has no
+    # sockets). The permission prompt is answered "allow", as a user would.
+    mkdir -p /run/chromium-tmp
+    TMPDIR=/run/chromium-tmp HOME=/run/chromium-tmp chromium --headless=new --no-sandbox --disable-gpu \
+      --no-first-run --use-fake-ui-for-media-stream --user-data-dir=/run/chromium-profile \
+      "http://127.0.0.1:8765/browser_camera.html?label=Face%20Reenact&seconds=4" >browser-chromium.log 2>&1 &
+    chromium_pid=$!
+    wait "$server_pid"; echo $? >browser-server.rc
+    kill -TERM "$chromium_pid" 2>/dev/null; wait "$chromium_pid" 2>/dev/null
+  fi
+  stop_writer browser
+elif ! command -v chromium >/dev/null; then
+  echo "chromium is not installed (apt-get install chromium)" >browser-skip.txt
+fi
+
 # --- wrong devices (argument errors are covered by the host tests: every program start costs
 # seconds under emulation) ---------------------------------------------------------------------
 step "error cases"

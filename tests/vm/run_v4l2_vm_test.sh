@@ -128,6 +128,9 @@ guest_path() { case $1 in /tmp/*) printf '/tmp/.host-tmp/%s' "${1#/tmp/}";; *) p
 printf "FR_CLI='%s'\n" "$(guest_path "$cli")" >"$exchange/env.sh"
 # Optional: a recording for the live-session webcam check (made by the CTest fixture vm_live_recording).
 printf "FR_VM_LIVE_RECORDING='%s'\n" "$(guest_path "${FR_VM_LIVE_RECORDING:-}")" >>"$exchange/env.sh"
+# Optional: the reenacted video and the page for the browser check (fixture vm_reenacted_video).
+printf "FR_VM_REENACTED='%s'\n" "$(guest_path "${FR_VM_REENACTED:-}")" >>"$exchange/env.sh"
+printf "FR_VM_TEST_DIR='%s'\n" "$(guest_path "$(dirname "$(realpath "$0")")")" >>"$exchange/env.sh"
 # Software emulation (TCG) by default: on the build machines /dev/kvm exists but nested KVM
 # hangs in the firmware or aborts on MSRs, and TCG boots in seconds. FR_VM_KVM=1 opts in.
 accels=("tcg")
