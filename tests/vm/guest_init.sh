@@ -12,9 +12,12 @@ for name in mc videodev virtio_ring virtio virtio_pci_legacy_dev virtio_pci_mode
             9pnet 9pnet_virtio netfs fscache 9p; do
   insmod /modules/$name.ko || echo "init: insmod $name failed"
 done
-# The label users see (packaging/modprobe.conf); the kernel needs the quotes to keep its space.
-insmod /modules/v4l2loopback.ko exclusive_caps=1 video_nr=0 'card_label="Face Reenact"' \
-  || echo "init: insmod v4l2loopback failed"
+# /dev/video0 with the label users see (packaging/modprobe.conf), and /dev/video1, a second
+# loopback device that plays the target's camera (fed by a writer the guest script kills and
+# restarts: unplug and replug). The kernel keeps spaces only inside one pair of quotes around the
+# whole list, so the labels are listed in one string, in video_nr's order.
+insmod /modules/v4l2loopback.ko devices=2 video_nr=1,0 exclusive_caps=1,1 \
+  'card_label="Test Camera,Face Reenact"' || echo "init: insmod v4l2loopback failed"
 # The loopback network interface, for the browser check's page on http://127.0.0.1.
 ip link set lo up || echo "init: bringing up lo failed"
 

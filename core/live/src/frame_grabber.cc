@@ -4,7 +4,9 @@
 #include <pthread.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
+#include <mutex>
 #include <opencv2/videoio.hpp>
 
 #include "face_reenact/capture/media_file.h"
@@ -62,10 +64,24 @@ class RecordingDevice : public InputDevice {
   int64_t frames_this_loop_ = 0;
 };
 
+// How long OpenCV's V4L2 backend waits for a camera's next frame before read() fails, in whole
+// seconds. Its default, 10 s, left the picture frozen that long before "No camera" when a camera
+// stalled without vanishing (a v4l2loopback camera whose writer died, a USB hiccup); a device that
+// is unplugged fails at once anyway. 2 s is over ten frame periods of the slowest webcam mode
+// (5 fps in poor light). OpenCV reads the setting from the environment once per process, at the
+// first frame of the first camera; a value the user set is kept.
+constexpr const char* kCameraStallSeconds = "2";
+
+void shorten_opencv_camera_stall_timeout() {
+  static std::once_flag once;
+  std::call_once(once, [] { ::setenv("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT", kCameraStallSeconds, /*overwrite=*/0); });
+}
+
 // A V4L2 camera through OpenCV. RGB only; the intrinsics come from an assumed field of view.
 class CameraDevice : public InputDevice {
  public:
   explicit CameraDevice(const GrabberOptions& options) : path_(options.input.device_path), fov_(options.camera_fov_deg) {
+    shorten_opencv_camera_stall_timeout();
     std::error_code ec;
     if (!std::filesystem::exists(path_, ec))
       throw Error("camera " + path_ + ": no such device (unplugged, or another number?)");
