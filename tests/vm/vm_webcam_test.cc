@@ -421,7 +421,6 @@ TEST_F(VmWebcamTest, ChromiumPicksTheCameraByItsLabelAndSeesTheReenactedFrames) 
   const auto& pngs = page["pngs"];
   ASSERT_GE(pngs.size(), 3u) << page.dump(1);
   int reenacted_seen = 0;
-  cv::Mat last;
   int last_match = -1;
   for (const auto& name : pngs) {
     cv::Mat seen = cv::imread((kResults / name.get<std::string>()).string(), cv::IMREAD_COLOR);
@@ -441,7 +440,7 @@ TEST_F(VmWebcamTest, ChromiumPicksTheCameraByItsLabelAndSeesTheReenactedFrames) 
     std::cout << name << ": sent frame " << best << " (" << (reenacted[best] ? "reenacted" : "calibrating")
               << "), mean difference " << best_diff << "\n";
     reenacted_seen += reenacted[best];
-    last = seen, last_match = best;
+    last_match = best;
   }
   EXPECT_GE(reenacted_seen, 1) << "the browser saw only frames of the unchanged target";
   // The page's own statistics of its last frame agree with the frame the writer sent.
