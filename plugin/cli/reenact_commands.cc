@@ -183,6 +183,7 @@ struct ReenactArgs {
   std::vector<int> sheet_frames;   // --sheet-frames: which (default: three spread over the output)
   int frames = 0;
   int calibration_window = 0;      // as `track --calibration-window`, for both actors
+  bool no_brows = false;           // as `track --no-brows`, for both actors
   CameraArgs camera;               // --fov / --intrinsics of both actors' videos (none: estimated)
   double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
   double target_rest_s = -1;       // the same for the target
@@ -266,6 +267,7 @@ void run_reenact(const ReenactArgs& a) {
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
   ro.tracker.calibration_window_frames = a.calibration_window;
+  ro.tracker.brows.enabled = !a.no_brows;
   if (a.mouth == "model") {
     ro.mouth_exemplar = false;
   } else if (a.mouth != "auto") {
@@ -900,6 +902,9 @@ void add_reenact_commands(CLI::App& app) {
                   "Calibrate each actor on the most varied head poses among this many frames (as track; default 0: the "
                   "first frames)")
         ->check(CLI::Range(0, 100000));
+    c->add_flag("--no-brows", args->no_brows,
+                "Do not read either actor's brows from the detector's brow points (as track; the brow blendshapes are "
+                "then the solver's)");
     c->add_option("--source-rest", args->source_rest_s,
                   "The source actor is at rest (relaxed face, mouth closed) from this time on (seconds into the source): "
                   "its calibration is taken again there")

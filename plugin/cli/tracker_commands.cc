@@ -223,6 +223,7 @@ struct TrackArgs {
   bool brow_landmarks = false;
   bool no_gaze = false;
   bool no_lids = false;
+  bool no_brows = false;
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
@@ -257,6 +258,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   if (a.tracking_tolerance >= 0) o.tracking_solver.function_tolerance = a.tracking_tolerance;
   o.gaze.enabled = !a.no_gaze;
   o.gaze.read_lids = !a.no_lids;
+  o.brows.enabled = !a.no_brows;
   if (!parse_calibration_start(a.calibration_start, &o.calibration_start))
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
@@ -327,6 +329,9 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   j["lids"] = t.gaze.lids_read ? nlohmann::json{{"blink", {t.gaze.blink[0], t.gaze.blink[1]}},
                                                {"open_fraction", {t.gaze.open_fraction[0], t.gaze.open_fraction[1]}}}
                                : nlohmann::json();
+  // The brows read from the brow points (brow_reader.h; null when they were not: no points yet,
+  // the first frames of an actor, or off).
+  j["brows"] = t.brows.ok ? nlohmann::json{{"weights", t.brows.weight}, {"residual", t.brows.residual}} : nlohmann::json();
   // The fit against the frame's landmarks (fit_agreement.h; null where not measured).
   auto measure = [](double v) { return json_number(v); };
   j["agreement"] = {{"pose_disagreement_deg", measure(t.agreement.pose_disagreement_deg)},
@@ -578,6 +583,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["brow_landmarks"] = tracker.options().tracking_solver.energy.use_brow_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
+  j["brows"] = tracker.options().brows.enabled;
   j["landmark_source"] = landmark_source_choice_name(io.landmark_source);
   j["solver"] = tracker.solver_description();
   j["camera"] = camera_json(info, a.camera, tracker.focal_length_report());
@@ -746,8 +752,11 @@ void add_tracker_commands(CLI::App& app) {
               "read blinks; off by default (dlib's eye points do not follow a closing eyelid, and its 33 is not the "
               "model's)");
   tc->add_flag("--brow-landmarks", targs->brow_landmarks,
-               "Also fit the brows (iBUG 17-26), so that the brow blendshapes follow where the detector puts the brows "
-               "(off by default: the paper's 38 points have none)");
+               "Also fit the brows (iBUG 17-26) in the solve's landmark term (off by default: the paper's 38 points "
+               "have none; the brow blendshapes are read from the brow points after the solve, see --no-brows)");
+  tc->add_flag("--no-brows", targs->no_brows,
+               "Do not read the brow blendshapes from the detector's brow points after each solve (they are then the "
+               "solver's, which barely sees a brow move)");
   char default_tolerance[32];
   std::snprintf(default_tolerance, sizeof default_tolerance, "%g", TrackerOptions{}.tracking_solver.function_tolerance);
   tc->add_option("--tracking-tolerance", targs->tracking_tolerance,

@@ -1,23 +1,16 @@
 // Blinks and winks from the detector's eye points (eye_openness.h): the aspect ratio on known
 // geometry, the reader against the actor's own open eye (independent eyes, the history, bad
-// points), the face tracker writing it into the eyeBlink weights of RGB-only frames, and the
-// real clip liveportrait_d14 (skipped without ../shared/data).
+// points) and the face tracker writing it into the eyeBlink weights of RGB-only frames. The real
+// clip liveportrait_d14 is read in real_clip_expression_test.cc.
 #include <gtest/gtest.h>
 
-#include <nlohmann/json.hpp>
-
 #include <cmath>
-#include <cstdlib>
-#include <filesystem>
-#include <fstream>
 #include <string>
 #include <vector>
 
-#include "face_reenact/common/subprocess.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/eye_openness.h"
 #include "face_reenact/tracker/face_tracker.h"
-#include "support/temp_dir.h"
 #include "tracker_test_support.h"
 
 namespace face_reenact::tracker {
@@ -187,50 +180,6 @@ TEST(EyeOpenness, TheTrackerReadsAWinkOnFramesWithoutDepth) {
   for (int k = 0; k < o.eye_openness.min_history + 1; ++k) without.Track(frame(0.f, 0.f));
   t = without.Track(frame(1.f, 0.f));
   EXPECT_FALSE(t.gaze.lids_read);
-}
-
-// liveportrait_d14 through `face-reenact track`: frames where both eyes are shut (checked by
-// eye on the frames themselves: 16-18 and 65-67 blinks, 108-204 the eyes closed with brief half
-// openings) read both eyeBlink weights high, the open stretches (24-48, 214-260) read them low.
-// The clip's "winks" are not winks to dlib: its two eyes' ratios never differ by more than 0.03.
-TEST(EyeOpenness, BlinksOnARealClip) {
-  const char* shared = std::getenv("FR_SHARED_DATA");
-  const std::string video = std::string(shared ? shared : "") + "/videos/liveportrait_d14.mp4";
-  if (!shared || !std::filesystem::exists(video))
-    GTEST_SKIP() << "real test data 'videos/liveportrait_d14.mp4' not found: set FR_SHARED_DATA";
-  const char* cli = std::getenv("FR_CLI");
-  ASSERT_NE(cli, nullptr);
-  const char* model = std::getenv("FR_MODEL");
-  ::face_reenact::testing::TempDir dir("eye_openness");
-  const std::filesystem::path out = std::filesystem::path(dir.path()) / "d14.jsonl";
-  std::vector<std::string> args = {cli, "track", "--input", video, "--frames", "262", "--out", out.string(), "--quiet"};
-  if (model) args.insert(args.end(), {"--model", model});
-  const SubprocessResult r = run_subprocess(args);
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  std::ifstream in(out);
-  std::vector<nlohmann::json> frames;
-  for (std::string line; std::getline(in, line);) frames.push_back(nlohmann::json::parse(line));
-  ASSERT_EQ(frames.size(), 262u);
-  const int left = arkit_blendshape_index("eyeBlinkLeft"), right = arkit_blendshape_index("eyeBlinkRight");
-  auto mean = [&](int from, int to, int index) {
-    double s = 0;
-    int n = 0;
-    for (int f = from; f <= to; ++f) {
-      if (!frames[size_t(f)]["has_fit"].get<bool>()) continue;
-      s += frames[size_t(f)]["expression"][size_t(index)].get<double>();
-      ++n;
-    }
-    return n > 0 ? s / n : -1.0;
-  };
-  for (int eye : {left, right}) {
-    SCOPED_TRACE(eye == left ? "eyeBlinkLeft" : "eyeBlinkRight");
-    EXPECT_GT(mean(140, 204, eye), 0.7);
-    EXPECT_LT(mean(24, 48, eye), 0.1);
-    EXPECT_LT(mean(214, 260, eye), 0.1);
-    double blink = 0;
-    for (int f = 15; f <= 19; ++f) blink = std::max(blink, frames[size_t(f)]["expression"][size_t(eye)].get<double>());
-    EXPECT_GT(blink, 0.7);
-  }
 }
 
 }  // namespace

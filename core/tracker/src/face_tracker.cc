@@ -373,6 +373,7 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (!loss.IsValid(why)) return false;
   if (!gaze.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (!eye_openness.IsValid(&inner)) return fail(why, "tracker: " + inner);
+  if (!brows.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
@@ -391,7 +392,8 @@ FaceTracker::FaceTracker(const FaceModel& model, const TrackerOptions& options)
 
 FaceTracker::FaceTracker(TrackerModel model, const TrackerOptions& options)
     : options_(options), solver_(std::move(model)), gaze_(solver_.model()),
-      eye_openness_(options_.eye_openness, &solver_.model()) {
+      eye_openness_(options_.eye_openness, &solver_.model()),
+      brows_(solver_.model(), options_.brows) {
   std::string why;
   if (!options_.IsValid(&why)) throw Error(why);
   const TrackerModel& m = solver_.model();
@@ -443,6 +445,7 @@ void FaceTracker::ForgetTrack() {
   unresolved_disagreement_deg_ = std::numeric_limits<double>::quiet_NaN();
   unresolved_landmark_nme_ = std::numeric_limits<double>::quiet_NaN();
   eye_openness_.Reset();
+  brows_.Reset();
 }
 
 void FaceTracker::RequestCalibration() { calibration_requested_.store(true); }
@@ -773,8 +776,16 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   unresolved_landmark_nme_ = a.failure.empty() && !a.agreement.landmark_warning.empty()
                                  ? a.agreement.landmark_nme
                                  : std::numeric_limits<double>::quiet_NaN();
+  if (a.failure.empty() && options_.brows.enabled) {
+    // After the checks: a fit the frame refuses teaches the reader nothing.
+    const auto t0 = Clock::now();
+    a.brows = brows_.Read(*input, a.params, input->camera);
+    if (a.brows.ok) brows_.Write(a.brows, &a.params.delta);
+    out.times.gaze_ms += ms_since(t0);
+  }
   out.params = a.params;
   out.has_parameters = true;
+  out.brows = a.brows;
   out.energy = a.summary.final_energy;
   out.residuals = a.summary.iterations.empty() ? 0 : a.summary.iterations.back().residuals;
   out.landmark_error_px = a.landmark_error_px;
@@ -1051,6 +1062,11 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
   identity_.beta = o->params[0].beta;
   neutral_ = o->params[0];
   neutral_.delta = o->neutral_delta;
+  if (options_.brows.enabled && brows_.usable()) {
+    // The brows are read against the rest the reader learns, with the new identity from here on.
+    brows_.ClearBrows(&neutral_.delta);
+    brows_.Reset();
+  }
   calibrated_ = true;
   collecting_ = false;
   calibration_start_report_ = o->report;

@@ -33,6 +33,7 @@
 #include <vector>
 
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/tracker/brow_reader.h"
 #include "face_reenact/tracker/energy.h"
 #include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/focal_length.h"
@@ -237,6 +238,12 @@ struct TrackerOptions {
   // eye points, where the colour reader (gaze.read_lids, RGB-D only) cannot read them. Off with
   // gaze.enabled or gaze.read_lids off too.
   EyeOpennessOptions eye_openness;
+  // The brows (brow_reader.h): after each fit that passed its checks, the brow blendshapes are
+  // read from the detector's brow points against the fit's own brows, on every frame with the
+  // points (the solve does not see them: no brows in the paper's 38 landmarks, and a brow barely
+  // changes the colour). The calibrated neutral's brow weights are then 0, the rest the reader
+  // reads against. enabled = false leaves the brows to the solve.
+  BrowReaderOptions brows;
   // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
   // itself takes whatever landmarks the InputFrame carries).
   LandmarkSourceChoice landmark_source = LandmarkSourceChoice::kDetector;
@@ -332,6 +339,9 @@ struct TrackedFrame {
   // The gaze reading of this frame's fit (ok false: none, and why; the eyeLook weights are then
   // the solve's).
   GazeReading gaze;
+  // The brow reading of this frame's fit (ok false: none, and why; the brow weights are then the
+  // solve's).
+  BrowReading brows;
   // The fit against the frame's landmarks (measured on every frame with parameters of its own;
   // a disagreement made the frame kLost or, re-initialised, kRecovered).
   FitAgreement agreement;
@@ -455,6 +465,7 @@ class FaceTracker {
     std::string failure;  // empty: passed the loss checks
     bool disagrees = false;  // `failure` is the fit-agreement check's (pose or rotation speed)
     GazeReading gaze;
+    BrowReading brows;
     FitAgreement agreement;
   };
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
@@ -499,6 +510,7 @@ class FaceTracker {
   CpuSolver solver_;
   GazeEstimator gaze_;  // reads solver_'s model
   EyeOpennessReader eye_openness_;  // learns the actor's open eyes from the frames seen
+  BrowReader brows_;                // learns where the detector puts the actor's brows at rest
   FrameSolveFunction tracking_solve_;
   FramesSolveFunction calibration_solve_;
   std::string solver_description_ = "cpu";
