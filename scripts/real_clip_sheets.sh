@@ -32,6 +32,11 @@ src="$VIDEOS/liveportrait_d14.mp4" tgt="$VIDEOS/webcam_talking_640x480.wmv"
 "$FR" reenact --source "$src" --target "$tgt" --frames "$FRAMES" --out "$OUT/reenact.mp4" \
       --report "$OUT/reenact.json" --status-log "$OUT/reenact.status.jsonl" --quiet \
       --sheets "$OUT" --sheet-frames "$((FRAMES / 3)),$((2 * FRAMES / 3)),$((FRAMES - 5))"
+# The brows and the light (docs/tracker.md "Brows", docs/reenactment.md "Appearance"): d14's raise (output frame 36),
+# frown (59), and frame 172, after the camera's exposure dropped at 126-150 (the tracked light drifted red).
+mkdir -p "$OUT/brows"
+"$FR" reenact --source "$src" --target "$tgt" --frames 175 --out "$OUT/brows.mp4" --quiet \
+      --sheets "$OUT/brows" --sheet-frames 36,59,172
 # The mouth interior (docs/reenactment.md, "Mouth"): the longest driving clip onto the whole webcam clip, whose
 # speaker opens the mouth wide facing the camera at frame 256; the same with the model's teeth and cavity beside it.
 for mouth in auto model; do
@@ -39,4 +44,4 @@ for mouth in auto model; do
   "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --out "$OUT/mouth_$mouth.mp4" \
         --report "$OUT/mouth_$mouth.json" --quiet --mouth "$mouth" --sheets "$OUT/mouth_$mouth" --sheet-frames 120,270,280
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), mouth_{auto,model}/ (the target's own mouth against the model's)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's)"

@@ -475,6 +475,34 @@ struct FaceCompositor::Impl {
         }
         weight.at<float>(bj, bi) = trust;
       }
+    // The albedo map's colour balance against this frame's: per channel, the frame's texture over
+    // the albedo map's rendering where the frame is fully trusted. The map was learned under the
+    // lighting of earlier frames; when the tracked light's colour has drifted since (on the webcam
+    // clip, as the camera's exposure dropped and the face turned darker and warmer, its green and
+    // blue ambient fell to a fifth of the red's, far more than the frame's colours changed), the
+    // map's surface rendered under the new light is tinted, and the lips, lids and nose tip the frame does not show turned pink. The
+    // fallback pixels take the map's colour times this gain, so they match the shown skin around
+    // them (a camera's white balance moving is matched the same way).
+    Eigen::Vector3d frame_sum = Eigen::Vector3d::Zero(), map_sum = Eigen::Vector3d::Zero();
+    int balanced = 0;
+    for (int bj = 0; bj < box.height; ++bj)
+      for (int bi = 0; bi < box.width; ++bi) {
+        if (!(weight.at<float>(bj, bi) >= 1.f)) continue;
+        const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+        if (part_of(g->vertices[3 * p]) != FacePart::Face) continue;
+        const cv::Vec3f t = texture.at<cv::Vec3f>(bj, bi);
+        for (int c = 0; c < 3; ++c) {
+          frame_sum[c] += t[c];
+          map_sum[c] += g->color[3 * p + static_cast<size_t>(c)];
+        }
+        ++balanced;
+      }
+    Eigen::Vector3f gain = Eigen::Vector3f::Ones();
+    constexpr int kMinBalancePixels = 100;
+    constexpr float kMaxGain = 4.0f;
+    if (balanced >= kMinBalancePixels && map_sum.minCoeff() > 1e-6)
+      for (int c = 0; c < 3; ++c)
+        gain[c] = std::clamp(static_cast<float>(frame_sum[c] / map_sum[c]), 1.0f / kMaxGain, kMaxGain);
     // The weight smoothed over the drawn pixels only (normalised, so the silhouette keeps 1):
     // shown pixels next to unshown (or distrusted) ones fade towards the albedo map, so a
     // disoccluded region has no hard seam. Unshown pixels keep the albedo map (their texture is
@@ -484,14 +512,23 @@ struct FaceCompositor::Impl {
     cv::GaussianBlur(covered, cs, cv::Size(0, 0), 1.0);
     for (int bj = 0; bj < box.height; ++bj)
       for (int bi = 0; bi < box.width; ++bi) {
-        if (!(weight.at<float>(bj, bi) > 0.f)) continue;
-        const float cw = cs.at<float>(bj, bi);
-        const float a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
+        if (!(covered.at<float>(bj, bi) > 0.f)) continue;
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
-        const cv::Vec3f t = texture.at<cv::Vec3f>(bj, bi);
+        // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
+        // take the balance.
+        const FacePart part = part_of(g->vertices[3 * p]);
+        const bool balance = !(kMouthParts & part_bit(part));
+        float a = 0.f;
+        if (weight.at<float>(bj, bi) > 0.f) {
+          const float cw = cs.at<float>(bj, bi);
+          a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
+        }
+        // (The texture holds nothing where no sample was taken: a is 0 there.)
+        const cv::Vec3f t = a > 0.f ? texture.at<cv::Vec3f>(bj, bi) : cv::Vec3f(0.f, 0.f, 0.f);
         for (int c = 0; c < 3; ++c) {
           float& col = g->color[3 * p + static_cast<size_t>(c)];
-          col = a * t[c] + (1.0f - a) * col;
+          const float map = balance ? std::min(1.0f, col * gain[c]) : col;
+          col = a * t[c] + (1.0f - a) * map;
         }
       }
   }
@@ -755,8 +792,23 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   // so the observed chromaticity is pulled back to within this distance of the model's.
   constexpr float kMaxChromaShift = 0.1f;
   constexpr float kMinBrightnessRatio = 0.15f, kMaxBrightnessRatio = 1.8f;
+  // A pixel this bright in any channel is clipped: its colour says nothing of the surface (a
+  // blown-out window behind the face where the fit's silhouette overshoots it, a highlight).
+  constexpr int kClippedLevel = 250;
+  // Observations brighter than kMaxBrightnessRatio by this factor are rejected, not clamped.
+  constexpr float kImplausiblyBright = 1.25f;
   const Eigen::VectorXf model_albedo = state.albedo;
   const Gamma light = rendering_lighting(params.gamma);
+  // A light whose colour is that far from white (one channel's ambient under a quarter of
+  // another's, or none at all) is the lighting fit making up for something else (on the webcam
+  // clip, as the camera's exposure dropped, green and blue ambient fell below zero);
+  // dividing the frame by it would write that error into the map, which later frames show
+  // wherever the frame does not.
+  constexpr float kMinLightChroma = 0.25f;
+  {
+    const float lo = std::min({light[0], light[9], light[18]}), hi = std::max({light[0], light[9], light[18]});
+    if (!(lo > 0.f) || !(lo >= kMinLightChroma * hi)) return;
+  }
   Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
   for (int v = 0; v < n; ++v) {
     const FacePart part = im.part_of(v);
@@ -780,14 +832,16 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     // A 3x3 average (in linear light) of the pixels whose surface is this vertex's, against noise.
     Eigen::Vector3f linear = Eigen::Vector3f::Zero();
     int samples = 0;
+    bool clipped = false;
     for (int dj = -1; dj <= 1; ++dj)
       for (int di = -1; di <= 1; ++di) {
         if (!g.covered(i + di, j + dj) || std::abs(g.depth(i + di, j + dj) - x.z()) > 2.0f * kDepthToleranceM) continue;
         const cv::Vec3b px = frame_bgr.at<cv::Vec3b>(j + dj, i + di);
+        if (px[0] >= kClippedLevel || px[1] >= kClippedLevel || px[2] >= kClippedLevel) clipped = true;
         for (int c = 0; c < 3; ++c) linear[c] += srgb_decode_table()[px[2 - c]];
         ++samples;
       }
-    if (samples < 5) continue;
+    if (samples < 5 || clipped) continue;
     linear /= static_cast<float>(samples);
     // Only well-lit vertices: where the fitted light is weak (below 40 % of its ambient part),
     // dividing by it amplifies every error of the lighting fit.
@@ -804,9 +858,12 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     if (!ok) continue;
     for (int c = 0; c < 3; ++c) brightest[c] = std::max(brightest[c], irradiance(light, basis, c));
     // Brightness may differ from the model's by the range real faces show against a skin mean
-    // (brows and lips darker, not much brighter).
+    // (brows and lips darker, not much brighter). Far brighter than that is not this surface (the
+    // background behind a fit whose silhouette overshoots the face, a highlight): not observed,
+    // since clamped, such a pixel still pulls the vertex to 1.8 x the model's colour.
     {
       const float prior_l = model_albedo.segment<3>(3 * v).sum(), obs_l = observed.sum();
+      if (prior_l > 1e-4f && obs_l > kMaxBrightnessRatio * prior_l * kImplausiblyBright) continue;
       if (prior_l > 1e-4f && obs_l > 1e-4f) {
         const float ratio = std::clamp(obs_l / prior_l, kMinBrightnessRatio, kMaxBrightnessRatio);
         observed *= ratio * prior_l / obs_l;
