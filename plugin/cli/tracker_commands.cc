@@ -558,6 +558,16 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   // Null when the calibrated neutral looks at rest (TrackerOptions::rest_warning_weight).
   j["calibration_warning"] =
       tracker.calibration_warning().empty() ? nlohmann::json() : nlohmann::json(tracker.calibration_warning());
+  // Depth against colour on the calibration's first frame with depth (null without depth).
+  const tracker::DepthAlignment& da = tracker.depth_alignment();
+  j["depth_alignment"] = da.measured ? nlohmann::json{{"shift_px", {da.shift_x, da.shift_y}},
+                                                      {"edge_agreement_gain", da.agreement_unshifted > 0
+                                                                                  ? da.agreement_best / da.agreement_unshifted
+                                                                                  : 0.0},
+                                                      {"edge_pixels", da.edge_pixels},
+                                                      {"misaligned", da.misaligned},
+                                                      {"message", da.message}}
+                                     : nlohmann::json();
   if (tracker.calibrated()) {
     // Which start the joint solve kept and the final energy from each start solved (null: not solved).
     const FaceTracker::CalibrationStartReport& cs = tracker.calibration_start_report();

@@ -374,6 +374,7 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (!gaze.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (!eye_openness.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (!brows.IsValid(&inner)) return fail(why, "tracker: " + inner);
+  if (!depth_alignment.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
@@ -431,6 +432,7 @@ void FaceTracker::Reset() {
   calibration_summary_ = SolverSummary();
   calibration_start_report_ = CalibrationStartReport();
   calibration_warning_.clear();
+  depth_alignment_ = DepthAlignment();
   focal_length_ = FocalLengthReport();
   ClearCalibrationFrames();
   ForgetTrack();
@@ -1085,6 +1087,15 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
     *message += "; camera: " + o->focal_length.message;
   }
   calibration_warning_ = NotAtRestWarning(m, neutral_.delta, options_.rest_warning_weight);
+  depth_alignment_ = DepthAlignment();
+  for (const InputFrame& f : o->inputs) {
+    if (!f.has_depth()) continue;
+    depth_alignment_ = MeasureDepthAlignment(f, options_.depth_alignment);
+    break;
+  }
+  if (depth_alignment_.misaligned)
+    calibration_warning_ += (calibration_warning_.empty() ? "" : "; ") + depth_alignment_.message +
+                            " The depth terms fit the face worse for it";
   if (!calibration_warning_.empty()) *message += "; " + calibration_warning_;
   calibration_summary_ = o->summary;
   return true;

@@ -34,6 +34,7 @@
 
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/tracker/brow_reader.h"
+#include "face_reenact/tracker/depth_alignment.h"
 #include "face_reenact/tracker/energy.h"
 #include "face_reenact/tracker/fit_agreement.h"
 #include "face_reenact/tracker/focal_length.h"
@@ -244,6 +245,9 @@ struct TrackerOptions {
   // changes the colour). The calibrated neutral's brow weights are then 0, the rest the reader
   // reads against. enabled = false leaves the brows to the solve.
   BrowReaderOptions brows;
+  // Depth against colour (depth_alignment.h), measured on the first calibration frame with depth:
+  // a depth map that is not registered to the colour adds its own calibration warning.
+  DepthAlignmentOptions depth_alignment;
   // Landmark source the frame adapters should use (rgbd_input.h / the CLI read it; Track()
   // itself takes whatever landmarks the InputFrame carries).
   LandmarkSourceChoice landmark_source = LandmarkSourceChoice::kDetector;
@@ -411,8 +415,12 @@ class FaceTracker {
   };
   const CalibrationStartReport& calibration_start_report() const { return calibration_start_report_; }
   // Non-empty when the last calibration's neutral expression says the actor was not at rest
-  // (TrackerOptions::rest_warning_weight): names the strongest weights and what to do.
+  // (TrackerOptions::rest_warning_weight): names the strongest weights and what to do; or when
+  // its first frame with depth has a depth map not registered to its colour (depth_alignment()).
   const std::string& calibration_warning() const { return calibration_warning_; }
+  // The depth/colour alignment of the last calibration's first frame with depth (measured false:
+  // none had depth, or why nothing could be measured).
+  const DepthAlignment& depth_alignment() const { return depth_alignment_; }
   // The focal length search of the first calibration over frames without depth
   // (TrackerOptions::focal_length); searched false before one ran (or when it is off).
   struct FocalLengthReport {
@@ -523,6 +531,7 @@ class FaceTracker {
   SolverSummary calibration_summary_;
   CalibrationStartReport calibration_start_report_;
   std::string calibration_warning_;
+  DepthAlignment depth_alignment_;
   FocalLengthReport focal_length_;  // applied to frames without depth once searched
   std::vector<InputFrame> calibration_inputs_;
   std::vector<gpu::FaceParameters> calibration_starts_;
