@@ -480,9 +480,10 @@ struct FaceCompositor::Impl {
     // lighting of earlier frames; when the tracked light's colour has drifted since (on the webcam
     // clip, as the camera's exposure dropped and the face turned darker and warmer, its green and
     // blue ambient fell to a fifth of the red's, far more than the frame's colours changed), the
-    // map's surface rendered under the new light is tinted, and the lips, lids and nose tip the frame does not show turned pink. The
-    // fallback pixels take the map's colour times this gain, so they match the shown skin around
-    // them (a camera's white balance moving is matched the same way).
+    // map's surface rendered under the new light is tinted, and the lips, lids and nose tip the
+    // frame does not show turned pink. The fallback pixels take the map's colour times this gain,
+    // so they match the shown skin around them (a camera's white balance moving is matched the
+    // same way).
     Eigen::Vector3d frame_sum = Eigen::Vector3d::Zero(), map_sum = Eigen::Vector3d::Zero();
     int balanced = 0;
     for (int bj = 0; bj < box.height; ++bj)

@@ -206,8 +206,7 @@ BrowReading BrowReader::Read(const InputFrame& frame, const gpu::FaceParameters&
   std::vector<double> column(history_.size());
   for (Eigen::Index i = 0; i < offset.size(); ++i) {
     for (size_t f = 0; f < history_.size(); ++f) column[f] = history_[f][i];
-    std::nth_element(column.begin(), column.begin() + Eigen::Index(column.size() / 2), column.end());
-    offset[i] = column[column.size() / 2];
+    offset[i] = internal::median(column);
   }
   const Offsets y = beyond - offset;
 
@@ -233,12 +232,10 @@ BrowReading BrowReader::Read(const InputFrame& frame, const gpu::FaceParameters&
   for (int b = 0; b < kNumBrowBlendshapes; ++b) now[size_t(b)] = w[b];
   recent_.push_back(now);
   while (static_cast<int>(recent_.size()) > options_.median_frames) recent_.pop_front();
-  std::vector<double> values;
+  std::vector<double> values(recent_.size());
   for (int b = 0; b < kNumBrowBlendshapes; ++b) {
-    values.clear();
-    for (const auto& v : recent_) values.push_back(v[size_t(b)]);
-    std::nth_element(values.begin(), values.begin() + Eigen::Index(values.size() / 2), values.end());
-    const double stretched = (values[values.size() / 2] - options_.dead_zone) / (1.0 - options_.dead_zone);
+    for (size_t f = 0; f < recent_.size(); ++f) values[f] = recent_[f][size_t(b)];
+    const double stretched = (internal::median(values) - options_.dead_zone) / (1.0 - options_.dead_zone);
     r.weight[size_t(b)] = static_cast<float>(std::clamp(stretched, 0.0, 1.0));
   }
   r.ok = true;

@@ -2,21 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 #include <vector>
+
+#include "tracker_internal.h"
 
 
 namespace face_reenact::tracker {
-namespace {
-
-template <typename... Args>
-std::string format(const char* fmt, Args... args) {
-  char buf[320];
-  std::snprintf(buf, sizeof buf, fmt, args...);
-  return buf;
-}
-
-}  // namespace
+using internal::format;
 
 bool DepthAlignmentOptions::IsValid(std::string* why) const {
   auto fail = [&](const char* m) {

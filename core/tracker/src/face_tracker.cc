@@ -19,12 +19,9 @@
 namespace face_reenact::tracker {
 using internal::fail;
 using internal::Clock;
+using internal::format;
+using internal::median;
 namespace {
-std::string format(const char* fmt, double a, double b = 0, double c = 0) {
-  char buf[256];
-  std::snprintf(buf, sizeof(buf), fmt, a, b, c);
-  return buf;
-}
 
 // Landmarks of `frame` E_lan can use: confident, and inner points when the energy takes only those.
 int usable_landmarks(const TrackerModel& model, const InputFrame& frame, float min_confidence, bool inner_only) {
@@ -136,11 +133,6 @@ InputFrame WithCamera(const InputFrame& frame, const gpu::PinholeCamera& camera)
   return f;
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
 
 }  // namespace
 
@@ -157,6 +149,9 @@ struct FaceTracker::CalibrationOutcome {
   // The focal length search (TrackerOptions::focal_length), decided on the tracking thread.
   bool search_focal_length = false;
   FocalLengthEstimate focal_length;
+  // The set's first frame with depth against its colour (depth_alignment.h), measured beside the
+  // solve (on the calibration's thread when it runs in the background).
+  DepthAlignment depth_alignment;
   double solve_ms = 0;            // the joint solve(s)
   StageTimes reread_times;        // the neutral's re-reads
 };
@@ -940,6 +935,8 @@ void FaceTracker::CancelBackgroundCalibration() { background_.reset(); }
 
 void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token& stop) const {
   const TrackerModel& m = solver_.model();
+  const auto with_depth = std::find_if(o->inputs.begin(), o->inputs.end(), [](const InputFrame& f) { return f.has_depth(); });
+  if (with_depth != o->inputs.end()) o->depth_alignment = MeasureDepthAlignment(*with_depth, options_.depth_alignment);
   if (o->search_focal_length) {
     // Before the joint solve, which then fits the identity through the found camera. The starts
     // (fitted through the assumed camera) keep their image: the same x, y, the depth scaled
@@ -1087,12 +1084,7 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
     *message += "; camera: " + o->focal_length.message;
   }
   calibration_warning_ = NotAtRestWarning(m, neutral_.delta, options_.rest_warning_weight);
-  depth_alignment_ = DepthAlignment();
-  for (const InputFrame& f : o->inputs) {
-    if (!f.has_depth()) continue;
-    depth_alignment_ = MeasureDepthAlignment(f, options_.depth_alignment);
-    break;
-  }
+  depth_alignment_ = o->depth_alignment;
   if (depth_alignment_.misaligned)
     calibration_warning_ += (calibration_warning_.empty() ? "" : "; ") + depth_alignment_.message +
                             " The depth terms fit the face worse for it";

@@ -228,11 +228,6 @@ class LandmarkFit {
   int k_;
 };
 
-std::string format_fov(const char* fmt, double a, double b = 0) {
-  char buf[256];
-  std::snprintf(buf, sizeof(buf), fmt, a, b);
-  return buf;
-}
 
 }  // namespace
 
@@ -249,7 +244,7 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   auto fallback = [&](const std::string& reason) {
     out.estimated = false;
     out.horizontal_fov_deg = options.fallback_fov_deg;
-    out.message = reason + format_fov("; assuming %.0f degrees", options.fallback_fov_deg);
+    out.message = reason + internal::format("; assuming %.0f degrees", options.fallback_fov_deg);
     out.ms = ms_since(t0);
     return out;
   };
@@ -283,7 +278,7 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   if (best < 0) return fallback("focal length not estimated: the landmarks could not be fitted at any field of view");
   const double step = (options.max_fov_deg - options.min_fov_deg) / (g - 1);
   if (best == 0 || best == g - 1)
-    return fallback(format_fov("focal length not estimated: the landmarks fit best at the end of the search range (%.0f degrees)",
+    return fallback(internal::format("focal length not estimated: the landmarks fit best at the end of the search range (%.0f degrees)",
                                options.min_fov_deg + step * best));
   if (!(e_max - e_min > options.min_relative_contrast * e_min))
     return fallback("focal length not estimated: the landmarks fit every field of view alike (a face too small or too still)");
@@ -313,13 +308,13 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   out.energy = chosen.energy;
   out.landmark_error_px = chosen.rms_px;
   if (!(chosen.rms_px <= options.max_landmark_rms_px))
-    return fallback(format_fov("focal length not estimated: the landmarks are %.1f px RMS from the best fit (%.0f degrees), "
+    return fallback(internal::format("focal length not estimated: the landmarks are %.1f px RMS from the best fit (%.0f degrees), "
                                "too noisy to read the lens", chosen.rms_px, fov));
   out.estimated = true;
   out.horizontal_fov_deg = fov;
   out.ms = ms_since(t0);
-  out.message = format_fov("estimated %.1f degrees horizontal field of view", fov) + " from " + std::to_string(out.frames) +
-                format_fov(" calibration frames (landmarks %.2f px RMS, %.0f ms)", chosen.rms_px, out.ms);
+  out.message = internal::format("estimated %.1f degrees horizontal field of view", fov) + " from " + std::to_string(out.frames) +
+                internal::format(" calibration frames (landmarks %.2f px RMS, %.0f ms)", chosen.rms_px, out.ms);
   return out;
 }
 

@@ -9,6 +9,7 @@
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/energy.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
 namespace {
@@ -321,13 +322,8 @@ std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& fr
     }
   }
   for (int c3 = 0; c3 < 3; ++c3) {
-    auto& v = channel[c3];
-    if (v.empty()) {
-      s.skin[c3] = std::numeric_limits<double>::quiet_NaN();  // no lid seen: every pixel is eyeball
-      continue;
-    }
-    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-    s.skin[c3] = v[v.size() / 2];
+    // No lid seen: every pixel is eyeball.
+    s.skin[c3] = channel[c3].empty() ? std::numeric_limits<double>::quiet_NaN() : internal::median(std::move(channel[c3]));
   }
   // A pixel the fit puts on the eyeball may show lid in the image: a squint or a blink the
   // solve did not read (on a smiling synthetic actor the rendered openings were a third taller

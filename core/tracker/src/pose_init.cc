@@ -50,9 +50,7 @@ double window_depth(const InputFrame& frame, const Eigen::Vector2d& p, int radiu
       if (frame.depth_valid(ci + di, cj + dj)) values.push_back(frame.depth[static_cast<size_t>(cj + dj) * frame.width() + ci + di]);
     }
   }
-  if (values.empty()) return 0;
-  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
-  return values[values.size() / 2];
+  return internal::median(std::move(values));
 }
 
 // Rigid 3D-3D alignment (no scale) of model points onto camera points, weighted (Umeyama).
@@ -251,9 +249,7 @@ PoseInitResult InitializePoseFromLandmarks(const TrackerModel& model, const Inpu
       // edge, a wrong detection) are dropped.
       std::vector<double> err(from.size());
       for (size_t k = 0; k < from.size(); ++k) err[k] = (r * from[k] + t - to[k]).norm();
-      std::vector<double> sorted = err;
-      std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-      const double limit = std::max(3 * sorted[sorted.size() / 2], 0.005);
+      const double limit = std::max(3 * internal::median(err), 0.005);
       for (size_t k = 0; k < from.size(); ++k) {
         if (err[k] > limit) w[k] = 0;
       }

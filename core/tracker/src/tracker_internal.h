@@ -2,7 +2,9 @@
 // Small helpers shared by the tracker's sources (not part of the public API).
 #include <Eigen/Core>
 #include <algorithm>
+#include <cstdio>
 #include <string>
+#include <vector>
 
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/image_formation.h"
@@ -16,6 +18,22 @@ using Clock = SteadyClock;
 inline bool fail(std::string* why, const std::string& message) {
   if (why) *why = message;
   return false;
+}
+
+// printf into a string (messages of a few hundred characters at most).
+template <typename... Args>
+std::string format(const char* fmt, Args... args) {
+  char buf[512];
+  std::snprintf(buf, sizeof buf, fmt, args...);
+  return buf;
+}
+
+// The upper median (the element at size / 2 once ordered); T() when empty.
+template <typename T>
+T median(std::vector<T> values) {
+  if (values.empty()) return T();
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2), values.end());
+  return values[values.size() / 2];
 }
 
 // Model-frame position of vertex v at `shape`'s identity and expression.
