@@ -283,6 +283,74 @@ TEST(ReenactCompositorTest, FrameTextureNeverSamplesAcrossTheLipLine) {
   EXPECT_EQ(composite, 0);
 }
 
+// Where the frame texture distrusts a skin sample (moved, by an occluding boundary), the frame's
+// colour of the trusted skin around it stands in, not the albedo map's rendering, which may be far
+// off on a sliver: on the webcam clip (d14 as source, frame 172) the underside of a pursed upper
+// lip and the neck below the chin, lit at the SH fit's floor, drew dotted dark lines along the lip
+// line and the chin. Here the target's slightly opened mouth closes in the output, so the lips'
+// samples near the target's opening are distrusted, and the map is made 6x too dark on the lips
+// (the global colour balance, measured on all the trusted skin, cannot undo a local error). No
+// pixel along the output's closed lip line may be much darker than the lips around it. Without
+// the fill the line's darkest pixel had 0.35 of the lips' brightness (now 0.77).
+TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  gpu::FaceParameters target = test_face(0.45f);
+  target.delta[kJawOpenIndex] = 0.3f;
+  gpu::FaceParameters closed = target;
+  closed.delta[kJawOpenIndex] = 0.0f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const Rendered t = make_target(fc, target, cam);
+  std::vector<int32_t> inner_lips;
+  for (int k = 60; k <= 67; ++k)
+    for (const auto& l : model.landmarks)
+      if (l.ibug_index == k) inner_lips.push_back(l.vertex);
+  ASSERT_EQ(inner_lips.size(), 8u);
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  const gpu::VertexState out = renderer.evaluate(closed);
+  AlbedoMap dark = t.albedo;
+  int darkened = 0;
+  for (int v = 0; v < model.num_vertices(); ++v)
+    for (int32_t lip : inner_lips)
+      if ((out.camera_positions.segment<3>(3 * v) - out.camera_positions.segment<3>(3 * lip)).norm() < 0.006f) {
+        dark.albedo.segment<3>(3 * v) /= 6.0f;
+        ++darkened;
+        break;
+      }
+  ASSERT_GT(darkened, 50);
+  const CompositeResult c = fc.Compose(t.target, cam, target, closed, &dark);
+  ASSERT_TRUE(c.drawn);
+  EXPECT_FALSE(c.mouth_drawn);
+  // The closed lip line (the inner lips projected), and the lips within 8 px of it.
+  std::vector<cv::Point> line;
+  for (int32_t v : inner_lips) {
+    const Eigen::Vector3f x = out.camera_positions.segment<3>(3 * v);
+    line.emplace_back(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
+                      static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
+  }
+  cv::Mat on_line = cv::Mat::zeros(cam.height, cam.width, CV_8UC1), around;
+  cv::polylines(on_line, line, true, cv::Scalar(255), 1);
+  cv::dilate(on_line, around, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(17, 17)));
+  cv::dilate(on_line, on_line, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+  on_line &= c.face_mask;
+  around &= c.face_mask;
+  cv::Mat gray;
+  cv::cvtColor(c.rendered_bgr, gray, cv::COLOR_BGR2GRAY);
+  std::vector<uchar> values;
+  for (int j = 0; j < gray.rows; ++j)
+    for (int i = 0; i < gray.cols; ++i)
+      if (around.at<uchar>(j, i)) values.push_back(gray.at<uchar>(j, i));
+  ASSERT_GT(values.size(), 100u);
+  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+  const double lips = values[values.size() / 2];
+  double darkest = 255.0;
+  cv::minMaxLoc(gray, &darkest, nullptr, nullptr, nullptr, on_line);
+  RecordProperty("lip_line_darkest_over_lips", std::to_string(darkest / lips));
+  EXPECT_GT(darkest, 0.6 * lips) << "a pixel on the closed lip line took the map's dark rendering: " << darkest
+                                 << " against the lips' median " << lips;
+}
+
 // A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
 // eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
 // map, which holds no iris (on the webcam clip it drew the eyes reddish brown).

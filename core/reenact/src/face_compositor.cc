@@ -418,7 +418,7 @@ struct FaceCompositor::Impl {
     constexpr float kMinShadingRatio = 0.5f, kMaxShadingRatio = 2.0f;
     box = (box + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, w, h);
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
-    cv::Mat texture(box.size(), CV_32FC3);
+    cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
     for (int j = box.y; j < box.y + box.height; ++j)
       for (int i = box.x; i < box.x + box.width; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
@@ -504,32 +504,61 @@ struct FaceCompositor::Impl {
     if (balanced >= kMinBalancePixels && map_sum.minCoeff() > 1e-6)
       for (int c = 0; c < 3; ++c)
         gain[c] = std::clamp(static_cast<float>(frame_sum[c] / map_sum[c]), 1.0f / kMaxGain, kMaxGain);
-    // The weight smoothed over the drawn pixels only (normalised, so the silhouette keeps 1):
-    // shown pixels next to unshown (or distrusted) ones fade towards the albedo map, so a
-    // disoccluded region has no hard seam. Unshown pixels keep the albedo map (their texture is
-    // unknown), and so do fully distrusted ones.
-    cv::Mat ws, cs;
-    cv::GaussianBlur(weight, ws, cv::Size(0, 0), 1.0);
-    cv::GaussianBlur(covered, cs, cv::Size(0, 0), 1.0);
+    // Skin pixels whose sample is distrusted take the frame's colour of the trusted skin samples
+    // around them (a normalised convolution of the weighted texture), and the albedo map only where
+    // too few are near: the map knows the surface's colour but not this frame's shading of a
+    // sliver. On the webcam clip (d14 as source, frame 172) the distrusted pixels were slivers a
+    // pixel wide where the map's shading is far from the frame's, the underside of a pursed upper
+    // lip and the neck below the chin, lit at the SH fit's floor (the neck 0.25 / 0.08 / 0.09 in
+    // linear light beside the frame's 0.34 / 0.24 / 0.23): dotted dark lines along the lip line and
+    // the chin. The confidence in the frame is the trusted share of the drawn pixels around,
+    // reaching 1 at half: a distrusted pixel among trusted ones takes their colour, the border of a
+    // shown region next to an unshown one (a closed lid, a cheek a turn reveals) still fades to the
+    // map over about a pixel, so no seam shows. Only skin fills skin (an eyeball's or a tooth's
+    // colour on a lid or a lip would be a white rim). Eyes, teeth and tongue keep their own
+    // samples, faded to the map next to distrusted ones.
+    constexpr float kFillSigmaPx = 2.0f, kTrustedShareForFull = 0.3f;
+    cv::Mat skin_weight = cv::Mat::zeros(box.size(), CV_32FC1), weighted_texture = cv::Mat::zeros(box.size(), CV_32FC3);
+    for (int bj = 0; bj < box.height; ++bj)
+      for (int bi = 0; bi < box.width; ++bi) {
+        const float wt = weight.at<float>(bj, bi);
+        const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+        if (!(wt > 0.f) || part_of(g->vertices[3 * p]) != FacePart::Face) continue;
+        skin_weight.at<float>(bj, bi) = wt;
+        weighted_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
+      }
+    cv::Mat fill, skin_ws, ws, cs;
+    cv::GaussianBlur(weighted_texture, fill, cv::Size(0, 0), kFillSigmaPx);
+    cv::GaussianBlur(skin_weight, skin_ws, cv::Size(0, 0), kFillSigmaPx);
+    cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
+    cv::GaussianBlur(covered, cs, cv::Size(0, 0), kFillSigmaPx);
     for (int bj = 0; bj < box.height; ++bj)
       for (int bi = 0; bi < box.width; ++bi) {
         if (!(covered.at<float>(bj, bi) > 0.f)) continue;
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+        const FacePart part = part_of(g->vertices[3 * p]);
+        const float own = std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f), cw = cs.at<float>(bj, bi);
+        float a = 0.f;
+        cv::Vec3f t(0.f, 0.f, 0.f);  // (the texture holds nothing where no sample was taken)
+        if (part == FacePart::Face) {
+          const float trusted = skin_ws.at<float>(bj, bi);
+          if (trusted > 1e-4f && cw > 1e-6f) {
+            a = std::clamp(trusted / (kTrustedShareForFull * cw), 0.0f, 1.0f);
+            // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
+            const cv::Vec3f around = fill.at<cv::Vec3f>(bj, bi) / trusted;
+            t = own > 0.f ? own * texture.at<cv::Vec3f>(bj, bi) + (1.0f - own) * around : around;
+          }
+        } else if (own > 0.f) {
+          a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
+          t = texture.at<cv::Vec3f>(bj, bi);
+        }
         // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
         // take the balance.
-        const FacePart part = part_of(g->vertices[3 * p]);
         const bool balance = !(kMouthParts & part_bit(part));
-        float a = 0.f;
-        if (weight.at<float>(bj, bi) > 0.f) {
-          const float cw = cs.at<float>(bj, bi);
-          a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
-        }
-        // (The texture holds nothing where no sample was taken: a is 0 there.)
-        const cv::Vec3f t = a > 0.f ? texture.at<cv::Vec3f>(bj, bi) : cv::Vec3f(0.f, 0.f, 0.f);
         for (int c = 0; c < 3; ++c) {
           float& col = g->color[3 * p + static_cast<size_t>(c)];
           const float map = balance ? std::min(1.0f, col * gain[c]) : col;
-          col = a * t[c] + (1.0f - a) * map;
+          col = a * std::min(1.0f, t[c]) + (1.0f - a) * map;
         }
       }
   }
