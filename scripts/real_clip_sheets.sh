@@ -44,4 +44,19 @@ for mouth in auto model; do
   "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --out "$OUT/mouth_$mouth.mp4" \
         --report "$OUT/mouth_$mouth.json" --quiet --mouth "$mouth" --sheets "$OUT/mouth_$mouth" --sheet-frames 120,270,280
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's)"
+# The virtual mirror (docs/reenactment.md, "Virtual mirror"): a round sticker (made here: magenta, transparent around it)
+# on the left cheek, and the light from the image's left, on the webcam clip and on d14; frame 50 of each, input |
+# sticker | light, side by side (mirror_webcam.png, mirror_d14.png).
+mkdir -p "$OUT/mirror"
+ffmpeg -loglevel error -y -f lavfi -i "color=c=black:s=64x64,format=rgba" -frames:v 1 \
+       -vf "geq=r='255':g='0':b='200':a='if(lt(hypot(X-31.5,Y-31.5),30),255,0)'" "$OUT/mirror/sticker.png"
+for pair in webcam:webcam_talking_640x480.wmv d14:liveportrait_d14.mp4; do
+  name="${pair%%:*}" clip="${pair#*:}"
+  "$FR" mirror --input "$VIDEOS/$clip" --frames 52 --texture "$OUT/mirror/sticker.png" --at left-cheek \
+        --out "$OUT/mirror/${name}_sticker" --quiet
+  "$FR" mirror --input "$VIDEOS/$clip" --frames 52 --light left --out "$OUT/mirror/${name}_left" --quiet
+  ffmpeg -loglevel error -y -i "$OUT/mirror/${name}_sticker/frame_000050.png" -i "$OUT/mirror/${name}_left/frame_000050.png" \
+         -ss 0 -i "$VIDEOS/$clip" -filter_complex "[2]select='eq(n\,50)'[in];[in][0][1]hstack=3" -frames:v 1 \
+         "$OUT/mirror_${name}.png"
+done
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left)"

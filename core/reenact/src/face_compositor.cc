@@ -18,6 +18,7 @@
 #include "face_reenact/reenact/laplacian_blend.h"
 #include "face_reenact/reenact/transfer.h"
 #include "image_sampling.h"
+#include "shading.h"
 #include "face_reenact/common/timing.h"
 
 namespace face_reenact::reenact {
@@ -26,6 +27,9 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using internal::sample_float;
 using internal::sample_linear;
+using internal::Gamma;
+using internal::irradiance;
+using internal::rendering_lighting;
 
 constexpr gpu::PartMask part_bit(FacePart p) { return gpu::PartMask{1} << static_cast<int>(p); }
 constexpr gpu::PartMask kMouthParts =
@@ -47,41 +51,6 @@ constexpr float kMaxTongueOcclusion = 0.55f;
 // A face-part surface this far behind the lip line (inside the lip opening) is the cavity wall.
 constexpr float kCavityDepthM = 0.003f;
 
-using Gamma = std::array<float, gpu::kNumShParameters>;
-
-// The lighting used to re-render and to learn the albedo map: the tracked SH lighting with one
-// directional shape for all three channels (the mean of the channels' shapes relative to their
-// DC terms), each channel keeping its own DC. The tracker fits 27 coefficients to the directions
-// it sees; a per-channel directional fit extrapolates to unseen normal directions (an opened
-// jaw's chin, a raised brow, the cheeks at a turned head) with strong colour casts. A single
-// directional shape keeps the light's colour the same from every direction, and whatever
-// per-channel differences the target shows in the directions seen end up in the albedo map.
-Gamma rendering_lighting(const Gamma& gamma) {
-  Gamma out = gamma;
-  float shape[gpu::kNumShCoefficients] = {};
-  int channels = 0;
-  for (int c = 0; c < 3; ++c) {
-    const float dc = gamma[static_cast<size_t>(c * 9)];
-    if (!(dc > 1e-4f)) continue;
-    for (int k = 1; k < gpu::kNumShCoefficients; ++k) shape[k] += gamma[static_cast<size_t>(c * 9 + k)] / dc;
-    ++channels;
-  }
-  if (channels == 0) return gamma;
-  for (int c = 0; c < 3; ++c) {
-    const float dc = gamma[static_cast<size_t>(c * 9)];
-    for (int k = 1; k < gpu::kNumShCoefficients; ++k) out[static_cast<size_t>(c * 9 + k)] = dc * shape[k] / channels;
-  }
-  return out;
-}
-
-// Irradiance of channel c, floored at a fraction of the ambient (DC) part: SH fits can go
-// negative in directions they were never fitted to, and real rooms are never that dark.
-float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
-  float e = 0.f;
-  for (int k = 0; k < gpu::kNumShCoefficients; ++k) e += gamma[static_cast<size_t>(c * 9 + k)] * basis[static_cast<size_t>(k)];
-  const float ambient = gamma[static_cast<size_t>(c * 9)] * basis[0];
-  return std::max(e, 0.15f * ambient);
-}
 
 // The pixel position (u, v) of camera-space point x (in front of the camera).
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {

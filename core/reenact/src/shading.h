@@ -1,0 +1,47 @@
+#pragma once
+// The lighting the re-rendering uses, shared by the compositor and the virtual mirror (internal to
+// fr_reenact).
+#include <algorithm>
+#include <array>
+
+#include "face_reenact/gpu/image_formation.h"
+
+namespace face_reenact::reenact::internal {
+
+using Gamma = std::array<float, gpu::kNumShParameters>;
+
+// The lighting used to re-render and to learn the albedo map: the tracked SH lighting with one
+// directional shape for all three channels (the mean of the channels' shapes relative to their
+// DC terms), each channel keeping its own DC. The tracker fits 27 coefficients to the directions
+// it sees; a per-channel directional fit extrapolates to unseen normal directions (an opened
+// jaw's chin, a raised brow, the cheeks at a turned head) with strong colour casts. A single
+// directional shape keeps the light's colour the same from every direction, and whatever
+// per-channel differences the target shows in the directions seen end up in the albedo map.
+inline Gamma rendering_lighting(const Gamma& gamma) {
+  Gamma out = gamma;
+  float shape[gpu::kNumShCoefficients] = {};
+  int channels = 0;
+  for (int c = 0; c < 3; ++c) {
+    const float dc = gamma[static_cast<size_t>(c * 9)];
+    if (!(dc > 1e-4f)) continue;
+    for (int k = 1; k < gpu::kNumShCoefficients; ++k) shape[k] += gamma[static_cast<size_t>(c * 9 + k)] / dc;
+    ++channels;
+  }
+  if (channels == 0) return gamma;
+  for (int c = 0; c < 3; ++c) {
+    const float dc = gamma[static_cast<size_t>(c * 9)];
+    for (int k = 1; k < gpu::kNumShCoefficients; ++k) out[static_cast<size_t>(c * 9 + k)] = dc * shape[k] / channels;
+  }
+  return out;
+}
+
+// Irradiance of channel c, floored at a fraction of the ambient (DC) part: SH fits can go
+// negative in directions they were never fitted to, and real rooms are never that dark.
+inline float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, int c) {
+  float e = 0.f;
+  for (int k = 0; k < gpu::kNumShCoefficients; ++k) e += gamma[static_cast<size_t>(c * 9 + k)] * basis[static_cast<size_t>(k)];
+  const float ambient = gamma[static_cast<size_t>(c * 9)] * basis[0];
+  return std::max(e, 0.15f * ambient);
+}
+
+}  // namespace face_reenact::reenact::internal
