@@ -39,27 +39,6 @@ struct MirrorArgs {
   CameraArgs camera;
 };
 
-// "--at": a named region, or "uv:U0,V0,U1,V1" (the model's texture layout).
-reenact::TexturePlacement parse_placement(const std::string& at) {
-  reenact::TexturePlacement p;
-  if (at.rfind("uv:", 0) == 0) {
-    reenact::UvRect r;
-    if (std::sscanf(at.c_str() + 3, "%f,%f,%f,%f", &r.u0, &r.v0, &r.u1, &r.v1) != 4)
-      throw Error("mirror: --at uv: needs four numbers, uv:U0,V0,U1,V1");
-    std::string why;
-    if (!r.IsValid(&why)) throw Error("mirror: --at '" + at + "': " + why);
-    p.region.reset();
-    p.uv = r;
-    return p;
-  }
-  reenact::FaceRegion region;
-  if (!reenact::ParseFaceRegion(at, &region))
-    throw Error("mirror: --at '" + at +
-                "' is neither a region (face, forehead, nose, left-cheek, right-cheek, chin) nor uv:U0,V0,U1,V1");
-  p.region = region;
-  return p;
-}
-
 void run_mirror(const MirrorArgs& a) {
   std::error_code ec;
   if (a.texture.empty() && a.light.empty()) throw Error("mirror: give --texture, --light or both (nothing to change otherwise)");
@@ -67,19 +46,7 @@ void run_mirror(const MirrorArgs& a) {
   if (spec.kind == live::InputKind::kRecording && !std::filesystem::exists(a.input, ec))
     throw Error("mirror: '" + a.input + "': no such file or folder");
   if (std::filesystem::path(a.out).extension() == ".mp4") check_output_file(a.out, "--out");
-  reenact::MirrorOptions mo;
-  if (!a.texture.empty()) {
-    mo.texture = cv::imread(a.texture, cv::IMREAD_UNCHANGED);
-    if (mo.texture.empty()) throw Error("mirror: --texture '" + a.texture + "' is not an image that can be read");
-    if (mo.texture.depth() != CV_8U) mo.texture.convertTo(mo.texture, CV_8U, mo.texture.depth() == CV_16U ? 1.0 / 257.0 : 1.0);
-    if (mo.texture.channels() == 1) cv::cvtColor(mo.texture, mo.texture, cv::COLOR_GRAY2BGR);
-    if (mo.texture.channels() == 2) throw Error("mirror: --texture '" + a.texture + "': grey with alpha is not supported");
-    mo.placement = parse_placement(a.at);
-  }
-  mo.opacity = a.opacity;
-  if (!a.light.empty())
-    mo.light = std::filesystem::path(a.light).extension() == ".json" ? reenact::ReadLightFile(a.light)
-                                                                      : reenact::ParseLightPreset(a.light);
+  const reenact::MirrorOptions mo = reenact::MirrorOptionsFromSettings(a.texture, a.at, a.opacity, a.light);
   const FaceModel face_model = load_face_model(resolve_model_path(a.model));
   const TrackerModel model = TrackerModel::FromFaceModel(face_model);
   const reenact::VirtualMirror mirror(face_model, mo);

@@ -56,6 +56,9 @@ struct WebcamArgs {
   std::string camera_size = "640x480";
   std::string solver = "auto";    // the trackers' solver (LiveSession::Options::solver)
   std::string renderer = "cpu";   // cpu or vulkan: the re-rendered face's rasteriser
+  // --mode mirror: the virtual mirror's texture, placement, opacity and light (LiveSession::Options::mirror_*).
+  std::string mirror_texture, mirror_at = "face", mirror_light;
+  float mirror_opacity = 1.0f;
 };
 
 // The pipeline choices a live session takes from the command line (webcam --target, bench live).
@@ -63,6 +66,10 @@ void apply_pipeline_args(const WebcamArgs& args, live::LiveSession::Options* o) 
   o->solver = args.solver;
   if (args.renderer != "cpu" && args.renderer != "vulkan") throw Error("--renderer must be cpu or vulkan (got '" + args.renderer + "')");
   o->use_vulkan = args.renderer == "vulkan";
+  o->mirror_texture = args.mirror_texture;
+  o->mirror_at = args.mirror_at;
+  o->mirror_opacity = args.mirror_opacity;
+  o->mirror_light = args.mirror_light;
 }
 
 void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
@@ -70,6 +77,13 @@ void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
                   "the tracker's solver: auto (the Vulkan solver on a GPU, the CPU solver where Vulkan runs on the CPU), cpu or vulkan")
       ->capture_default_str();
   cmd->add_option("--renderer", args->renderer, "cpu or vulkan: the rasteriser of the re-rendered face")->capture_default_str();
+  cmd->add_option("--texture", args->mirror_texture, "with --mode mirror: an image to paint on the face (PNG with alpha)");
+  cmd->add_option("--at", args->mirror_at,
+                  "with --mode mirror: face, forehead, nose, left-cheek, right-cheek, chin, or uv:U0,V0,U1,V1")
+      ->capture_default_str();
+  cmd->add_option("--opacity", args->mirror_opacity, "with --mode mirror: the texture's opacity")->check(CLI::Range(0.0f, 1.0f));
+  cmd->add_option("--light", args->mirror_light,
+                  "with --mode mirror: re-light: front, left, right, top, bottom, warm, cool, or a .json with \"gamma\"");
 }
 
 void parse_size(const std::string& text, int* width, int* height) {
@@ -125,7 +139,7 @@ void run_webcam(const WebcamArgs& args, const WebcamRunHooks& hooks = {}) {
     live_options.key_file = args.key_file;
     live_options.model_path = args.model;
     if (!live::parse_output_mode(args.mode, &live_options.mode))
-      throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, overlay, raw");
+      throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, overlay, mirror, raw");
     parse_size(args.camera_size, &live_options.camera_width, &live_options.camera_height);
     live_options.camera_fps = rate->fps();
     apply_pipeline_args(args, &live_options);
@@ -353,7 +367,7 @@ void add_bench_soak(CLI::App* bench) {
   soak->add_option("--source", args->webcam.source, "expression source (none, udp://PORT, camera, recording)")
       ->capture_default_str();
   soak->add_option("--key", args->webcam.key_file, "stream key file for udp://");
-  soak->add_option("--mode", args->webcam.mode, "reenact, passthrough, overlay or raw")->capture_default_str();
+  soak->add_option("--mode", args->webcam.mode, "reenact, passthrough, overlay, mirror or raw")->capture_default_str();
   soak->add_option("--model", args->webcam.model, "face model file");
   add_pipeline_options(soak, &args->webcam);
   soak->add_option("--device", args->webcam.device,
@@ -385,7 +399,7 @@ void add_webcam_command(CLI::App& app) {
                   "with --target: the expression source, udp://PORT (needs --key), a camera/recording actor, or none")
       ->capture_default_str();
   cmd->add_option("--key", args->key_file, "with --source udp://PORT: the stream key file (face-reenact keygen)");
-  cmd->add_option("--mode", args->mode, "with --target: reenact, passthrough (target re-rendered), overlay (the fit drawn over the target) or raw (unchanged)")
+  cmd->add_option("--mode", args->mode, "with --target: reenact, passthrough (target re-rendered), overlay (the fit drawn over the target), mirror (the target's face re-textured / re-lit: --texture, --at, --light) or raw (unchanged)")
       ->capture_default_str();
   cmd->add_option("--model", args->model, "with --target: face model file (default: the installed/generated one)");
   cmd->add_option("--camera-size", args->camera_size, "with a camera --target: capture size WIDTHxHEIGHT")
@@ -445,7 +459,7 @@ void add_webcam_command(CLI::App& app) {
   bench_live->add_option("--source", live_args->source, "expression source (none, udp://PORT, camera, recording)")
       ->capture_default_str();
   bench_live->add_option("--key", live_args->key_file, "stream key file for udp://");
-  bench_live->add_option("--mode", live_args->mode, "reenact, passthrough, overlay or raw")->capture_default_str();
+  bench_live->add_option("--mode", live_args->mode, "reenact, passthrough, overlay, mirror or raw")->capture_default_str();
   bench_live->add_option("--model", live_args->model, "face model file");
   add_pipeline_options(bench_live, live_args.get());
   bench_live->add_option("--seconds", *live_seconds, "measurement time after the first frame (and the warm-up)")
@@ -467,7 +481,7 @@ void add_webcam_command(CLI::App& app) {
     o.overlap_frames = *live_overlap;
     apply_pipeline_args(*live_args, &o);
     if (!live::parse_output_mode(live_args->mode, &o.mode))
-      throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, raw");
+      throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, mirror, raw");
     live::LiveSession::CheckInputs(o);
     live::LiveSession session(o);
     live::LiveFrame frame;

@@ -310,7 +310,8 @@ TEST_F(ObsSourceTest, EveryPropertyIsLabelledAndDocumented) {
   }
   obs_properties_destroy(props);
   for (const char* key : {"status", "target_kind", "target_camera", "target_path", "source_kind", "udp_port", "key_file",
-                          "source_camera", "source_path", "model_path", "mode", "calibrate", "camera_resolution"})
+                          "source_camera", "source_path", "model_path", "mode", "calibrate", "camera_resolution",
+                          "mirror_texture", "mirror_at", "mirror_opacity", "mirror_light", "mirror_light_file"})
     EXPECT_NE(std::find(names.begin(), names.end(), key), names.end()) << key;
 }
 
@@ -440,6 +441,11 @@ TEST_F(ObsSourceTest, IncompleteSettingsSayWhatIsMissing) {
   obs_source_update(source, settings);
   st = wait_status(source, 2s, changed_from(st.line));
   EXPECT_NE(st.line.find("unknown output mode 'sideways'"), std::string::npos) << st.line;
+  // The virtual mirror with nothing to paint and no light.
+  obs_data_set_string(settings, "mode", "mirror");
+  obs_source_update(source, settings);
+  st = wait_status(source, 2s, changed_from(st.line));
+  EXPECT_EQ(st.line, "Not running: the mirror needs an image to paint on the face or a light") << st.line;
   obs_data_release(settings);
 }
 

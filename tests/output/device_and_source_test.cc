@@ -138,6 +138,10 @@ TEST(WebcamCommand, BadDevicesAndArgumentsFailWithAMessage) {
   r = cli({"webcam", "--device", "/dev/null", "--input", "/nonexistent/clip.mp4"});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("does not exist"), std::string::npos) << r.output;
+  // The virtual mirror (--mode mirror) with nothing to paint and no light.
+  r = cli({"webcam", "--device", "/dev/null", "--target", "/nonexistent/clip.mp4", "--mode", "mirror"});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("needs a texture"), std::string::npos) << r.output;
   r = cli({"webcam"});
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("--device"), std::string::npos) << r.output;

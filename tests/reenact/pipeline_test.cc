@@ -150,6 +150,30 @@ TEST(ReenactPipelineTest, GroundTruthTargetTransfersTheSourceMouth) {
   EXPECT_EQ(cv::norm(off.bgr, f.color, cv::NORM_INF), 0.0);
 }
 
+// The mirror mode (the OBS source's and the webcam's `mirror`): the target's own expression, its
+// face re-lit; the source expression is ignored; a mirror with nothing to do is refused.
+TEST(ReenactPipelineTest, MirrorModeReLightsTheTargetsOwnFace) {
+  FR_REQUIRE_MODEL();
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  o.mode = ReenactMode::kMirror;
+  std::string why;
+  EXPECT_FALSE(o.IsValid(&why)) << "a mirror without a texture or a light";
+  EXPECT_THROW(ReenactmentPipeline(*test_model(), o), Error);
+  o.mirror.light = ParseLightPreset("left");
+  ASSERT_TRUE(o.IsValid(&why)) << why;
+  ReenactmentPipeline pipeline(*test_model(), o);
+  const gpu::PinholeCamera cam = test_camera(160, 120);
+  const capture::RgbdFrame f = make_frame(test_face(0.4f), cam, 0);
+  SourceExpression open;
+  open.weights[kJawOpenIndex] = 0.7f;
+  const ReenactedFrame r = pipeline.Process(f, &open);
+  ASSERT_TRUE(r.reenacted) << r.message;
+  EXPECT_FALSE(r.mouth_drawn);
+  EXPECT_FLOAT_EQ(r.output_params.delta[kJawOpenIndex], f.ground_truth.params->delta[kJawOpenIndex]);
+  EXPECT_GT(cv::norm(r.bgr, f.color, cv::NORM_L1), 1000.0);
+}
+
 // Tracking a static target: after calibration every frame is reenacted, and the output does not
 // flicker: consecutive outputs differ far less than the reenactment changes the frame.
 TEST(ReenactPipelineTest, TrackedStaticTargetIsStableFrameToFrame) {

@@ -62,13 +62,20 @@ class FrameProcessor {
 // Output = input. Used for OutputMode::kRaw.
 std::shared_ptr<FrameProcessor> make_raw_processor();
 
+// LiveSession::Options::mirror_* (mode kMirror).
+struct MirrorSettings {
+  std::string texture, at;
+  float opacity = 1.0f;
+  std::string light;
+};
+
 // The reenactment pipeline on the model at `model_path` (mode kReenact or kPassThrough), with a
-// second pipeline tracking the source actor when `with_actor`. Throws face_reenact::Error when
+// second pipeline tracking the source actor when `with_actor` (kMirror: `mirror`'s texture and light). Throws face_reenact::Error when
 // the model cannot be loaded or this build has no reenactment pipeline. A requested `stop` ends a
 // process() call in progress within one Gauss-Newton iteration (the session is shutting down).
 // `solver` is LiveSession::Options::solver (already validated).
 std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
                                                            bool use_vulkan, const std::string& solver, bool with_actor,
-                                                           std::stop_token stop);
+                                                           const MirrorSettings& mirror, std::stop_token stop);
 
 }  // namespace face_reenact::live

@@ -23,6 +23,7 @@
 #include "face_reenact/stream/stream_key.h"
 #include "face_reenact/stream/udp.h"
 #include "face_reenact/tracker/solver_choice.h"
+#include "face_reenact/reenact/virtual_mirror.h"
 #include "frame_processor.h"
 
 namespace face_reenact::live {
@@ -74,6 +75,7 @@ const char* output_mode_name(OutputMode mode) {
     case OutputMode::kPassThrough: return "passthrough";
     case OutputMode::kRaw: return "raw";
     case OutputMode::kOverlay: return "overlay";
+    case OutputMode::kMirror: return "mirror";
   }
   return "?";
 }
@@ -83,6 +85,7 @@ bool parse_output_mode(const std::string& text, OutputMode* mode) {
   else if (text == "passthrough" || text == "pass-through") *mode = OutputMode::kPassThrough;
   else if (text == "raw" || text == "off") *mode = OutputMode::kRaw;
   else if (text == "overlay") *mode = OutputMode::kOverlay;
+  else if (text == "mirror") *mode = OutputMode::kMirror;
   else return false;
   return true;
 }
@@ -201,6 +204,9 @@ bool LiveSession::Options::IsValid(std::string* why) const {
   if (worker_nice < 0 || worker_nice > 19) return fail("worker nice increment must be in 0..19");
   tracker::SolverBackend backend;
   if (!tracker::parse_solver_backend(solver, &backend)) return fail("solver must be auto, cpu or vulkan (got '" + solver + "')");
+  if (mode == OutputMode::kMirror && mirror_texture.empty() && mirror_light.empty())
+    return fail("the mirror mode needs a texture to paint on the face or a light");
+  if (!(mirror_opacity >= 0.f && mirror_opacity <= 1.f)) return fail("the mirror's opacity must be within [0, 1]");
   return true;
 }
 
@@ -216,6 +222,10 @@ void LiveSession::CheckInputs(const Options& options) {
   }
   if (s.kind == InputKind::kUdp) (void)stream::load_key_file(options.key_file);
   if (options.mode != OutputMode::kRaw) (void)resolve_model_path(options.model_path);
+  // The texture, its placement and the light, read now (a front-end says what is wrong at once).
+  if (options.mode == OutputMode::kMirror)
+    (void)reenact::MirrorOptionsFromSettings(options.mirror_texture, options.mirror_at, options.mirror_opacity,
+                                             options.mirror_light);
 }
 
 LiveSession::LiveSession(Options options) : options_(std::move(options)) {
@@ -452,10 +462,12 @@ void LiveSession::run() {
     try {
       loading = std::async(std::launch::async, [model_path = options_.model_path, mode = options_.mode,
                                                 use_vulkan = options_.use_vulkan, solver = options_.solver,
-                                                with_actor = actor != nullptr,
+                                                with_actor = actor != nullptr, mirror = MirrorSettings{options_.mirror_texture,
+                                                options_.mirror_at, options_.mirror_opacity, options_.mirror_light},
                                                 stop = stop_source_.get_token()] {
         pthread_setname_np(pthread_self(), "fr-live-load");  // niced like the worker that starts it
-        return make_reenactment_processor(resolve_model_path(model_path), mode, use_vulkan, solver, with_actor, stop);
+        return make_reenactment_processor(resolve_model_path(model_path), mode, use_vulkan, solver, with_actor, mirror,
+                                          stop);
       });
     } catch (const std::exception& e) {  // no thread could be started
       pipeline_error = e.what();

@@ -45,7 +45,7 @@ LiveStageTimes stage_rows(const reenact::ReenactedFrame& r) {
 class ReenactProcessor : public FrameProcessor {
  public:
   ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, const std::string& solver,
-                   bool with_actor, std::stop_token stop)
+                   bool with_actor, const MirrorSettings& mirror, std::stop_token stop)
       : model_(load_face_model(model_path)) {
     // Loading is a few long steps; a session stopped meanwhile skips the ones left.
     auto check_stop = [&] {
@@ -60,7 +60,10 @@ class ReenactProcessor : public FrameProcessor {
     if (!tracker::parse_solver_backend(solver, &options.tracker.solver)) throw Error("unknown tracker solver '" + solver + "'");
     options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough
                    : mode == OutputMode::kOverlay   ? reenact::ReenactMode::kOverlay
+                   : mode == OutputMode::kMirror    ? reenact::ReenactMode::kMirror
                                                     : reenact::ReenactMode::kReenact;
+    if (mode == OutputMode::kMirror)
+      options.mirror = reenact::MirrorOptionsFromSettings(mirror.texture, mirror.at, mirror.opacity, mirror.light);
     options.renderer = use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
     target_ = std::make_unique<reenact::ReenactmentPipeline>(model_, options);
     if (with_actor) {
@@ -160,8 +163,8 @@ class ReenactProcessor : public FrameProcessor {
 
 std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
                                                            bool use_vulkan, const std::string& solver, bool with_actor,
-                                                           std::stop_token stop) {
-  return std::make_shared<ReenactProcessor>(model_path, mode, use_vulkan, solver, with_actor, std::move(stop));
+                                                           const MirrorSettings& mirror, std::stop_token stop) {
+  return std::make_shared<ReenactProcessor>(model_path, mode, use_vulkan, solver, with_actor, mirror, std::move(stop));
 }
 
 }  // namespace face_reenact::live

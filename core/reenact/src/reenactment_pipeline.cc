@@ -54,8 +54,11 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
     return false;
   };
   if (mode != ReenactMode::kReenact && mode != ReenactMode::kPassThrough && mode != ReenactMode::kOff &&
-      mode != ReenactMode::kOverlay)
+      mode != ReenactMode::kOverlay && mode != ReenactMode::kMirror)
     return fail("unknown reenactment mode");
+  if (mode == ReenactMode::kMirror && !mirror.IsValid(why)) return false;
+  if (mode == ReenactMode::kMirror && mirror.texture.empty() && mirror.light.kind == MirrorLight::Kind::kTracked)
+    return fail("the mirror mode needs a texture to paint on the face or a light");
   if (renderer != RendererKind::kCpu && renderer != RendererKind::kVulkan) return fail("unknown renderer kind");
   if (appearance != Appearance::kFrameTexture && appearance != Appearance::kAlbedoMap)
     return fail("unknown appearance");
@@ -98,6 +101,7 @@ struct ReenactmentPipeline::Impl {
   const FaceModel& model;
   ReenactmentOptions options;
   FaceCompositor compositor;
+  std::unique_ptr<VirtualMirror> mirror;  // ReenactMode::kMirror
   std::unique_ptr<tracker::FaceTracker> tracker;
   std::unique_ptr<tracker::RgbdInput> input;
   TrackingStatus status = TrackingStatus::kCalibrating;
@@ -111,6 +115,7 @@ struct ReenactmentPipeline::Impl {
   StageTimes time_sums;
 
   Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), options(o), compositor(m, o) {
+    if (options.mode == ReenactMode::kMirror) mirror = std::make_unique<VirtualMirror>(m, options.mirror);
     neutral = gpu::frontal_pose(0.6f);
     MakeTracker();
   }
@@ -388,6 +393,22 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
   if (tracked.finished) return finish();
   const gpu::FaceParameters& target_params = out.target_params;
   const gpu::PinholeCamera& fit_camera = tracked.camera;
+
+  if (im.mirror) {
+    // The virtual mirror: the target's own expression, its face re-textured and re-lit.
+    try {
+      out.output_params = target_params;
+      const MirrorResult m = im.mirror->Apply(out.bgr, fit_camera, target_params);
+      out.times.render_ms = m.render_ms;
+      out.times.composite_ms = m.composite_ms;
+      if (!m.drawn) return pass_through(TrackingStatus::kTracking, "the tracked face is outside the frame");
+      out.bgr = m.bgr;
+      out.reenacted = true;
+    } catch (const Error& e) {
+      return pass_through(TrackingStatus::kLost, std::string("the mirror failed: ") + e.what());
+    }
+    return finish();
+  }
 
   // --- the target's appearance: its own per-vertex albedo, learned from its frames.
   ++im.tracked_frames;

@@ -109,6 +109,7 @@ const char* reenact_mode_name(ReenactMode mode) {
     case ReenactMode::kPassThrough: return "pass-through";
     case ReenactMode::kOff: return "off";
     case ReenactMode::kOverlay: return "overlay";
+    case ReenactMode::kMirror: return "mirror";
   }
   return "unknown";
 }

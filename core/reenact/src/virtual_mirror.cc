@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -9,6 +10,7 @@
 
 #include <Eigen/Dense>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
@@ -199,6 +201,54 @@ std::array<float, gpu::kNumShParameters> PresetCoefficients(const MirrorLight& l
     for (int k = 0; k < 9; ++k) out[static_cast<size_t>(c * 9 + k)] = unit[static_cast<size_t>(k)] * scale;
   }
   return out;
+}
+
+TexturePlacement ParseTexturePlacement(const std::string& at) {
+  TexturePlacement p;
+  if (at.rfind("uv:", 0) == 0) {
+    UvRect r;
+    char tail = 0;
+    if (std::sscanf(at.c_str() + 3, "%f,%f,%f,%f%c", &r.u0, &r.v0, &r.u1, &r.v1, &tail) != 4)
+      throw Error("texture placement '" + at + "': uv: needs four numbers, uv:U0,V0,U1,V1");
+    std::string why;
+    if (!r.IsValid(&why)) throw Error("texture placement '" + at + "': " + why);
+    p.region.reset();
+    p.uv = r;
+    return p;
+  }
+  FaceRegion region;
+  if (!ParseFaceRegion(at, &region)) {
+    std::string names;
+    for (const RegionBox& b : kRegions) names += (names.empty() ? "" : ", ") + std::string(b.name);
+    throw Error("texture placement '" + at + "' is neither a region (" + names + ") nor uv:U0,V0,U1,V1");
+  }
+  p.region = region;
+  return p;
+}
+
+MirrorLight ParseMirrorLight(const std::string& light) {
+  if (light.empty()) return MirrorLight{};
+  const std::string ext = light.size() >= 5 ? light.substr(light.size() - 5) : "";
+  return ext == ".json" ? ReadLightFile(light) : ParseLightPreset(light);
+}
+
+MirrorOptions MirrorOptionsFromSettings(const std::string& texture, const std::string& at, float opacity,
+                                        const std::string& light) {
+  MirrorOptions o;
+  if (!texture.empty()) {
+    o.texture = cv::imread(texture, cv::IMREAD_UNCHANGED);
+    if (o.texture.empty()) throw Error("the texture '" + texture + "' is not an image that can be read");
+    if (o.texture.depth() == CV_16U) o.texture.convertTo(o.texture, CV_8U, 1.0 / 257.0);
+    if (o.texture.depth() != CV_8U) throw Error("the texture '" + texture + "' is not an 8- or 16-bit image");
+    if (o.texture.channels() == 1) cv::cvtColor(o.texture, o.texture, cv::COLOR_GRAY2BGR);
+    if (o.texture.channels() == 2) throw Error("the texture '" + texture + "': grey with alpha is not supported");
+    o.placement = ParseTexturePlacement(at);
+  }
+  o.opacity = opacity;
+  o.light = ParseMirrorLight(light);
+  std::string why;
+  if (!o.IsValid(&why)) throw Error("virtual mirror: " + why);
+  return o;
 }
 
 bool MirrorOptions::IsValid(std::string* why) const {

@@ -25,6 +25,9 @@ bool on_kind_modified(obs_properties_t* props, obs_property_t*, obs_data_t* sett
   obs_property_set_visible(obs_properties_get(props, kKeyFile), source == "udp");
   obs_property_set_visible(obs_properties_get(props, kSourceCamera), source == "camera");
   obs_property_set_visible(obs_properties_get(props, kSourcePath), source == "recording");
+  const bool mirror = std::string(obs_data_get_string(settings, kMode)) == "mirror";
+  for (const char* key : {kMirrorTexture, kMirrorAt, kMirrorOpacity, kMirrorLight, kMirrorLightFile})
+    obs_property_set_visible(obs_properties_get(props, key), mirror);
   return true;
 }
 
@@ -75,7 +78,21 @@ obs_properties_t* make_properties(FaceReenactSource* source) {
   obs_property_list_add_string(p, text("Mode.Reenact"), "reenact");
   obs_property_list_add_string(p, text("Mode.PassThrough"), "passthrough");
   obs_property_list_add_string(p, text("Mode.Overlay"), "overlay");
+  obs_property_list_add_string(p, text("Mode.Mirror"), "mirror");
   obs_property_list_add_string(p, text("Mode.Raw"), "raw");
+  obs_property_set_modified_callback(p, on_kind_modified);
+  obs_properties_add_path(props, kMirrorTexture, text("MirrorTexture"), OBS_PATH_FILE,
+                          "Images (*.png *.jpg *.jpeg *.bmp *.webp);;All files (*.*)", nullptr);
+  p = obs_properties_add_list(props, kMirrorAt, text("MirrorAt"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);
+  for (const char* region : {"face", "forehead", "nose", "left-cheek", "right-cheek", "chin"})
+    obs_property_list_add_string(p, text((std::string("MirrorAt.") + region).c_str()), region);
+  obs_properties_add_float_slider(props, kMirrorOpacity, text("MirrorOpacity"), 0.0, 1.0, 0.05);
+  p = obs_properties_add_list(props, kMirrorLight, text("MirrorLight"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);
+  obs_property_list_add_string(p, text("MirrorLight.Camera"), "");
+  for (const char* preset : {"front", "left", "right", "top", "bottom", "warm", "cool"})
+    obs_property_list_add_string(p, text((std::string("MirrorLight.") + preset).c_str()), preset);
+  obs_properties_add_path(props, kMirrorLightFile, text("MirrorLightFile"), OBS_PATH_FILE, "Light (*.json);;All files (*.*)",
+                          nullptr);
   obs_properties_add_button(props, kCalibrate, text("Calibrate"), [](obs_properties_t*, obs_property_t*, void* data) {
     if (data) self(data)->calibrate();
     return false;

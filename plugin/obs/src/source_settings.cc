@@ -25,6 +25,11 @@ void set_defaults(obs_data_t* settings) {
   }
   obs_data_set_default_string(settings, kModelPath, model.c_str());
   obs_data_set_default_string(settings, kMode, "reenact");
+  obs_data_set_default_string(settings, kMirrorTexture, "");
+  obs_data_set_default_string(settings, kMirrorAt, "face");
+  obs_data_set_default_double(settings, kMirrorOpacity, 1.0);
+  obs_data_set_default_string(settings, kMirrorLight, "");
+  obs_data_set_default_string(settings, kMirrorLightFile, "");
   obs_data_set_default_string(settings, kCameraResolution, "640x480");
 }
 
@@ -82,6 +87,12 @@ bool options_from_settings(obs_data_t* settings, live::LiveSession::Options* opt
   }
   o.model_path = str(kModelPath);
   if (!live::parse_output_mode(str(kMode), &o.mode)) return fail("unknown output mode '" + str(kMode) + "'");
+  o.mirror_texture = str(kMirrorTexture);
+  o.mirror_at = str(kMirrorAt);
+  o.mirror_opacity = static_cast<float>(obs_data_get_double(settings, kMirrorOpacity));
+  o.mirror_light = str(kMirrorLightFile).empty() ? str(kMirrorLight) : str(kMirrorLightFile);
+  if (o.mode == live::OutputMode::kMirror && o.mirror_texture.empty() && o.mirror_light.empty())
+    return fail("the mirror needs an image to paint on the face or a light");
   int w = 0, h = 0;
   char tail = 0;
   if (std::sscanf(str(kCameraResolution).c_str(), "%dx%d%c", &w, &h, &tail) == 2 && w > 0 && h > 0) {

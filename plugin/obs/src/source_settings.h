@@ -24,7 +24,13 @@ inline constexpr const char* kKeyFile = "key_file";            // the stream key
 inline constexpr const char* kSourceCamera = "source_camera";  // /dev/videoN of the source actor
 inline constexpr const char* kSourcePath = "source_path";      // recording/video of the source actor
 inline constexpr const char* kModelPath = "model_path";        // face model (.frm)
-inline constexpr const char* kMode = "mode";                   // "reenact" | "passthrough" | "raw"
+inline constexpr const char* kMode = "mode";                   // "reenact" | "passthrough" | "overlay" | "mirror" | "raw"
+// The virtual mirror (mode "mirror"): an image painted on the face, where, how opaque, and a light.
+inline constexpr const char* kMirrorTexture = "mirror_texture";  // image file (PNG with alpha), "" for none
+inline constexpr const char* kMirrorAt = "mirror_at";            // "face" | "forehead" | "nose" | "left-cheek" | ...
+inline constexpr const char* kMirrorOpacity = "mirror_opacity";  // 0..1
+inline constexpr const char* kMirrorLight = "mirror_light";      // "" (the camera's) | a preset name
+inline constexpr const char* kMirrorLightFile = "mirror_light_file";  // a .json with "gamma" (overrides the preset)
 inline constexpr const char* kCameraResolution = "camera_resolution";  // "640x480", ...
 inline constexpr const char* kCalibrate = "calibrate";         // button
 inline constexpr const char* kStatus = "status";               // read-only status line

@@ -38,6 +38,7 @@ enum class OutputMode {
   kPassThrough,  // the target tracked and re-rendered with its own expression
   kRaw,          // the target's frames unchanged (tracking off): checks the camera set-up
   kOverlay,      // the target tracked, with the fit drawn over it (mesh, landmarks, agreement)
+  kMirror,       // the virtual mirror: the target's own face re-textured / re-lit (Options::mirror_*)
 };
 const char* output_mode_name(OutputMode mode);                          // "reenact", ...
 bool parse_output_mode(const std::string& text, OutputMode* mode);      // also "pass-through"
@@ -197,6 +198,14 @@ class LiveSession : public output::FrameSource {
     // Called for each output frame on the thread that publishes it (the worker, or the render
     // thread with overlap_frames); must return quickly (no blocking).
     std::function<void(const LiveFrame&)> on_frame;
+    // The virtual mirror (mode kMirror; reenact/virtual_mirror.h, MirrorOptionsFromSettings): an
+    // image to paint on the face ("" for none) and where ("face", "left-cheek", ..., or
+    // "uv:U0,V0,U1,V1"), its opacity, and a light ("" keeps the tracked one, a preset's name such
+    // as "left", or a .json file with "gamma"). At least a texture or a light.
+    std::string mirror_texture;
+    std::string mirror_at = "face";
+    float mirror_opacity = 1.0f;
+    std::string mirror_light;
     std::string thread_name = "fr-live";
 
     bool IsValid(std::string* why) const;

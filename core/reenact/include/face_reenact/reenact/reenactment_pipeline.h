@@ -25,6 +25,7 @@
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/reenact/mouth_interior.h"
+#include "face_reenact/reenact/virtual_mirror.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "face_reenact/tracker/rgbd_input.h"
 
@@ -78,6 +79,7 @@ enum class ReenactMode {
   kPassThrough,  // the target re-rendered with its own tracked expression (checks the pipeline)
   kOff,          // the input frame unchanged (tracking still runs, for status)
   kOverlay,      // the input with the fit drawn over it (fit_overlay.h): is the tracking right?
+  kMirror,       // the virtual mirror (virtual_mirror.h): the target's own face re-textured / re-lit
 };
 const char* reenact_mode_name(ReenactMode mode);
 
@@ -149,6 +151,9 @@ struct ReenactmentOptions {
   // Threads of the CPU re-rendering (model evaluation and rasterisation; 0 = one per hardware
   // thread, at most 8). The output does not depend on it.
   int render_threads = 0;
+
+  // --- the virtual mirror (ReenactMode::kMirror; virtual_mirror.h) ---
+  MirrorOptions mirror;
 
   // --- tracking of the target (core/tracker/.../face_tracker.h, rgbd_input.h) ---
   tracker::TrackerOptions tracker;

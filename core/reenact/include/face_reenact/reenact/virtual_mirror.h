@@ -81,6 +81,15 @@ struct MirrorOptions {
   bool IsValid(std::string* why) const;
 };
 
+// The front-ends' words for a mirror (the CLI's --texture / --at / --opacity / --light, the live
+// session's and the OBS source's settings): `at` a region name or "uv:U0,V0,U1,V1"; `light` a
+// preset's name, a .json file, or "" for the tracked light; `texture` an image file, or "" for
+// none. Throws face_reenact::Error saying which one is wrong.
+TexturePlacement ParseTexturePlacement(const std::string& at);
+MirrorLight ParseMirrorLight(const std::string& light);
+MirrorOptions MirrorOptionsFromSettings(const std::string& texture, const std::string& at, float opacity,
+                                        const std::string& light);
+
 struct MirrorResult {
   cv::Mat bgr;               // CV_8UC3, the frame with the face re-textured and re-lit
   bool drawn = false;        // false: no face surface in view, the frame unchanged
