@@ -28,6 +28,7 @@
 #include "camera_options.h"
 #include "report_json.h"
 #include "video_output.h"
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/capture/synth.h"
 #include "face_reenact/common/error.h"
@@ -293,6 +294,21 @@ void run_reenact(const ReenactArgs& a) {
   } else {
     source_rec = live::open_offline_source(a.source, "--source", video);
   }
+  // A still photo as the target (an image, or a video of one frame): held for the length of the
+  // performance, so the portrait is animated: the source's frame count and rate (or --frames).
+  bool held_still = false;
+  std::error_code still_ec;
+  if (target->info().frame_count == 1 || (fs::is_regular_file(a.target, still_ec) && capture::is_still_image(a.target))) {
+    capture::RgbdFrame still;
+    if (!target->read_next(&still)) throw Error("--target '" + a.target + "': no frame could be read");
+    const capture::RecordingInfo* si = source_rec ? &source_rec->info() : nullptr;
+    const int frames = a.frames > 0 ? a.frames : (si && si->frame_count > 0 ? si->frame_count : 0);
+    if (frames <= 0)
+      throw Error("--target '" + a.target + "' is a still: give --frames (how many frames to hold it for the stream)");
+    const double still_fps = si && si->fps > 0 ? si->fps : 30.0;
+    target = std::make_unique<capture::HeldFrameSource>(std::move(still), target->info(), frames, still_fps);
+    held_still = true;
+  }
   std::ofstream status_log;
   if (!a.status_log.empty()) {
     status_log.open(a.status_log, std::ios::binary | std::ios::trunc);
@@ -429,6 +445,7 @@ void run_reenact(const ReenactArgs& a) {
   std::printf("%s\n", s.BriefReport().c_str());
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
+  if (held_still) std::printf("target: a still, held for %d frames at %.3g fps (the source's length)\n", done, fps);
   if (source_rec && source_by_time.skipped() > 0)
     std::printf("source: %d frames tracked, %d skipped to keep its timing\n", source_tracker->frames, source_by_time.skipped());
   if (!a.sheets.empty()) {
@@ -478,6 +495,7 @@ void run_reenact(const ReenactArgs& a) {
                         {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), source_camera))
                                               : nlohmann::json()}}},
         {"calibration_window_frames", a.calibration_window},
+        {"target_held_still", held_still},
         {"agreement", agreement_json(agreement.summary())}};
     if (source_tracker) {
       r["source_calibration_warning"] = warning(source_tracker->tracker->calibration_warning());

@@ -136,6 +136,31 @@ TEST(CaptureRecordingTest, RoundTripIsExact) {
   EXPECT_THROW(r.read(-1), Error);
 }
 
+// A still held for a performance (`reenact --target photo.jpg`): the same picture, frame after
+// frame, with indices and timestamps counting up at the given rate; bad arguments are errors.
+TEST(CaptureHeldFrameSourceTest, RepeatsTheStillWithTimesCountingUp) {
+  RgbdFrame still;
+  still.color = cv::Mat(6, 8, CV_8UC3, cv::Scalar(10, 20, 30));
+  still.index = 7;
+  RecordingInfo info;
+  info.has_depth = false;
+  HeldFrameSource held(still, info, 3, 25.0);
+  EXPECT_EQ(held.info().frame_count, 3);
+  EXPECT_DOUBLE_EQ(held.info().fps, 25.0);
+  RgbdFrame f;
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(held.read_next(&f));
+    EXPECT_EQ(f.index, i);
+    EXPECT_DOUBLE_EQ(f.timestamp_s, i / 25.0);
+    EXPECT_EQ(cv::norm(f.color, still.color, cv::NORM_INF), 0.0);
+    f.color.setTo(cv::Scalar(0, 0, 0));  // a reader drawing on its frame does not change the next
+  }
+  EXPECT_FALSE(held.read_next(&f));
+  EXPECT_THROW(HeldFrameSource(still, info, 0, 25.0), Error);
+  EXPECT_THROW(HeldFrameSource(still, info, 3, 0.0), Error);
+  EXPECT_THROW(HeldFrameSource(RgbdFrame{}, info, 3, 25.0), Error);
+}
+
 TEST(CaptureRecordingTest, ExpressionsAreStoredByArkitName) {
   TempDir tmp;
   const std::string dir = write_recording(tmp, 1);

@@ -321,6 +321,43 @@ TEST(ReenactCliTest, ExpressionStreamDrivesTheReenactment) {
   }
 }
 
+// A still photo as the target is held for the length of the performance: an annotated portrait
+// (300-W LFPW, in the shared data) animated by a real driving clip gives as many frames as asked,
+// at the clip's rate, the face reenacted after the calibration (the photo's own face otherwise).
+TEST(ReenactCliTest, AStillPhotoTargetIsHeldAndAnimated) {
+  const char* data = std::getenv("FR_SHARED_DATA");
+  const fs::path photo = fs::path(data ? data : "") / "faces-68" / "lfpw" / "image_0001.png";
+  const fs::path source = fs::path(data ? data : "") / "videos" / "liveportrait_d14.mp4";
+  if (!data || !fs::exists(photo) || !fs::exists(source))
+    GTEST_SKIP() << "real test data not found: set FR_SHARED_DATA to the shared data folder";
+  const char* model = std::getenv("FR_MODEL");
+  if (!model || !fs::exists(model)) GTEST_SKIP() << "FR_MODEL is not set to a built face model";
+  const face_reenact::testing::TempDir scratch("fr-reenact-still");
+  const fs::path dir = scratch.path();
+  constexpr int kFrames = 12;
+  const SubprocessResult r =
+      run_cli({"reenact", "--source", source.string(), "--target", photo.string(), "--out", (dir / "out.mp4").string(),
+               "--frames-dir", (dir / "frames").string(), "--frames", std::to_string(kFrames), "--report",
+               (dir / "report.json").string(), "--model", model});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("a still, held for 12 frames"), std::string::npos) << r.output;
+  std::ifstream rf(dir / "report.json");
+  const nlohmann::json report = nlohmann::json::parse(rf);
+  EXPECT_TRUE(report["target_held_still"].get<bool>());
+  EXPECT_EQ(report["frames"].get<int>(), kFrames);
+  EXPECT_GE(report["statuses"]["reenacted"].get<int>(), kFrames / 2) << report.dump(2);
+  const cv::Mat still = cv::imread(photo.string());
+  int changed = 0;
+  for (int i = 0; i < kFrames; ++i) {
+    char name[64];
+    std::snprintf(name, sizeof name, "frame_%06d.png", i);
+    const cv::Mat o = cv::imread((dir / "frames" / name).string());
+    ASSERT_EQ(o.size(), still.size()) << name;
+    if (cv::norm(o, still, cv::NORM_INF) > 20) ++changed;
+  }
+  EXPECT_GE(changed, kFrames / 2) << "the held photo should be reenacted, not just copied";
+}
+
 // `mirror` (the virtual mirror) on a real face: a round sticker on the person's left cheek lands
 // right of the nose (the image's right) on every frame with a fit and moves with the head; the
 // frames before the calibration are written unchanged; bad arguments are clear errors.

@@ -410,6 +410,26 @@ bool VideoReader::Options::IsValid(std::string* why) const {
   return true;
 }
 
+HeldFrameSource::HeldFrameSource(RgbdFrame frame, RecordingInfo info, int frames, double fps)
+    : frame_(std::move(frame)), info_(std::move(info)) {
+  if (frames < 1) throw Error("a held frame needs at least one frame to show");
+  if (!(fps > 0 && fps <= 1000)) throw Error("a held frame needs a frame rate in (0, 1000]");
+  if (frame_.color.empty()) throw Error("a held frame needs a colour image");
+  info_.fps = fps;
+  info_.frame_count = frames;
+}
+
+bool HeldFrameSource::read_next(RgbdFrame* frame) {
+  if (next_ >= info_.frame_count) return false;
+  *frame = frame_;
+  frame->color = frame_.color.clone();
+  if (!frame_.depth.empty()) frame->depth = frame_.depth.clone();
+  frame->index = next_;
+  frame->timestamp_s = next_ / info_.fps;
+  ++next_;
+  return true;
+}
+
 VideoReader::VideoReader(const std::string& path, const Options& options) : path_(path) {
   std::string why;
   if (!options.IsValid(&why)) throw Error("video '" + path + "': " + why);

@@ -66,6 +66,22 @@ class FrameSource {
   virtual bool read_next(RgbdFrame* frame) = 0;
 };
 
+// One frame shown for a while: a still photo as a target held for the length of a performance
+// (`reenact --target photo.jpg`). Yields `frames` copies of `frame` at `fps`, its index and
+// timestamp counting up from 0 as a video's would. Throws face_reenact::Error when frames < 1,
+// fps is not in (0, 1000] or the frame has no colour.
+class HeldFrameSource : public FrameSource {
+ public:
+  HeldFrameSource(RgbdFrame frame, RecordingInfo info, int frames, double fps);
+  const RecordingInfo& info() const override { return info_; }
+  bool read_next(RgbdFrame* frame) override;
+
+ private:
+  RgbdFrame frame_;
+  RecordingInfo info_;
+  int next_ = 0;
+};
+
 // Writes a recording folder. Frames go into "<dir>.partial-<pid>" next to `dir`; finish()
 // writes recording.json (last) and renames the folder to `dir`, so a folder named `dir` always
 // holds a complete recording. Without finish() (an exception, a crash) the partial folder is
