@@ -24,6 +24,8 @@ using testing::render_target;
 using testing::test_camera;
 using testing::test_face;
 using testing::test_model;
+using testing::landmark_vertices;
+using testing::project_vertices;
 
 double mean_abs_diff(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
   cv::Mat d;
@@ -237,19 +239,10 @@ TEST(ReenactCompositorTest, FrameTextureNeverSamplesAcrossTheLipLine) {
   gpu::FaceParameters open = target;
   open.delta[kJawOpenIndex] = 0.6f;
   const FaceCompositor fc(model, ReenactmentOptions{});
-  std::vector<int32_t> inner_lips;
-  for (int k = 60; k <= 67; ++k)
-    for (const auto& l : model.landmarks)
-      if (l.ibug_index == k) inner_lips.push_back(l.vertex);
+  const std::vector<int32_t> inner_lips = landmark_vertices(model, 60, 67);
   ASSERT_EQ(inner_lips.size(), 8u);
   const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
-  const gpu::VertexState ts = renderer.evaluate(target);
-  std::vector<cv::Point> opening;
-  for (int32_t v : inner_lips) {
-    const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
-    opening.emplace_back(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
-                         static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
-  }
+  const std::vector<cv::Point> opening = project_vertices(renderer.evaluate(target), cam, inner_lips);
   cv::Mat cavity = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
   cv::fillPoly(cavity, std::vector<std::vector<cv::Point>>{opening}, cv::Scalar(255));
   cv::dilate(cavity, cavity, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
@@ -302,10 +295,7 @@ TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps
   closed.delta[kJawOpenIndex] = 0.0f;
   const FaceCompositor fc(model, ReenactmentOptions{});
   const Rendered t = make_target(fc, target, cam);
-  std::vector<int32_t> inner_lips;
-  for (int k = 60; k <= 67; ++k)
-    for (const auto& l : model.landmarks)
-      if (l.ibug_index == k) inner_lips.push_back(l.vertex);
+  const std::vector<int32_t> inner_lips = landmark_vertices(model, 60, 67);
   ASSERT_EQ(inner_lips.size(), 8u);
   const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
   const gpu::VertexState out = renderer.evaluate(closed);
@@ -323,12 +313,7 @@ TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps
   ASSERT_TRUE(c.drawn);
   EXPECT_FALSE(c.mouth_drawn);
   // The closed lip line (the inner lips projected), and the lips within 8 px of it.
-  std::vector<cv::Point> line;
-  for (int32_t v : inner_lips) {
-    const Eigen::Vector3f x = out.camera_positions.segment<3>(3 * v);
-    line.emplace_back(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
-                      static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
-  }
+  const std::vector<cv::Point> line = project_vertices(out, cam, inner_lips);
   cv::Mat on_line = cv::Mat::zeros(cam.height, cam.width, CV_8UC1), around;
   cv::polylines(on_line, line, true, cv::Scalar(255), 1);
   cv::dilate(on_line, around, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(17, 17)));

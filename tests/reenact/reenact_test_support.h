@@ -3,10 +3,12 @@
 // CPU renderer (no Vulkan, no files besides the model).
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -59,6 +61,27 @@ inline gpu::FaceParameters test_face(float distance) {
     p.gamma[static_cast<size_t>(c * 9 + 2)] = -0.6f * tint;  // z: from the camera side
   }
   return p;
+}
+
+// The model vertices of iBUG landmarks first..last, in that order (the inner lips: 60, 67).
+inline std::vector<int32_t> landmark_vertices(const FaceModel& model, int first, int last) {
+  std::vector<int32_t> out;
+  for (int k = first; k <= last; ++k)
+    for (const auto& l : model.landmarks)
+      if (l.ibug_index == k) out.push_back(l.vertex);
+  return out;
+}
+
+// Where vertices of an evaluated face project, rounded to pixels.
+inline std::vector<cv::Point> project_vertices(const gpu::VertexState& state, const gpu::PinholeCamera& cam,
+                                               const std::vector<int32_t>& vertices) {
+  std::vector<cv::Point> out;
+  for (int32_t v : vertices) {
+    const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+    out.emplace_back(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
+                     static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
+  }
+  return out;
 }
 
 // The CPU renderer's image of `params` (skin parts over a grey background) as 8-bit sRGB BGR.

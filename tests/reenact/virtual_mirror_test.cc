@@ -25,13 +25,9 @@ using testing::test_model;
 // The pixel a model landmark projects to.
 Eigen::Vector2f landmark_pixel(const gpu::FaceParameters& p, const gpu::PinholeCamera& cam, int ibug) {
   static const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(*test_model()));
-  const gpu::VertexState s = renderer.evaluate(p);
-  for (const auto& l : test_model()->landmarks)
-    if (l.ibug_index == ibug) {
-      const Eigen::Vector3f x = s.camera_positions.segment<3>(3 * l.vertex);
-      return {cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy};
-    }
-  return {-1.f, -1.f};
+  const std::vector<cv::Point> px =
+      testing::project_vertices(renderer.evaluate(p), cam, testing::landmark_vertices(*test_model(), ibug, ibug));
+  return px.empty() ? Eigen::Vector2f(-1.f, -1.f) : Eigen::Vector2f(static_cast<float>(px[0].x), static_cast<float>(px[0].y));
 }
 
 // The centroid and count of the pixels where `out` is strongly green and `in` is not.
