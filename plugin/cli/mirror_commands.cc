@@ -8,28 +8,21 @@
 #include <memory>
 #include <string>
 
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-
 #include "camera_options.h"
 #include "command_registry.h"
 #include "video_output.h"
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
-#include "face_reenact/common/timing.h"
 #include "face_reenact/live/frame_grabber.h"
 #include "face_reenact/live/input_spec.h"
 #include "face_reenact/model/model_file.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
 #include "face_reenact/reenact/virtual_mirror.h"
 #include "face_reenact/tracker/face_tracker.h"
-#include "face_reenact/tracker/rgbd_input.h"
-#include "face_reenact/tracker/solver.h"
 
 namespace face_reenact::cli {
 namespace {
-
-using namespace face_reenact::tracker;
 
 struct MirrorArgs {
   std::string input, out, model, texture, at = "face", light;
@@ -46,61 +39,47 @@ void run_mirror(const MirrorArgs& a) {
   if (spec.kind == live::InputKind::kRecording && !std::filesystem::exists(a.input, ec))
     throw Error("mirror: '" + a.input + "': no such file or folder");
   if (std::filesystem::path(a.out).extension() == ".mp4") check_output_file(a.out, "--out");
-  const reenact::MirrorOptions mo = reenact::MirrorOptionsFromSettings(a.texture, a.at, a.opacity, a.light);
-  const FaceModel face_model = load_face_model(resolve_model_path(a.model));
-  const TrackerModel model = TrackerModel::FromFaceModel(face_model);
-  const reenact::VirtualMirror mirror(face_model, mo);
-
+  // The reenactment pipeline in its mirror mode: the target's own expression, and a frame whose
+  // fit is not current (calibrating, no face, lost) passes unchanged, so no texture slides over a
+  // cheek the fit has left.
+  reenact::ReenactmentOptions ro;
+  ro.mode = reenact::ReenactMode::kMirror;
+  ro.mirror = reenact::MirrorOptionsFromSettings(a.texture, a.at, a.opacity, a.light);
   std::unique_ptr<capture::FrameSource> source = live::open_offline_source(a.input, "mirror: --input", video_options(a.camera, "mirror"));
   const capture::RecordingInfo info = source->info();
-  RgbdInputOptions io;
-  io.use_depth = info.has_depth;
-  RgbdInput input(io);
-  TrackerOptions to;
-  for (SolverOptions* s : {&to.calibration_solver, &to.tracking_solver, &to.recovery_solver}) {
-    s->energy.use_point = s->energy.use_point && info.has_depth;
-    s->energy.use_plane = s->energy.use_plane && info.has_depth;
-  }
-  to.focal_length.estimate = estimate_focal_length(a.camera, info);
-  FaceTracker tracker(model, to);
+  ro.tracker.focal_length.estimate = estimate_focal_length(a.camera, info);
+  const FaceModel face_model = load_face_model(resolve_model_path(a.model));
+  reenact::ReenactmentPipeline pipeline(face_model, ro);
   FrameOutput out(a.out, info.fps, cv::Size(info.camera.width, info.camera.height));
   const bool tty = isatty(2) != 0;
-  int frames = 0, mirrored = 0, textured_frames = 0;
-  double track_ms = 0, render_ms = 0, composite_ms = 0;
+  int frames = 0, mirrored = 0;
+  double track_ms = 0, render_ms = 0, composite_ms = 0;  // render and composite over the frames changed
   capture::RgbdFrame frame;
   while (a.frames <= 0 || frames < a.frames) {
     if (!source->read_next(&frame)) break;
-    RgbdInputInfo ii;
-    const InputFrame in = input.Convert(frame, &ii);
-    const TrackedFrame t = tracker.Track(in, ii.landmarks_ms);
-    input.SetTrackedPose(t.params, tracking_status_has_fit(t.status));
-    track_ms += t.times.total_ms;
+    const reenact::ReenactedFrame r = pipeline.Process(frame, nullptr);
+    out.write(r.bgr, frame.index);
     ++frames;
-    // Only a fit that agrees with the frame is drawn: a face under calibration, lost or
-    // recovering is shown unchanged (no texture sliding over the cheek).
-    if (tracking_status_has_fit(t.status) && tracker.calibrated()) {
-      const reenact::MirrorResult r = mirror.Apply(frame.color, t.camera, t.params);
-      render_ms += r.render_ms;
-      composite_ms += r.composite_ms;
-      if (r.drawn) ++mirrored;
-      if (r.textured_pixels > 0) ++textured_frames;
-      out.write(r.bgr, frame.index);
-    } else {
-      out.write(frame.color, frame.index);
+    track_ms += r.times.track_ms;
+    if (r.reenacted) {
+      ++mirrored;
+      render_ms += r.times.render_ms;
+      composite_ms += r.times.composite_ms;
     }
     if (!a.quiet && (tty || frames % 10 == 0))
-      std::fprintf(stderr, "%smirror: frame %d %-11s%s", tty ? "\r" : "", frames, tracking_status_name(t.status), tty ? "   " : "\n");
+      std::fprintf(stderr, "%smirror: frame %d %-11s%s", tty ? "\r" : "", frames,
+                   tracker::tracking_status_name(r.tracked.status), tty ? "   " : "\n");
   }
   if (!a.quiet && tty) std::fprintf(stderr, "\n");
   out.close();
   if (frames == 0) throw Error("mirror: '" + a.input + "' has no frames");
   if (!a.quiet) {
     const double n = std::max(mirrored, 1);
-    std::printf("wrote %s: %d frames, %d with the face changed (%d textured), the rest unchanged (calibrating, no face or "
-                "lost)\n",
-                a.out.c_str(), frames, mirrored, textured_frames);
+    std::printf("wrote %s: %d frames, %d with the face changed, the rest unchanged (calibrating, no face or lost)\n",
+                a.out.c_str(), frames, mirrored);
+    if (!a.texture.empty()) std::printf("the face textured with %s at %s\n", a.texture.c_str(), a.at.c_str());
     std::printf("mean ms/frame: track %.1f, render %.1f, texture+light %.1f; light: %s\n", track_ms / frames, render_ms / n,
-                composite_ms / n, a.light.empty() ? "the tracked one" : mo.light.name.c_str());
+                composite_ms / n, a.light.empty() ? "the tracked one" : ro.mirror.light.name.c_str());
   }
 }
 

@@ -51,7 +51,6 @@ constexpr float kMaxTongueOcclusion = 0.55f;
 // A face-part surface this far behind the lip line (inside the lip opening) is the cavity wall.
 constexpr float kCavityDepthM = 0.003f;
 
-
 // The pixel position (u, v) of camera-space point x (in front of the camera).
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
   return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};
@@ -166,8 +165,7 @@ struct FaceCompositor::Impl {
     return std::max(e, entering_light(light, c));
   }
   static float entering_light(const Gamma& light, int c) {
-    static const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
-    return std::max(0.f, irradiance(light, facing, c)) * kCavityOcclusion;
+    return internal::camera_facing_irradiance(light, c) * kCavityOcclusion;
   }
 
   // Skin vertices never observed (turned away, hidden) take the model albedo scaled by the

@@ -44,4 +44,15 @@ inline float irradiance(const Gamma& gamma, const std::array<float, 9>& basis, i
   return std::max(e, 0.15f * ambient);
 }
 
+// The SH basis of a surface facing the camera (normal -z), and the irradiance of channel c there,
+// at least 0: the light a face receives head-on (the mouth's entering light, the mirror's exposure
+// reference).
+inline const std::array<float, 9>& camera_facing_basis() {
+  static const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
+  return facing;
+}
+inline float camera_facing_irradiance(const Gamma& gamma, int c) {
+  return std::max(0.f, irradiance(gamma, camera_facing_basis(), c));
+}
+
 }  // namespace face_reenact::reenact::internal

@@ -18,6 +18,7 @@
 #include "face_reenact/common/srgb.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/cpu_renderer.h"
+#include "image_sampling.h"
 #include "shading.h"
 
 namespace face_reenact::reenact {
@@ -96,9 +97,20 @@ std::array<float, 9> unit_light(const Eigen::Vector3f& direction, float ambient)
   return out;
 }
 
-float facing_irradiance(const Gamma& gamma, int c) {
-  static const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
-  return internal::irradiance(gamma, facing, c);
+// The preset's SH coefficients from its unit light (unit_light): each channel as bright towards
+// the camera as `tracked`'s times the preset's colour.
+Gamma preset_from_unit(const std::array<float, 9>& unit, const Eigen::Vector3f& colour, const Gamma& tracked) {
+  const Gamma old_light = internal::rendering_lighting(tracked);
+  const auto& facing = internal::camera_facing_basis();
+  float unit_facing = 0.f;
+  for (int k = 0; k < 9; ++k) unit_facing += unit[static_cast<size_t>(k)] * facing[static_cast<size_t>(k)];
+  // The camera's exposure and white balance stay, the light's direction (and tint) change.
+  Gamma out{};
+  for (int c = 0; c < 3; ++c) {
+    const float scale = unit_facing > 1e-6f ? internal::camera_facing_irradiance(old_light, c) * colour[c] / unit_facing : 0.f;
+    for (int k = 0; k < 9; ++k) out[static_cast<size_t>(c * 9 + k)] = unit[static_cast<size_t>(k)] * scale;
+  }
+  return out;
 }
 
 }  // namespace
@@ -188,19 +200,7 @@ MirrorLight ReadLightFile(const std::string& path) {
 
 std::array<float, gpu::kNumShParameters> PresetCoefficients(const MirrorLight& light,
                                                             const std::array<float, gpu::kNumShParameters>& tracked) {
-  const std::array<float, 9> unit = unit_light(light.direction, light.ambient_share);
-  const Gamma old_light = internal::rendering_lighting(tracked);
-  static const auto facing = gpu::sh_basis(Eigen::Vector3f(0.f, 0.f, -1.f));
-  float unit_facing = 0.f;
-  for (int k = 0; k < 9; ++k) unit_facing += unit[static_cast<size_t>(k)] * facing[static_cast<size_t>(k)];
-  // Each channel as bright as the tracked light's towards the camera, times the preset's colour:
-  // the camera's exposure and white balance stay, the light's direction (and tint) change.
-  Gamma out{};
-  for (int c = 0; c < 3; ++c) {
-    const float scale = unit_facing > 1e-6f ? std::max(facing_irradiance(old_light, c), 0.0f) * light.colour[c] / unit_facing : 0.f;
-    for (int k = 0; k < 9; ++k) out[static_cast<size_t>(c * 9 + k)] = unit[static_cast<size_t>(k)] * scale;
-  }
-  return out;
+  return preset_from_unit(unit_light(light.direction, light.ambient_share), light.colour, tracked);
 }
 
 TexturePlacement ParseTexturePlacement(const std::string& at) {
@@ -275,11 +275,15 @@ struct VirtualMirror::Impl {
   Eigen::Vector2f origin = Eigen::Vector2f::Zero(), axis_x = Eigen::Vector2f::UnitX(), axis_y = Eigen::Vector2f::UnitY();
   Eigen::Matrix2f to_texture = Eigen::Matrix2f::Identity();
   cv::Mat texture_bgra;  // CV_8UC4
+  // A preset's unit light, fitted once (a least-squares fit over 600 normals) rather than per frame.
+  std::array<float, 9> preset_unit{};
 
   Impl(const FaceModel& m, MirrorOptions o)
       : model(m), options(std::move(o)), renderer(gpu::RenderModel::FromFaceModel(m)) {
     std::string why;
     if (!options.IsValid(&why)) throw Error("virtual mirror: " + why);
+    if (options.light.kind == MirrorLight::Kind::kPreset)
+      preset_unit = unit_light(options.light.direction, options.light.ambient_share);
     if (options.texture.empty()) return;
     if (model.corner_uvs.size() != 3 * model.triangles.size())
       throw Error("virtual mirror: the face model has no texture layout (UVs) to paint into");
@@ -452,22 +456,19 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
         }
         const Eigen::Vector2f xy = im.ToTexture(uv);
         if (!(xy.x() >= 0.f && xy.y() >= 0.f && xy.x() <= tw && xy.y() <= th)) continue;
-        // Bilinear on pixel centres, clamped to the border.
-        const float x = std::clamp(xy.x() - 0.5f, 0.f, tw - 1.f), y = std::clamp(xy.y() - 0.5f, 0.f, th - 1.f);
-        const int x0 = std::min(static_cast<int>(x), tex.cols - 2), y0 = std::min(static_cast<int>(y), tex.rows - 2);
-        const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
-        float rgba[4] = {0.f, 0.f, 0.f, 0.f};
-        for (int dy = 0; dy < 2; ++dy)
-          for (int dx = 0; dx < 2; ++dx) {
-            const cv::Vec4b t = tex.at<cv::Vec4b>(y0 + dy, x0 + dx);
-            const float wgt = (dx ? fx : 1.f - fx) * (dy ? fy : 1.f - fy);
-            const float a = static_cast<float>(t[3]) / 255.f;
-            // Colour weighted by alpha, so a transparent pixel's colour does not bleed in.
-            rgba[0] += wgt * a * decode[t[2]];
-            rgba[1] += wgt * a * decode[t[1]];
-            rgba[2] += wgt * a * decode[t[0]];
-            rgba[3] += wgt * a;
-          }
+        // Bilinear on pixel centres, clamped to the border; colour weighted by alpha, so a
+        // transparent pixel's colour does not bleed in.
+        const internal::Bilinear s(tex.cols, tex.rows, std::clamp(xy.x() - 0.5f, 0.f, tw - 1.f),
+                                   std::clamp(xy.y() - 0.5f, 0.f, th - 1.f));
+        const cv::Vec4b t00 = tex.at<cv::Vec4b>(s.j0, s.i0), t01 = tex.at<cv::Vec4b>(s.j0, s.i1),
+                        t10 = tex.at<cv::Vec4b>(s.j1, s.i0), t11 = tex.at<cv::Vec4b>(s.j1, s.i1);
+        auto alpha_of = [](const cv::Vec4b& t) { return static_cast<float>(t[3]) / 255.f; };
+        float rgba[4];
+        rgba[3] = s.mix(alpha_of(t00), alpha_of(t01), alpha_of(t10), alpha_of(t11));
+        for (int c = 0; c < 3; ++c) {
+          auto premultiplied = [&](const cv::Vec4b& t) { return alpha_of(t) * decode[t[2 - c]]; };
+          rgba[c] = s.mix(premultiplied(t00), premultiplied(t01), premultiplied(t10), premultiplied(t11));
+        }
         const float alpha = rgba[3] * opt.opacity * soft.at<float>(j, i);
         if (!(alpha > 1.f / 255.f)) continue;
         ++result.textured_pixels;
@@ -488,8 +489,9 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
   // model ends below the hairline: a hard edge there drew a step on the forehead).
   cv::Mat touched = soft > 0.f;
   if (relight) {
-    Gamma new_light = internal::rendering_lighting(
-        opt.light.kind == MirrorLight::Kind::kPreset ? PresetCoefficients(opt.light, tracked.gamma) : opt.light.gamma);
+    Gamma new_light = internal::rendering_lighting(opt.light.kind == MirrorLight::Kind::kPreset
+                                                       ? preset_from_unit(im.preset_unit, opt.light.colour, tracked.gamma)
+                                                       : opt.light.gamma);
     if (opt.light.kind == MirrorLight::Kind::kPreset) {
       // A preset moves the light, not the exposure: per channel, the face's mean irradiance stays
       // the tracked light's (matching only the camera-facing direction darkened most of a face
