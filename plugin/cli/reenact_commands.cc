@@ -617,6 +617,14 @@ void run_demo(const DemoArgs& a) {
       std::fflush(stderr);
     }
   };
+  // A set-up fetches everything the demo downloads (--fetch-only) without running it, and
+  // without making its output folder.
+  if (a.fetch_only) {
+    (void)locate_or_fetch_wheel(a.wheel, log);
+    verify_sha256(locate_or_fetch_wheel(scikit_image_wheel(), "", log), scikit_image_wheel().sha256);
+    log("demo: the face data and the portrait are in " + user_cache_dir());
+    return;
+  }
   const tracker::LandmarkSourceChoice landmarks = parse_landmarks(a.landmarks);
   capture::SynthOptions so;
   parse_size(a.size, &so.width, &so.height);
@@ -631,7 +639,6 @@ void run_demo(const DemoArgs& a) {
   if (!fs::is_directory(out)) throw Error("--out '" + a.out + "': cannot create the folder");
 
   const auto t_start = Clock::now();
-  // The real face: fetched first, so a set-up can fetch everything the demo needs (--fetch-only).
   cv::Mat portrait;
   std::string portrait_name, portrait_skipped;
   if (a.portrait == "auto") {
@@ -649,12 +656,6 @@ void run_demo(const DemoArgs& a) {
   } else if (a.portrait != "none") {
     portrait = capture::read_still_image(a.portrait);
     portrait_name = a.portrait;
-  }
-  if (a.fetch_only) {
-    (void)locate_or_fetch_wheel(a.wheel, log);
-    if (!portrait_skipped.empty()) throw Error("demo: the portrait could not be fetched: " + portrait_skipped);
-    log("demo: the face data and the portrait are in " + user_cache_dir());
-    return;
   }
   const FaceModel model = load_face_model(resolve_model_path(a.model));
   const std::string wheel_path = locate_or_fetch_wheel(a.wheel, log);
@@ -788,7 +789,6 @@ void run_demo(const DemoArgs& a) {
     pinfo.camera = capture::camera_from_fov(portrait.cols, portrait.rows, 60.0);
     pinfo.has_depth = false;
     pinfo.source = portrait_name;
-    pinfo.generator = "video file";  // its field of view is an assumption, as a video's
     capture::RgbdFrame still;
     still.color = portrait;
     still.camera = pinfo.camera;
