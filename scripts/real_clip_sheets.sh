@@ -44,6 +44,20 @@ for mouth in auto model; do
   "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --out "$OUT/mouth_$mouth.mp4" \
         --report "$OUT/mouth_$mouth.json" --quiet --mouth "$mouth" --sheets "$OUT/mouth_$mouth" --sheet-frames 120,270,280
 done
+# The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"): d6's grimace (source frame ~252) onto the
+# webcam clip's output frame 126, without and with the transfer, and their difference x4 around mid-grey
+# (detail.png: the face; detail_zoom.png: the chin, 3x).
+mkdir -p "$OUT/detail"
+for detail in off transient; do
+  "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --frames 130 --out "$OUT/detail/$detail.mp4" \
+        --quiet --detail "$detail" --frames-dir "$OUT/detail/$detail"
+done
+ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/transient/frame_000126.png" -filter_complex \
+       "[0]crop=320:360:80:60[a];[1]crop=320:360:80:60[b];[0][1]blend=all_expr='128+4*(B-A)',crop=320:360:80:60[d];[a][b][d]hstack=3" \
+       "$OUT/detail.png"
+ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/transient/frame_000126.png" -filter_complex \
+       "[0]crop=120:90:150:250,scale=360:270:flags=neighbor[a];[1]crop=120:90:150:250,scale=360:270:flags=neighbor[b];[a][b]hstack" \
+       "$OUT/detail_zoom.png"
 # The virtual mirror (docs/reenactment.md, "Virtual mirror"): a round sticker (made here: magenta, transparent around it)
 # on the left cheek, and the light from the image's left, on the webcam clip and on d14; frame 50 of each, input |
 # sticker | light, side by side (mirror_webcam.png, mirror_d14.png).
@@ -59,4 +73,4 @@ for pair in webcam:webcam_talking_640x480.wmv d14:liveportrait_d14.mp4; do
          -ss 0 -i "$VIDEOS/$clip" -filter_complex "[2]select='eq(n\,50)'[in];[in][0][1]hstack=3" -frames:v 1 \
          "$OUT/mirror_${name}.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference)"

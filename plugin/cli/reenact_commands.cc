@@ -159,7 +159,8 @@ std::string stage_report(const reenact::PipelineSummary& s, double source_ms) {
   o.precision(1);
   o << "per frame (ms): source track " << source_ms << ", target track " << s.mean_times.track_ms << ", transfer "
     << s.mean_times.transfer_ms << ", render " << s.mean_times.render_ms << ", mouth " << s.mean_times.mouth_ms
-    << ", composite " << s.mean_times.composite_ms << ", target total " << s.mean_times.total_ms;
+    << ", composite " << s.mean_times.composite_ms << ", detail " << s.mean_times.detail_ms << ", target total "
+    << s.mean_times.total_ms;
   return o.str();
 }
 
@@ -189,6 +190,7 @@ struct ReenactArgs {
   double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
   double target_rest_s = -1;       // the same for the target
   std::string mouth = "auto";      // --mouth: auto, a frame index of the target, or model
+  std::string detail = "transient";  // --detail: the source's folds and wrinkles (detail_transfer.h)
   bool quiet = false;
 };
 
@@ -279,6 +281,8 @@ void run_reenact(const ReenactArgs& a) {
     ro.mouth_exemplar_frame = frame;
   }
   if (!tracker::parse_solver_backend(a.solver, &ro.tracker.solver)) throw Error("reenact: --solver must be auto, cpu or vulkan");
+  if (!reenact::ParseDetailMode(a.detail, &ro.detail.mode))
+    throw Error("reenact: --detail must be transient, copy or off (got '" + a.detail + "')");
   // The options are checked before anything is opened (a bad --calibration-window says so at once).
   std::string why;
   if (!ro.IsValid(&why)) throw Error("reenact: " + why);
@@ -376,6 +380,9 @@ void run_reenact(const ReenactArgs& a) {
         ++source_statuses[tracker::tracking_status_name(st.status)];
       }
       expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
+      // The source frame the fit belongs to, for its folds and wrinkles (Sec. 7.3).
+      if (expr.blend_weight > 0.f && ro.detail.mode != reenact::DetailMode::kOff && !sf.color.empty())
+        expr.view = std::make_shared<reenact::SourceView>(reenact::SourceView{sf.color, st.camera, st.params, sf.index});
       src = &expr;
     } else {
       // Live stream: process at the recording's rate so the stream's timing means something.
@@ -445,6 +452,7 @@ void run_reenact(const ReenactArgs& a) {
   std::printf("%s\n", s.BriefReport().c_str());
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
+  std::printf("detail: %s (%d frames)\n", s.detail.c_str(), s.detail_frames);
   if (held_still) std::printf("target: a still, held for %d frames at %.3g fps (the source's length)\n", done, fps);
   if (source_rec && source_by_time.skipped() > 0)
     std::printf("source: %d frames tracked, %d skipped to keep its timing\n", source_tracker->frames, source_by_time.skipped());
@@ -486,9 +494,10 @@ void run_reenact(const ReenactArgs& a) {
         {"stage_ms", {{"source_track", source_ms}, {"target_track", s.mean_times.track_ms},
                       {"transfer", s.mean_times.transfer_ms}, {"render", s.mean_times.render_ms},
                       {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
-                      {"target_total", s.mean_times.total_ms}}},
+                      {"detail", s.mean_times.detail_ms}, {"target_total", s.mean_times.total_ms}}},
         {"renderer", s.renderer},
         {"mouth_interior", s.mouth_interior},
+        {"detail", {{"mode", a.detail}, {"frames", s.detail_frames}, {"what", s.detail}}},
         {"solver", pipeline.tracking_solver()},
         {"camera", {{"target", target_camera}, {"source", source_camera}}},
         {"intrinsics", {{"target", intrinsics_description(a.target, info, target_camera)},
@@ -938,19 +947,23 @@ void run_bench(const BenchArgs& a) {
     std::string name;
     reenact::RendererKind renderer;
     reenact::Appearance appearance;
+    bool detail = false;  // with the source's folds (Sec. 7.3): the cpu run's output as the source frame
   };
   // The default (frame texture) with each rasteriser, and the albedo-map appearance on the CPU:
   // the frame texture's extra cost is one more rasterisation (the tracked geometry, for
-  // visibility) and a texture lookup per drawn pixel.
+  // visibility) and a texture lookup per drawn pixel. The detail transfer's cost is its source
+  // frame prepared (the fit rasterised over the face's box, a Laplacian pyramid) and read per pixel.
   const std::vector<Config> configs = {
       {"cpu", reenact::RendererKind::kCpu, reenact::Appearance::kFrameTexture},
       {"vulkan", reenact::RendererKind::kVulkan, reenact::Appearance::kFrameTexture},
       {"cpu_albedo_map", reenact::RendererKind::kCpu, reenact::Appearance::kAlbedoMap},
+      {"cpu_detail", reenact::RendererKind::kCpu, reenact::Appearance::kFrameTexture, true},
   };
   struct Run {
     std::unique_ptr<reenact::FaceCompositor> compositor;
+    std::unique_ptr<reenact::DetailTransfer> detail;
     reenact::AlbedoMap albedo;
-    Mean render, mouth, composite, total;
+    Mean render, mouth, composite, detail_ms, total;
   };
   gpu::FaceParameters target = gpu::frontal_pose(0.45f);
   target.delta = Eigen::VectorXf::Zero(model.num_expression());
@@ -961,7 +974,9 @@ void run_bench(const BenchArgs& a) {
     o.appearance = configs[k].appearance;
     runs[k].compositor = std::make_unique<reenact::FaceCompositor>(model, o);
     runs[k].compositor->ObserveAlbedo(background, cam, target, &runs[k].albedo);
+    if (configs[k].detail) runs[k].detail = std::make_unique<reenact::DetailTransfer>(model, o.detail);
   }
+  cv::Mat source_bgr;  // the cpu run's output of this frame: a face moving as the target does
   // The configurations take turns frame by frame, so a slower stretch of this shared machine
   // (or the allocator settling) falls on all of them alike.
   for (int i = -2; i < a.frames; ++i) {  // two warm-up frames
@@ -970,12 +985,17 @@ void run_bench(const BenchArgs& a) {
     p.delta[reenact::kJawOpenIndex] = 0.5f + 0.4f * std::sin(0.5f * i);
     for (Run& run : runs) {
       const auto t0 = Clock::now();
-      const reenact::CompositeResult c = run.compositor->Compose(background, cam, target, p, &run.albedo);
+      if (run.detail) run.detail->Observe(reenact::SourceView{source_bgr, cam, p, i});
+      const double observe_ms = ms_since(t0);
+      const reenact::CompositeResult c =
+          run.compositor->Compose(background, cam, target, p, &run.albedo, nullptr, nullptr, run.detail.get());
       const double ms = ms_since(t0);
+      if (&run == &runs.front()) source_bgr = c.bgr;
       if (i < 0) continue;
       run.render.add(c.render_ms);
       run.mouth.add(c.mouth_ms);
       run.composite.add(c.composite_ms);
+      run.detail_ms.add(run.detail ? observe_ms + c.detail.ms : 0.0);
       run.total.add(ms);
     }
   }
@@ -988,11 +1008,12 @@ void run_bench(const BenchArgs& a) {
                  {"render_ms", run.render.value()},
                  {"mouth_ms", run.mouth.value()},
                  {"composite_ms", run.composite.value()},
+                 {"detail_ms", run.detail_ms.value()},
                  {"total_ms", run.total.value()}};
     if (!a.json)
-      std::printf("%-14s %-40s render %6.2f ms  mouth %5.2f ms  composite %5.2f ms  total %6.2f ms  (%dx%d, %d frames)\n",
+      std::printf("%-14s %-40s render %6.2f ms  mouth %5.2f ms  composite %5.2f ms  detail %5.2f ms  total %6.2f ms  (%dx%d, %d frames)\n",
                   name.c_str(), renderer.c_str(), run.render.value(), run.mouth.value(), run.composite.value(),
-                  run.total.value(), w, h, a.frames);
+                  run.detail_ms.value(), run.total.value(), w, h, a.frames);
   }
   if (a.json) std::printf("%s\n", out.dump(2).c_str());
 }
@@ -1054,6 +1075,11 @@ void add_reenact_commands(CLI::App& app) {
                   "Interior of an opened mouth: auto (default: the target's own open mouth, from the first frame where it "
                   "opens wide facing the camera, or a later, wider one), N (the target frame with index N), or model "
                   "(the model's teeth and a dark cavity)");
+    c->add_option("--detail", args->detail,
+                  "The source actor's folds and wrinkles on the target (paper Sec. 7.3; a source tracked from a file "
+                  "only, the udp:// stream carries no image): transient (default: what the expression adds against "
+                  "the source's most relaxed frame; the target keeps its own skin), copy (the source's fine skin "
+                  "detail replaces the target's, as in the paper), or off");
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_flag("--quiet", args->quiet, "No progress bar");
     c->callback([args] { run_reenact(*args); });

@@ -73,6 +73,9 @@ TEST(ReenactCliTest, MissingRecordingsAndBadUrlsAreClearErrors) {
     EXPECT_EQ(r.exit_code, 1) << mouth;
     EXPECT_NE(r.output.find("--mouth"), std::string::npos) << r.output;
   }
+  r = run_cli({"reenact", "--source", dir.string(), "--target", dir.string(), "--out", out, "--detail", "sparkle"});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("--detail"), std::string::npos) << r.output;
   r = run_cli({"demo", "--out", (dir / "d").string(), "--size", "10x10"});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--size"), std::string::npos) << r.output;
@@ -203,6 +206,12 @@ TEST(ReenactCliTest, PairsSourceAndTargetByTimeAndReportsEveryFrame) {
   EXPECT_TRUE(down.at("agreement").at("fit_frames").is_number());
   EXPECT_TRUE(down.contains("target_calibration_warning") && down.contains("source_calibration_warning"));
   EXPECT_TRUE(down.at("mouth_interior").is_string()) << "where an opened mouth's interior came from";
+  // The source is tracked from a file, so its frames reach the detail transfer (Sec. 7.3).
+  EXPECT_EQ(down.at("detail").at("mode"), "transient") << down.dump(2);
+  EXPECT_TRUE(down.at("detail").at("frames").is_number());
+  EXPECT_EQ(down.at("detail").at("what").get<std::string>().find("none yet: no source frame"), std::string::npos)
+      << down.at("detail").dump();
+  EXPECT_TRUE(down.at("stage_ms").at("detail").is_number());
 
   const auto [up, up_lines] = reenact("slow", "fast", "up");
   EXPECT_EQ(up.at("frames"), 12) << up.dump(2);

@@ -479,6 +479,76 @@ TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
   EXPECT_FALSE(plain.Compose(t.target, cam, target, open, &t.albedo).mouth_drawn);
 }
 
+// Issue #28: on the Breaking Bad still (an orange key, a teal window) the model's teeth drew blue
+// and red. The fit's light carries much of the skin's own colour (the albedo prior holds the skin
+// near the model's mean): there the light entering the mouth read 0.99 / 0.60 / 0.22, and white
+// teeth under it drew the whole opening dark red. Teeth keep the brightness the fit gives their
+// normals, in the colour of the light entering the opening at half its saturation. Here the light
+// is as orange: the lit interior's median HSV saturation is 102 (194 with the light's full colour
+// at each normal, which the test refuses).
+TEST(ReenactCompositorTest, TeethAreLitAtHalfTheSaturationOfTheLightEnteringTheMouth) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  gpu::FaceParameters target = test_face(0.45f);
+  const float orange[3] = {1.6f, 1.0f, 0.35f};
+  for (int c = 0; c < 3; ++c)
+    for (int k = 0; k < 9; ++k) target.gamma[static_cast<size_t>(c * 9 + k)] *= orange[c];
+  const FaceCompositor fc(*test_model(), ReenactmentOptions{});
+  const Rendered t = make_target(fc, target, cam);
+  gpu::FaceParameters open = target;
+  open.delta[kJawOpenIndex] = 0.8f;
+  const CompositeResult c = fc.Compose(t.target, cam, target, open, &t.albedo);
+  ASSERT_TRUE(c.mouth_drawn);
+  cv::Mat hsv;
+  cv::cvtColor(c.bgr, hsv, cv::COLOR_BGR2HSV);
+  std::vector<int> saturation;  // of the bright interior pixels: teeth (and the lit tongue)
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      if (!c.mouth_mask.at<uchar>(j, i)) continue;
+      const cv::Vec3b h = hsv.at<cv::Vec3b>(j, i);
+      if (h[2] >= 110) saturation.push_back(h[1]);  // not the cavity or shadowed teeth
+    }
+  ASSERT_GT(saturation.size(), 10u) << "the lit teeth should show";
+  std::sort(saturation.begin(), saturation.end());
+  const int least = saturation[saturation.size() / 4], median = saturation[saturation.size() / 2];
+  RecordProperty("bright_mouth_pixels", static_cast<int>(saturation.size()));
+  RecordProperty("saturation_q25", least);
+  RecordProperty("saturation_median", median);
+  EXPECT_LT(median, 140) << "teeth lit in the light's full colour (a quarter under " << least << ")";
+}
+
+// Teeth the albedo map never saw take the model's teeth in the actor's cast: the learned skin
+// against the model's skin, per channel. A skin learned a third bluer and redder-poor (a camera's
+// white balance, a grade) turns the drawn teeth the same way; before, they kept the model's
+// plain colour beside the tinted skin.
+TEST(ReenactCompositorTest, UnseenTeethTakeTheCastOfTheLearnedSkin) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.45f);
+  ReenactmentOptions o;
+  o.appearance = Appearance::kAlbedoMap;
+  const FaceCompositor fc(*test_model(), o);
+  const Rendered t = make_target(fc, target, cam);
+  AlbedoMap tinted = t.albedo;
+  const FaceModel& m = *test_model();
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (m.vertex_part[static_cast<size_t>(v)] == FacePart::Face && tinted.weight[v] > 0.f) {
+      tinted.albedo[3 * v + 0] *= 0.75f;
+      tinted.albedo[3 * v + 2] *= 1.3f;
+    }
+  gpu::FaceParameters open = target;
+  open.delta[kJawOpenIndex] = 0.8f;
+  auto blue_over_red = [&](const AlbedoMap& map) {
+    const CompositeResult c = fc.Compose(t.target, cam, target, open, &map);
+    EXPECT_TRUE(c.mouth_drawn);
+    const cv::Scalar mean = cv::mean(c.bgr, c.mouth_mask);
+    return srgb_decode(mean[0] / 255.0) / std::max(srgb_decode(mean[2] / 255.0), 1e-6);
+  };
+  const double plain = blue_over_red(t.albedo), cast = blue_over_red(tinted);
+  RecordProperty("blue_over_red", std::to_string(plain) + " -> " + std::to_string(cast));
+  EXPECT_GT(cast, 1.4 * plain) << "the skin's cast (1.3 / 0.75 = 1.73 in blue over red) should reach the teeth";
+}
+
 TEST(ReenactCompositorTest, DeterministicAndStableUnderTinyPoseChanges) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(160, 120);

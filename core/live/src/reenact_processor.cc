@@ -97,6 +97,10 @@ class ReenactProcessor : public FrameProcessor {
       actor_outcome.ms = ms_since(t_actor);
       if (actor.status == reenact::TrackingStatus::kTracking) {
         actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
+        // The actor's frame goes along for its folds and wrinkles (Sec. 7.3); a copy, since the
+        // grabber reuses its buffers.
+        actor_expression_.view = std::make_shared<reenact::SourceView>(reenact::SourceView{
+            input.actor_frame->color.clone(), actor.tracked.camera, actor.target_params, input.actor_frame->index});
         have_actor_expression_ = true;
         actor_outcome.tracked = true;
       } else {

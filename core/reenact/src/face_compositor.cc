@@ -52,6 +52,8 @@ constexpr float kMaxTongueOcclusion = 0.55f;
 constexpr float kCavityDepthM = 0.003f;
 
 // The pixel position (u, v) of camera-space point x (in front of the camera).
+float luminance(const Eigen::Vector3f& rgb) { return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2]; }
+
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
   return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};
 }
@@ -530,6 +532,35 @@ struct FaceCompositor::Impl {
       }
   }
 
+  // The actor's learned skin against the model's skin (per channel, over the face vertices the
+  // map has observed, the mouth's inner skin left out; clamped to 1/4..4; ones with fewer than 50
+  // observed): the colour cast and exposure of this camera and grade, which the map holds since it
+  // divides the frame by the tracked light. The model's teeth, tongue and cavity are multiplied by
+  // it, so they stand to the actor's skin as the model's stand to the model's skin. Without it, on
+  // the Breaking Bad still (a teal and orange grade, a hard coloured light) the model's plain teeth
+  // under the tracked light drew blue-purple in the lip slit.
+  Eigen::Vector3f SkinCast(const AlbedoMap& map, const gpu::VertexState& model_state) const {
+    const int n = model.num_vertices();
+    if (map.albedo.size() != 3 * n || map.weight.size() != n) return Eigen::Vector3f::Ones();
+    Eigen::Vector3d learned = Eigen::Vector3d::Zero(), modelled = Eigen::Vector3d::Zero();
+    int count = 0;
+    for (int v = 0; v < n; ++v) {
+      if (part_of(v) != FacePart::Face || in_mouth[static_cast<size_t>(v)] || !(map.weight[v] > 0.f)) continue;
+      for (int c = 0; c < 3; ++c) {
+        learned[c] += map.albedo[3 * v + c];
+        modelled[c] += model_state.albedo[3 * v + c];
+      }
+      ++count;
+    }
+    constexpr int kMinObserved = 50;
+    constexpr float kMaxCast = 4.0f;
+    Eigen::Vector3f cast = Eigen::Vector3f::Ones();
+    if (count < kMinObserved || !(modelled.minCoeff() > 1e-6)) return cast;
+    for (int c = 0; c < 3; ++c)
+      cast[c] = std::clamp(static_cast<float>(learned[c] / modelled[c]), 1.0f / kMaxCast, kMaxCast);
+    return cast;
+  }
+
   // Per-thread G-buffers reused from frame to frame (16 values per pixel; allocating them anew
   // every frame cost more than rasterising at 640x480). 0: the output, 1: the tracked geometry.
   static gpu::GBuffer& scratch_gbuffer(int which) {
@@ -583,7 +614,7 @@ std::string FaceCompositor::renderer_description() const {
 CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                                         const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                                         const AlbedoMap* albedo, const cv::Mat* target_depth,
-                                        const MouthExemplar* mouth) const {
+                                        const MouthExemplar* mouth, const DetailTransfer* detail) const {
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   if (target_bgr.type() != CV_8UC3 || target_bgr.cols != camera.width || target_bgr.rows != camera.height)
@@ -601,15 +632,44 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   const Gamma light = rendering_lighting(output.gamma);
   const bool use_map = albedo && albedo->albedo.size() == 3 * n;
   const bool cap = use_map && albedo->max_irradiance.minCoeff() > 0.f;
+  const Eigen::Vector3f cast = use_map ? im.SkinCast(*albedo, state) : Eigen::Vector3f::Ones();
+  // The colour teeth and tongue are lit with: the light entering the mouth (camera-facing
+  // irradiance), at half its saturation (the square root of its colour over its luminance). The
+  // fit's light carries much of the skin's own colour (the albedo prior holds the skin near the
+  // model's mean), so its colour overstates the real light's: under the Breaking Bad still's
+  // orange key (entering light 0.99 / 0.60 / 0.22) the full colour drew the whole opening dark red.
+  Eigen::Vector3f entering_colour = Eigen::Vector3f::Ones();
+  {
+    Eigen::Vector3f entering;
+    for (int c = 0; c < 3; ++c) entering[c] = Impl::entering_light(light, c);
+    const float lum = luminance(entering);
+    if (lum > 1e-6f && entering.minCoeff() > 0.f) {
+      entering_colour = (entering / lum).cwiseSqrt();
+      entering_colour /= luminance(entering_colour);
+    }
+  }
   std::vector<Eigen::Vector3f> irradiance_out(static_cast<size_t>(n));  // uncapped, per vertex
   for (int v = 0; v < n; ++v) {
     const auto basis = gpu::sh_basis(state.camera_normals.segment<3>(3 * v));
+    const bool mouth_part = kMouthParts & part_bit(im.part_of(v));
+    // Teeth and tongue the map never saw: the model's, in the actor's cast (SkinCast).
+    const bool unseen_mouth = use_map && mouth_part && !(albedo->weight.size() == n && albedo->weight[v] > 0.f);
+    Eigen::Vector3f e;
+    for (int c = 0; c < 3; ++c) e[c] = im.irradiance_at(light, basis, c, v);
+    // Teeth and tongue face up, down and inwards, where the SH fit is an extrapolation whose
+    // colour can be anything (under the Breaking Bad still's teal window light and orange key,
+    // lower teeth blue and upper ones red): they keep the fit's brightness at their normal but
+    // take the colour of the light entering the opening.
+    if (mouth_part) e = luminance(e) * entering_colour;
     for (int c = 0; c < 3; ++c) {
-      if (use_map) state.albedo[3 * v + c] = albedo->albedo[3 * v + c];
-      float e = im.irradiance_at(light, basis, c, v);
-      irradiance_out[static_cast<size_t>(v)][c] = e;
-      if (cap) e = std::min(e, 1.05f * albedo->max_irradiance[c]);
-      state.colors[3 * v + c] = state.albedo[3 * v + c] * e;
+      if (unseen_mouth)
+        state.albedo[3 * v + c] *= cast[c];
+      else if (use_map)
+        state.albedo[3 * v + c] = albedo->albedo[3 * v + c];
+      float e_c = e[c];
+      irradiance_out[static_cast<size_t>(v)][c] = e_c;
+      if (cap) e_c = std::min(e_c, 1.05f * albedo->max_irradiance[c]);
+      state.colors[3 * v + c] = state.albedo[3 * v + c] * e_c;
     }
   }
   gpu::RenderOptions ropt;
@@ -670,6 +730,10 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   }
   result.drawn = true;
 
+  // --- the source's folds and wrinkles on the re-rendered skin (Sec. 7.3; the mouth pass
+  // below draws over the opening).
+  if (detail) result.detail = detail->Apply(g, camera, result.face_mask, &rendered);
+
   // --- mouth (Sec. 7.3): inside the lip opening, teeth and tongue (already placed by the
   // jawOpen / tongueOut blendshapes) darkened with depth, and a dark cavity wherever the
   // opening shows the inside of the head or nothing at all.
@@ -691,7 +755,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255), cv::LINE_AA, kSubpixelBits);
       // Light reaching the cavity: the part of the target's lighting that enters the opening.
       Eigen::Vector3f cavity_rgb;
-      for (int c = 0; c < 3; ++c) cavity_rgb[c] = Impl::entering_light(light, c) * kCavityAlbedo[c];
+      for (int c = 0; c < 3; ++c) cavity_rgb[c] = Impl::entering_light(light, c) * kCavityAlbedo[c] * cast[c];
       // The actor's own open mouth, when there is one, in place of the model's teeth and the
       // cavity: darker as the opening narrows, since less light enters it.
       const bool use_exemplar = mouth && !mouth->empty() && mouth->opening.size() == opening_px.size();

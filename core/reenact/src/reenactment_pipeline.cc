@@ -43,6 +43,7 @@ void add_times(StageTimes* sum, const StageTimes& t) {
   sum->render_ms += t.render_ms;
   sum->mouth_ms += t.mouth_ms;
   sum->composite_ms += t.composite_ms;
+  sum->detail_ms += t.detail_ms;
   sum->total_ms += t.total_ms;
 }
 
@@ -78,6 +79,7 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
   if (mouth_exemplar_frame < -1) return fail("mouth_exemplar_frame must be -1 (automatic) or a frame index");
   std::string sub;
   if (!mouth_exemplar_options.IsValid(&sub)) return fail(sub);
+  if (!detail.IsValid(&sub)) return fail(sub);
   if (!use_ground_truth_target) {
     if (!tracker.IsValid(&sub)) return fail("tracker: " + sub);
     if (!input.IsValid(&sub)) return fail("input: " + sub);
@@ -92,7 +94,7 @@ std::string PipelineSummary::BriefReport() const {
   s << frames << " frames (" << reenacted_frames << " reenacted, " << calibrating_frames << " calibrating, "
     << lost_frames << " lost); mean ms/frame: track " << mean_times.track_ms << ", transfer " << mean_times.transfer_ms
     << ", render " << mean_times.render_ms << ", mouth " << mean_times.mouth_ms << ", composite "
-    << mean_times.composite_ms << ", total " << mean_times.total_ms;
+    << mean_times.composite_ms << ", detail " << mean_times.detail_ms << ", total " << mean_times.total_ms;
   if (!renderer.empty()) s << "; renderer " << renderer;
   return s.str();
 }
@@ -109,12 +111,13 @@ struct ReenactmentPipeline::Impl {
   AlbedoMap albedo;
   int albedo_observations = 0;
   MouthExemplar mouth;
+  DetailTransfer detail;  // the source actor's frames: kept across target recalibrations
   int tracked_frames = 0;
   int frames_without_face = 0;
   PipelineSummary summary;
   StageTimes time_sums;
 
-  Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), options(o), compositor(m, o) {
+  Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), options(o), compositor(m, o), detail(m, o.detail) {
     if (options.mode == ReenactMode::kMirror) mirror = std::make_unique<VirtualMirror>(m, options.mirror);
     neutral = gpu::frontal_pose(0.6f);
     MakeTracker();
@@ -202,6 +205,7 @@ void ReenactmentPipeline::SetOptions(const ReenactmentOptions& options) {
                                options.tracker.solver != im.options.tracker.solver ||
                                options.tracker.solver_device != im.options.tracker.solver_device;
   im.compositor.SetOptions(options);
+  im.detail.SetOptions(options.detail);
   im.options = options;
   if (tracker_changed) {
     im.MakeTracker();
@@ -235,11 +239,12 @@ PipelineSummary ReenactmentPipeline::summary() const {
   PipelineSummary s = impl_->summary;
   s.renderer = impl_->compositor.renderer_description();
   s.mouth_interior = impl_->MouthInteriorDescription();
+  s.detail = impl_->options.mode == ReenactMode::kReenact ? impl_->detail.Description() : "off (not reenacting)";
   if (s.frames > 0) {
     const double n = s.frames;
     const StageTimes& t = impl_->time_sums;
-    s.mean_times = StageTimes{t.track_ms / n, t.transfer_ms / n, t.render_ms / n,
-                              t.mouth_ms / n, t.composite_ms / n, t.total_ms / n};
+    s.mean_times = StageTimes{t.track_ms / n, t.transfer_ms / n, t.render_ms / n, t.mouth_ms / n,
+                              t.composite_ms / n, t.total_ms / n, t.detail_ms / n};
   }
   return s;
 }
@@ -432,10 +437,19 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     im.ConsiderMouthExemplar(out.bgr, out.frame_index, fit_camera, target_params);
     const double exemplar_ms = ms_since(t0);
 
+    // --- the source's frame for its folds and wrinkles (Sec. 7.3).
+    t0 = Clock::now();
+    const bool with_detail = transfer && source->view && im.options.detail.mode != DetailMode::kOff;
+    if (with_detail) im.detail.Observe(*source->view, source->blend_weight);
+    out.times.detail_ms = ms_since(t0);
+
     // --- re-render, mouth, composite.
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
     CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
-                                              input_depth.empty() ? nullptr : &input_depth, &im.mouth);
+                                              input_depth.empty() ? nullptr : &input_depth, &im.mouth,
+                                              with_detail ? &im.detail : nullptr);
+    out.times.detail_ms += c.detail.ms;
+    if (c.detail.pixels > 0) ++im.summary.detail_frames;
     out.times.render_ms += c.render_ms;
     out.times.mouth_ms = c.mouth_ms + exemplar_ms;
     out.times.composite_ms = c.composite_ms;

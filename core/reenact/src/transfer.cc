@@ -27,6 +27,8 @@ bool SourceExpression::IsValid(std::string* why) const {
         return fail("source expression: neutral weight " + std::to_string(i) + " is outside [-0.5, 1.5]");
     }
   }
+  std::string sub;
+  if (view && !view->IsValid(&sub)) return fail("source expression: " + sub);
   return true;
 }
 

@@ -13,6 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/detail_transfer.h"
 #include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
 
@@ -46,6 +47,7 @@ struct CompositeResult {
   bool mouth_drawn = false;
   bool mouth_opened_wider = false;  // the output's jawOpen exceeds the target's (by the threshold)
   bool mouth_from_exemplar = false;  // the interior drawn was the actor's own open mouth (mouth_interior.h)
+  DetailStats detail;                // the source's wrinkle-level detail (detail_transfer.h); level -1: none
   double render_ms = 0, mouth_ms = 0, composite_ms = 0;
 };
 
@@ -71,10 +73,12 @@ class FaceCompositor {
   // `mouth` (optional): the target actor's own open mouth, warped into the opening in place of
   // the model's teeth and the dark cavity (Sec. 7.4.1), darker as the opening narrows
   // (MouthInteriorBrightness).
+  // `detail` (optional): the source actor's wrinkle-level detail (Sec. 7.3), added to the
+  // re-rendered skin before the mouth interior and the blend.
   CompositeResult Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                           const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                           const AlbedoMap* albedo = nullptr, const cv::Mat* target_depth = nullptr,
-                          const MouthExemplar* mouth = nullptr) const;
+                          const MouthExemplar* mouth = nullptr, const DetailTransfer* detail = nullptr) const;
 
   // The inner-lip polygon (iBUG 60-67, the model's landmark vertices projected) of the face at
   // `params`, in pixels; empty when the model has no such landmarks or the mouth is behind the

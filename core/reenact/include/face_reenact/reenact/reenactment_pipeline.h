@@ -24,6 +24,7 @@
 
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/detail_transfer.h"
 #include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/reenact/virtual_mirror.h"
 #include "face_reenact/tracker/face_tracker.h"
@@ -55,6 +56,10 @@ struct SourceExpression {
   std::array<float, kNumExpressionWeights> neutral{};  // the source actor's neutral expression
   bool neutral_subtracted = false;
   float blend_weight = 1.0f;  // in [0, 1]
+  // The source frame and its fit, where the source actor is tracked on this machine (a
+  // recording, a camera): its folds and wrinkles are carried onto the target (Sec. 7.3,
+  // detail_transfer.h). Null over the UDP stream, which carries expressions only.
+  std::shared_ptr<const SourceView> view;
 
   // Values finite, blend_weight in [0, 1]; absolute weights within [-0.5, 1.5] and relative ones
   // within [-1.5, 1.5] (trackers overshoot a little; the transfer clamps).
@@ -152,6 +157,10 @@ struct ReenactmentOptions {
   // thread, at most 8). The output does not depend on it.
   int render_threads = 0;
 
+  // --- wrinkle-level detail (Sec. 7.3; detail_transfer.h): from SourceExpression::view, in
+  // ReenactMode::kReenact only ---
+  DetailTransferOptions detail;
+
   // --- the virtual mirror (ReenactMode::kMirror; virtual_mirror.h) ---
   MirrorOptions mirror;
 
@@ -183,6 +192,7 @@ struct StageTimes {
   double mouth_ms = 0;      // teeth/tongue/cavity render
   double composite_ms = 0;  // masks + Laplacian blend + 8-bit conversion
   double total_ms = 0;
+  double detail_ms = 0;     // the source's detail: its frame prepared, carried onto the target
 };
 
 struct ReenactedFrame {
@@ -220,6 +230,10 @@ struct PipelineSummary {
   // Where an opened mouth's interior comes from: "the target's own mouth, frame N (jawOpen J)",
   // or "the model's teeth and a dark cavity: ..." with the reason (ReenactmentOptions::mouth_exemplar).
   std::string mouth_interior;
+  // What wrinkle-level detail the output carries (DetailTransfer::Description), and on how many
+  // frames it changed the face.
+  std::string detail;
+  int detail_frames = 0;
   std::string BriefReport() const;
 };
 
