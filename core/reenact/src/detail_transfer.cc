@@ -47,8 +47,6 @@ cv::Mat distance_inside(const cv::Mat& covered) {
   return dist(cv::Rect(1, 1, covered.cols, covered.rows)).clone();
 }
 
-float luminance(float r, float g, float b) { return 0.2126f * r + 0.7152f * g + 0.0722f * b; }
-
 // Linear luminance of an 8-bit BGR image.
 cv::Mat luminance_of(const cv::Mat& bgr) {
   const auto& lut = srgb_decode_table();
@@ -56,7 +54,7 @@ cv::Mat luminance_of(const cv::Mat& bgr) {
   for (int j = 0; j < bgr.rows; ++j) {
     const cv::Vec3b* in = bgr.ptr<cv::Vec3b>(j);
     float* out = y.ptr<float>(j);
-    for (int i = 0; i < bgr.cols; ++i) out[i] = luminance(lut[in[i][2]], lut[in[i][1]], lut[in[i][0]]);
+    for (int i = 0; i < bgr.cols; ++i) out[i] = linear_luminance(lut[in[i][2]], lut[in[i][1]], lut[in[i][0]]);
   }
   return y;
 }
@@ -472,7 +470,7 @@ DetailStats DetailTransfer::Apply(const gpu::GBuffer& g, const gpu::PinholeCamer
     for (int j = 0; j < box.height; ++j)
       for (int i = 0; i < box.width; ++i) {
         const cv::Vec3f px = rendered->at<cv::Vec3f>(j + box.y, i + box.x);
-        y.at<float>(j, i) = luminance(srgb_decode(px[2] / 255.f), srgb_decode(px[1] / 255.f), srgb_decode(px[0] / 255.f));
+        y.at<float>(j, i) = linear_luminance(srgb_decode(px[2] / 255.f), srgb_decode(px[1] / 255.f), srgb_decode(px[0] / 255.f));
       }
     own = relative_detail(y, 1).front();
   }

@@ -52,7 +52,7 @@ constexpr float kMaxTongueOcclusion = 0.55f;
 constexpr float kCavityDepthM = 0.003f;
 
 // The pixel position (u, v) of camera-space point x (in front of the camera).
-float luminance(const Eigen::Vector3f& rgb) { return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2]; }
+float luminance(const Eigen::Vector3f& rgb) { return linear_luminance(rgb[0], rgb[1], rgb[2]); }
 
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
   return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};

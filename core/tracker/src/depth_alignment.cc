@@ -4,6 +4,7 @@
 #include <cmath>
 #include <vector>
 
+#include "face_reenact/common/srgb.h"
 #include "tracker_internal.h"
 
 
@@ -64,7 +65,7 @@ DepthAlignment MeasureDepthAlignment(const InputFrame& frame, const DepthAlignme
   std::vector<float> grad(size_t(w) * size_t(h), 0.f);
   auto luminance = [&](int i, int j) {
     const float* c = &frame.color[3 * (size_t(j) * w + i)];
-    const float l = 0.2126f * c[0] + 0.7152f * c[1] + 0.0722f * c[2];
+    const float l = linear_luminance(c[0], c[1], c[2]);
     return std::isfinite(l) ? std::sqrt(std::max(l, 0.f)) : 0.f;  // a perceptual scale: shadows count too
   };
   for (int j = gy0; j < gy1; ++j)

@@ -19,6 +19,12 @@ T srgb_decode(T encoded) {
   return encoded <= T(0.04045) ? encoded / T(12.92) : std::pow((encoded + T(0.055)) / T(1.055), T(2.4));
 }
 
+// Relative luminance of linear RGB (Rec. 709 / sRGB primaries).
+template <typename T>
+T linear_luminance(T r, T g, T b) {
+  return T(0.2126) * r + T(0.7152) * g + T(0.0722) * b;
+}
+
 // srgb_decode of every 8-bit value (v / 255), computed once: images arrive as bytes.
 inline const std::array<float, 256>& srgb_decode_table() {
   static const std::array<float, 256> table = [] {
