@@ -109,8 +109,9 @@ struct PreparedFrame {
 };
 
 // Where a surface point (triangle corners v, barycentrics b) lies in a prepared frame and the
-// detail read there at `level` (with `range`, also the rest range there); false where the frame
-// does not show the point.
+// detail read there at `level` (with `low` and `high`, also the frame's range there: a rest
+// frame's); `facing` how squarely and how far inside its outline the frame shows it. False where
+// the frame does not show the point.
 bool read_detail(const PreparedFrame& f, const int32_t* v, const float* b, int level, float* detail, float* facing,
                  float* low = nullptr, float* high = nullptr) {
   Eigen::Vector3f x = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
