@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <cmath>
 
 #include "face_reenact/common/error.h"
@@ -83,6 +84,12 @@ FaceParameters frontal_pose(float distance) {
   p.translation = Eigen::Vector3f(0.f, 0.f, distance);
   p.gamma = ambient_sh(Eigen::Vector3f::Ones());
   return p;
+}
+
+float head_turn_from_camera_deg(const FaceParameters& params) {
+  const Eigen::Vector3f forward = rotation_from_euler(params.euler) * Eigen::Vector3f::UnitZ();
+  const Eigen::Vector3f to_camera = -params.translation.normalized();
+  return static_cast<float>(std::acos(std::clamp(forward.dot(to_camera), -1.0f, 1.0f)) * 180.0 / M_PI);
 }
 
 bool PinholeCamera::IsValid(std::string* why) const {

@@ -355,12 +355,6 @@ struct DetailTransfer::Impl {
 
   static int threads() { return ResolvedThreadCount(0); }
 
-  static float TurnDegrees(const gpu::FaceParameters& p) {
-    const Eigen::Vector3f forward = gpu::rotation_from_euler(p.euler) * Eigen::Vector3f::UnitZ();
-    const Eigen::Vector3f to_camera = -p.translation.normalized();
-    return static_cast<float>(std::acos(std::clamp(forward.dot(to_camera), -1.0f, 1.0f)) * 180.0 / M_PI);
-  }
-
   bool ready() const {
     if (options.mode == DetailMode::kOff || now.empty() || strength <= 0.f) return false;
     return options.mode != DetailMode::kTransient || !rest.empty();
@@ -396,7 +390,7 @@ void DetailTransfer::Observe(const SourceView& view, float strength) {
   // The rest frame: facing the camera, and clearly more relaxed than the one kept (by 0.05 of
   // summed weights: small wobbles of the fit do not swap it every frame).
   constexpr float kClearlyMoreRelaxed = 0.05f;
-  if (Impl::TurnDegrees(view.params) <= im.options.rest_max_turn_deg &&
+  if (gpu::head_turn_from_camera_deg(view.params) <= im.options.rest_max_turn_deg &&
       (im.rest.empty() || im.now.expression < im.rest.expression - kClearlyMoreRelaxed)) {
     im.rest = im.now;
     Impl::MakeRange(&im.rest);

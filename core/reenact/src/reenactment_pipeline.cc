@@ -155,11 +155,7 @@ struct ReenactmentPipeline::Impl {
     } else if (jaw < eo.min_jaw_open || (!mouth.empty() && jaw <= mouth.jaw_open)) {
       return;
     }
-    // The turn away from the camera: the angle between the face's forward axis and the view ray.
-    const Eigen::Vector3f forward = gpu::rotation_from_euler(params.euler) * Eigen::Vector3f::UnitZ();
-    const Eigen::Vector3f to_camera = -params.translation.normalized();
-    const float turn_deg =
-        static_cast<float>(std::acos(std::clamp(forward.dot(to_camera), -1.0f, 1.0f)) * 180.0 / M_PI);
+    const float turn_deg = gpu::head_turn_from_camera_deg(params);
     const std::vector<Eigen::Vector2f> opening = compositor.MouthOpening(camera, params);
     if (!IsBetterMouthExemplar(mouth, opening, jaw, turn_deg, eo)) return;
     MouthExemplar e = CaptureMouthExemplar(frame_bgr, opening, jaw, frame_index, eo);

@@ -69,6 +69,10 @@ struct FaceParameters {
 // white ambient light of irradiance 1.
 FaceParameters frontal_pose(float distance);
 
+// How far the head at `params` is turned from facing the camera, in degrees (0..180): the angle
+// between the face's forward axis and its ray to the camera.
+float head_turn_from_camera_deg(const FaceParameters& params);
+
 struct PinholeCamera {
   float fx = 525.0f;
   float fy = 525.0f;
