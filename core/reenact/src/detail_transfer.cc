@@ -104,6 +104,8 @@ struct PreparedFrame {
   gpu::PinholeCamera camera;
   float pixels_per_metre = 0.f;           // fx / z of the head
   int64_t frame_index = -1;
+  gpu::PinholeCamera frame_camera;        // the view's own camera and fit (same_view)
+  gpu::FaceParameters params;
   float expression = 0.f;                 // how far from relaxed (sum of |weights|, gaze excluded)
   bool empty() const { return detail.empty(); }
 };
@@ -334,6 +336,8 @@ struct DetailTransfer::Impl {
     f.camera = crop;
     f.pixels_per_metre = view.params.translation.z() > 0.f ? view.camera.fx / view.params.translation.z() : 0.f;
     f.frame_index = view.frame_index;
+    f.frame_camera = view.camera;
+    f.params = view.params;
     for (int k = 0; k < view.params.delta.size(); ++k)
       if (k >= static_cast<int>(gaze.size()) || !gaze[static_cast<size_t>(k)]) f.expression += std::abs(view.params.delta[k]);
     return f;
@@ -351,6 +355,20 @@ struct DetailTransfer::Impl {
       f->low.push_back(lo);
       f->high.push_back(hi);
     }
+  }
+
+  // Whether `view` is the frame `f` was prepared from: the same frame of the source, with the
+  // same camera and fit.
+  static bool SameView(const PreparedFrame& f, const SourceView& view) {
+    const gpu::PinholeCamera& a = f.frame_camera;
+    const gpu::PinholeCamera& b = view.camera;
+    const gpu::FaceParameters& p = f.params;
+    const gpu::FaceParameters& q = view.params;
+    auto same = [](const Eigen::VectorXf& x, const Eigen::VectorXf& y) { return x.size() == y.size() && x == y; };
+    return view.frame_index >= 0 && view.frame_index == f.frame_index && a.fx == b.fx && a.fy == b.fy &&
+           a.cx == b.cx && a.cy == b.cy && a.width == b.width && a.height == b.height && same(p.alpha, q.alpha) &&
+           same(p.beta, q.beta) && same(p.delta, q.delta) && p.gamma == q.gamma && p.euler == q.euler &&
+           p.translation == q.translation;
   }
 
   static int threads() { return ResolvedThreadCount(0); }
@@ -385,6 +403,9 @@ void DetailTransfer::Observe(const SourceView& view, float strength) {
   if (!view.IsValid(&why)) throw Error("detail transfer: " + why);
   if (!std::isfinite(strength)) throw Error("detail transfer: the strength must be finite");
   im.strength = std::clamp(strength, 0.f, 1.f);
+  // The frame prepared last, again (a 15 fps source on a 30 fps target gives each of its frames
+  // to two target frames): nothing to redo.
+  if (!im.now.empty() && Impl::SameView(im.now, view)) return;
   im.now = im.Prepare(view);
   if (im.now.empty() || im.options.mode != DetailMode::kTransient) return;
   // The rest frame: facing the camera, and clearly more relaxed than the one kept (by 0.05 of
