@@ -21,11 +21,6 @@ using testing::test_camera;
 using testing::test_face;
 using testing::test_model;
 
-const gpu::CpuRenderer& renderer() {
-  static const gpu::CpuRenderer r(gpu::RenderModel::FromFaceModel(*test_model()));
-  return r;
-}
-
 // The face vertex of full skin weight nearest (mean shape) to the centroid of these landmarks.
 int32_t skin_vertex_near(const DetailTransfer& dt, std::initializer_list<int> ibug) {
   const FaceModel& m = *test_model();
@@ -43,7 +38,7 @@ int32_t skin_vertex_near(const DetailTransfer& dt, std::initializer_list<int> ib
 }
 
 cv::Point2f pixel_of(const gpu::FaceParameters& p, const gpu::PinholeCamera& cam, int32_t v) {
-  const Eigen::Vector3f x = renderer().evaluate(p).camera_positions.segment<3>(3 * v);
+  const Eigen::Vector3f x = testing::test_renderer().evaluate(p).camera_positions.segment<3>(3 * v);
   return {cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy};
 }
 
@@ -76,7 +71,7 @@ struct Target {
     gpu::RenderOptions ro;
     ro.parts = gpu::PartMask{1} << static_cast<int>(FacePart::Face);
     ro.cull_back_faces = true;
-    g = renderer().render(params, cam, ro);
+    g = testing::test_renderer().render(params, cam, ro);
     drawn = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
     for (int j = 0; j < cam.height; ++j)
       for (int i = 0; i < cam.width; ++i)

@@ -23,9 +23,8 @@ using testing::test_model;
 
 // A recording-like frame of `params`: colour, depth, ground truth P and landmarks.
 capture::RgbdFrame make_frame(const gpu::FaceParameters& params, const gpu::PinholeCamera& cam, int index) {
-  static const tracker::TrackerModel tmodel = tracker::TrackerModel::FromFaceModel(*test_model());
-  static const gpu::CpuRenderer renderer(tmodel.render);
-  const tracker::InputFrame f = tracker::RenderSyntheticFrame(renderer, tmodel, params, cam, {}, 0.25f);
+  const tracker::InputFrame f =
+      tracker::RenderSyntheticFrame(testing::test_renderer(), testing::test_tracker_model(), params, cam, {}, 0.25f);
   capture::RgbdFrame out;
   out.index = index;
   out.timestamp_s = index / 30.0;

@@ -84,11 +84,20 @@ inline std::vector<cv::Point> project_vertices(const gpu::VertexState& state, co
   return out;
 }
 
+// The test model as the tracker sees it, and a CPU renderer of it (made once per test program).
+inline const tracker::TrackerModel& test_tracker_model() {
+  static const tracker::TrackerModel tmodel = tracker::TrackerModel::FromFaceModel(*test_model());
+  return tmodel;
+}
+inline const gpu::CpuRenderer& test_renderer() {
+  static const gpu::CpuRenderer renderer(test_tracker_model().render);
+  return renderer;
+}
+
 // The CPU renderer's image of `params` (skin parts over a grey background) as 8-bit sRGB BGR.
 inline cv::Mat render_target(const gpu::FaceParameters& params, const gpu::PinholeCamera& camera) {
-  static const tracker::TrackerModel tmodel = tracker::TrackerModel::FromFaceModel(*test_model());
-  static const gpu::CpuRenderer renderer(tmodel.render);
-  const tracker::InputFrame f = tracker::RenderSyntheticFrame(renderer, tmodel, params, camera, {}, 0.25f);
+  const tracker::InputFrame f =
+      tracker::RenderSyntheticFrame(test_renderer(), test_tracker_model(), params, camera, {}, 0.25f);
   cv::Mat bgr(camera.height, camera.width, CV_8UC3);
   for (int j = 0; j < camera.height; ++j)
     for (int i = 0; i < camera.width; ++i) {

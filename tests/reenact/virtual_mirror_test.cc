@@ -24,9 +24,8 @@ using testing::test_model;
 
 // The pixel a model landmark projects to.
 Eigen::Vector2f landmark_pixel(const gpu::FaceParameters& p, const gpu::PinholeCamera& cam, int ibug) {
-  static const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(*test_model()));
   const std::vector<cv::Point> px =
-      testing::project_vertices(renderer.evaluate(p), cam, testing::landmark_vertices(*test_model(), ibug, ibug));
+      testing::project_vertices(testing::test_renderer().evaluate(p), cam, testing::landmark_vertices(*test_model(), ibug, ibug));
   return px.empty() ? Eigen::Vector2f(-1.f, -1.f) : Eigen::Vector2f(static_cast<float>(px[0].x), static_cast<float>(px[0].y));
 }
 
@@ -106,7 +105,7 @@ TEST(VirtualMirrorTest, TransparentPartsLeaveTheFrameAndOnlyTheFaceChanges) {
   const MirrorResult painted = VirtualMirror(*test_model(), o).Apply(frame, cam, p);
   EXPECT_GT(painted.textured_pixels, 1000);
   // Changed pixels lie on the face's rendering (skin and eyes), never beyond it.
-  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(*test_model()));
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
   gpu::RenderOptions ro;
   ro.parts = gpu::PartMask{1} << static_cast<int>(FacePart::Face);
   const gpu::GBuffer g = renderer.render(p, cam, ro);
@@ -158,7 +157,7 @@ TEST(VirtualMirrorTest, ReLightingChangesOnlyTheCoarsestLevel) {
   const MirrorResult lit = VirtualMirror(*test_model(), o).Apply(frame, cam, p);
   ASSERT_TRUE(lit.drawn);
   const float nose_x = landmark_pixel(p, cam, 30).x();
-  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(*test_model()));
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
   gpu::RenderOptions ro;
   ro.parts = gpu::PartMask{1} << static_cast<int>(FacePart::Face);
   const gpu::GBuffer g = renderer.render(p, cam, ro);

@@ -51,9 +51,9 @@ constexpr float kMaxTongueOcclusion = 0.55f;
 // A face-part surface this far behind the lip line (inside the lip opening) is the cavity wall.
 constexpr float kCavityDepthM = 0.003f;
 
-// The pixel position (u, v) of camera-space point x (in front of the camera).
 float luminance(const Eigen::Vector3f& rgb) { return linear_luminance(rgb[0], rgb[1], rgb[2]); }
 
+// The pixel position (u, v) of camera-space point x (in front of the camera).
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
   return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};
 }
