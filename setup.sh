@@ -31,6 +31,8 @@ PACKAGES=(
   ffmpeg
   # the virtual-webcam test boots Debian's kernel with v4l2loopback in QEMU (tests/vm)
   build-essential qemu-system-x86 busybox-static cpio kmod v4l-utils linux-headers-amd64
+  # ... and tc (netem) inside that VM impairs the expression stream on its loopback
+  iproute2
   # ... and Chromium inside that VM picks the camera by its label (getUserMedia, as Zoom and Meet)
   chromium
   # the OBS source (plugin/obs) and its tests with the real obs under a virtual X server

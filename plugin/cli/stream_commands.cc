@@ -132,7 +132,8 @@ void run_send(const SendArgs& a) {
   fs::ShutdownSignals signals;
   std::fprintf(stderr, "send: %s -> %s (%s), stream %u, key %s\n", source->description().c_str(), a.to.c_str(),
                to.numeric().c_str(), a.stream_id, key.fingerprint().c_str());
-  auto last_status = std::chrono::steady_clock::now();
+  const auto started = std::chrono::steady_clock::now();
+  auto last_status = started;
   uint64_t sent_at_last_status = 0;
   const char* stop_reason = "end of input";
   for (;;) {
@@ -159,7 +160,9 @@ void run_send(const SendArgs& a) {
     }
   }
   std::fprintf(stderr, "send: stopped (%s)\n", stop_reason);
-  print_send_status(sender, *source, 0, "total: ");
+  // The total's rate is the mean over the run (it printed 0.0/s).
+  const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  print_send_status(sender, *source, run_s > 0 ? double(sender.statistics().sent) / run_s : 0.0, "total: ");
   if (source->input_errors() > 0)
     std::fprintf(stderr, "send: last input error: %s\n", source->last_input_error().c_str());
 }

@@ -59,6 +59,7 @@ struct WebcamArgs {
   // --mode mirror: the virtual mirror's texture, placement, opacity and light (LiveSession::Options::mirror_*).
   std::string mirror_texture, mirror_at = "face", mirror_light;
   float mirror_opacity = 1.0f;
+  std::string detail = "transient";  // the source actor's folds (LiveSession::Options::detail)
 };
 
 // The pipeline choices a live session takes from the command line (webcam --target, bench live).
@@ -70,6 +71,7 @@ void apply_pipeline_args(const WebcamArgs& args, live::LiveSession::Options* o) 
   o->mirror_at = args.mirror_at;
   o->mirror_opacity = args.mirror_opacity;
   o->mirror_light = args.mirror_light;
+  o->detail = args.detail;
 }
 
 void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
@@ -84,6 +86,9 @@ void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
   cmd->add_option("--opacity", args->mirror_opacity, "with --mode mirror: the texture's opacity")->check(CLI::Range(0.0f, 1.0f));
   cmd->add_option("--light", args->mirror_light,
                   "with --mode mirror: re-light: front, left, right, top, bottom, warm, cool, or a .json with \"gamma\"");
+  cmd->add_option("--detail", args->detail,
+                  "the source actor's folds and wrinkles on the target (a camera or recording source): transient, copy or off")
+      ->capture_default_str();
 }
 
 void parse_size(const std::string& text, int* width, int* height) {
@@ -288,8 +293,13 @@ void run_soak(const SoakArgs& a) {
     const double fps = samples.empty() || sample.seconds <= samples.back().seconds
                            ? 0
                            : double(sample.frames - samples.back().frames) / (sample.seconds - samples.back().seconds);
-    std::printf("soak %7.1f s: resident %8.1f MB, open files %4d, threads %3d, frames out %8lld (%5.1f fps)%s%s\n",
-                sample.seconds, static_cast<double>(sample.resources.rss_bytes) / 1e6, sample.resources.open_files,
+    char heap[64] = "";
+    if (sample.resources.heap_in_use_bytes >= 0)
+      std::snprintf(heap, sizeof heap, ", heap in use %8.1f MB (%6.1f free)",
+                    static_cast<double>(sample.resources.heap_in_use_bytes) / 1e6,
+                    static_cast<double>(sample.resources.heap_free_bytes) / 1e6);
+    std::printf("soak %7.1f s: resident %8.1f MB%s, open files %4d, threads %3d, frames out %8lld (%5.1f fps)%s%s\n",
+                sample.seconds, static_cast<double>(sample.resources.rss_bytes) / 1e6, heap, sample.resources.open_files,
                 sample.resources.threads, static_cast<long long>(sample.frames), fps, sample.note.empty() ? "" : " | ",
                 sample.note.c_str());
     std::fflush(stdout);
@@ -343,11 +353,15 @@ void run_soak(const SoakArgs& a) {
     doc["measured"] = trend.measured;
     doc["grows"] = trend.grows;
     doc["verdict"] = trend.verdict;
+    doc["leaks"] = trend.leaks;
     doc["rss_growth"] = trend.rss_growth;
+    doc["heap_growth"] = trend.heap_measured ? nlohmann::json(trend.heap_growth) : nlohmann::json(nullptr);
     doc["samples"] = nlohmann::json::array();
     for (const ResourceSample& s : samples)
       doc["samples"].push_back({{"seconds", s.seconds},
                                 {"rss_bytes", s.resources.rss_bytes},
+                                {"heap_in_use_bytes", s.resources.heap_in_use_bytes},
+                                {"heap_free_bytes", s.resources.heap_free_bytes},
                                 {"open_files", s.resources.open_files},
                                 {"threads", s.resources.threads},
                                 {"frames", s.frames},

@@ -143,6 +143,12 @@ TEST(LiveOptionsTest, ValidationNamesTheProblem) {
   EXPECT_NE(why.find("solver must be auto, cpu or vulkan"), std::string::npos) << why;
   o.solver = "vulkan";
   EXPECT_TRUE(o.IsValid(&why)) << why;
+  EXPECT_EQ(o.detail, "transient");  // the source actor's folds, where there is a source image
+  o.detail = "lots";
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("detail transfer must be transient, copy or off (got 'lots')"), std::string::npos) << why;
+  o.detail = "off";
+  EXPECT_TRUE(o.IsValid(&why)) << why;
   OutputMode mode;
   EXPECT_TRUE(parse_output_mode("pass-through", &mode));
   EXPECT_EQ(mode, OutputMode::kPassThrough);
@@ -853,12 +859,16 @@ TEST_F(WebcamLiveCliTest, BenchSoakSamplesTheProcessAndJudgesTheRun) {
   const auto doc = nlohmann::json::parse(in);
   EXPECT_TRUE(doc["measured"].get<bool>());
   EXPECT_EQ(doc["grows"].get<bool>(), said_growth);
+  EXPECT_TRUE(!doc["leaks"].get<bool>() || said_growth);  // a leak is one way of growing
   EXPECT_TRUE(doc["device"].is_null());
   const auto& samples = doc["samples"];
   ASSERT_GE(samples.size(), 10u) << out;  // 6 s every 0.5 s, and one at the end
   double last_seconds = -1;
   for (const auto& s : samples) {
     EXPECT_GT(s["rss_bytes"].get<int64_t>(), 1 << 20);
+    // glibc's heap in use (-1 in a sanitizer build, whose allocator glibc does not see)
+    const int64_t heap = s["heap_in_use_bytes"].get<int64_t>();
+    EXPECT_TRUE(heap == -1 || heap > (1 << 20)) << heap;
     EXPECT_GE(s["open_files"].get<int>(), 3);
     EXPECT_GE(s["threads"].get<int>(), 2);  // the webcam loop and the live session's worker at least
     EXPECT_GT(s["seconds"].get<double>(), last_seconds);

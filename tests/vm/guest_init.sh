@@ -20,6 +20,8 @@ insmod /modules/v4l2loopback.ko devices=2 video_nr=1,0 exclusive_caps=1,1 \
   'card_label="Test Camera,Face Reenact"' || echo "init: insmod v4l2loopback failed"
 # The loopback network interface, for the browser check's page on http://127.0.0.1.
 ip link set lo up || echo "init: bringing up lo failed"
+# netem, the kernel's network emulator: the expression stream's loss, duplication and reordering.
+insmod /modules/sch_netem.ko || echo "init: insmod sch_netem failed"
 
 mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=524288 host /host || echo "init: mounting host root failed"
 # The exchange folder hides the host's own /tmp; keep that reachable as /tmp/.host-tmp inside the

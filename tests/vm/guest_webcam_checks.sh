@@ -225,6 +225,37 @@ elif ! command -v chromium >/dev/null; then
   echo "chromium is not installed (apt-get install chromium)" >browser-skip.txt
 fi
 
+# --- the expression stream through a lossy network: netem on the guest's loopback ---------------
+# The real kernel's netem (sch_netem, loaded by guest_init.sh) drops 10 %, duplicates 5 % and delays
+# every datagram on lo by 20 +- 10 ms (the jitter reorders them); `send` replays 400 frames at
+# 200 Hz to `receive`, which reports what it saw. netem-qdisc.txt holds netem's own counts
+# (datagrams delivered, dropped), which the host test matches against the receiver's statistics.
+# After the browser step: nothing else uses lo while the counts run.
+if tc qdisc add dev lo root netem delay 20ms 10ms loss 10% duplicate 5% >netem-setup.log 2>&1; then
+  step "expression stream through netem"
+  "$FR_CLI" keygen --out /run/netem.key >>netem-setup.log 2>&1
+  python3 -c 'import json
+for i in range(400):
+    e = [0.0] * 52
+    e[24] = (i % 40) / 40.0  # jawOpen, opening and closing
+    print(json.dumps({"frame": i, "expression": e}))' >/run/netem.jsonl
+  "$FR_CLI" receive --listen 127.0.0.1:9500 --key /run/netem.key --json --timeout 300 \
+    >netem-receive.jsonl 2>netem-receive.log &
+  rx_pid=$!
+  if wait_for_line netem-receive.log 0 "listening" 60 >/dev/null; then
+    timeout 120 "$FR_CLI" send --to 127.0.0.1:9500 --key /run/netem.key --replay /run/netem.jsonl --rate 200 \
+      >netem-send.log 2>&1
+    echo $? >netem-send.rc
+    sleep 1  # netem holds the last datagrams for up to 30 ms
+  fi
+  kill -TERM "$rx_pid" 2>/dev/null
+  wait "$rx_pid"; echo $? >netem-receive.rc
+  tc -s qdisc show dev lo >netem-qdisc.txt 2>&1
+  tc qdisc del dev lo root >>netem-setup.log 2>&1
+else
+  echo "netem could not be set up on lo (tc from iproute2, module sch_netem)" >netem-skip.txt
+fi
+
 # --- wrong devices (argument errors are covered by the host tests: every program start costs
 # seconds under emulation) ---------------------------------------------------------------------
 step "error cases"

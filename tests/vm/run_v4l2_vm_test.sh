@@ -109,7 +109,7 @@ if [[ ! -f $initrd || $init_source -nt $initrd || $module -nt $initrd ]]; then
   rm -rf "$staging"; mkdir -p "$staging"/{bin,dev,proc,sys,host,modules}
   cp "$busybox" "$staging/bin/busybox"
   for name in mc videodev virtio_ring virtio virtio_pci_legacy_dev virtio_pci_modern_dev virtio_pci \
-              9pnet 9pnet_virtio netfs fscache 9p; do
+              9pnet 9pnet_virtio netfs fscache 9p sch_netem; do
     rel=$(grep -E "(^|/)$name\.ko(\.xz)?:" "$root/lib/modules/$KVER/modules.dep" | head -1 | cut -d: -f1)
     [[ -n $rel ]] || die "module $name not found in modules.dep of $KVER"
     cp "$root/lib/modules/$KVER/$rel" "$staging/modules/"

@@ -449,5 +449,66 @@ TEST_F(VmWebcamTest, ChromiumPicksTheCameraByItsLabelAndSeesTheReenactedFrames) 
   for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean_rgb[c].get<double>(), sent_mean[2 - c], 3.0) << "channel " << c;
 }
 
+// The expression stream through the real kernel's netem (guest_webcam_checks.sh: 10 % loss, 5 %
+// duplication, 20 +- 10 ms delay, whose jitter reorders; 400 datagrams at 200 Hz). netem's draws are
+// its own, so the counts are bounded, not exact, except where netem's own counters say exactly
+// what it delivered: the receiver must have received every datagram netem delivered, and have
+// accounted for each one (applied, reordered, late or rejected as a duplicate).
+TEST_F(VmWebcamTest, ExpressionStreamThroughNetemIsCountedAsTheKernelImpairedIt) {
+  std::string skip = read_text("netem-skip.txt");
+  if (!skip.empty()) GTEST_SKIP() << skip << "\n" << read_text("netem-setup.log");
+  ASSERT_EQ(read_rc("netem-send.rc"), 0) << read_text("netem-send.log") << read_text("netem-receive.log");
+  EXPECT_NE(read_text("netem-send.log").find("sent 400"), std::string::npos) << read_text("netem-send.log");
+  EXPECT_EQ(read_rc("netem-receive.rc"), 0) << read_text("netem-receive.log");
+
+  nlohmann::json stats;
+  int frames = 0;
+  uint64_t previous_seq = 0;
+  bool in_order = true;
+  std::istringstream lines(read_text("netem-receive.jsonl"));
+  for (std::string line; std::getline(lines, line);) {
+    const auto j = nlohmann::json::parse(line, nullptr, false);
+    ASSERT_TRUE(j.is_object()) << line;
+    if (j.value("type", "") == "statistics") stats = j;
+    if (j.value("type", "") != "frame") continue;
+    ++frames;
+    const uint64_t seq = j.value("seq", uint64_t{0});
+    in_order = in_order && seq > previous_seq;  // only ever newer expressions are applied
+    previous_seq = seq;
+  }
+  ASSERT_TRUE(stats.is_object()) << read_text("netem-receive.jsonl");
+  std::cout << "receiver: " << stats.dump() << "\n" << read_text("netem-qdisc.txt");
+  EXPECT_TRUE(in_order);
+
+  // netem's counters: "Sent <bytes> bytes <packets> pkt (dropped <d>, ...": what it delivered to
+  // the receiver's socket (duplicates included) and what it dropped (originals and duplicates).
+  std::smatch m;
+  const std::string qdisc = read_text("netem-qdisc.txt");
+  ASSERT_TRUE(std::regex_search(qdisc, m, std::regex(R"(Sent \d+ bytes (\d+) pkt \(dropped (\d+))"))) << qdisc;
+  const uint64_t delivered = std::stoull(m[1]), dropped = std::stoull(m[2]);
+
+  const auto u = [&](const char* key) { return stats.value(key, uint64_t{0}); };
+  const auto& by_reason = stats["rejected_by_reason"];
+  const uint64_t duplicates = by_reason.value("replay", uint64_t{0});
+  EXPECT_EQ(u("received") + u("kernel_drops"), delivered) << "every datagram netem delivered reached the receiver";
+  EXPECT_EQ(u("kernel_drops"), 0u);
+  EXPECT_EQ(u("received"), u("applied") + u("reordered") + u("late") + u("standby") + u("rejected"));
+  EXPECT_EQ(u("rejected"), duplicates) << "nothing but duplicates rejected (no forged or broken datagrams): "
+                                       << by_reason.dump();
+  EXPECT_EQ(static_cast<uint64_t>(frames), u("applied"));
+  // 10 % of about 420 datagrams (400 and netem's duplicates): 42 +- 6.5; the bounds are 4 sd.
+  EXPECT_GE(dropped, 16u);
+  EXPECT_LE(dropped, 70u);
+  // A sequence number is lost when netem dropped it and no duplicate of it came through; netem
+  // also drops about 2 duplicates whose original arrived, and a loss after the last datagram that
+  // arrived is not seen as one.
+  EXPECT_LE(u("lost"), dropped);
+  EXPECT_GE(u("lost") + 10, dropped);
+  EXPECT_GE(duplicates, 1u);   // about 16 expected
+  EXPECT_LE(duplicates, 45u);
+  EXPECT_GE(u("reordered"), 1u);  // 5 ms apart with 10 ms of jitter: many
+  EXPECT_GE(u("applied"), 100u);
+}
+
 }  // namespace
 }  // namespace face_reenact::output

@@ -1,5 +1,7 @@
 #include "face_reenact/common/process_resources.h"
 
+#include <malloc.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -36,6 +38,28 @@ std::string megabytes(int64_t bytes) {
   return buf;
 }
 
+// glibc's allocator statistics; false where they do not describe this process's allocations.
+bool read_heap(int64_t* in_use, int64_t* free_bytes) {
+#if defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || __has_feature(thread_sanitizer)
+#define FR_SANITIZER_ALLOCATOR 1
+#endif
+#endif
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define FR_SANITIZER_ALLOCATOR 1
+#endif
+#if defined(FR_SANITIZER_ALLOCATOR) || !defined(__GLIBC__) || __GLIBC__ < 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ < 33)
+  (void)in_use;
+  (void)free_bytes;
+  return false;  // the sanitizer's own allocator serves malloc; glibc's arenas hold next to nothing
+#else
+  const struct mallinfo2 m = mallinfo2();
+  *in_use = static_cast<int64_t>(m.uordblks + m.hblkhd);
+  *free_bytes = static_cast<int64_t>(m.fordblks);
+  return true;
+#endif
+}
+
 }  // namespace
 
 bool ParseVmRss(const std::string& status_text, int64_t* bytes) {
@@ -67,6 +91,7 @@ bool ReadProcessResources(ProcessResources* out, std::string* error) {
     if (error) *error = "cannot list /proc/self/fd or /proc/self/task";
     return false;
   }
+  if (!read_heap(&r.heap_in_use_bytes, &r.heap_free_bytes)) r.heap_in_use_bytes = r.heap_free_bytes = -1;
   *out = r;
   return true;
 }
@@ -98,14 +123,16 @@ ResourceTrend AnalyseResourceTrend(const std::vector<ResourceSample>& samples, c
   t.measured = true;
   const size_t quarter = std::max<size_t>(1, judged.size() / 4);
   auto medians = [&](size_t begin, ProcessResources* m) {
-    std::vector<int64_t> rss;
+    std::vector<int64_t> rss, heap;
     std::vector<int> files, threads;
     for (size_t i = begin; i < begin + quarter; ++i) {
       rss.push_back(judged[i]->resources.rss_bytes);
+      heap.push_back(judged[i]->resources.heap_in_use_bytes);
       files.push_back(judged[i]->resources.open_files);
       threads.push_back(judged[i]->resources.threads);
     }
     m->rss_bytes = median(rss);
+    m->heap_in_use_bytes = median(heap);
     m->open_files = median(files);
     m->threads = median(threads);
   };
@@ -115,6 +142,13 @@ ResourceTrend AnalyseResourceTrend(const std::vector<ResourceSample>& samples, c
   t.rss_start = start.rss_bytes;
   t.rss_end = end.rss_bytes;
   t.rss_growth = start.rss_bytes > 0 ? static_cast<double>(end.rss_bytes - start.rss_bytes) / static_cast<double>(start.rss_bytes) : 0;
+  t.heap_measured = std::all_of(judged.begin(), judged.end(),
+                                 [](const ResourceSample* s) { return s->resources.heap_in_use_bytes >= 0; });
+  if (t.heap_measured) {
+    t.heap_start = start.heap_in_use_bytes;
+    t.heap_end = end.heap_in_use_bytes;
+    t.heap_growth = t.heap_start > 0 ? static_cast<double>(t.heap_end - t.heap_start) / static_cast<double>(t.heap_start) : 0;
+  }
   t.open_files_start = start.open_files;
   t.open_files_end = end.open_files;
   t.threads_start = start.threads;
@@ -125,22 +159,47 @@ ResourceTrend AnalyseResourceTrend(const std::vector<ResourceSample>& samples, c
   std::snprintf(buf, sizeof buf, "resident memory %s -> %s (%+.1f %%, bound %.1f %%)", megabytes(t.rss_start).c_str(),
                 megabytes(t.rss_end).c_str(), 100 * t.rss_growth, 100 * options.rss_bound);
   const std::string rss_text = buf;
-  if (t.rss_growth > options.rss_bound) grew.push_back(rss_text);
+  std::string heap_text;
+  if (t.heap_measured) {
+    std::snprintf(buf, sizeof buf, "heap in use %s -> %s (%+.1f %%)", megabytes(t.heap_start).c_str(),
+                  megabytes(t.heap_end).c_str(), 100 * t.heap_growth);
+    heap_text = buf;
+  }
+  const bool heap_grows = t.heap_measured && t.heap_growth > options.rss_bound;
+  if (heap_grows) {
+    grew.push_back(heap_text + ": live allocations pile up");
+    t.leaks = true;
+  }
+  if (t.rss_growth > options.rss_bound) {
+    if (t.heap_measured && !heap_grows) {
+      grew.push_back(rss_text + " while the " + heap_text + " did not: freed memory the allocator keeps, not a leak");
+    } else {
+      grew.push_back(rss_text);
+      if (!t.heap_measured) t.leaks = true;  // resident memory is all there is to judge by
+    }
+  }
   std::snprintf(buf, sizeof buf, "open files %d -> %d", t.open_files_start, t.open_files_end);
   const std::string files_text = buf;
-  if (t.open_files_end - t.open_files_start > options.open_files_bound) grew.push_back(files_text);
+  if (t.open_files_end - t.open_files_start > options.open_files_bound) {
+    grew.push_back(files_text);
+    t.leaks = true;
+  }
   std::snprintf(buf, sizeof buf, "threads %d -> %d", t.threads_start, t.threads_end);
   const std::string threads_text = buf;
-  if (t.threads_end - t.threads_start > options.threads_bound) grew.push_back(threads_text);
+  if (t.threads_end - t.threads_start > options.threads_bound) {
+    grew.push_back(threads_text);
+    t.leaks = true;
+  }
 
   std::snprintf(buf, sizeof buf, " (medians of the first and last quarter of %d samples after %.0f s)", t.judged_samples,
                 options.warmup_seconds);
   t.grows = !grew.empty();
   if (t.grows) {
-    t.verdict = "grows after the warm-up: ";
+    t.verdict = t.leaks ? "grows after the warm-up: " : "grows after the warm-up (no leak): ";
     for (size_t i = 0; i < grew.size(); ++i) t.verdict += (i ? "; " : "") + grew[i];
   } else {
-    t.verdict = "no growth after the warm-up: " + rss_text + ", " + files_text + ", " + threads_text;
+    t.verdict = "no growth after the warm-up: " + rss_text + (heap_text.empty() ? "" : ", " + heap_text) + ", " +
+                files_text + ", " + threads_text;
   }
   t.verdict += buf;
   return t;

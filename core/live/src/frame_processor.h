@@ -8,6 +8,7 @@
 
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/live/live_session.h"
+#include "face_reenact/reenact/detail_transfer.h"
 #include "face_reenact/stream/stream_state.h"
 
 namespace face_reenact::live {
@@ -69,13 +70,21 @@ struct MirrorSettings {
   std::string light;
 };
 
-// The reenactment pipeline on the model at `model_path` (mode kReenact or kPassThrough), with a
-// second pipeline tracking the source actor when `with_actor` (kMirror: `mirror`'s texture and light). Throws face_reenact::Error when
-// the model cannot be loaded or this build has no reenactment pipeline. A requested `stop` ends a
-// process() call in progress within one Gauss-Newton iteration (the session is shutting down).
-// `solver` is LiveSession::Options::solver (already validated).
-std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
-                                                           bool use_vulkan, const std::string& solver, bool with_actor,
-                                                           const MirrorSettings& mirror, std::stop_token stop);
+// What the reenactment pipeline is built with, from LiveSession::Options (already validated).
+struct PipelineSettings {
+  OutputMode mode = OutputMode::kReenact;
+  bool use_vulkan = false;       // the Vulkan renderer instead of the CPU twin
+  std::string solver = "auto";   // LiveSession::Options::solver
+  bool with_actor = false;       // a second pipeline tracks the source actor (camera or recording)
+  MirrorSettings mirror;         // kMirror: the texture and light
+  reenact::DetailMode detail = reenact::DetailMode::kTransient;  // the source actor's folds (Sec. 7.3)
+};
+
+// The reenactment pipeline on the model at `model_path` (mode kReenact, kPassThrough, kOverlay
+// or kMirror), as `settings` say. Throws face_reenact::Error when the model cannot be loaded or
+// this build has no reenactment pipeline. A requested `stop` ends a process() call in progress
+// within one Gauss-Newton iteration (the session is shutting down).
+std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, const PipelineSettings& settings,
+                                                           std::stop_token stop);
 
 }  // namespace face_reenact::live

@@ -56,6 +56,7 @@ const std::vector<LiveStageRow>& LiveStageRows() {
       {"tracker checks", &LiveStageTimes::tracker_other_ms},
       {"transfer", &LiveStageTimes::transfer_ms},
       {"render", &LiveStageTimes::render_ms},
+      {"detail", &LiveStageTimes::detail_ms},
       {"mouth", &LiveStageTimes::mouth_ms},
       {"composite", &LiveStageTimes::composite_ms},
       {"source actor tracking", &LiveStageTimes::actor_ms},
@@ -207,6 +208,9 @@ bool LiveSession::Options::IsValid(std::string* why) const {
   if (mode == OutputMode::kMirror && mirror_texture.empty() && mirror_light.empty())
     return fail("the mirror mode needs a texture to paint on the face or a light");
   if (!(mirror_opacity >= 0.f && mirror_opacity <= 1.f)) return fail("the mirror's opacity must be within [0, 1]");
+  reenact::DetailMode detail_mode;
+  if (!reenact::ParseDetailMode(detail, &detail_mode))
+    return fail("the detail transfer must be transient, copy or off (got '" + detail + "')");
   return true;
 }
 
@@ -460,14 +464,18 @@ void LiveSession::run() {
   std::future<std::shared_ptr<FrameProcessor>> loading;  // its destructor waits for a load under way
   auto start_loading = [&] {
     try {
-      loading = std::async(std::launch::async, [model_path = options_.model_path, mode = options_.mode,
-                                                use_vulkan = options_.use_vulkan, solver = options_.solver,
-                                                with_actor = actor != nullptr, mirror = MirrorSettings{options_.mirror_texture,
-                                                options_.mirror_at, options_.mirror_opacity, options_.mirror_light},
+      PipelineSettings settings;
+      settings.mode = options_.mode;
+      settings.use_vulkan = options_.use_vulkan;
+      settings.solver = options_.solver;
+      settings.with_actor = actor != nullptr;
+      settings.mirror = MirrorSettings{options_.mirror_texture, options_.mirror_at, options_.mirror_opacity,
+                                       options_.mirror_light};
+      reenact::ParseDetailMode(options_.detail, &settings.detail);  // validated by Options::IsValid
+      loading = std::async(std::launch::async, [model_path = options_.model_path, settings = std::move(settings),
                                                 stop = stop_source_.get_token()] {
         pthread_setname_np(pthread_self(), "fr-live-load");  // niced like the worker that starts it
-        return make_reenactment_processor(resolve_model_path(model_path), mode, use_vulkan, solver, with_actor, mirror,
-                                          stop);
+        return make_reenactment_processor(resolve_model_path(model_path), settings, stop);
       });
     } catch (const std::exception& e) {  // no thread could be started
       pipeline_error = e.what();

@@ -37,6 +37,7 @@ LiveStageTimes stage_rows(const reenact::ReenactedFrame& r) {
                                                      t.analysis_ms + t.calibration_ms + t.gaze_ms));
   out.transfer_ms = r.times.transfer_ms;
   out.render_ms = r.times.render_ms;
+  out.detail_ms = r.times.detail_ms;
   out.mouth_ms = r.times.mouth_ms;
   out.composite_ms = r.times.composite_ms;
   return out;
@@ -44,9 +45,9 @@ LiveStageTimes stage_rows(const reenact::ReenactedFrame& r) {
 
 class ReenactProcessor : public FrameProcessor {
  public:
-  ReenactProcessor(const std::string& model_path, OutputMode mode, bool use_vulkan, const std::string& solver,
-                   bool with_actor, const MirrorSettings& mirror, std::stop_token stop)
+  ReenactProcessor(const std::string& model_path, const PipelineSettings& settings, std::stop_token stop)
       : model_(load_face_model(model_path)) {
+    const OutputMode mode = settings.mode;
     // Loading is a few long steps; a session stopped meanwhile skips the ones left.
     auto check_stop = [&] {
       if (stop.stop_requested()) throw Error("the session stopped while the pipeline was loading");
@@ -57,16 +58,19 @@ class ReenactProcessor : public FrameProcessor {
     // The joint calibration solve takes seconds; on a thread of its own the worker keeps
     // publishing the input meanwhile instead of freezing the picture.
     options.tracker.background_calibration = true;
-    if (!tracker::parse_solver_backend(solver, &options.tracker.solver)) throw Error("unknown tracker solver '" + solver + "'");
+    if (!tracker::parse_solver_backend(settings.solver, &options.tracker.solver))
+      throw Error("unknown tracker solver '" + settings.solver + "'");
     options.mode = mode == OutputMode::kPassThrough ? reenact::ReenactMode::kPassThrough
                    : mode == OutputMode::kOverlay   ? reenact::ReenactMode::kOverlay
                    : mode == OutputMode::kMirror    ? reenact::ReenactMode::kMirror
                                                     : reenact::ReenactMode::kReenact;
     if (mode == OutputMode::kMirror)
-      options.mirror = reenact::MirrorOptionsFromSettings(mirror.texture, mirror.at, mirror.opacity, mirror.light);
-    options.renderer = use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
+      options.mirror = reenact::MirrorOptionsFromSettings(settings.mirror.texture, settings.mirror.at,
+                                                          settings.mirror.opacity, settings.mirror.light);
+    options.renderer = settings.use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
+    options.detail.mode = settings.detail;
     target_ = std::make_unique<reenact::ReenactmentPipeline>(model_, options);
-    if (with_actor) {
+    if (settings.with_actor) {
       check_stop();
       // The source actor is only tracked (mode kOff renders nothing); its parameters and
       // calibrated neutral give the expression to transfer.
@@ -98,9 +102,10 @@ class ReenactProcessor : public FrameProcessor {
       if (actor.status == reenact::TrackingStatus::kTracking) {
         actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
         // The actor's frame goes along for its folds and wrinkles (Sec. 7.3); a copy, since the
-        // grabber reuses its buffers.
-        actor_expression_.view = std::make_shared<reenact::SourceView>(reenact::SourceView{
-            input.actor_frame->color.clone(), actor.tracked.camera, actor.target_params, input.actor_frame->index});
+        // grabber reuses its buffers. None with the detail transfer off.
+        if (target_->options().detail.mode != reenact::DetailMode::kOff)
+          actor_expression_.view = std::make_shared<reenact::SourceView>(reenact::SourceView{
+              input.actor_frame->color.clone(), actor.tracked.camera, actor.target_params, input.actor_frame->index});
         have_actor_expression_ = true;
         actor_outcome.tracked = true;
       } else {
@@ -165,10 +170,9 @@ class ReenactProcessor : public FrameProcessor {
 
 }  // namespace
 
-std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, OutputMode mode,
-                                                           bool use_vulkan, const std::string& solver, bool with_actor,
-                                                           const MirrorSettings& mirror, std::stop_token stop) {
-  return std::make_shared<ReenactProcessor>(model_path, mode, use_vulkan, solver, with_actor, mirror, std::move(stop));
+std::shared_ptr<FrameProcessor> make_reenactment_processor(const std::string& model_path, const PipelineSettings& settings,
+                                                           std::stop_token stop) {
+  return std::make_shared<ReenactProcessor>(model_path, settings, std::move(stop));
 }
 
 }  // namespace face_reenact::live

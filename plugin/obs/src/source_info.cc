@@ -25,6 +25,8 @@ bool on_kind_modified(obs_properties_t* props, obs_property_t*, obs_data_t* sett
   obs_property_set_visible(obs_properties_get(props, kKeyFile), source == "udp");
   obs_property_set_visible(obs_properties_get(props, kSourceCamera), source == "camera");
   obs_property_set_visible(obs_properties_get(props, kSourcePath), source == "recording");
+  // Only a source actor filmed on this machine has folds and wrinkles to carry over.
+  obs_property_set_visible(obs_properties_get(props, kDetail), source == "camera" || source == "recording");
   const bool mirror = std::string(obs_data_get_string(settings, kMode)) == "mirror";
   for (const char* key : {kMirrorTexture, kMirrorAt, kMirrorOpacity, kMirrorLight, kMirrorLightFile})
     obs_property_set_visible(obs_properties_get(props, key), mirror);
@@ -72,6 +74,9 @@ obs_properties_t* make_properties(FaceReenactSource* source) {
   obs_properties_add_path(props, kKeyFile, text("KeyFile"), OBS_PATH_FILE, "Key files (*.key);;All files (*.*)", nullptr);
   add_camera_list(props, kSourceCamera, "SourceCamera");
   obs_properties_add_path(props, kSourcePath, text("SourcePath"), OBS_PATH_FILE, kRecordingFilter, nullptr);
+  p = obs_properties_add_list(props, kDetail, text("Detail"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);
+  for (const char* mode : {"transient", "copy", "off"})
+    obs_property_list_add_string(p, text((std::string("Detail.") + mode).c_str()), mode);
 
   obs_properties_add_path(props, kModelPath, text("ModelPath"), OBS_PATH_FILE, "Face model (*.frm);;All files (*.*)", nullptr);
   p = obs_properties_add_list(props, kMode, text("Mode"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);

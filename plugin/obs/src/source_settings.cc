@@ -30,6 +30,7 @@ void set_defaults(obs_data_t* settings) {
   obs_data_set_default_double(settings, kMirrorOpacity, 1.0);
   obs_data_set_default_string(settings, kMirrorLight, "");
   obs_data_set_default_string(settings, kMirrorLightFile, "");
+  obs_data_set_default_string(settings, kDetail, "transient");
   obs_data_set_default_string(settings, kCameraResolution, "640x480");
 }
 
@@ -93,6 +94,7 @@ bool options_from_settings(obs_data_t* settings, live::LiveSession::Options* opt
   o.mirror_light = str(kMirrorLightFile).empty() ? str(kMirrorLight) : str(kMirrorLightFile);
   if (o.mode == live::OutputMode::kMirror && o.mirror_texture.empty() && o.mirror_light.empty())
     return fail("the mirror needs an image to paint on the face or a light");
+  o.detail = str(kDetail);
   int w = 0, h = 0;
   char tail = 0;
   if (std::sscanf(str(kCameraResolution).c_str(), "%dx%d%c", &w, &h, &tail) == 2 && w > 0 && h > 0) {

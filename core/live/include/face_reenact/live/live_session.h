@@ -128,6 +128,7 @@ struct LiveStageTimes {
   double tracker_other_ms = 0;
   double transfer_ms = 0;       // Eq. 15
   double render_ms = 0;         // the face re-rendered (and the albedo observed)
+  double detail_ms = 0;         // the source actor's folds carried over (Sec. 7.3; a camera/recording source)
   double mouth_ms = 0;
   double composite_ms = 0;      // masks, Laplacian blend, 8-bit output
   double actor_ms = 0;          // a source actor's frame tracked on this worker (camera/recording source)
@@ -206,6 +207,12 @@ class LiveSession : public output::FrameSource {
     std::string mirror_at = "face";
     float mirror_opacity = 1.0f;
     std::string mirror_light;
+    // The source actor's folds and wrinkles on the re-rendered face (paper Sec. 7.3,
+    // reenact/detail_transfer.h): "transient" (what the expression adds), "copy" or "off". Only a
+    // local source actor (a camera or recording) has an image to take them from; a UDP stream
+    // carries none. "off" also saves the copy of each source frame and the detail's share of the
+    // render (about 5-15 ms per frame on two cores, docs/reenactment.md).
+    std::string detail = "transient";
     std::string thread_name = "fr-live";
 
     bool IsValid(std::string* why) const;
