@@ -58,6 +58,20 @@ ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/
 ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/transient/frame_000126.png" -filter_complex \
        "[0]crop=120:90:150:250,scale=360:270:flags=neighbor[a];[1]crop=120:90:150:250,scale=360:270:flags=neighbor[b];[a][b]hstack" \
        "$OUT/detail_zoom.png"
+# A photo as the target (docs/reenactment.md, "A fitted light with a dark channel"): the Breaking Bad still, held
+# for d6's 300 frames, graded teal and orange with a hard key light; output frames 120 and 252, and a crop of frame
+# 120 beside the still and the pass-through (still_crop.png: still | pass-through | reenacted).
+STILL="$ROOT/../shared/data/faces-68/breakingbad.jpg"
+if [ -f "$STILL" ]; then
+  mkdir -p "$OUT/still"
+  "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$STILL" --frames 300 --out "$OUT/still/reenact.mp4" \
+        --quiet --sheets "$OUT/still" --sheet-frames 120,252 --frames-dir "$OUT/still/reenact"
+  "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$STILL" --frames 125 --mode pass-through \
+        --out "$OUT/still/pass-through.mp4" --quiet --frames-dir "$OUT/still/pass-through"
+  ffmpeg -loglevel error -y -i "$STILL" -i "$OUT/still/pass-through/frame_000120.png" -i "$OUT/still/reenact/frame_000120.png" \
+         -filter_complex "[0]crop=260:320:600:120[a];[1]crop=260:320:600:120[b];[2]crop=260:320:600:120[c];[a][b][c]hstack=3" \
+         "$OUT/still_crop.png"
+fi
 # The virtual mirror (docs/reenactment.md, "Virtual mirror"): a round sticker (made here: magenta, transparent around it)
 # on the left cheek, and the light from the image's left, on the webcam clip and on d14; frame 50 of each, input |
 # sticker | light, side by side (mirror_webcam.png, mirror_d14.png).
@@ -73,4 +87,4 @@ for pair in webcam:webcam_talking_640x480.wmv d14:liveportrait_d14.mp4; do
          -ss 0 -i "$VIDEOS/$clip" -filter_complex "[2]select='eq(n\,50)'[in];[in][0][1]hstack=3" -frames:v 1 \
          "$OUT/mirror_${name}.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target)"

@@ -222,6 +222,41 @@ TEST(ReenactCompositorTest, ALightWhoseColourDriftedDoesNotTintTheAlbedoMapsSurf
   EXPECT_LT(mean_abs_diff(after_drift.bgr, frame, shown), 1.5);
 }
 
+// The Breaking Bad still, held and tracked for seconds, ended with its blue (then green) ambient
+// below zero (the tracker's light drifting, issue #26). The frame texture's change of shading
+// divided by that channel's irradiance, floored, and the 0.5 clamp halved blue and green: the
+// whole face turned pink, in pass-through too. A channel the light gives no irradiance takes the
+// change of the summed irradiance, and an unchanged surface none at all.
+TEST(ReenactCompositorTest, AFittedLightWithoutBlueLeavesTheFramesColours) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.45f);
+  const FaceCompositor fc(*test_model(), ReenactmentOptions{});
+  const cv::Mat frame = render_target(target, cam);
+  gpu::FaceParameters broken = target;  // blue's ambient below zero, its shape the others'
+  for (int k = 0; k < 9; ++k) broken.gamma[static_cast<size_t>(18 + k)] = -0.2f * target.gamma[static_cast<size_t>(k)];
+  auto blue_over_red = [](const cv::Mat& bgr, const cv::Mat& mask) {
+    const cv::Scalar m = cv::mean(bgr, mask);
+    return m[0] / m[2];
+  };
+  // Pass-through: the frame itself.
+  const CompositeResult same = fc.Compose(frame, cam, broken, broken, nullptr);
+  ASSERT_TRUE(same.drawn);
+  EXPECT_LT(mean_abs_diff(same.bgr, frame, same.face_mask), 1.0);
+  // An opened jaw: the upper face keeps its colour (its normals did not change).
+  gpu::FaceParameters open = broken;
+  open.delta[kJawOpenIndex] = 0.35f;
+  const CompositeResult opened = fc.Compose(frame, cam, broken, open, nullptr);
+  ASSERT_TRUE(opened.drawn);
+  cv::Mat upper = same.face_mask.clone();
+  upper.rowRange(cam.height / 2, cam.height).setTo(0);
+  ASSERT_GT(cv::countNonZero(upper), 500);
+  const double before = blue_over_red(frame, upper), after = blue_over_red(opened.bgr, upper);
+  RecordProperty("upper_face_blue_over_red", std::to_string(after / before));
+  EXPECT_GT(after / before, 0.95) << "the face turned red: blue " << after << " of red against the frame's " << before;
+  EXPECT_LT(mean_abs_diff(opened.bgr, frame, upper), 3.0);
+}
+
 // Issue #28: a fit that is a pixel or two off puts the lips' edge over the frame's mouth
 // opening, so frame samples there take the cavity's or the teeth's colour; moved by the output
 // expression (and next to the opening the mouth pass redraws) they drew dark or white lines along

@@ -17,6 +17,7 @@
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/evaluation.h"
+#include "face_reenact/tracker/plausible_light.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "tracker_test_support.h"
 
@@ -653,6 +654,32 @@ TEST(FaceTracker, UsesAReplacementSolver) {
   EXPECT_EQ(failed.status, TrackingStatus::kBadInput);
   EXPECT_NE(failed.message.find("device lost"), std::string::npos) << failed.message;
   EXPECT_TRUE(failed.has_parameters);
+}
+
+// Whatever the solve leaves, the tracker never reports a light no room gives (plausible_light.h):
+// here the solve is followed by blue's light turned negative, as the Breaking Bad still's fit
+// drifted; the tracked frame's light has a non-negative ambient and no negative light beyond the
+// truncation's ringing, and red and green are the solve's own.
+TEST(FaceTracker, ALightNoRoomGivesIsNeverReported) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  FaceTracker tracker(*model, fast_options(1));
+  const CpuSolver& cpu = tracker.cpu_solver();
+  gpu::FaceParameters solved;
+  tracker.SetTrackingSolver([&](const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                                gpu::FaceParameters* params) {
+    SolverSummary s = cpu.Solve(frame, layout, options, params);
+    for (int k = 0; k < 9; ++k) params->gamma[static_cast<size_t>(18 + k)] = -0.7f * params->gamma[static_cast<size_t>(k)];
+    solved = *params;
+    return s;
+  });
+  tracker.Track(render_frame(cpu, sequence_parameters(*model, 0)));
+  const TrackedFrame t = tracker.Track(render_frame(cpu, sequence_parameters(*model, 1)));
+  ASSERT_EQ(t.status, TrackingStatus::kTracking) << t.message;
+  EXPECT_LT(LowestRelativeIrradiance(solved.gamma, 2), -1.f);  // what the solve gave
+  EXPECT_GE(t.params.gamma[18], -1e-6f);
+  EXPECT_GE(LowestRelativeIrradiance(t.params.gamma, 2), -kNegativeLobe - 0.01f);
+  for (int k = 0; k < 18; ++k) EXPECT_EQ(t.params.gamma[static_cast<size_t>(k)], solved.gamma[static_cast<size_t>(k)]);
 }
 
 // The calibration's joint solve can be replaced too (the Vulkan solver's SolveFrames in `track`):

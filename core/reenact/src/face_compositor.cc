@@ -415,11 +415,9 @@ struct FaceCompositor::Impl {
         const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
         if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
         const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
+        const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
         cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
-        for (int c = 0; c < 3; ++c) {
-          const float ratio = std::clamp(eo[c] / std::max(et[c], 1e-4f), kMinShadingRatio, kMaxShadingRatio);
-          t[c] = std::min(1.0f, seen[c] * ratio);
-        }
+        for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
         float trust = 1.0f;
         // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
         // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map

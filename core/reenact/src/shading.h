@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <array>
 
+#include <Eigen/Core>
+
 #include "face_reenact/gpu/image_formation.h"
 
 namespace face_reenact::reenact::internal {
@@ -53,6 +55,31 @@ inline const std::array<float, 9>& camera_facing_basis() {
 }
 inline float camera_facing_irradiance(const Gamma& gamma, int c) {
   return std::max(0.f, irradiance(gamma, camera_facing_basis(), c));
+}
+
+// How a surface point's shading changes from irradiance `before` to `after`, per channel (the
+// frame texture's move from the tracked normal to the output's; the mirror's new light against
+// the tracked one). A channel that `before` gives next to no irradiance (under 2 % of its
+// brightest channel's, or none) says nothing of the change: the tracker's light can put a
+// channel's ambient at or below zero (the Breaking Bad still, held and tracked for seconds: blue's
+// ambient below 0 by frame 30, green's by frame 50), and dividing by a floor there scaled that
+// channel by the callers' clamp, which turned the whole face pink even in pass-through. Such a
+// channel takes the change of the channels' summed irradiance; the same irradiance is no change.
+inline Eigen::Vector3f shading_change(const Eigen::Vector3f& after, const Eigen::Vector3f& before) {
+  constexpr float kMinIrradiance = 1e-4f, kMinShareOfBrightest = 0.02f;
+  const float sum_after = after.cwiseMax(0.f).sum(), sum_before = before.cwiseMax(0.f).sum();
+  const float shared = sum_before > kMinIrradiance && sum_after > 0.f ? sum_after / sum_before : 1.0f;
+  const float usable = std::max(kMinIrradiance, kMinShareOfBrightest * before.maxCoeff());
+  Eigen::Vector3f change;
+  for (int c = 0; c < 3; ++c) {
+    if (after[c] == before[c])
+      change[c] = 1.0f;
+    else if (before[c] > usable && after[c] > 0.f)
+      change[c] = after[c] / before[c];
+    else
+      change[c] = shared;
+  }
+  return change;
 }
 
 }  // namespace face_reenact::reenact::internal

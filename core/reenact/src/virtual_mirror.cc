@@ -513,9 +513,10 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
       for (int i = 0; i < roi.width; ++i) {
         if (!(covered.at<float>(j, i) > 0.f)) continue;
         const Eigen::Vector3f e_old = irradiance_at(old_light, i, j), e_new = irradiance_at(new_light, i, j);
+        const Eigen::Vector3f ratio = internal::shading_change(e_new, e_old).cwiseMax(0.1f).cwiseMin(10.f);
         const cv::Vec3f px = linear.at<cv::Vec3f>(j, i);
         cv::Vec3f& d = change.at<cv::Vec3f>(j, i);
-        for (int c = 0; c < 3; ++c) d[c] = px[c] * (std::clamp(e_new[c] / std::max(e_old[c], 1e-4f), 0.1f, 10.f) - 1.f);
+        for (int c = 0; c < 3; ++c) d[c] = px[c] * (ratio[c] - 1.f);
       }
     auto coarsest = [&](const cv::Mat& in) {
       std::vector<cv::Size> sizes;

@@ -1,3 +1,4 @@
+#include "face_reenact/tracker/plausible_light.h"
 #include "face_reenact/tracker/face_tracker.h"
 
 #include <pthread.h>
@@ -514,6 +515,9 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
   const ParameterLayout layout = ParameterLayout::Tracking(m.num_expression());
   a.params = start;
   a.summary = tracking_solve_ ? tracking_solve_(input, layout, so, &a.params) : solver_.Solve(input, layout, so, &a.params);
+  // A light no room gives (a negative ambient, a shadow side lit by negative light) goes to the
+  // nearest one it could (plausible_light.h); the next frame starts from there.
+  ProjectToPlausibleLight(&a.params.gamma);
   times->pyramid_ms += a.summary.pyramid_ms;
   times->synthesis_ms += a.summary.synthesis_ms;
   times->analysis_ms += a.summary.analysis_ms;
@@ -1001,6 +1005,7 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   }
   o->solve_ms = ms_since(t0);
   if (!usable(summary)) return;  // ApplyCalibration says why
+  for (auto& p : params) ProjectToPlausibleLight(&p.gamma);  // as after every solve (plausible_light.h)
 
   Eigen::VectorXf& neutral = o->neutral_delta;
   neutral = Eigen::VectorXf::Zero(m.num_expression());
