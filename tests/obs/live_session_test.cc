@@ -622,6 +622,29 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
 
 INSTANTIATE_TEST_SUITE_P(OneOrTwoThreads, LiveSessionTimingsTest, ::testing::Bool());
 
+// A photo as the target (a still image, looped like a recording) is tracked and reenacted, and
+// the status never asks it to open its mouth wide for the teeth: a photo with its mouth closed
+// would be asked for ever (it was, on the Breaking Bad still in `bench live`).
+TEST(LiveSessionTest, APhotoAsTheTargetIsNeverAskedToOpenItsMouth) {
+  std::string why;
+  const std::string dir = test::make_test_recording({"recording-320", 320, 240, 60, 7}, &why);
+  if (dir.empty()) GTEST_SKIP() << "no test recording: " << why;
+  LiveSession session(pipeline_options(dir + "/color/000000.png", OutputMode::kReenact));
+  LiveStatus s = wait_status(session, 560s, [](const LiveStatus& st) {
+    return st.pipeline_ready && st.tracking == TrackingState::kTracking;
+  });
+  ASSERT_EQ(s.tracking, TrackingState::kTracking) << s.Headline();
+  LiveFrame frame;
+  uint64_t last = 0;
+  for (int k = 0; k < 5 && session.wait_frame(last, 10s, &frame); ++k) {
+    last = frame.sequence;
+    s = session.status();
+    EXPECT_FALSE(s.wants_open_mouth) << s.Headline();
+    EXPECT_EQ(s.Headline().find("open your mouth"), std::string::npos) << s.Headline();
+  }
+  EXPECT_GE(last, 5u);
+}
+
 // A tracker solving on a GPU (here the Vulkan solver forced onto lavapipe) renders each frame on
 // a thread of its own once the pipeline has loaded, unless overlap_frames_on_gpu is off; the
 // status says which solver and whether the halves overlap.

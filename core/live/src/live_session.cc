@@ -15,6 +15,7 @@
 #include <future>
 #include <optional>
 
+#include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
@@ -237,6 +238,7 @@ LiveSession::LiveSession(Options options) : options_(std::move(options)) {
   if (!options_.IsValid(&why)) throw Error("live session: " + why);
   target_spec_ = parse_target_spec(options_.target, "target");
   source_spec_ = parse_source_spec(options_.source, "source");
+  target_is_still_ = target_spec_.kind == InputKind::kRecording && capture::is_still_image(target_spec_.path);
   status_.running = true;
   status_.mode = options_.mode;
   status_.target = target_spec_.describe();
@@ -671,7 +673,7 @@ void LiveSession::run() {
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
     s.calibration_warning = pipeline_ready ? calibration_warning : "";
     s.calibration_progress = pipeline_ready && tracking == TrackingState::kCalibrating ? calibration_progress : "";
-    s.wants_open_mouth = pipeline_ready && tracking == TrackingState::kTracking && wants_open_mouth;
+    s.wants_open_mouth = pipeline_ready && tracking == TrackingState::kTracking && wants_open_mouth && !target_is_still_;
     s.output_fps = ts.open ? output_fps : 0;
     s.process_ms = process_ms;
     if (source_spec_.kind == InputKind::kUdp) {

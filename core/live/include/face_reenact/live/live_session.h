@@ -256,6 +256,9 @@ class LiveSession : public output::FrameSource {
 
   const Options options_;
   InputSpec target_spec_, source_spec_;
+  // The target is a photo (a still image looped as a recording): it never opens its mouth, so the
+  // status does not ask it to (the model's teeth serve, or the photo's own open mouth).
+  bool target_is_still_ = false;
   std::mutex stop_mu_;  // stop() may be called from several threads at once
   mutable std::mutex mu_;
   mutable std::condition_variable frame_cv_;
