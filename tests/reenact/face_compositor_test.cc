@@ -374,6 +374,70 @@ TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps
 // A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
 // eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
 // map, which holds no iris (on the webcam clip it drew the eyes reddish brown).
+// Eyes opened wider and turned further than the target's bare eyeball surface that the frame hides
+// under the lids. It took the lid's skin (a lid lies within the depth tolerance in front of the
+// eyeball) or the albedo map, the model's white eyeball. It now takes the frame's own eye around
+// it: the frame's eyes are painted blue, and the eyes opened wide and turned must show blue, not
+// skin or white, over their openings.
+TEST(ReenactCompositorTest, EyesOpenedWiderTakeTheFramesEyeNotTheModelsWhite) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  gpu::FaceParameters target = test_face(0.4f);
+  target.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.2f;
+  target.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.2f;
+  gpu::FaceParameters wide = target;
+  wide.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.f;
+  wide.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.f;
+  wide.delta[arkit_blendshape_index("eyeWideLeft")] = 1.f;
+  wide.delta[arkit_blendshape_index("eyeWideRight")] = 1.f;
+  wide.delta[arkit_blendshape_index("eyeLookOutLeft")] = 0.7f;
+  wide.delta[arkit_blendshape_index("eyeLookInRight")] = 0.7f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  // Where each parameter vector draws its eyeballs.
+  auto eyeballs = [&](const gpu::FaceParameters& p) {
+    gpu::RenderOptions ro;
+    ro.parts = gpu::kAllParts;
+    ro.cull_back_faces = true;
+    gpu::GBuffer g;
+    renderer.rasterize(renderer.evaluate(p), cam, ro, &g);
+    cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+    for (int j = 0; j < cam.height; ++j)
+      for (int i = 0; i < cam.width; ++i) {
+        const size_t q = static_cast<size_t>(j) * cam.width + i;
+        if (g.triangle[q] < 0) continue;
+        const FacePart part = model.vertex_part[static_cast<size_t>(g.vertices[3 * q])];
+        if (part == FacePart::LeftEye || part == FacePart::RightEye) mask.at<uchar>(j, i) = 255;
+      }
+    return mask;
+  };
+  const cv::Mat target_eyes = eyeballs(target);
+  ASSERT_GT(cv::countNonZero(target_eyes), 10) << "the target's eyes should be open";
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  cv::Mat frame = plain.clone();
+  frame.setTo(cv::Scalar(255, 0, 0), target_eyes);  // the frame's eyes blue
+  const CompositeResult c = fc.Compose(frame, cam, target, wide, &albedo);
+  ASSERT_TRUE(c.drawn);
+  const cv::Mat wide_eyes = eyeballs(wide);
+  ASSERT_GT(cv::countNonZero(wide_eyes), cv::countNonZero(target_eyes) + 10) << "the eyes should open wider";
+  int blue = 0, white = 0, all = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      if (!wide_eyes.at<uchar>(j, i)) continue;
+      ++all;
+      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+      blue += px[0] - std::max(px[1], px[2]) > 60;
+      white += std::min({px[0], px[1], px[2]}) > 150;
+    }
+  RecordProperty("eye_pixels_blue_white_all", std::to_string(blue) + " " + std::to_string(white) + " " + std::to_string(all));
+  std::printf("eyeball pixels: %d blue, %d white, of %d\n", blue, white, all);
+  EXPECT_GT(blue, all * 8 / 10) << blue << " of " << all << " eyeball pixels show the frame's eyes, " << white << " white";
+  EXPECT_LT(white, all / 20) << white << " of " << all << " eyeball pixels are the model's white";
+}
+
 TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
   FR_REQUIRE_MODEL();
   const FaceModel& model = *test_model();

@@ -414,6 +414,11 @@ struct FaceCompositor::Impl {
         if (tg.triangle[q] < 0) continue;
         const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
         if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
+        // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
+        // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
+        // wider than the target's with skin-coloured bands.
+        if ((kEyeParts & part_bit(part_of(g->vertices[3 * p]))) && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q]))))
+          continue;
         const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
         const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
         cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
@@ -482,23 +487,51 @@ struct FaceCompositor::Impl {
     // reaching 1 at half: a distrusted pixel among trusted ones takes their colour, the border of a
     // shown region next to an unshown one (a closed lid, a cheek a turn reveals) still fades to the
     // map over about a pixel, so no seam shows. Only skin fills skin (an eyeball's or a tooth's
-    // colour on a lid or a lip would be a white rim). Eyes, teeth and tongue keep their own
-    // samples, faded to the map next to distrusted ones.
+    // colour on a lid or a lip would be a white rim). Teeth and tongue keep their own samples,
+    // faded to the map next to distrusted ones.
+    //
+    // The eyeballs fill the same way, from the frame's own eyeball samples, their share counted
+    // over the eyeball pixels drawn around (not the skin): eyeball surface the frame does not show
+    // (under the target's lid, bared by eyes opened wider or turned hard aside) took the map, the
+    // model's white eyeball. Only eyes fill eyes.
     constexpr float kFillSigmaPx = 2.0f, kTrustedShareForFull = 0.3f;
     cv::Mat skin_weight = cv::Mat::zeros(box.size(), CV_32FC1), weighted_texture = cv::Mat::zeros(box.size(), CV_32FC3);
+    cv::Mat eye_weight = cv::Mat::zeros(box.size(), CV_32FC1), eye_texture = cv::Mat::zeros(box.size(), CV_32FC3);
+    cv::Mat eye_covered = cv::Mat::zeros(box.size(), CV_32FC1);
     for (int bj = 0; bj < box.height; ++bj)
       for (int bi = 0; bi < box.width; ++bi) {
-        const float wt = weight.at<float>(bj, bi);
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
-        if (!(wt > 0.f) || part_of(g->vertices[3 * p]) != FacePart::Face) continue;
-        skin_weight.at<float>(bj, bi) = wt;
-        weighted_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
+        if (!(covered.at<float>(bj, bi) > 0.f)) continue;
+        const FacePart part = part_of(g->vertices[3 * p]);
+        const bool eye = kEyeParts & part_bit(part);
+        if (eye) eye_covered.at<float>(bj, bi) = 1.0f;
+        const float wt = weight.at<float>(bj, bi);
+        if (!(wt > 0.f)) continue;
+        if (part == FacePart::Face) {
+          skin_weight.at<float>(bj, bi) = wt;
+          weighted_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
+        } else if (eye) {
+          eye_weight.at<float>(bj, bi) = wt;
+          eye_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
+        }
       }
-    cv::Mat fill, skin_ws, ws, cs;
+    cv::Mat fill, skin_ws, ws, cs, eye_fill, eye_ws, eye_cs;
     cv::GaussianBlur(weighted_texture, fill, cv::Size(0, 0), kFillSigmaPx);
     cv::GaussianBlur(skin_weight, skin_ws, cv::Size(0, 0), kFillSigmaPx);
     cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
     cv::GaussianBlur(covered, cs, cv::Size(0, 0), kFillSigmaPx);
+    cv::GaussianBlur(eye_texture, eye_fill, cv::Size(0, 0), kFillSigmaPx);
+    cv::GaussianBlur(eye_weight, eye_ws, cv::Size(0, 0), kFillSigmaPx);
+    cv::GaussianBlur(eye_covered, eye_cs, cv::Size(0, 0), kFillSigmaPx);
+    // ... and a wider kernel where the near one finds too few (an eye opened much wider bares
+    // more than a couple of pixels at once).
+    constexpr float kEyeWideFillSigmaPx = 6.0f;
+    cv::Mat eye_fill_wide, eye_ws_wide, eye_cs_wide;
+    if (cv::countNonZero(eye_covered) > 0) {
+      cv::GaussianBlur(eye_texture, eye_fill_wide, cv::Size(0, 0), kEyeWideFillSigmaPx);
+      cv::GaussianBlur(eye_weight, eye_ws_wide, cv::Size(0, 0), kEyeWideFillSigmaPx);
+      cv::GaussianBlur(eye_covered, eye_cs_wide, cv::Size(0, 0), kEyeWideFillSigmaPx);
+    }
     for (int bj = 0; bj < box.height; ++bj)
       for (int bi = 0; bi < box.width; ++bi) {
         if (!(covered.at<float>(bj, bi) > 0.f)) continue;
@@ -507,12 +540,20 @@ struct FaceCompositor::Impl {
         const float own = std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f), cw = cs.at<float>(bj, bi);
         float a = 0.f;
         cv::Vec3f t(0.f, 0.f, 0.f);  // (the texture holds nothing where no sample was taken)
-        if (part == FacePart::Face) {
-          const float trusted = skin_ws.at<float>(bj, bi);
-          if (trusted > 1e-4f && cw > 1e-6f) {
-            a = std::clamp(trusted / (kTrustedShareForFull * cw), 0.0f, 1.0f);
+        const bool eye = kEyeParts & part_bit(part);
+        if (part == FacePart::Face || eye) {
+          float trusted = (eye ? eye_ws : skin_ws).at<float>(bj, bi);
+          float coverage = eye ? eye_cs.at<float>(bj, bi) : cw;
+          const cv::Mat* sums = eye ? &eye_fill : &fill;
+          if (eye && !eye_ws_wide.empty() && !(trusted >= kTrustedShareForFull * coverage)) {
+            trusted = eye_ws_wide.at<float>(bj, bi);
+            coverage = eye_cs_wide.at<float>(bj, bi);
+            sums = &eye_fill_wide;
+          }
+          if (trusted > 1e-4f && coverage > 1e-6f) {
+            a = std::clamp(trusted / (kTrustedShareForFull * coverage), 0.0f, 1.0f);
             // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
-            const cv::Vec3f around = fill.at<cv::Vec3f>(bj, bi) / trusted;
+            const cv::Vec3f around = sums->at<cv::Vec3f>(bj, bi) / trusted;
             t = own > 0.f ? own * texture.at<cv::Vec3f>(bj, bi) + (1.0f - own) * around : around;
           }
         } else if (own > 0.f) {
