@@ -604,7 +604,10 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   EXPECT_EQ(t.tracked + t.calibrating + t.unchanged, t.frames);
   EXPECT_GT(t.tracked, 0);
   EXPECT_GT(t.seconds, 0.0);
-  EXPECT_GE(t.input_frames + 1, t.frames);  // the input counter is read once per worker pass
+  // The input counter is read once per worker pass; with the render thread, a frame the worker
+  // took before ResetTimings may still be rendering, and be counted after it (2026-11-28: 3 inputs
+  // and 5 frames once, in a clean clone's run).
+  EXPECT_GE(t.input_frames + (GetParam() ? 2 : 1), t.frames);
   EXPECT_EQ(t.dropped_at_input, std::max<int64_t>(0, t.input_frames - t.frames));
   double named = 0;
   for (const LiveStageRow& row : LiveStageRows()) {
