@@ -8,11 +8,7 @@
 #include <fstream>
 #include <string>
 
-#if defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define FR_ADDRESS_SANITIZER 1
-#endif
-#endif
+#include "face_reenact/common/sanitizers.h"
 
 namespace {
 void default_env(const char* key, const char* value) { setenv(key, value, /*overwrite=*/0); }

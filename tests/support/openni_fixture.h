@@ -8,13 +8,9 @@
 #include <filesystem>
 #include <string>
 
-#if defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define FR_OPENNI_UNDER_ASAN 1
-#endif
-#endif
+#include "face_reenact/common/sanitizers.h"
 
-#ifdef FR_OPENNI_UNDER_ASAN
+#ifdef FR_ADDRESS_SANITIZER
 #define FR_SKIP_OPENNI_UNDER_ASAN() \
   GTEST_SKIP() << "OpenNI2's unloaded drivers defeat LeakSanitizer's attribution (run in the release build)"
 #else

@@ -10,6 +10,8 @@
 #include <sstream>
 #include <system_error>
 
+#include "face_reenact/common/sanitizers.h"
+
 namespace face_reenact {
 namespace {
 
@@ -40,14 +42,6 @@ std::string megabytes(int64_t bytes) {
 
 // glibc's allocator statistics; false where they do not describe this process's allocations.
 bool read_heap(int64_t* in_use, int64_t* free_bytes) {
-#if defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || __has_feature(thread_sanitizer)
-#define FR_SANITIZER_ALLOCATOR 1
-#endif
-#endif
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define FR_SANITIZER_ALLOCATOR 1
-#endif
 #if defined(FR_SANITIZER_ALLOCATOR) || !defined(__GLIBC__) || __GLIBC__ < 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ < 33)
   (void)in_use;
   (void)free_bytes;

@@ -10,17 +10,12 @@
 #include <dlfcn.h>
 
 #include "face_reenact/common/paths.h"
+#include "face_reenact/common/sanitizers.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/vk_check.h"
 
 namespace face_reenact::gpu {
 namespace {
-
-#if defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define FR_ADDRESS_SANITIZER 1
-#endif
-#endif
 
 // Sanitizer builds only: the Vulkan loader unloads the driver (and its layers) when the last
 // instance is destroyed, so LeakSanitizer later sees the driver's process-lifetime allocations

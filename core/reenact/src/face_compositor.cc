@@ -4,6 +4,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -394,6 +395,7 @@ struct FaceCompositor::Impl {
         if (g->triangle[p] < 0) continue;
         const int bi = i - box.x, bj = j - box.y;
         covered.at<float>(bj, bi) = 1.0f;
+        const bool eyeball = kEyeParts & part_bit(part_of(g->vertices[3 * p]));
         Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
                         nt = Eigen::Vector3f::Zero();
         for (int k = 0; k < 3; ++k) {
@@ -417,8 +419,7 @@ struct FaceCompositor::Impl {
         // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
         // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
         // wider than the target's with skin-coloured bands.
-        if ((kEyeParts & part_bit(part_of(g->vertices[3 * p]))) && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q]))))
-          continue;
+        if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
         const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
         const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
         cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
@@ -428,8 +429,6 @@ struct FaceCompositor::Impl {
         // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
         // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
         // moved by the gaze is what the reenactment is to show.
-        const FacePart drawn_part = part_of(g->vertices[3 * p]);
-        const bool eyeball = drawn_part == FacePart::LeftEye || drawn_part == FacePart::RightEye;
         if (!boundary_px.empty() && !eyeball) {
           // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
           const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
@@ -515,45 +514,45 @@ struct FaceCompositor::Impl {
           eye_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
         }
       }
-    cv::Mat fill, skin_ws, ws, cs, eye_fill, eye_ws, eye_cs;
-    cv::GaussianBlur(weighted_texture, fill, cv::Size(0, 0), kFillSigmaPx);
-    cv::GaussianBlur(skin_weight, skin_ws, cv::Size(0, 0), kFillSigmaPx);
-    cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
-    cv::GaussianBlur(covered, cs, cv::Size(0, 0), kFillSigmaPx);
-    cv::GaussianBlur(eye_texture, eye_fill, cv::Size(0, 0), kFillSigmaPx);
-    cv::GaussianBlur(eye_weight, eye_ws, cv::Size(0, 0), kFillSigmaPx);
-    cv::GaussianBlur(eye_covered, eye_cs, cv::Size(0, 0), kFillSigmaPx);
+    // A normalised convolution: the weighted samples, their weights and the drawn pixels they
+    // share with, each blurred at one kernel.
+    struct Fill {
+      cv::Mat sums, weights, coverage;
+      Fill(const cv::Mat& weighted, const cv::Mat& weight, const cv::Mat& drawn, float sigma) {
+        cv::GaussianBlur(weighted, sums, cv::Size(0, 0), sigma);
+        cv::GaussianBlur(weight, weights, cv::Size(0, 0), sigma);
+        cv::GaussianBlur(drawn, coverage, cv::Size(0, 0), sigma);
+      }
+    };
+    const Fill skin(weighted_texture, skin_weight, covered, kFillSigmaPx);
+    const Fill eyes(eye_texture, eye_weight, eye_covered, kFillSigmaPx);
     // ... and a wider kernel where the near one finds too few (an eye opened much wider bares
     // more than a couple of pixels at once).
     constexpr float kEyeWideFillSigmaPx = 6.0f;
-    cv::Mat eye_fill_wide, eye_ws_wide, eye_cs_wide;
-    if (cv::countNonZero(eye_covered) > 0) {
-      cv::GaussianBlur(eye_texture, eye_fill_wide, cv::Size(0, 0), kEyeWideFillSigmaPx);
-      cv::GaussianBlur(eye_weight, eye_ws_wide, cv::Size(0, 0), kEyeWideFillSigmaPx);
-      cv::GaussianBlur(eye_covered, eye_cs_wide, cv::Size(0, 0), kEyeWideFillSigmaPx);
-    }
+    const std::optional<Fill> eyes_wide =
+        cv::countNonZero(eye_covered) > 0 ? std::optional<Fill>(std::in_place, eye_texture, eye_weight, eye_covered, kEyeWideFillSigmaPx)
+                                          : std::nullopt;
+    // Every drawn pixel's own trust, for the other parts (teeth, tongue).
+    cv::Mat ws;
+    cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
     for (int bj = 0; bj < box.height; ++bj)
       for (int bi = 0; bi < box.width; ++bi) {
         if (!(covered.at<float>(bj, bi) > 0.f)) continue;
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
         const FacePart part = part_of(g->vertices[3 * p]);
-        const float own = std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f), cw = cs.at<float>(bj, bi);
+        const float own = std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f), cw = skin.coverage.at<float>(bj, bi);
         float a = 0.f;
         cv::Vec3f t(0.f, 0.f, 0.f);  // (the texture holds nothing where no sample was taken)
         const bool eye = kEyeParts & part_bit(part);
         if (part == FacePart::Face || eye) {
-          float trusted = (eye ? eye_ws : skin_ws).at<float>(bj, bi);
-          float coverage = eye ? eye_cs.at<float>(bj, bi) : cw;
-          const cv::Mat* sums = eye ? &eye_fill : &fill;
-          if (eye && !eye_ws_wide.empty() && !(trusted >= kTrustedShareForFull * coverage)) {
-            trusted = eye_ws_wide.at<float>(bj, bi);
-            coverage = eye_cs_wide.at<float>(bj, bi);
-            sums = &eye_fill_wide;
-          }
+          const Fill* f = eye ? &eyes : &skin;
+          if (eye && eyes_wide && !(f->weights.at<float>(bj, bi) >= kTrustedShareForFull * f->coverage.at<float>(bj, bi)))
+            f = &*eyes_wide;
+          const float trusted = f->weights.at<float>(bj, bi), coverage = f->coverage.at<float>(bj, bi);
           if (trusted > 1e-4f && coverage > 1e-6f) {
             a = std::clamp(trusted / (kTrustedShareForFull * coverage), 0.0f, 1.0f);
             // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
-            const cv::Vec3f around = sums->at<cv::Vec3f>(bj, bi) / trusted;
+            const cv::Vec3f around = f->sums.at<cv::Vec3f>(bj, bi) / trusted;
             t = own > 0.f ? own * texture.at<cv::Vec3f>(bj, bi) + (1.0f - own) * around : around;
           }
         } else if (own > 0.f) {

@@ -1,4 +1,3 @@
-#include "face_reenact/tracker/plausible_light.h"
 #include "face_reenact/tracker/face_tracker.h"
 
 #include <pthread.h>
@@ -14,6 +13,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
+#include "face_reenact/tracker/plausible_light.h"
 #include "face_reenact/tracker/solver_choice.h"
 #include "tracker_internal.h"
 
