@@ -598,16 +598,16 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   EXPECT_EQ(session.timings().frames, 0);
   LiveFrame frame;
   uint64_t last = 0;
-  for (int k = 0; k < 6 && session.wait_frame(last, 10s, &frame); ++k) last = frame.sequence;
+  // Frames delivered before ResetTimings and still in flight (one being tracked, one rendering)
+  // belong to the measurement before it, so eight frames shown count at least six.
+  for (int k = 0; k < 8 && session.wait_frame(last, 10s, &frame); ++k) last = frame.sequence;
   const LiveTimings t = session.timings();
   ASSERT_GE(t.frames, 5);
   EXPECT_EQ(t.tracked + t.calibrating + t.unchanged, t.frames);
   EXPECT_GT(t.tracked, 0);
   EXPECT_GT(t.seconds, 0.0);
-  // The input counter is read once per worker pass; with the render thread, a frame the worker
-  // took before ResetTimings may still be rendering, and be counted after it (2026-11-28: 3 inputs
-  // and 5 frames once, in a clean clone's run).
-  EXPECT_GE(t.input_frames + (GetParam() ? 2 : 1), t.frames);
+  // Never more frames than inputs (CI saw 4 inputs and 5 frames when in-flight frames counted).
+  EXPECT_GE(t.input_frames, t.frames);
   EXPECT_EQ(t.dropped_at_input, std::max<int64_t>(0, t.input_frames - t.frames));
   double named = 0;
   for (const LiveStageRow& row : LiveStageRows()) {

@@ -345,6 +345,7 @@ struct RenderJob {
   std::string failure;
   cv::Mat input_bgr;                          // the target frame's colour: the output when nothing else is
   int source_index = 0;
+  int64_t input_sequence = 0;                 // the target input's count when it delivered this frame
   Clock::time_point captured, started;        // the capture thread had it / the worker took it
 };
 
@@ -559,11 +560,16 @@ void LiveSession::run() {
       double named = 0;
       for (const LiveStageRow& row : LiveStageRows()) named += rows.*row.ms;
       rows.worker_other_ms = std::max(0.0, rows.total_ms - named);
-      ++timings_.frames;
-      timings_.tracked += out.tracking == TrackingState::kTracking;
-      timings_.calibrating += out.tracking == TrackingState::kCalibrating;
-      timings_.unchanged += out.tracking != TrackingState::kTracking && out.tracking != TrackingState::kCalibrating;
-      timings_.sum.Add(rows);
+      // A frame the input delivered before ResetTimings (still in flight then) belongs to the
+      // measurement before it: counting it after made more frames than inputs.
+      if (job.input_sequence > timings_input_base_) {
+        ++timings_.frames;
+        timings_.tracked += out.tracking == TrackingState::kTracking;
+        timings_.calibrating += out.tracking == TrackingState::kCalibrating;
+        timings_.unchanged +=
+            out.tracking != TrackingState::kTracking && out.tracking != TrackingState::kCalibrating;
+        timings_.sum.Add(rows);
+      }
     }
     frame_cv_.notify_all();
     if (options_.on_frame) {
@@ -606,7 +612,13 @@ void LiveSession::run() {
       job.processor = processor;
       job.input_bgr = frame.color;
       job.source_index = frame.index;
+      job.input_sequence = static_cast<int64_t>(target_seq);
       job.captured = captured;
+      {
+        // Seen before the frame can be counted, so that no measurement has more frames than inputs.
+        std::lock_guard lock(mu_);
+        input_frames_ = std::max(input_frames_, job.input_sequence);
+      }
       job.started = Clock::now();
       ActorOutcome actor_outcome;
       try {
@@ -727,7 +739,7 @@ void LiveSession::run() {
     bool ended = ts.ended && !options_.loop;
     {
       std::lock_guard lock(mu_);
-      input_frames_ = ts.frames;
+      input_frames_ = std::max(input_frames_, ts.frames);
       s.calibration_pending = status_.calibration_pending;
       s.frames_out = status_.frames_out;
       status_ = s;
