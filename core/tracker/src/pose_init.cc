@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <optional>
 #include <unordered_map>
 
 #include "face_reenact/landmarks/evaluation.h"
@@ -369,47 +370,72 @@ std::vector<TrackerLandmark> ContourLandmarks(const TrackerModel& model, const g
   for (const auto& l : model.landmarks) {
     if (l.ibug_index >= 0 && l.ibug_index < 68) bound[static_cast<size_t>(l.ibug_index)] = l.vertex;
   }
-  if (bound[0] < 0 || bound[16] < 0 || bound[8] < 0 || bound[27] < 0) return out;
+  for (int k : {0, 8, 16, 27, 36, 45, 48, 54}) {
+    if (bound[static_cast<size_t>(k)] < 0) return out;
+  }
   if (!params.euler.allFinite() || !params.translation.allFinite()) return out;
   const auto& mean = model.render.mean_shape;
   auto at = [&](int v) -> Eigen::Vector3d { return mean.segment<3>(3 * v).cast<double>(); };
-  // The face's own axes on the mean face: up from the chin to the nasal bridge, and the side
-  // axis between the jaw line's two ends.
+  // The face's frontal plane on the mean face: up from the chin to the nasal bridge, the side
+  // axis between the jaw line's two ends, and its middle between the eyes and the mouth.
   const Eigen::Vector3d up = (at(bound[27]) - at(bound[8])).normalized();
   Eigen::Vector3d side = at(bound[0]) - at(bound[16]);
   side = (side - side.dot(up) * up).normalized();
-  const Eigen::Vector3d centre = 0.5 * (at(bound[0]) + at(bound[16]));
+  Eigen::Vector3d middle = Eigen::Vector3d::Zero();
+  for (int k : {36, 45, 48, 54}) middle += 0.25 * at(bound[static_cast<size_t>(k)]);
+  auto plane_angle = [&](const Eigen::Vector3d& q) {
+    const Eigen::Vector3d d = q - middle;
+    return std::atan2(d.dot(up), d.dot(side));
+  };
   const Eigen::Matrix3d r = internal::rotation_with_derivatives(params.euler.cast<double>()).r;
   const Eigen::Vector3d t = params.translation.cast<double>();
-  auto camera_point = [&](const Eigen::Vector3d& model_point) { return Eigen::Vector3d(r * model_point + t); };
-  const Eigen::Vector3d c_cam = camera_point(internal::model_vertex(model, params, bound[8]));
-  if (!(c_cam.z() > camera.near_plane)) return out;
-  // The side axis as the image shows it at the face.
-  const Eigen::Vector3d side_cam = r * side;
-  const Eigen::Vector3d tip = c_cam + 0.05 * side_cam;
-  if (!(tip.z() > camera.near_plane)) return out;
-  const Eigen::Vector2d side_img = (project(camera, tip) - project(camera, c_cam)).normalized();
-  if (!side_img.allFinite()) return out;
-  const int n = model.num_vertices();
+  auto shown_at = [&](const Eigen::Vector3d& model_point) -> std::optional<Eigen::Vector2d> {
+    const Eigen::Vector3d x = r * model_point + t;
+    if (!(x.z() > camera.near_plane)) return std::nullopt;
+    return project(camera, x);
+  };
+  // The posed face's middle, and its face part's vertices as the image shows them.
+  Eigen::Vector3d posed_middle = Eigen::Vector3d::Zero();
+  for (int k : {36, 45, 48, 54}) posed_middle += 0.25 * internal::model_vertex(model, params, bound[static_cast<size_t>(k)]);
+  const std::optional<Eigen::Vector2d> middle_shown = shown_at(posed_middle);
+  if (!middle_shown) return out;
+  std::vector<int> face;
+  std::vector<Eigen::Vector2d> shown;
+  std::vector<double> angle;
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    if (model.render.vertex_part[static_cast<size_t>(v)] != static_cast<uint8_t>(FacePart::Face)) continue;
+    const std::optional<Eigen::Vector2d> x = shown_at(internal::model_vertex(model, params, v));
+    if (!x) continue;
+    face.push_back(v);
+    shown.push_back(*x);
+    angle.push_back(plane_angle(at(v)));
+  }
+  // Each jaw point: in the face's frontal plane, the wedge of directions from the middle through
+  // its bound vertex; among the face's vertices in that wedge, the one that projects farthest
+  // out along that direction in the image. Along the sides the direction is the side axis, and
+  // the point slides over the cheek as it turns away; near the chin it points down and out,
+  // where a band at the bound vertex's height crossed the chin's underside (points 6 and 10 were
+  // 0.15-0.17 eye distances off the annotation that way, 0.04-0.06 now).
   for (auto& l : out) {
-    if (!(l.flags & kLandmarkSilhouette) || l.ibug_index == 8) continue;
-    const Eigen::Vector3d p = at(l.vertex);
-    const double sign = (p - centre).dot(side) >= 0 ? 1.0 : -1.0;
+    if (!(l.flags & kLandmarkSilhouette)) continue;
+    const Eigen::Vector3d d = at(l.vertex) - middle;
+    const double phi = plane_angle(at(l.vertex));
+    const Eigen::Vector3d outward_model = (d.dot(side) * side + d.dot(up) * up).normalized();
+    const std::optional<Eigen::Vector2d> towards = shown_at(posed_middle + 0.05 * outward_model);
+    if (!towards) continue;
+    const Eigen::Vector2d direction = (*towards - *middle_shown).normalized();
+    if (!direction.allFinite()) continue;
     double best = -std::numeric_limits<double>::infinity();
-    int best_vertex = l.vertex;
-    for (int v = 0; v < n; ++v) {
-      // The bound vertex (the frontal silhouette the binding file names) always competes.
-      if (v != l.vertex) {
-        if (model.render.vertex_part[static_cast<size_t>(v)] != static_cast<uint8_t>(FacePart::Face)) continue;
-        const Eigen::Vector3d q = at(v);
-        if (std::abs((q - p).dot(up)) > kContourBandM || sign * (q - centre).dot(side) < 0.01) continue;
-      }
-      const Eigen::Vector3d x = camera_point(internal::model_vertex(model, params, v));
-      if (!(x.z() > camera.near_plane)) continue;
-      const double outward = sign * project(camera, x).dot(side_img);
+    int best_vertex = l.vertex;  // the bound vertex always competes
+    if (auto b = shown_at(internal::model_vertex(model, params, l.vertex))) best = (*b - *middle_shown).dot(direction);
+    for (size_t i = 0; i < face.size(); ++i) {
+      double dphi = std::abs(angle[i] - phi);
+      dphi = std::min(dphi, 2 * M_PI - dphi);
+      if (dphi > kContourWedgeRad) continue;
+      const double outward = (shown[i] - *middle_shown).dot(direction);
       if (outward > best) {
         best = outward;
-        best_vertex = v;
+        best_vertex = face[i];
       }
     }
     l.vertex = best_vertex;

@@ -102,11 +102,11 @@ ProjectedLandmarks ProjectModelLandmarks(const TrackerModel& model, const gpu::F
 // The jaw line's points (kLandmarkSilhouette) where a face posed by `params` and seen by `camera`
 // shows them: on its occluding contour, which annotators and the detector trace and which slides
 // over the cheek as the head turns, where the binding file names one vertex of the frontal
-// silhouette. For each point, among the face-part vertices of the mean face at the height of its
-// bound vertex (within kContourBandM) on its side of the midline, the one that projects farthest
-// out towards that side. Returns model.landmarks with those points' vertices replaced; the chin
-// (a midline point) keeps its own.
-inline constexpr double kContourBandM = 0.006;
+// outline. For each point (the chin too): in the mean face's frontal plane, the wedge of
+// directions (half-angle kContourWedgeRad) from the middle of the eyes and the mouth through its
+// bound vertex; among the face-part vertices in it, the one that projects farthest out along that
+// direction. Returns model.landmarks with those points' vertices replaced.
+inline constexpr double kContourWedgeRad = 0.03;
 std::vector<TrackerLandmark> ContourLandmarks(const TrackerModel& model, const gpu::FaceParameters& params,
                                               const gpu::PinholeCamera& camera);
 
