@@ -1,6 +1,8 @@
 // The image formation model S(P) on the GPU against analytic results and against its CPU twin.
 #include <cmath>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/cpu_renderer.h"
@@ -382,6 +384,53 @@ TEST(CpuRendererTest, RasterizingIntoAReusedBufferLeavesNothingOfThePreviousImag
       EXPECT_EQ(buffer.vertices, fresh.vertices);
     }
   }
+}
+
+// Drawing again into the same buffer clears only what the last draw drew (GBuffer::cpu_raster):
+// a sequence of poses that move the face about, leave the image and come back, each drawn into
+// one buffer, equals each drawn into a fresh one; so does a draw after the buffer was moved, and
+// after Resize.
+TEST(CpuRendererTest, DrawingIntoTheSameBufferAgainEqualsAFreshBuffer) {
+  const RenderModel model = testing::make_icosphere(kRadius, 3);
+  const CpuRenderer cpu(model);
+  const RenderOptions options;
+  std::vector<FaceParameters> poses;
+  for (float x : {0.05f, -0.06f, 0.0f}) {
+    FaceParameters p = frontal_pose(0.3f);
+    p.translation.x() = x;
+    poses.push_back(p);
+  }
+  FaceParameters away = frontal_pose(kDistance);
+  away.translation.x() = 5.0f;  // off the image: nothing drawn
+  poses.push_back(away);
+  FaceParameters far = frontal_pose(kDistance);
+  far.translation.y() = -0.08f;
+  poses.push_back(far);
+  poses.push_back(poses[0]);
+  auto expect_fresh = [&](const GBuffer& buffer, const FaceParameters& p, size_t k) {
+    const GBuffer fresh = cpu.rasterize(cpu.evaluate(p), PinholeCamera{}, options);
+    EXPECT_EQ(buffer.color, fresh.color) << "pose " << k;
+    EXPECT_EQ(buffer.position, fresh.position) << "pose " << k;
+    EXPECT_EQ(buffer.normal, fresh.normal) << "pose " << k;
+    EXPECT_EQ(buffer.barycentric, fresh.barycentric) << "pose " << k;
+    EXPECT_EQ(buffer.triangle, fresh.triangle) << "pose " << k;
+    EXPECT_EQ(buffer.vertices, fresh.vertices) << "pose " << k;
+  };
+  GBuffer buffer;
+  for (size_t k = 0; k < poses.size(); ++k) {
+    cpu.rasterize(cpu.evaluate(poses[k]), PinholeCamera{}, options, &buffer, 2);
+    expect_fresh(buffer, poses[k], k);
+    EXPECT_EQ(buffer.covered_count() == 0, k == 3) << "pose " << k;
+  }
+  GBuffer moved = std::move(buffer);
+  cpu.rasterize(cpu.evaluate(poses[1]), PinholeCamera{}, options, &moved);
+  expect_fresh(moved, poses[1], 1);
+  // Resize gives a cleared buffer of the same size; a caller may then write any pixel.
+  moved.Resize(moved.width, moved.height);
+  moved.triangle.back() = 7;
+  moved.color.front() = 1.f;
+  cpu.rasterize(cpu.evaluate(poses[2]), PinholeCamera{}, options, &moved);
+  expect_fresh(moved, poses[2], 2);
 }
 
 TEST_F(RendererTest, ReadbackBeforeRenderIsAnError) {

@@ -175,6 +175,14 @@ GBuffer CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& ca
 
 namespace {
 
+// A vertex in framebuffer coordinates, exact and snapped, with its depths.
+struct ProjectedVertex {
+  double ux, uy, sx, sy;
+  double z;  // camera-space depth (perspective correction)
+  double d;  // depth-buffer value
+  bool in_depth_range;
+};
+
 // A triangle that passed culling and covers at least one pixel centre's bounding box, with what
 // its pixels need: made once, then rasterised band by band.
 struct TriangleSetup {
@@ -203,13 +211,21 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
   GBuffer& g = *out;
   // Sized here, cleared by the bands below (each its own rows): at 640x480 the G-buffer is 20 MB,
-  // and clearing it on one thread cost as much as rasterising the face.
+  // and clearing it on one thread cost as much as rasterising the face. A buffer this rasteriser
+  // drew last time needs only the rectangle it drew cleared (GBuffer::cpu_raster).
   const size_t num_pixels = static_cast<size_t>(camera.width) * camera.height;
+  const bool same_size = g.width == camera.width && g.height == camera.height && g.triangle.size() == num_pixels &&
+                         g.vertices.size() == 3 * num_pixels && g.color.size() == 3 * num_pixels &&
+                         g.position.size() == 3 * num_pixels && g.normal.size() == 3 * num_pixels &&
+                         g.barycentric.size() == 3 * num_pixels;
+  const GBuffer::CpuRasterTrace previous = g.cpu_raster;
+  const bool previous_known = same_size && previous.triangle_data != nullptr && previous.triangle_data == g.triangle.data();
   g.width = camera.width;
   g.height = camera.height;
   for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric}) v->resize(3 * num_pixels);
   g.vertices.resize(3 * num_pixels);
   g.triangle.resize(num_pixels);
+  g.cpu_raster = GBuffer::CpuRasterTrace();  // nothing known until this draw is done
   // The depth buffer is scratch: one per calling thread, kept, so a per-frame caller faults no
   // new pages. The bands below write disjoint rows of it.
   thread_local std::vector<float> depth_buffer;
@@ -221,6 +237,28 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   const std::vector<int32_t> drawn = drawn_triangles(model_, options);
   const int setup_items = static_cast<int>((drawn.size() + kTrianglesPerSetupItem - 1) / kTrianglesPerSetupItem);
   std::vector<std::vector<TriangleSetup>> setups(static_cast<size_t>(setup_items));
+  // Each vertex projected once (a vertex is a corner of about six triangles).
+  const int num_vertices = model_.num_vertices();
+  thread_local std::vector<ProjectedVertex> projected_scratch;
+  auto& projected = projected_scratch;  // the caller's, filled and read by the pool's threads too
+  projected.resize(static_cast<size_t>(num_vertices));
+  ParallelFor(items_for(num_vertices, kVerticesPerItem), threads, [&](int item) {
+    const int end = std::min(num_vertices, (item + 1) * kVerticesPerItem);
+    for (int v = item * kVerticesPerItem; v < end; ++v) {
+      const Eigen::Vector3f p = state.camera_positions.segment<3>(3 * v);
+      ProjectedVertex& pv = projected[static_cast<size_t>(v)];
+      pv.in_depth_range = p.z() > camera.near_plane && p.z() < camera.far_plane;
+      if (!pv.in_depth_range) continue;
+      // Framebuffer coordinates: the centre of pixel i is at i + 0.5.
+      const double z = p.z();
+      pv.z = z;
+      pv.ux = camera.fx * p.x() / z + camera.cx + 0.5;
+      pv.uy = camera.fy * p.y() / z + camera.cy + 0.5;
+      pv.sx = snap(pv.ux);
+      pv.sy = snap(pv.uy);
+      pv.d = far * (z - near) / ((far - near) * z);
+    }
+  });
   ParallelFor(setup_items, threads, [&](int item) {
     std::vector<TriangleSetup>& list = setups[static_cast<size_t>(item)];
     const size_t begin = static_cast<size_t>(item) * kTrianglesPerSetupItem;
@@ -228,25 +266,19 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
     for (size_t q = begin; q < end; ++q) {
       const int32_t t = drawn[q];
       const auto& tri = model_.triangles[t];
-      Eigen::Vector3f p[3];
-      bool inside_depth_range = true;
-      for (int k = 0; k < 3; ++k) {
-        p[k] = state.camera_positions.segment<3>(3 * tri[k]);
-        inside_depth_range = inside_depth_range && (p[k].z() > camera.near_plane && p[k].z() < camera.far_plane);
-      }
-      if (!inside_depth_range) continue;
+      const ProjectedVertex* pv[3] = {&projected[static_cast<size_t>(tri[0])], &projected[static_cast<size_t>(tri[1])],
+                                      &projected[static_cast<size_t>(tri[2])]};
+      if (!pv[0]->in_depth_range || !pv[1]->in_depth_range || !pv[2]->in_depth_range) continue;
       TriangleSetup ts;
       ts.triangle = t;
-      // Framebuffer coordinates: the centre of pixel i is at i + 0.5.
       double sx[3], sy[3];
       for (int k = 0; k < 3; ++k) {
-        const double z = p[k].z();
-        ts.z[k] = z;
-        ts.ux[k] = camera.fx * p[k].x() / z + camera.cx + 0.5;
-        ts.uy[k] = camera.fy * p[k].y() / z + camera.cy + 0.5;
-        sx[k] = snap(ts.ux[k]);
-        sy[k] = snap(ts.uy[k]);
-        ts.d[k] = far * (z - near) / ((far - near) * z);
+        ts.z[k] = pv[k]->z;
+        ts.ux[k] = pv[k]->ux;
+        ts.uy[k] = pv[k]->uy;
+        sx[k] = pv[k]->sx;
+        sy[k] = pv[k]->sy;
+        ts.d[k] = pv[k]->d;
       }
       // Most triangles of a small level cover no pixel centre: their bounding box is empty.
       const double min_x = std::min({sx[0], sx[1], sx[2]}), max_x = std::max({sx[0], sx[1], sx[2]});
@@ -291,46 +323,98 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
     }
   });
 
-  // Raster pass: bands of rows, each visiting the triangles in draw order, so every pixel sees
-  // the same depth tests in the same order as a single pass would.
+  // Each band's triangles in draw order (scanning every triangle's set-up for every band read
+  // 30 x 2 MB per 640x480 draw), and the pixels this draw may write: the union of the triangles'
+  // bounding boxes.
   const int bands = (camera.height + kRowsPerBand - 1) / kRowsPerBand;
-  ParallelFor(bands, threads, [&](int band) {
-    const int band_j0 = band * kRowsPerBand, band_j1 = std::min(camera.height, band_j0 + kRowsPerBand) - 1;
-    {
-      // The band's rows as GBuffer::Resize leaves them, and the depth buffer at the far plane.
-      const size_t p0 = static_cast<size_t>(band_j0) * camera.width, p1 = static_cast<size_t>(band_j1 + 1) * camera.width;
+  thread_local std::vector<std::vector<const TriangleSetup*>> band_triangles_scratch;
+  auto& band_triangles = band_triangles_scratch;  // the caller's, read by the pool's threads too
+  band_triangles.resize(static_cast<size_t>(bands));
+  for (auto& list : band_triangles) list.clear();
+  GBuffer::CpuRasterTrace drawn_box;
+  drawn_box.i0 = camera.width, drawn_box.j0 = camera.height;
+  for (const auto& list : setups) {
+    for (const TriangleSetup& ts : list) {
+      drawn_box.i0 = std::min(drawn_box.i0, ts.i0), drawn_box.i1 = std::max(drawn_box.i1, ts.i1);
+      drawn_box.j0 = std::min(drawn_box.j0, ts.j0), drawn_box.j1 = std::max(drawn_box.j1, ts.j1);
+      for (int b = ts.j0 / kRowsPerBand; b <= ts.j1 / kRowsPerBand; ++b) band_triangles[static_cast<size_t>(b)].push_back(&ts);
+    }
+  }
+  // Pixels [i0, i1] of rows [j0, j1] as GBuffer::Resize leaves them.
+  auto clear = [&](int i0, int i1, int j0, int j1) {
+    if (i0 > i1) return;
+    for (int j = j0; j <= j1; ++j) {
+      const size_t p0 = static_cast<size_t>(j) * camera.width + i0, p1 = static_cast<size_t>(j) * camera.width + i1 + 1;
       for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric})
         std::fill(v->begin() + static_cast<std::ptrdiff_t>(3 * p0), v->begin() + static_cast<std::ptrdiff_t>(3 * p1), 0.f);
       std::fill(g.vertices.begin() + static_cast<std::ptrdiff_t>(3 * p0), g.vertices.begin() + static_cast<std::ptrdiff_t>(3 * p1), -1);
       std::fill(g.triangle.begin() + static_cast<std::ptrdiff_t>(p0), g.triangle.begin() + static_cast<std::ptrdiff_t>(p1), -1);
-      std::fill(depth + p0, depth + p1, 1.0f);
     }
-    for (const auto& list : setups) {
-      for (const TriangleSetup& ts : list) {
-        if (ts.j1 < band_j0 || ts.j0 > band_j1) continue;
+  };
+
+  // Raster pass: bands of rows, each visiting the triangles in draw order, so every pixel sees
+  // the same depth tests in the same order as a single pass would.
+  ParallelFor(bands, threads, [&](int band) {
+    const int band_j0 = band * kRowsPerBand, band_j1 = std::min(camera.height, band_j0 + kRowsPerBand) - 1;
+    if (!previous_known) {
+      clear(0, camera.width - 1, band_j0, band_j1);
+    } else if (previous.j0 <= band_j1 && previous.j1 >= band_j0) {
+      clear(previous.i0, previous.i1, std::max(band_j0, previous.j0), std::min(band_j1, previous.j1));
+    }
+    // The depth buffer at the far plane where this draw tests it.
+    if (drawn_box.i0 <= drawn_box.i1 && drawn_box.j0 <= band_j1 && drawn_box.j1 >= band_j0) {
+      for (int j = std::max(band_j0, drawn_box.j0); j <= std::min(band_j1, drawn_box.j1); ++j) {
+        float* row = depth + static_cast<size_t>(j) * camera.width;
+        std::fill(row + drawn_box.i0, row + drawn_box.i1 + 1, 1.0f);
+      }
+    }
+    {
+      for (const TriangleSetup* setup : band_triangles[static_cast<size_t>(band)]) {
+        const TriangleSetup& ts = *setup;
         const auto& tri = model_.triangles[ts.triangle];
         const double* ox = ts.ox;
         const double* oy = ts.oy;
         const int* order = ts.order;
+        // Per edge, the coverage function's step along a row, and the unsnapped plane's terms in
+        // the triangle's own corner order: the same operations on the same values as evaluating
+        // each pixel afresh (snapped coordinates are multiples of 1/kSubpixel, so the edge
+        // functions and their steps are exact in double and stepping changes no pixel).
+        double step[3];
+        for (int e = 0; e < 3; ++e) step[e] = oy[(e + 2) % 3] - oy[(e + 1) % 3];
+        double plane_dx[3], plane_dy[3], plane_x[3], plane_y[3];
+        for (int e = 0; e < 3; ++e) {
+          const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
+          plane_dx[e] = ts.ux[b] - ts.ux[a];
+          plane_dy[e] = ts.uy[b] - ts.uy[a];
+          plane_x[e] = ts.ux[a];
+          plane_y[e] = ts.uy[a];
+        }
         for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
           const double py = j + 0.5;
-          for (int i = ts.i0; i <= ts.i1; ++i) {
-            const double px = i + 0.5;
-            double w[3];
-            bool inside = true;
-            for (int e = 0; e < 3 && inside; ++e) {
+          double w[3];
+          {
+            const double px = ts.i0 + 0.5;
+            for (int e = 0; e < 3; ++e) {
               const int a = (e + 1) % 3, b = (e + 2) % 3;
               w[e] = (ox[b] - ox[a]) * (py - oy[a]) - (oy[b] - oy[a]) * (px - ox[a]);
-              inside = w[e] > 0.0 || (w[e] == 0.0 && ts.top_left[e]);
             }
-            if (!inside) continue;
+          }
+          bool entered = false;
+          for (int i = ts.i0; i <= ts.i1; ++i, w[0] -= step[0], w[1] -= step[1], w[2] -= step[2]) {
+            const bool inside = (w[0] > 0.0 || (w[0] == 0.0 && ts.top_left[0])) &&
+                                (w[1] > 0.0 || (w[1] == 0.0 && ts.top_left[1])) &&
+                                (w[2] > 0.0 || (w[2] == 0.0 && ts.top_left[2]));
+            if (!inside) {
+              if (entered) break;  // a triangle's pixels on a row are one run
+              continue;
+            }
+            entered = true;
+            const double px = i + 0.5;
             // Screen-space weights back in the triangle's own corner order, from the unsnapped
             // positions: the snap decides coverage, attribute interpolation uses the exact plane.
             double lambda[3];
             for (int e = 0; e < 3; ++e) {
-              const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
-              lambda[order[e]] =
-                  ((ts.ux[b] - ts.ux[a]) * (py - ts.uy[a]) - (ts.uy[b] - ts.uy[a]) * (px - ts.ux[a])) / ts.exact_area2;
+              lambda[order[e]] = (plane_dx[e] * (py - plane_y[e]) - plane_dy[e] * (px - plane_x[e])) / ts.exact_area2;
             }
             const double dz = lambda[0] * ts.d[0] + lambda[1] * ts.d[1] + lambda[2] * ts.d[2];
             const float depth_value = static_cast<float>(dz);
@@ -364,6 +448,8 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       }
     }
   });
+  drawn_box.triangle_data = g.triangle.data();
+  g.cpu_raster = drawn_box;
 }
 
 }  // namespace face_reenact::gpu

@@ -179,6 +179,7 @@ void GBuffer::Resize(int w, int h) {
   barycentric.assign(3 * n, 0.f);
   triangle.assign(n, -1);
   vertices.assign(3 * n, -1);
+  cpu_raster = CpuRasterTrace();
 }
 
 size_t GBuffer::covered_count() const {

@@ -140,6 +140,17 @@ struct GBuffer {
   std::vector<int32_t> triangle;   // 1 per pixel: model triangle index, -1 = not covered
   std::vector<int32_t> vertices;   // 3 per pixel: the triangle's vertex indices (-1 if none)
 
+  // What the CPU rasteriser last drew into this buffer: outside `i0..i1` x `j0..j1` (inclusive)
+  // every pixel is as Resize leaves it, so drawing into the same buffer again clears only that
+  // rectangle (at 640x480 the whole buffer is 20 MB, and clearing it cost as much as drawing the
+  // face). Valid only while `triangle` is the same allocation it names; Resize forgets it, so
+  // anything that rewrites the buffer through Resize (the GPU read-back) is safe. A caller that
+  // writes uncovered pixels in place must call Resize first.
+  struct CpuRasterTrace {
+    const int32_t* triangle_data = nullptr;
+    int i0 = 0, i1 = -1, j0 = 0, j1 = -1;
+  } cpu_raster;
+
   void Resize(int w, int h);
   bool covered(int i, int j) const { return triangle[static_cast<size_t>(j) * width + i] >= 0; }
   size_t covered_count() const;
