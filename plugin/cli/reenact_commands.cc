@@ -357,6 +357,7 @@ void run_reenact(const ReenactArgs& a) {
   std::map<std::string, int> source_statuses, lost_reasons;
   std::map<std::string, std::string> lost_examples;
   tracker::FitAgreementTally agreement;
+  tracker::LightProjectionTally light;
   while ((total <= 0 || done < total) && target->read_next(&tf)) {
     if (std::isnan(target_first_s)) target_first_s = tf.timestamp_s;
     const double target_time_s = tf.timestamp_s - target_first_s;
@@ -413,6 +414,7 @@ void run_reenact(const ReenactArgs& a) {
     }
     const bool fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
     agreement.Add(tf.index, fit, out.tracked.fit_refused(), out.tracked.agreement, out.tracked.message);
+    if (fit) light.Add(out.tracked.light);
     if (out.status == reenact::TrackingStatus::kLost) {
       // Why, by the tracker's status (no_face, lost, bad_input) or the pipeline's reason.
       const std::string why = out.message.rfind("bad input", 0) == 0 || out.message.rfind("reenactment failed", 0) == 0
@@ -505,7 +507,8 @@ void run_reenact(const ReenactArgs& a) {
                                               : nlohmann::json()}}},
         {"calibration_window_frames", a.calibration_window},
         {"target_held_still", held_still},
-        {"agreement", agreement_json(agreement.summary())}};
+        {"agreement", agreement_json(agreement.summary())},
+        {"light", light_json(light)}};
     if (source_tracker) {
       r["source_calibration_warning"] = warning(source_tracker->tracker->calibration_warning());
       r["source_frames"] = {{"tracked", source_tracker->frames}, {"skipped", source_by_time.skipped()},

@@ -47,4 +47,13 @@ inline nlohmann::json agreement_json(const tracker::FitAgreementTally::Summary& 
           {"refused_frames", s.refused_frames}};
 }
 
+// The report's "light" section (LightProjectionTally).
+inline nlohmann::json light_json(const tracker::LightProjectionTally& t) {
+  return {{"fit_frames", t.frames},
+          {"projected_frames", t.projected},
+          {"projected_moved_mean", t.moved_mean()},
+          {"projected_moved_max", t.moved_max},
+          {"what", "frames whose fitted light no room gives (plausible_light.h), moved to the nearest one that is"}};
+}
+
 }  // namespace face_reenact::cli

@@ -320,6 +320,8 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   j["landmarks"] = t.landmarks_used;
   j["landmark_error_px"] = t.landmark_error_px;
   j["pose_reinitialized"] = t.pose_reinitialized;
+  // How far the fitted light was moved to one a room could give (null: it was one already).
+  j["light_projected"] = t.light.changed ? nlohmann::json(t.light.moved) : nlohmann::json();
   // The gaze reading (null when none was made: gaze off, eyes closed, no fit).
   j["gaze"] = t.gaze.ok ? nlohmann::json{{"horizontal", t.gaze.horizontal}, {"vertical", t.gaze.vertical},
                                          {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels},
@@ -381,6 +383,7 @@ struct RunTotals {
   int max_frames_to_recover = 0;
   std::vector<int64_t> face_switches;  // frames where a more prominent face took over
   FitAgreementTally agreement;
+  LightProjectionTally light;
 };
 
 // Runs the tracker over the whole input with one energy configuration. Writes the parameter
@@ -458,6 +461,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
     ++r.tracked_frames;
     const bool fit = tracking_status_has_fit(t.status);
     r.agreement.Add(frame.index, fit, t.fit_refused(), t.agreement, t.message);
+    if (fit) r.light.Add(t.light);
     if (t.new_face) r.face_switches.push_back(frame.index);
     if (!fit && no_face_run_start < 0 && f > 0) no_face_run_start = f;
     if (fit && no_face_run_start >= 0) {
@@ -582,6 +586,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["max_frames_to_recover"] = r.max_frames_to_recover;
   j["face_switches"] = r.face_switches;
   j["agreement"] = agreement_json(r.agreement.summary());
+  j["light"] = light_json(r.light);
   j["agreement_check"] = !a.no_agreement_check;
   j["energy_terms"] = {{"landmark", true}, {"regularizer", true}, {"color", config.colour},
                        {"point", config.depth && depth}, {"plane", config.depth && depth}};

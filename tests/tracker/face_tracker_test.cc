@@ -680,6 +680,17 @@ TEST(FaceTracker, ALightNoRoomGivesIsNeverReported) {
   EXPECT_GE(t.params.gamma[18], -1e-6f);
   EXPECT_GE(LowestRelativeIrradiance(t.params.gamma, 2), -kNegativeLobe - 0.01f);
   for (int k = 0; k < 18; ++k) EXPECT_EQ(t.params.gamma[static_cast<size_t>(k)], solved.gamma[static_cast<size_t>(k)]);
+  // The frame says so (the report counts such frames), and by how much.
+  EXPECT_TRUE(t.light.changed);
+  float moved = 0.f;
+  for (int k = 18; k < 27; ++k) moved += std::pow(t.params.gamma[static_cast<size_t>(k)] - solved.gamma[static_cast<size_t>(k)], 2.f);
+  EXPECT_NEAR(t.light.moved, std::sqrt(moved), 1e-4f);
+  LightProjectionTally tally;
+  tally.Add(t.light);
+  tally.Add(LightProjection{});
+  EXPECT_EQ(tally.frames, 2);
+  EXPECT_EQ(tally.projected, 1);
+  EXPECT_NEAR(tally.moved_mean(), t.light.moved, 1e-6);
 }
 
 // The calibration's joint solve can be replaced too (the Vulkan solver's SolveFrames in `track`):

@@ -567,9 +567,14 @@ TEST(TrackCli, TheReportMeasuresTheFitAgainstTheLandmarksAndTheOverlayShowsIt) {
   EXPECT_EQ(a["refused_frames"], 0);
   EXPECT_EQ(a["limits"]["pose_disagreement_deg"], 15.0);
   for (const char* part : {"brows", "nose", "eyes", "mouth"}) EXPECT_TRUE(a["landmark_nme_by_part"][part]["median"].is_number()) << part;
+  // The recording's light is one a room gives, and so is every fit's: none was projected.
+  const nlohmann::json light = read_json(out / "r.json")["light"];
+  EXPECT_EQ(light["fit_frames"], 5) << light.dump();
+  EXPECT_EQ(light["projected_frames"], 0) << light.dump();
   for (const nlohmann::json& line : read_lines(out / "p.jsonl")) {
     EXPECT_TRUE(line["agreement"]["pose_disagreement_deg"].is_number()) << line["agreement"].dump();
     EXPECT_TRUE(line["agreement"]["refused"].is_null());
+    EXPECT_TRUE(line.contains("light_projected") && line["light_projected"].is_null()) << line.dump();
   }
   for (int f = 0; f < 5; ++f) {
     char name[32], input_name[32];

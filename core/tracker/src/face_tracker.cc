@@ -517,7 +517,7 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
   a.summary = tracking_solve_ ? tracking_solve_(input, layout, so, &a.params) : solver_.Solve(input, layout, so, &a.params);
   // A light no room gives (a negative ambient, a shadow side lit by negative light) goes to the
   // nearest one it could (plausible_light.h); the next frame starts from there.
-  ProjectToPlausibleLight(&a.params.gamma);
+  a.light = ProjectToPlausibleLight(&a.params.gamma);
   times->pyramid_ms += a.summary.pyramid_ms;
   times->synthesis_ms += a.summary.synthesis_ms;
   times->analysis_ms += a.summary.analysis_ms;
@@ -794,6 +794,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
   out.solver_termination = a.summary.termination;
   out.gaze = a.gaze;
   out.agreement = a.agreement;
+  out.light = a.light;
   const std::string depth_note = depth_dropped ? "; no valid depth at the face: fitted colour and landmarks only" : "";
   const std::string note_prefix = calibration_note.empty() ? "" : calibration_note + "; ";
   if (!a.failure.empty()) {

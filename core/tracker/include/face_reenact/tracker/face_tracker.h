@@ -42,6 +42,7 @@
 #include "face_reenact/tracker/gaze.h"
 #include "face_reenact/tracker/input_frame.h"
 #include "face_reenact/tracker/parameter_layout.h"
+#include "face_reenact/tracker/plausible_light.h"
 #include "face_reenact/tracker/solver.h"
 #include "face_reenact/tracker/tracker_model.h"
 
@@ -354,6 +355,10 @@ struct TrackedFrame {
   // solve left the landmarks' pose too (the message says so, "kept (the landmarks do not fix the
   // pose)"), or the frame was lost.
   std::string disagreement;
+  // Whether this frame's fitted light was one no room gives and was moved to the nearest one that
+  // is (plausible_light.h), and how far: a fit that keeps needing it has a light the frame does
+  // not explain.
+  LightProjection light;
   StageTimes times;
   // The camera this frame was fitted through (render `params` with it): the frame's own, or,
   // once the focal length was estimated (TrackerOptions::focal_length), the frame's with the
@@ -475,6 +480,7 @@ class FaceTracker {
     GazeReading gaze;
     BrowReading brows;
     FitAgreement agreement;
+    LightProjection light;
   };
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
   // `lids`: the frame's eye-point reading (eye_openness.h), written into the fit's eyeBlink

@@ -16,6 +16,7 @@
 // which also keeps each channel's mean (its ambient) at or above 0. The tracker projects each
 // channel onto that set after every solve (the nearest coefficients that meet it in 128 directions
 // over the sphere), a projected Gauss-Newton: a plausible fit is left exactly as it is.
+#include <algorithm>
 #include <array>
 
 #include "face_reenact/gpu/image_formation.h"
@@ -41,5 +42,23 @@ inline constexpr float kNegativeLobe = 0.2f;
 // irradiance is at least -kNegativeLobe x its mean in every sampled direction; plausible channels
 // stay bit for bit. Non-finite coefficients are left alone (the solver's own checks report them).
 LightProjection ProjectToPlausibleLight(ShLight* light);
+
+// Over the frames of a run: how often the fitted light had to be projected, and how far (the
+// `light` section of `track --report` and `reenact --report`). A run where most frames need it
+// has a light the frames do not explain (a still, an exposure drift): a reader of its shading
+// should know.
+struct LightProjectionTally {
+  int frames = 0;     // frames fitted on their own (the ones Add was given)
+  int projected = 0;  // of them, those whose light was moved
+  double moved_sum = 0, moved_max = 0;
+  void Add(const LightProjection& p) {
+    ++frames;
+    if (!p.changed) return;
+    ++projected;
+    moved_sum += p.moved;
+    moved_max = std::max(moved_max, static_cast<double>(p.moved));
+  }
+  double moved_mean() const { return projected > 0 ? moved_sum / projected : 0.0; }
+};
 
 }  // namespace face_reenact::tracker
