@@ -109,6 +109,46 @@ class VertexCache {
     }
     return albedo_[v];
   }
+  // A vertex's shading under c's light, its normal `n_model` turned by `rot`: the SH basis of the
+  // camera-space normal, each channel's irradiance and, with `derivatives`, each channel's
+  // irradiance derivative along each Euler angle. A vertex is a corner of the triangles of many
+  // pixels: made once per vertex, where each pixel made it for its three corners.
+  struct Shading {
+    std::array<double, 9> y;
+    std::array<double, 3> irradiance;
+    std::array<std::array<double, 3>, 3> d_irradiance;  // [channel][angle]
+  };
+  const Shading& shading(int v, const Eigen::Vector3d& n_model, const internal::RotationWithDerivatives& rot,
+                         bool derivatives) {
+    if (shading_.empty()) {
+      shading_.resize(position_.size());
+      have_shading_.assign(position_.size(), 0);
+    }
+    const uint8_t want = derivatives ? 2 : 1;
+    if (have_shading_[v] < want) {
+      Shading& sh = shading_[v];
+      const Eigen::Vector3d n_cam = rot.r * n_model;
+      sh.y = internal::sh_basis(n_cam);
+      for (int ch = 0; ch < 3; ++ch) {
+        double irradiance = 0;
+        for (int q = 0; q < 9; ++q) irradiance += c_.gamma[ch * 9 + q] * sh.y[q];
+        sh.irradiance[ch] = irradiance;
+      }
+      if (derivatives) {
+        const std::array<Eigen::Vector3d, 9> grad = internal::sh_basis_gradient(n_cam);
+        for (int a = 0; a < 3; ++a) {
+          const Eigen::Vector3d dn = rot.d[a] * n_model;  // d n_cam / d euler_a
+          for (int ch = 0; ch < 3; ++ch) {
+            double d_irr = 0;
+            for (int q = 1; q < 9; ++q) d_irr += c_.gamma[ch * 9 + q] * grad[q].dot(dn);
+            sh.d_irradiance[ch][a] = d_irr;
+          }
+        }
+      }
+      have_shading_[v] = want;
+    }
+    return shading_[v];
+  }
 
  private:
   const TrackerModel& model_;
@@ -116,7 +156,8 @@ class VertexCache {
   const std::vector<Eigen::Vector3d>* fixed_shape_;
   const std::vector<Eigen::Vector3d>* fixed_albedo_;
   std::vector<Eigen::Vector3d> position_, albedo_;
-  std::vector<uint8_t> have_position_, have_albedo_;
+  std::vector<Shading> shading_;  // made on first use: not every evaluation shades
+  std::vector<uint8_t> have_position_, have_albedo_, have_shading_;  // shading: 1 without, 2 with derivatives
   Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block_;
 };
 
@@ -421,19 +462,12 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
         if (jacobian) d_col.setZero();
         for (int k = 0; k < 3; ++k) {
           const int v = s.vertex[k];
-          const Eigen::Vector3d n_model = lin.model_normals.segment<3>(3 * v);
-          const Eigen::Vector3d n_cam = R * n_model;
-          const auto y = internal::sh_basis(n_cam);
+          const VertexCache::Shading& shading =
+              vertices.shading(v, lin.model_normals.segment<3>(3 * v), rot, jacobian != nullptr);
+          const auto& y = shading.y;
           const Eigen::Vector3d& albedo = vertices.albedo(v);
-          std::array<Eigen::Vector3d, 9> grad;
-          std::array<Eigen::Vector3d, 3> dn;  // d n_cam / d euler_a
-          if (jacobian) {
-            grad = internal::sh_basis_gradient(n_cam);
-            for (int a = 0; a < 3; ++a) dn[a] = rot.d[a] * n_model;
-          }
           for (int ch = 0; ch < 3; ++ch) {
-            double irradiance = 0;
-            for (int q = 0; q < 9; ++q) irradiance += c.gamma[ch * 9 + q] * y[q];
+            const double irradiance = shading.irradiance[ch];
             color[ch] += s.bary[k] * albedo[ch] * irradiance;
             if (!jacobian) continue;
             auto jrow = d_col.row(ch);
@@ -443,11 +477,7 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
               jrow.segment(o_alb, k_alb) +=
                   (s_col * s.bary[k] * irradiance) * rm.albedo_basis.row(3 * v + ch).head(k_alb).cast<double>();
             }
-            for (int a = 0; a < 3; ++a) {
-              double d_irr = 0;
-              for (int q = 1; q < 9; ++q) d_irr += c.gamma[ch * 9 + q] * grad[q].dot(dn[a]);
-              jrow[o_rot + a] += ba * d_irr;
-            }
+            for (int a = 0; a < 3; ++a) jrow[o_rot + a] += ba * shading.d_irradiance[ch][a];
           }
         }
         if (color_moves) {
