@@ -389,63 +389,69 @@ struct FaceCompositor::Impl {
     box = (box + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, w, h);
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
     cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
-    for (int j = box.y; j < box.y + box.height; ++j)
-      for (int i = box.x; i < box.x + box.width; ++i) {
-        const size_t p = static_cast<size_t>(j) * w + i;
-        if (g->triangle[p] < 0) continue;
-        const int bi = i - box.x, bj = j - box.y;
-        covered.at<float>(bj, bi) = 1.0f;
-        const bool eyeball = kEyeParts & part_bit(part_of(g->vertices[3 * p]));
-        Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
-                        nt = Eigen::Vector3f::Zero();
-        for (int k = 0; k < 3; ++k) {
-          const int32_t v = g->vertices[3 * p + static_cast<size_t>(k)];
-          const float b = g->barycentric[3 * p + static_cast<size_t>(k)];
-          x += b * ts.camera_positions.segment<3>(3 * v);
-          nt += b * ts.camera_normals.segment<3>(3 * v);
-          eo += b * e_out[static_cast<size_t>(v)];
-          et += b * e_target[static_cast<size_t>(v)];
-        }
-        if (!(x.z() > camera.near_plane)) continue;
-        const Eigen::Vector2f uv = project(camera, x);
-        const float u = uv.x(), vv = uv.y();
-        if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
-        const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
-        // Not shown: nothing of the model there, or a surface at another depth (the point is
-        // hidden in the frame).
-        if (tg.triangle[q] < 0) continue;
-        const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
-        if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
-        // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
-        // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
-        // wider than the target's with skin-coloured bands.
-        if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
-        const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
-        const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
-        cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
-        for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
-        float trust = 1.0f;
-        // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
-        // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
-        // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
-        // moved by the gaze is what the reenactment is to show.
-        if (!boundary_px.empty() && !eyeball) {
-          // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
-          const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
-          const bool by_mouth = mouth_zone.contains(cv::Point(static_cast<int>(u), static_cast<int>(vv)));
-          const float exposed = std::max(moved, by_mouth ? mouth_redraw : 0.0f);
-          if (exposed > 0.f) {
-            const float d = sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y));
-            const float away = std::clamp(2.0f * d / ramp_px - 1.0f, 0.0f, 1.0f);
-            // Grazing views (the tracked normal within ~80 degrees of the view ray) are smeared
-            // and sit at silhouettes.
-            const float cos_view = -nt.normalized().dot(x.normalized());
-            const float facing = std::clamp((cos_view - 0.1f) / 0.2f, 0.0f, 1.0f);
-            trust = 1.0f - exposed * (1.0f - away * facing);
+    // Rows of the box on the pool's threads: each pixel writes only its own texture, weight and
+    // coverage, so the result is the same for any thread count.
+    constexpr int kRowsPerItem = 8;
+    ParallelFor((box.height + kRowsPerItem - 1) / kRowsPerItem, threads(), [&](int item) {
+      const int j_end = std::min(box.y + box.height, box.y + (item + 1) * kRowsPerItem);
+      for (int j = box.y + item * kRowsPerItem; j < j_end; ++j)
+        for (int i = box.x; i < box.x + box.width; ++i) {
+          const size_t p = static_cast<size_t>(j) * w + i;
+          if (g->triangle[p] < 0) continue;
+          const int bi = i - box.x, bj = j - box.y;
+          covered.at<float>(bj, bi) = 1.0f;
+          const bool eyeball = kEyeParts & part_bit(part_of(g->vertices[3 * p]));
+          Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
+                          nt = Eigen::Vector3f::Zero();
+          for (int k = 0; k < 3; ++k) {
+            const int32_t v = g->vertices[3 * p + static_cast<size_t>(k)];
+            const float b = g->barycentric[3 * p + static_cast<size_t>(k)];
+            x += b * ts.camera_positions.segment<3>(3 * v);
+            nt += b * ts.camera_normals.segment<3>(3 * v);
+            eo += b * e_out[static_cast<size_t>(v)];
+            et += b * e_target[static_cast<size_t>(v)];
           }
+          if (!(x.z() > camera.near_plane)) continue;
+          const Eigen::Vector2f uv = project(camera, x);
+          const float u = uv.x(), vv = uv.y();
+          if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
+          const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
+          // Not shown: nothing of the model there, or a surface at another depth (the point is
+          // hidden in the frame).
+          if (tg.triangle[q] < 0) continue;
+          const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
+          if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
+          // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
+          // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
+          // wider than the target's with skin-coloured bands.
+          if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
+          const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
+          const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
+          cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
+          for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
+          float trust = 1.0f;
+          // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
+          // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
+          // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
+          // moved by the gaze is what the reenactment is to show.
+          if (!boundary_px.empty() && !eyeball) {
+            // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
+            const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
+            const bool by_mouth = mouth_zone.contains(cv::Point(static_cast<int>(u), static_cast<int>(vv)));
+            const float exposed = std::max(moved, by_mouth ? mouth_redraw : 0.0f);
+            if (exposed > 0.f) {
+              const float d = sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y));
+              const float away = std::clamp(2.0f * d / ramp_px - 1.0f, 0.0f, 1.0f);
+              // Grazing views (the tracked normal within ~80 degrees of the view ray) are smeared
+              // and sit at silhouettes.
+              const float cos_view = -nt.normalized().dot(x.normalized());
+              const float facing = std::clamp((cos_view - 0.1f) / 0.2f, 0.0f, 1.0f);
+              trust = 1.0f - exposed * (1.0f - away * facing);
+            }
+          }
+          weight.at<float>(bj, bi) = trust;
         }
-        weight.at<float>(bj, bi) = trust;
-      }
+    });
     // The albedo map's colour balance against this frame's: per channel, the frame's texture over
     // the albedo map's rendering where the frame is fully trusted. The map was learned under the
     // lighting of earlier frames; when the tracked light's colour has drifted since (on the webcam
