@@ -175,26 +175,32 @@ MirrorLight ReadLightFile(const std::string& path) {
   if (!in) throw Error("cannot read the light file '" + path + "'");
   std::stringstream text;
   text << in.rdbuf();
+  return ParseLightJson(text.str(), path);
+}
+
+MirrorLight ParseLightJson(const std::string& text, const std::string& name) {
+  const std::string what = "the light file '" + name + "'";
   nlohmann::json j;
   try {
-    j = nlohmann::json::parse(text.str());
+    j = nlohmann::json::parse(text);
   } catch (const nlohmann::json::exception& e) {
-    throw Error("the light file '" + path + "' is not JSON: " + e.what());
+    throw Error(what + " is not JSON: " + e.what());
   }
   if (!j.is_object() || !j.contains("gamma") || !j["gamma"].is_array())
-    throw Error("the light file '" + path + "' has no \"gamma\" array (27 SH coefficients, as in track's PARAMS.jsonl)");
+    throw Error(what + " has no \"gamma\" array (27 SH coefficients, as in track's PARAMS.jsonl)");
   const auto& g = j["gamma"];
   if (g.size() != static_cast<size_t>(gpu::kNumShParameters))
-    throw Error("the light file '" + path + "' has " + std::to_string(g.size()) + " coefficients in \"gamma\", not 27");
+    throw Error(what + " has " + std::to_string(g.size()) + " coefficients in \"gamma\", not 27");
   MirrorLight l;
   l.kind = MirrorLight::Kind::kCoefficients;
-  l.name = path;
+  l.name = name;
   for (size_t k = 0; k < g.size(); ++k) {
-    if (!g[k].is_number()) throw Error("the light file '" + path + "': \"gamma\" holds something that is not a number");
-    l.gamma[k] = g[k].get<float>();
+    if (!g[k].is_number()) throw Error(what + ": \"gamma\" holds something that is not a number");
+    // A number beyond float's range is not finite as a float: IsValid below says so.
+    l.gamma[k] = static_cast<float>(g[k].get<double>());
   }
   std::string why;
-  if (!l.IsValid(&why)) throw Error("the light file '" + path + "': " + why);
+  if (!l.IsValid(&why)) throw Error(what + ": " + why);
   return l;
 }
 

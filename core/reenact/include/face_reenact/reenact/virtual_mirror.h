@@ -64,6 +64,8 @@ MirrorLight ParseLightPreset(const std::string& name);
 // A JSON file with "gamma": 27 finite numbers (an object of its own, or a line of track's
 // PARAMS.jsonl). Throws face_reenact::Error saying what is wrong.
 MirrorLight ReadLightFile(const std::string& path);
+// The same from the file's text; `name` is what the messages call it.
+MirrorLight ParseLightJson(const std::string& text, const std::string& name);
 // The SH coefficients of a light preset, each channel as bright towards the camera as `tracked`'s
 // times the preset's colour (VirtualMirror::Apply then scales them so that the face's mean
 // irradiance stays the tracked light's: the face keeps its exposure, the light changes direction).
