@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cmath>
+#include <limits>
 #include <fstream>
 #include <sstream>
 #include <vector>
@@ -196,8 +197,11 @@ MirrorLight ParseLightJson(const std::string& text, const std::string& name) {
   l.name = name;
   for (size_t k = 0; k < g.size(); ++k) {
     if (!g[k].is_number()) throw Error(what + ": \"gamma\" holds something that is not a number");
-    // A number beyond float's range is not finite as a float: IsValid below says so.
-    l.gamma[k] = static_cast<float>(g[k].get<double>());
+    // A number beyond float's range has no float (casting it is undefined behaviour).
+    const double value = g[k].get<double>();
+    if (!(std::abs(value) <= std::numeric_limits<float>::max()))
+      throw Error(what + ": \"gamma\" holds a number beyond a float's range");
+    l.gamma[k] = static_cast<float>(value);
   }
   std::string why;
   if (!l.IsValid(&why)) throw Error(what + ": " + why);
