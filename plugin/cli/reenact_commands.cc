@@ -1,6 +1,7 @@
 // `face-reenact reenact` (source expressions onto a target recording, written as a video) and
 // `face-reenact demo` (the whole pipeline on two synthetic actors, checked in a closed loop).
 // docs/reenactment.md describes both.
+#include <pthread.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -10,6 +11,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <limits>
 #include <map>
 #include <memory>
@@ -368,6 +370,7 @@ void run_reenact(const ReenactArgs& a) {
     reenact::SourceExpression expr;
     const reenact::SourceExpression* src = nullptr;
     bool source_fresh = false;
+    std::optional<reenact::TrackedTarget> tracked_target;
     if (source_rec) {
       bool ended = false;
       source_fresh = source_by_time.advance(target_time_s, &sf, &ended);
@@ -377,7 +380,19 @@ void run_reenact(const ReenactArgs& a) {
           source_tracker->tracker->RequestCalibration();
           source_rest_requested = true;
         }
-        st = source_tracker->Track(sf);
+        // The two actors' trackers are independent: the source's runs on a thread of its own
+        // while this one tracks the target (the render needs both), so both cores work.
+        auto source_tracked = std::async(std::launch::async, [&] {
+          pthread_setname_np(pthread_self(), "fr-source-track");
+          return source_tracker->Track(sf);
+        });
+        try {
+          tracked_target = pipeline.Track(tf);
+        } catch (...) {
+          source_tracked.wait();  // never leave it running on frames this loop is about to change
+          throw;
+        }
+        st = source_tracked.get();
         ++source_statuses[tracker::tracking_status_name(st.status)];
       }
       expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
@@ -392,7 +407,8 @@ void run_reenact(const ReenactArgs& a) {
       expr = reenact::SourceFromRemote(receiver->sample());
       src = &expr;
     }
-    const reenact::ReenactedFrame out = pipeline.Process(tf, src);
+    const reenact::ReenactedFrame out =
+        tracked_target ? pipeline.Render(std::move(*tracked_target), src) : pipeline.Process(tf, src);
     if (out.bgr.cols != info.camera.width || out.bgr.rows != info.camera.height)
       throw Error("target '" + a.target + "': frame " + std::to_string(tf.index) + " has a different size");
     writer.write(out.bgr);
