@@ -60,7 +60,7 @@ const std::vector<LiveStageRow>& LiveStageRows() {
       {"detail", &LiveStageTimes::detail_ms},
       {"mouth", &LiveStageTimes::mouth_ms},
       {"composite", &LiveStageTimes::composite_ms},
-      {"source actor tracking", &LiveStageTimes::actor_ms},
+      {"source actor (waited)", &LiveStageTimes::actor_ms},
       {"hand-off and other", &LiveStageTimes::worker_other_ms},
   };
   return rows;

@@ -131,7 +131,8 @@ struct LiveStageTimes {
   double detail_ms = 0;         // the source actor's folds carried over (Sec. 7.3; a camera/recording source)
   double mouth_ms = 0;
   double composite_ms = 0;      // masks, Laplacian blend, 8-bit output
-  double actor_ms = 0;          // a source actor's frame tracked on this worker (camera/recording source)
+  double actor_ms = 0;          // waiting for a source actor's frame (camera/recording source), tracked on a
+                                // thread of its own beside the target's: what its tracking adds to the frame
   double worker_other_ms = 0;
   double total_ms = 0;          // from the worker taking the frame to its publication (the sum of the rows above)
 
