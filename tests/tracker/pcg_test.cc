@@ -1,10 +1,13 @@
 // The PCG inner solve on its own: both operators agree, it converges to the direct solution,
 // and degenerate systems neither crash nor produce NaN.
+#include <cmath>
+#include <vector>
 #include <gtest/gtest.h>
 
 #include <Eigen/Cholesky>
 #include <random>
 
+#include "row_kernels.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/tracker/pcg.h"
 
@@ -165,4 +168,29 @@ TEST(TrackerPcg, DegenerateSystemsStayFinite) {
 }
 
 }  // namespace
+// J^T J p's row loop built for baseline x86-64 and for AVX2 (row_kernels.h) gives the same bits
+// on rows of every length the solver uses (the tracking layout's 85 columns, a calibration's
+// hundreds, lengths that leave a remainder after the four-wide sums), and the choice the program
+// makes is one of them.
+TEST(RowKernels, TheAvx2VariantGivesTheBaselinesBits) {
+  if (!internal::HasAvx2()) GTEST_SKIP() << "this CPU has no AVX2: only the baseline variant runs here";
+  std::mt19937 rng(7);
+  std::normal_distribution<float> normal(0.f, 1.f);
+  for (const Eigen::Index n : {Eigen::Index{1}, Eigen::Index{3}, Eigen::Index{85}, Eigen::Index{87}, Eigen::Index{301}}) {
+    const Eigen::Index rows = 257, stride = n + 3;
+    std::vector<float> j(static_cast<size_t>(rows * stride));
+    for (float& v : j) v = normal(rng) * std::pow(10.f, static_cast<float>(rng() % 7) - 3.f);
+    Eigen::VectorXd x(n);
+    for (Eigen::Index k = 0; k < n; ++k) x[k] = static_cast<double>(normal(rng));
+    Eigen::VectorXd base = Eigen::VectorXd::Constant(n, 0.25), avx2 = base, chosen = base;
+    internal::AddNormalRowsBaseline(j.data(), stride, rows, n, x.data(), base.data());
+    internal::AddNormalRowsAvx2(j.data(), stride, rows, n, x.data(), avx2.data());
+    internal::AddNormalRows(j.data(), stride, rows, n, x.data(), chosen.data());
+    for (Eigen::Index k = 0; k < n; ++k) {
+      ASSERT_EQ(base[k], avx2[k]) << "n " << n << ", column " << k;
+      ASSERT_EQ(base[k], chosen[k]) << "n " << n << ", column " << k;
+    }
+  }
+}
+
 }  // namespace face_reenact::tracker

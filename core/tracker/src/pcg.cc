@@ -7,6 +7,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/parallel.h"
+#include "row_kernels.h"
 
 namespace face_reenact::tracker {
 
@@ -26,25 +27,6 @@ constexpr Eigen::Index kRowsPerChunk = 4096;
 // 256 rows of 85 doubles stay in L2.
 constexpr Eigen::Index kRowsPerTile = 256;
 
-// sum_k row[k] * x[k] in double. Four independent partial sums, so the compiler can keep them in
-// one vector register; a single running sum it may not reorder, and would add one at a time.
-double RowDot(const float* row, const double* x, Eigen::Index n) {
-  double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-  Eigen::Index k = 0;
-  for (; k + 4 <= n; k += 4) {
-    s0 += static_cast<double>(row[k]) * x[k];
-    s1 += static_cast<double>(row[k + 1]) * x[k + 1];
-    s2 += static_cast<double>(row[k + 2]) * x[k + 2];
-    s3 += static_cast<double>(row[k + 3]) * x[k + 3];
-  }
-  for (; k < n; ++k) s0 += static_cast<double>(row[k]) * x[k];
-  return (s0 + s1) + (s2 + s3);
-}
-
-// acc[k] += s * row[k] for k < n, in double.
-void AddScaledRow(double s, const float* row, Eigen::Index n, double* acc) {
-  for (Eigen::Index k = 0; k < n; ++k) acc[k] += s * static_cast<double>(row[k]);
-}
 }  // namespace
 
 void StackedJacobian::AddFrame(const JacobianMatrix& block) {
@@ -102,7 +84,7 @@ void StackedJacobian::MultiplyTransposed(const Eigen::VectorXd& v, Eigen::Vector
       [&](const RowChunk& c, Eigen::VectorXd* partial) {
         const JacobianMatrix& j = *blocks_[c.frame];
         for (Eigen::Index i = c.begin; i < c.end; ++i) {
-          AddScaledRow(v[c.first + (i - c.begin)], j.row(i).data(), j.cols(), partial->data());
+          internal::AddScaledRow(v[c.first + (i - c.begin)], j.row(i).data(), j.cols(), partial->data());
         }
       },
       y);
@@ -114,11 +96,9 @@ void StackedJacobian::MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* 
       [&](const RowChunk& c, Eigen::VectorXd* partial) {
         const JacobianMatrix& j = *blocks_[c.frame];
         const Eigen::VectorXd& xl = own_ == 0 ? x : local_x_[static_cast<size_t>(c.frame)];
-        const Eigen::Index n = j.cols();
-        for (Eigen::Index i = c.begin; i < c.end; ++i) {
-          const float* row = j.row(i).data();
-          AddScaledRow(RowDot(row, xl.data(), n), row, n, partial->data());
-        }
+        if (c.end > c.begin)
+          internal::AddNormalRows(j.row(c.begin).data(), j.outerStride(), c.end - c.begin, j.cols(), xl.data(),
+                                  partial->data());
       },
       y);
 }
@@ -152,7 +132,7 @@ void StackedJacobian::MultiplyTransposedWithColumnSquaredNorms(const Eigen::Vect
     double* norms = partial.data() + local;
     for (Eigen::Index i = c.begin; i < c.end; ++i) {
       const float* row = j.row(i).data();
-      AddScaledRow(v[c.first + (i - c.begin)], row, local, partial.data());
+      internal::AddScaledRow(v[c.first + (i - c.begin)], row, local, partial.data());
       for (Eigen::Index q = 0; q < local; ++q) norms[q] += static_cast<double>(row[q]) * static_cast<double>(row[q]);
     }
   });

@@ -1,0 +1,42 @@
+#pragma once
+// The CPU solver's row kernels over J (row-major float rows, double accumulation): the inner
+// loops of the PCG products (pcg.cc). The J^T J p loop is built twice, for baseline x86-64 and
+// for AVX2, and the program picks one by what the CPU has when it first runs it (a Debian package
+// must run on baseline x86-64; the build targets it). Both give the same bits: no FMA, and the
+// four partial sums of RowDot are the four lanes of one AVX2 register, nothing reassociated.
+#include <Eigen/Core>
+
+namespace face_reenact::tracker::internal {
+
+// sum_k row[k] * x[k] in double. Four independent partial sums, so the compiler can keep them in
+// one vector register; a single running sum it may not reorder, and would add one at a time.
+[[gnu::always_inline]] inline double RowDot(const float* row, const double* x, Eigen::Index n) {
+  double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+  Eigen::Index k = 0;
+  for (; k + 4 <= n; k += 4) {
+    s0 += static_cast<double>(row[k]) * x[k];
+    s1 += static_cast<double>(row[k + 1]) * x[k + 1];
+    s2 += static_cast<double>(row[k + 2]) * x[k + 2];
+    s3 += static_cast<double>(row[k + 3]) * x[k + 3];
+  }
+  for (; k < n; ++k) s0 += static_cast<double>(row[k]) * x[k];
+  return (s0 + s1) + (s2 + s3);
+}
+
+// acc[k] += s * row[k] for k < n, in double.
+[[gnu::always_inline]] inline void AddScaledRow(double s, const float* row, Eigen::Index n, double* acc) {
+  for (Eigen::Index k = 0; k < n; ++k) acc[k] += s * static_cast<double>(row[k]);
+}
+
+// acc += sum over `count` rows (`stride` floats apart, `n` used) of row * (row . x): J^T J p's
+// inner loop, on the variant this CPU runs best.
+void AddNormalRows(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n, const double* x,
+                   double* acc);
+// The variants themselves (tests compare them); the AVX2 one only where HasAvx2().
+void AddNormalRowsBaseline(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                           const double* x, double* acc);
+void AddNormalRowsAvx2(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n, const double* x,
+                       double* acc);
+bool HasAvx2();
+
+}  // namespace face_reenact::tracker::internal
