@@ -168,7 +168,7 @@ TEST(TrackerPcg, DegenerateSystemsStayFinite) {
 }
 
 }  // namespace
-// J^T J p's row loop built for baseline x86-64 and for AVX2 (row_kernels.h) gives the same bits
+// J^T J p's and J^T v's row loops built for baseline x86-64 and for AVX2 (row_kernels.h) give the same bits
 // on rows of every length the solver uses (the tracking layout's 85 columns, a calibration's
 // hundreds, lengths that leave a remainder after the four-wide sums), and the choice the program
 // makes is one of them.
@@ -189,6 +189,20 @@ TEST(RowKernels, TheAvx2VariantGivesTheBaselinesBits) {
     for (Eigen::Index k = 0; k < n; ++k) {
       ASSERT_EQ(base[k], avx2[k]) << "n " << n << ", column " << k;
       ASSERT_EQ(base[k], chosen[k]) << "n " << n << ", column " << k;
+    }
+    // J^T v with diag(J^T J) in one pass.
+    Eigen::VectorXd v(rows);
+    for (Eigen::Index i = 0; i < rows; ++i) v[i] = static_cast<double>(normal(rng));
+    Eigen::VectorXd acc_base = Eigen::VectorXd::Zero(n), sq_base = Eigen::VectorXd::Zero(n);
+    Eigen::VectorXd acc_avx2 = acc_base, sq_avx2 = sq_base, acc_chosen = acc_base, sq_chosen = sq_base;
+    internal::AddScaledRowsAndSquaresBaseline(j.data(), stride, rows, n, v.data(), acc_base.data(), sq_base.data());
+    internal::AddScaledRowsAndSquaresAvx2(j.data(), stride, rows, n, v.data(), acc_avx2.data(), sq_avx2.data());
+    internal::AddScaledRowsAndSquares(j.data(), stride, rows, n, v.data(), acc_chosen.data(), sq_chosen.data());
+    for (Eigen::Index k = 0; k < n; ++k) {
+      ASSERT_EQ(acc_base[k], acc_avx2[k]) << "J^T v, n " << n << ", column " << k;
+      ASSERT_EQ(sq_base[k], sq_avx2[k]) << "diag(J^T J), n " << n << ", column " << k;
+      ASSERT_EQ(acc_base[k], acc_chosen[k]);
+      ASSERT_EQ(sq_base[k], sq_chosen[k]);
     }
   }
 }

@@ -130,11 +130,9 @@ void StackedJacobian::MultiplyTransposedWithColumnSquaredNorms(const Eigen::Vect
     partial.setZero(2 * local);
     const JacobianMatrix& j = *blocks_[c.frame];
     double* norms = partial.data() + local;
-    for (Eigen::Index i = c.begin; i < c.end; ++i) {
-      const float* row = j.row(i).data();
-      internal::AddScaledRow(v[c.first + (i - c.begin)], row, local, partial.data());
-      for (Eigen::Index q = 0; q < local; ++q) norms[q] += static_cast<double>(row[q]) * static_cast<double>(row[q]);
-    }
+    if (c.end > c.begin)
+      internal::AddScaledRowsAndSquares(j.row(c.begin).data(), j.outerStride(), c.end - c.begin, local, v.data() + c.first,
+                                        partial.data(), norms);
   });
   y->setZero(cols());
   column_squared_norms->setZero(cols());

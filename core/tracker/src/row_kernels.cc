@@ -13,7 +13,22 @@ namespace {
   }
 }
 
+[[gnu::always_inline]] inline void add_scaled_rows_and_squares(const float* rows, Eigen::Index stride,
+                                                               Eigen::Index count, Eigen::Index n, const double* v,
+                                                               double* acc, double* squares) {
+  for (Eigen::Index i = 0; i < count; ++i) {
+    const float* row = rows + i * stride;
+    AddScaledRow(v[i], row, n, acc);
+    for (Eigen::Index q = 0; q < n; ++q) squares[q] += static_cast<double>(row[q]) * static_cast<double>(row[q]);
+  }
+}
+
 }  // namespace
+
+void AddScaledRowsAndSquaresBaseline(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                                     const double* v, double* acc, double* squares) {
+  add_scaled_rows_and_squares(rows, stride, count, n, v, acc, squares);
+}
 
 void AddNormalRowsBaseline(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
                            const double* x, double* acc) {
@@ -24,6 +39,12 @@ void AddNormalRowsBaseline(const float* rows, Eigen::Index stride, Eigen::Index 
 __attribute__((target("avx2"))) void AddNormalRowsAvx2(const float* rows, Eigen::Index stride, Eigen::Index count,
                                                        Eigen::Index n, const double* x, double* acc) {
   add_normal_rows(rows, stride, count, n, x, acc);
+}
+
+__attribute__((target("avx2"))) void AddScaledRowsAndSquaresAvx2(const float* rows, Eigen::Index stride,
+                                                                 Eigen::Index count, Eigen::Index n, const double* v,
+                                                                 double* acc, double* squares) {
+  add_scaled_rows_and_squares(rows, stride, count, n, v, acc, squares);
 }
 
 bool HasAvx2() {
@@ -39,6 +60,11 @@ void AddNormalRowsAvx2(const float* rows, Eigen::Index stride, Eigen::Index coun
   add_normal_rows(rows, stride, count, n, x, acc);
 }
 
+void AddScaledRowsAndSquaresAvx2(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                                 const double* v, double* acc, double* squares) {
+  add_scaled_rows_and_squares(rows, stride, count, n, v, acc, squares);
+}
+
 bool HasAvx2() { return false; }
 #endif
 
@@ -48,6 +74,15 @@ void AddNormalRows(const float* rows, Eigen::Index stride, Eigen::Index count, E
     AddNormalRowsAvx2(rows, stride, count, n, x, acc);
   } else {
     AddNormalRowsBaseline(rows, stride, count, n, x, acc);
+  }
+}
+
+void AddScaledRowsAndSquares(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                             const double* v, double* acc, double* squares) {
+  if (HasAvx2()) {
+    AddScaledRowsAndSquaresAvx2(rows, stride, count, n, v, acc, squares);
+  } else {
+    AddScaledRowsAndSquaresBaseline(rows, stride, count, n, v, acc, squares);
   }
 }
 

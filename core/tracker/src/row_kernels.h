@@ -32,11 +32,19 @@ namespace face_reenact::tracker::internal {
 // inner loop, on the variant this CPU runs best.
 void AddNormalRows(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n, const double* x,
                    double* acc);
-// The variants themselves (tests compare them); the AVX2 one only where HasAvx2().
+// acc += sum over `count` rows of v[i] * row and squares += sum of row's squares (J^T v and
+// diag(J^T J) in one pass), on the variant this CPU runs best.
+void AddScaledRowsAndSquares(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                             const double* v, double* acc, double* squares);
+// The variants themselves (tests compare them); the AVX2 ones only where HasAvx2().
 void AddNormalRowsBaseline(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
                            const double* x, double* acc);
 void AddNormalRowsAvx2(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n, const double* x,
                        double* acc);
+void AddScaledRowsAndSquaresBaseline(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                                     const double* v, double* acc, double* squares);
+void AddScaledRowsAndSquaresAvx2(const float* rows, Eigen::Index stride, Eigen::Index count, Eigen::Index n,
+                                 const double* v, double* acc, double* squares);
 bool HasAvx2();
 
 }  // namespace face_reenact::tracker::internal
