@@ -409,8 +409,10 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   // terms of the pixels before it.
   auto dense_rows = [&](size_t begin, size_t end, Eigen::Index row_point, Eigen::Index row_plane, Eigen::Index row_col,
                         VertexCache& vertices) {
-    // Scratch for the pixel-level derivatives of X_S (3 x np) - only the shape/pose columns are used.
-    Eigen::Matrix<double, 3, Eigen::Dynamic> dx(3, np);
+    // Scratch for the pixel-level derivatives of X_S (3 x np). Only the shape and pose columns
+    // depend on the pixel, and every pixel writes all of them; the rest (albedo, light) stay the
+    // zeros set here (a per-pixel clear of all np columns was a 2 KB memset per pixel).
+    Eigen::Matrix<double, 3, Eigen::Dynamic> dx = Eigen::Matrix<double, 3, Eigen::Dynamic>::Zero(3, np);
     // A plane pair's and a colour triple's rows, accumulated in double and rounded once into J.
     Eigen::Matrix<double, 2, Eigen::Dynamic> d_plane(2, np);
     Eigen::Matrix<double, 3, Eigen::Dynamic> d_col(3, np);
@@ -425,7 +427,6 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       const Eigen::Vector3d xs = R * v_bar + c.translation;
       const bool color_moves = s.color && lin.color_follows_projection;
       if (jacobian && (s.point || s.plane || color_moves)) {
-        dx.setZero();
         if (k_id > 0) {
           e_id.setZero();
           for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
