@@ -1,7 +1,6 @@
 // `face-reenact reenact` (source expressions onto a target recording, written as a video) and
 // `face-reenact demo` (the whole pipeline on two synthetic actors, checked in a closed loop).
 // docs/reenactment.md describes both.
-#include <pthread.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -11,7 +10,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <future>
 #include <limits>
 #include <map>
 #include <memory>
@@ -35,6 +33,7 @@
 #include "face_reenact/capture/synth.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/json_number.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/context.h"
@@ -382,17 +381,8 @@ void run_reenact(const ReenactArgs& a) {
         }
         // The two actors' trackers are independent: the source's runs on a thread of its own
         // while this one tracks the target (the render needs both), so both cores work.
-        auto source_tracked = std::async(std::launch::async, [&] {
-          pthread_setname_np(pthread_self(), "fr-source-track");
-          return source_tracker->Track(sf);
-        });
-        try {
-          tracked_target = pipeline.Track(tf);
-        } catch (...) {
-          source_tracked.wait();  // never leave it running on frames this loop is about to change
-          throw;
-        }
-        st = source_tracked.get();
+        st = RunBeside("fr-source-track", [&] { return source_tracker->Track(sf); },
+                       [&] { tracked_target = pipeline.Track(tf); });
         ++source_statuses[tracker::tracking_status_name(st.status)];
       }
       expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());

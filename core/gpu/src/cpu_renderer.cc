@@ -368,82 +368,80 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
         std::fill(row + drawn_box.i0, row + drawn_box.i1 + 1, 1.0f);
       }
     }
-    {
-      for (const TriangleSetup* setup : band_triangles[static_cast<size_t>(band)]) {
-        const TriangleSetup& ts = *setup;
-        const auto& tri = model_.triangles[ts.triangle];
-        const double* ox = ts.ox;
-        const double* oy = ts.oy;
-        const int* order = ts.order;
-        // Per edge, the coverage function's step along a row, and the unsnapped plane's terms in
-        // the triangle's own corner order: the same operations on the same values as evaluating
-        // each pixel afresh (snapped coordinates are multiples of 1/kSubpixel, so the edge
-        // functions and their steps are exact in double and stepping changes no pixel).
-        double step[3];
-        for (int e = 0; e < 3; ++e) step[e] = oy[(e + 2) % 3] - oy[(e + 1) % 3];
-        double plane_dx[3], plane_dy[3], plane_x[3], plane_y[3];
-        for (int e = 0; e < 3; ++e) {
-          const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
-          plane_dx[e] = ts.ux[b] - ts.ux[a];
-          plane_dy[e] = ts.uy[b] - ts.uy[a];
-          plane_x[e] = ts.ux[a];
-          plane_y[e] = ts.uy[a];
+    for (const TriangleSetup* setup : band_triangles[static_cast<size_t>(band)]) {
+      const TriangleSetup& ts = *setup;
+      const auto& tri = model_.triangles[ts.triangle];
+      const double* ox = ts.ox;
+      const double* oy = ts.oy;
+      const int* order = ts.order;
+      // Per edge, the coverage function's step along a row, and the unsnapped plane's terms in
+      // the triangle's own corner order: the same operations on the same values as evaluating
+      // each pixel afresh (snapped coordinates are multiples of 1/kSubpixel, so the edge
+      // functions and their steps are exact in double and stepping changes no pixel).
+      double step[3];
+      for (int e = 0; e < 3; ++e) step[e] = oy[(e + 2) % 3] - oy[(e + 1) % 3];
+      double plane_dx[3], plane_dy[3], plane_x[3], plane_y[3];
+      for (int e = 0; e < 3; ++e) {
+        const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
+        plane_dx[e] = ts.ux[b] - ts.ux[a];
+        plane_dy[e] = ts.uy[b] - ts.uy[a];
+        plane_x[e] = ts.ux[a];
+        plane_y[e] = ts.uy[a];
+      }
+      for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
+        const double py = j + 0.5;
+        double w[3];
+        {
+          const double px = ts.i0 + 0.5;
+          for (int e = 0; e < 3; ++e) {
+            const int a = (e + 1) % 3, b = (e + 2) % 3;
+            w[e] = (ox[b] - ox[a]) * (py - oy[a]) - (oy[b] - oy[a]) * (px - ox[a]);
+          }
         }
-        for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
-          const double py = j + 0.5;
-          double w[3];
-          {
-            const double px = ts.i0 + 0.5;
-            for (int e = 0; e < 3; ++e) {
-              const int a = (e + 1) % 3, b = (e + 2) % 3;
-              w[e] = (ox[b] - ox[a]) * (py - oy[a]) - (oy[b] - oy[a]) * (px - ox[a]);
-            }
+        bool entered = false;
+        for (int i = ts.i0; i <= ts.i1; ++i, w[0] -= step[0], w[1] -= step[1], w[2] -= step[2]) {
+          const bool inside = (w[0] > 0.0 || (w[0] == 0.0 && ts.top_left[0])) &&
+                              (w[1] > 0.0 || (w[1] == 0.0 && ts.top_left[1])) &&
+                              (w[2] > 0.0 || (w[2] == 0.0 && ts.top_left[2]));
+          if (!inside) {
+            if (entered) break;  // a triangle's pixels on a row are one run
+            continue;
           }
-          bool entered = false;
-          for (int i = ts.i0; i <= ts.i1; ++i, w[0] -= step[0], w[1] -= step[1], w[2] -= step[2]) {
-            const bool inside = (w[0] > 0.0 || (w[0] == 0.0 && ts.top_left[0])) &&
-                                (w[1] > 0.0 || (w[1] == 0.0 && ts.top_left[1])) &&
-                                (w[2] > 0.0 || (w[2] == 0.0 && ts.top_left[2]));
-            if (!inside) {
-              if (entered) break;  // a triangle's pixels on a row are one run
-              continue;
-            }
-            entered = true;
-            const double px = i + 0.5;
-            // Screen-space weights back in the triangle's own corner order, from the unsnapped
-            // positions: the snap decides coverage, attribute interpolation uses the exact plane.
-            double lambda[3];
-            for (int e = 0; e < 3; ++e) {
-              lambda[order[e]] = (plane_dx[e] * (py - plane_y[e]) - plane_dy[e] * (px - plane_x[e])) / ts.exact_area2;
-            }
-            const double dz = lambda[0] * ts.d[0] + lambda[1] * ts.d[1] + lambda[2] * ts.d[2];
-            const float depth_value = static_cast<float>(dz);
-            const size_t pix = static_cast<size_t>(j) * camera.width + i;
-            if (!(depth_value < depth[pix])) continue;
-            depth[pix] = depth_value;
-            double b[3], sum = 0.0;
-            for (int k = 0; k < 3; ++k) {
-              b[k] = lambda[k] / ts.z[k];
-              sum += b[k];
-            }
-            for (int k = 0; k < 3; ++k) b[k] /= sum;
-            Eigen::Vector3d x = Eigen::Vector3d::Zero(), nrm = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
-            for (int k = 0; k < 3; ++k) {
-              x += b[k] * state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
-              nrm += b[k] * state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
-              col += b[k] * state.colors.segment<3>(3 * tri[k]).cast<double>();
-            }
-            const double len = nrm.norm();
-            if (len > 0.0) nrm /= len;
-            for (int c = 0; c < 3; ++c) {
-              g.color[3 * pix + c] = static_cast<float>(col[c]);
-              g.position[3 * pix + c] = static_cast<float>(x[c]);
-              g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
-              g.barycentric[3 * pix + c] = static_cast<float>(b[c]);
-              g.vertices[3 * pix + c] = tri[c];
-            }
-            g.triangle[pix] = ts.triangle;
+          entered = true;
+          const double px = i + 0.5;
+          // Screen-space weights back in the triangle's own corner order, from the unsnapped
+          // positions: the snap decides coverage, attribute interpolation uses the exact plane.
+          double lambda[3];
+          for (int e = 0; e < 3; ++e) {
+            lambda[order[e]] = (plane_dx[e] * (py - plane_y[e]) - plane_dy[e] * (px - plane_x[e])) / ts.exact_area2;
           }
+          const double dz = lambda[0] * ts.d[0] + lambda[1] * ts.d[1] + lambda[2] * ts.d[2];
+          const float depth_value = static_cast<float>(dz);
+          const size_t pix = static_cast<size_t>(j) * camera.width + i;
+          if (!(depth_value < depth[pix])) continue;
+          depth[pix] = depth_value;
+          double b[3], sum = 0.0;
+          for (int k = 0; k < 3; ++k) {
+            b[k] = lambda[k] / ts.z[k];
+            sum += b[k];
+          }
+          for (int k = 0; k < 3; ++k) b[k] /= sum;
+          Eigen::Vector3d x = Eigen::Vector3d::Zero(), nrm = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
+          for (int k = 0; k < 3; ++k) {
+            x += b[k] * state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
+            nrm += b[k] * state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
+            col += b[k] * state.colors.segment<3>(3 * tri[k]).cast<double>();
+          }
+          const double len = nrm.norm();
+          if (len > 0.0) nrm /= len;
+          for (int c = 0; c < 3; ++c) {
+            g.color[3 * pix + c] = static_cast<float>(col[c]);
+            g.position[3 * pix + c] = static_cast<float>(x[c]);
+            g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
+            g.barycentric[3 * pix + c] = static_cast<float>(b[c]);
+            g.vertices[3 * pix + c] = tri[c];
+          }
+          g.triangle[pix] = ts.triangle;
         }
       }
     }

@@ -1,11 +1,9 @@
 // The session's link to the reenactment pipeline (core/reenact/.../reenactment_pipeline.h).
-#include <pthread.h>
-
 #include <algorithm>
-#include <future>
+#include <optional>
 
 #include "face_reenact/common/error.h"
-#include "face_reenact/common/timing.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
@@ -99,25 +97,18 @@ class ReenactProcessor : public FrameProcessor {
     auto staged = std::make_unique<Staged>();
     ActorOutcome actor_outcome;
     // The source actor's tracker is independent of the target's: it runs on a thread of its own
-    // while the target is tracked below (both cores work; `reenact` does the same), and the frame
-    // waits for it only where it takes longer.
-    std::future<reenact::ReenactedFrame> actor_done;
+    // while the target is tracked (both cores work; `reenact` does the same), and the frame waits
+    // for it only where it takes longer (ActorOutcome::ms).
+    std::optional<reenact::ReenactedFrame> actor_result;
+    auto track_target = [&] { staged->target = target_->Track(target); };
     if (actor_ && input.actor_frame) {
-      actor_done = std::async(std::launch::async, [this, frame = input.actor_frame] {
-        pthread_setname_np(pthread_self(), "fr-actor-fit");
-        return actor_->Process(*frame, nullptr);
-      });
+      actor_result = RunBeside("fr-actor-fit", [&] { return actor_->Process(*input.actor_frame, nullptr); },
+                               track_target, &actor_outcome.ms);
+    } else {
+      track_target();
     }
-    try {
-      staged->target = target_->Track(target);
-    } catch (...) {
-      if (actor_done.valid()) actor_done.wait();  // it reads the caller's actor frame
-      throw;
-    }
-    if (actor_done.valid()) {
-      const auto t_wait = SteadyClock::now();
-      reenact::ReenactedFrame actor = actor_done.get();
-      actor_outcome.ms = ms_since(t_wait);  // the time the frame waited for it, beyond the target's
+    if (actor_result) {
+      const reenact::ReenactedFrame& actor = *actor_result;
       if (actor.status == reenact::TrackingStatus::kTracking) {
         actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
         // The actor's frame goes along for its folds and wrinkles (Sec. 7.3); a copy, since the

@@ -7,7 +7,11 @@
 // The helper threads are kept in one process-wide pool rather than started per call: a tracked
 // frame makes about 70 calls, and starting and joining a thread costs about 30 us here, plus a
 // cold stack and cache for every new one.
+#include <pthread.h>
+
+#include <chrono>
 #include <functional>
+#include <future>
 
 namespace face_reenact {
 
@@ -21,5 +25,29 @@ void ParallelFor(int count, int threads, const std::function<void(int item)>& it
 // A thread count option resolved: `requested` when positive, else one per hardware thread, at
 // most 8 (beyond that the products here are bound by memory bandwidth).
 int ResolvedThreadCount(int requested);
+
+// Two independent halves of one step at once (the source actor's tracking and the target's):
+// runs `beside` on a thread of its own, named `thread_name` (at most 15 characters; the per-thread
+// CPU tables show it), while the caller runs `here`, and returns what `beside` returned once both
+// are done. `waited_ms`, when given, gets the time the caller waited for `beside` after `here`
+// ended: what the second half added to the step. If `here` throws, `beside` is waited for first
+// (it may read what the caller releases next), then the exception goes on.
+template <class Beside, class Here>
+auto RunBeside(const char* thread_name, Beside&& beside, Here&& here, double* waited_ms = nullptr) {
+  auto done = std::async(std::launch::async, [&beside, thread_name] {
+    pthread_setname_np(pthread_self(), thread_name);
+    return beside();
+  });
+  try {
+    here();
+  } catch (...) {
+    done.wait();
+    throw;
+  }
+  const auto waiting = std::chrono::steady_clock::now();
+  auto result = done.get();
+  if (waited_ms) *waited_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - waiting).count();
+  return result;
+}
 
 }  // namespace face_reenact
