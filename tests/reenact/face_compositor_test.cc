@@ -371,9 +371,25 @@ TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps
                                  << " against the lips' median " << lips;
 }
 
-// A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
-// eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
-// map, which holds no iris (on the webcam clip it drew the eyes reddish brown).
+// The eye tests paint the frame's eyes blue: of the pixels of `bgr` under `mask`, those that show
+// that blue (blue 60 levels above the other channels), those white (every channel above 150, the
+// model's eyeball), and all.
+struct EyeColours {
+  int blue = 0, white = 0, all = 0;
+};
+EyeColours count_eye_colours(const cv::Mat& bgr, const cv::Mat& mask) {
+  EyeColours n;
+  for (int j = 0; j < mask.rows; ++j)
+    for (int i = 0; i < mask.cols; ++i) {
+      if (!mask.at<uchar>(j, i)) continue;
+      ++n.all;
+      const cv::Vec3b px = bgr.at<cv::Vec3b>(j, i);
+      n.blue += px[0] - std::max(px[1], px[2]) > 60;
+      n.white += std::min({px[0], px[1], px[2]}) > 150;
+    }
+  return n;
+}
+
 // Eyes opened wider and turned further than the target's bare eyeball surface that the frame hides
 // under the lids. It took the lid's skin (a lid lies within the depth tolerance in front of the
 // eyeball) or the albedo map, the model's white eyeball. It now takes the frame's own eye around
@@ -423,21 +439,16 @@ TEST(ReenactCompositorTest, EyesOpenedWiderTakeTheFramesEyeNotTheModelsWhite) {
   ASSERT_TRUE(c.drawn);
   const cv::Mat wide_eyes = eyeballs(wide);
   ASSERT_GT(cv::countNonZero(wide_eyes), cv::countNonZero(target_eyes) + 10) << "the eyes should open wider";
-  int blue = 0, white = 0, all = 0;
-  for (int j = 0; j < cam.height; ++j)
-    for (int i = 0; i < cam.width; ++i) {
-      if (!wide_eyes.at<uchar>(j, i)) continue;
-      ++all;
-      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
-      blue += px[0] - std::max(px[1], px[2]) > 60;
-      white += std::min({px[0], px[1], px[2]}) > 150;
-    }
+  const auto [blue, white, all] = count_eye_colours(c.rendered_bgr, wide_eyes);
   RecordProperty("eye_pixels_blue_white_all", std::to_string(blue) + " " + std::to_string(white) + " " + std::to_string(all));
   std::printf("eyeball pixels: %d blue, %d white, of %d\n", blue, white, all);
   EXPECT_GT(blue, all * 8 / 10) << blue << " of " << all << " eyeball pixels show the frame's eyes, " << white << " white";
   EXPECT_LT(white, all / 20) << white << " of " << all << " eyeball pixels are the model's white";
 }
 
+// A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
+// eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
+// map, which holds no iris (on the webcam clip it drew the eyes reddish brown).
 TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
   FR_REQUIRE_MODEL();
   const FaceModel& model = *test_model();
@@ -477,14 +488,8 @@ TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
   cv::Mat eyes = openings(turned);
   cv::erode(eyes, eyes, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
   eyes &= c.face_mask;
-  int blue = 0, all = 0;
-  for (int j = 0; j < eyes.rows; ++j)
-    for (int i = 0; i < eyes.cols; ++i) {
-      if (!eyes.at<uchar>(j, i)) continue;
-      ++all;
-      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
-      blue += px[0] - std::max(px[1], px[2]) > 60;
-    }
+  const EyeColours counted = count_eye_colours(c.rendered_bgr, eyes);
+  const int blue = counted.blue, all = counted.all;
   RecordProperty("blue_eye_pixels", std::to_string(blue) + " of " + std::to_string(all));
   ASSERT_GT(all, 10);
   EXPECT_GT(blue, all / 2) << blue << " of " << all << " eye pixels show the frame's eyes";
