@@ -53,7 +53,8 @@ TEST(ReenactCompositorTest, PassThroughReproducesTheTargetAndLeavesTheRestExact)
   ReenactmentOptions o;
   const FaceCompositor fc(*test_model(), o);
   const Rendered t = make_target(fc, p, cam);
-  EXPECT_GT((t.albedo.weight.array() > 0).count(), 800);
+  // (Vertices within 2.5 px of an occluding boundary are not observed: 796 are observed here.)
+  EXPECT_GT((t.albedo.weight.array() > 0).count(), 700);
   const CompositeResult c = fc.Compose(t.target, cam, p, p, &t.albedo);
   ASSERT_TRUE(c.drawn);
   EXPECT_FALSE(c.mouth_drawn);
@@ -493,6 +494,59 @@ TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
   RecordProperty("blue_eye_pixels", std::to_string(blue) + " of " + std::to_string(all));
   ASSERT_GT(all, 10);
   EXPECT_GT(blue, all / 2) << blue << " of " << all << " eye pixels show the frame's eyes";
+}
+
+// Lids the output closes over eyes the target holds open. The frame shows that lid skin only as
+// a band squeezed under the brow, and the skin nearest the closed lid line across it is the lower
+// lid's: stretched over the closed lid, or filled in from below the line, either drew the closed
+// lids blue-grey on the webcam clip (the band and the skin under the eyes in shadow). Here the
+// frame's skin within 3 px around the eye openings is painted blue; the closed lids, where the
+// target's eyes were, must show the skin the albedo map learned from the plain frame, not blue.
+// Before the footprint and lid-margin rules 58 of those 61 pixels were tinted blue; with the
+// footprint rule alone 0, with the lid-margin rule alone 4 (on the webcam clip both were needed).
+TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTheLine) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters closed = target;
+  closed.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
+  closed.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  const gpu::VertexState st = renderer.evaluate(target);
+  cv::Mat openings = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  for (int first : {36, 42}) {
+    const std::vector<cv::Point> poly = project_vertices(st, cam, landmark_vertices(model, first, first + 5));
+    ASSERT_EQ(poly.size(), 6u);
+    cv::fillPoly(openings, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+  }
+  ASSERT_GT(cv::countNonZero(openings), 20) << "the target's eyes should be open";
+  cv::Mat ring;
+  cv::dilate(openings, ring, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(7, 7)));
+  ring &= ~openings;
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);  // learned from the plain skin
+  cv::Mat frame = plain.clone();
+  frame.setTo(cv::Scalar(255, 0, 0), ring);  // the skin around the eyes blue
+  const CompositeResult c = fc.Compose(frame, cam, target, closed, &albedo);
+  ASSERT_TRUE(c.drawn);
+  cv::Mat lids;
+  cv::erode(openings, lids, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+  lids &= c.face_mask;
+  // Skin is redder than blue; a lid tinted by the blue band is not.
+  int tinted = 0;
+  const int all = cv::countNonZero(lids);
+  for (int j = 0; j < lids.rows; ++j)
+    for (int i = 0; i < lids.cols; ++i)
+      if (lids.at<uchar>(j, i)) {
+        const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+        tinted += px[0] > px[2];
+      }
+  RecordProperty("blue_tinted_lid_pixels", std::to_string(tinted) + " of " + std::to_string(all));
+  ASSERT_GT(all, 10);
+  EXPECT_LT(tinted, all / 10) << tinted << " of " << all << " closed-lid pixels are tinted by the frame's blue";
 }
 
 // With the frame texture, a mouth the output opens no wider than the tracked one shows the

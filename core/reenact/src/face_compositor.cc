@@ -78,6 +78,7 @@ struct FaceCompositor::Impl {
   // The inner lip line and the lid margins (iBUG 60-67, 36-41, 42-47), each in order around its
   // opening: where a closed mouth or eye meets itself, with no change of surface in a G-buffer.
   std::vector<std::vector<int32_t>> seam_contours;
+  std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
   // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
   // and the wall behind them). See irradiance_at.
@@ -94,7 +95,9 @@ struct FaceCompositor::Impl {
       std::vector<int32_t> contour;
       for (int i = first; i <= last; ++i)
         if (by_index[static_cast<size_t>(i)] >= 0) contour.push_back(by_index[static_cast<size_t>(i)]);
-      if (contour.size() >= 3) seam_contours.push_back(std::move(contour));
+      if (contour.size() < 3) continue;
+      if (first != 60) lid_contours.push_back(contour);
+      seam_contours.push_back(std::move(contour));
     }
     FindMouthInterior();
     neighbours.resize(static_cast<size_t>(model.num_vertices()));
@@ -389,6 +392,7 @@ struct FaceCompositor::Impl {
     box = (box + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, w, h);
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
     cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
+    cv::Mat sampled_at(box.size(), CV_32FC2, cv::Scalar(std::nanf(""), std::nanf("")));  // the frame position sampled
     // Rows of the box on the pool's threads: each pixel writes only its own texture, weight and
     // coverage, so the result is the same for any thread count.
     constexpr int kRowsPerItem = 8;
@@ -425,6 +429,7 @@ struct FaceCompositor::Impl {
           // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
           // wider than the target's with skin-coloured bands.
           if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
+          sampled_at.at<cv::Vec2f>(bj, bi) = cv::Vec2f(u, vv);
           const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
           const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
           cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
@@ -452,6 +457,30 @@ struct FaceCompositor::Impl {
           weight.at<float>(bj, bi) = trust;
         }
     });
+    // A sample is not trusted where the frame shows the surface squeezed: the output spreads
+    // over each pixel less than about half a pixel of the frame (the determinant of the
+    // output-to-frame map below kMinFootprint; full trust from kFullFootprint). A lid the output
+    // closes over an eye the target holds open is the case: the frame shows that skin as a
+    // shadowed band under the brow, 2-3 times thinner than the closed lid, and stretched over it
+    // the band drew the closed lids blue-grey on the webcam clip. Such pixels fill like other
+    // distrusted ones (the map where no trusted skin is near).
+    constexpr float kMinFootprint = 0.35f, kFullFootprint = 0.55f;
+    {
+      cv::Mat footprint_trust(box.size(), CV_32FC1, cv::Scalar(1.0f));
+      for (int bj = 0; bj + 1 < box.height; ++bj)
+        for (int bi = 0; bi + 1 < box.width; ++bi) {
+          const cv::Vec2f at = sampled_at.at<cv::Vec2f>(bj, bi), right = sampled_at.at<cv::Vec2f>(bj, bi + 1),
+                          below = sampled_at.at<cv::Vec2f>(bj + 1, bi);
+          if (std::isnan(at[0]) || std::isnan(right[0]) || std::isnan(below[0])) continue;
+          const float area = std::abs((right[0] - at[0]) * (below[1] - at[1]) - (right[1] - at[1]) * (below[0] - at[0]));
+          footprint_trust.at<float>(bj, bi) = std::clamp((area - kMinFootprint) / (kFullFootprint - kMinFootprint), 0.0f, 1.0f);
+        }
+      // Smooth, and reaching a pixel past the squeezed region (the differences look one pixel
+      // ahead), so the change draws no edge of its own.
+      cv::erode(footprint_trust, footprint_trust, cv::Mat());
+      cv::GaussianBlur(footprint_trust, footprint_trust, cv::Size(0, 0), 1.0);
+      weight = weight.mul(footprint_trust);
+    }
     // The albedo map's colour balance against this frame's: per channel, the frame's texture over
     // the albedo map's rendering where the frame is fully trusted. The map was learned under the
     // lighting of earlier frames; when the tracked light's colour has drifted since (on the webcam
@@ -538,6 +567,26 @@ struct FaceCompositor::Impl {
     const std::optional<Fill> eyes_wide =
         cv::countNonZero(eye_covered) > 0 ? std::optional<Fill>(std::in_place, eye_texture, eye_weight, eye_covered, kEyeWideFillSigmaPx)
                                           : std::nullopt;
+    // The output's lid margins: distrusted skin this close to one takes the map, not its
+    // neighbours' samples. The fill is spatial, and across a lid the output closes the nearest
+    // trusted skin is the lower lid's, the shadowed skin under the eye: it drew a grey-blue band
+    // along the closed lid. (The lips keep the fill: there it mends the map's shading of slivers.)
+    const float lid_reach_px = 2.0f * kFillSigmaPx;
+    cv::Mat lid_distance;
+    {
+      cv::Mat open(box.size(), CV_8UC1, cv::Scalar(255));
+      for (const auto& contour : lid_contours) {
+        std::vector<cv::Point> line;
+        for (int32_t v : contour) {
+          const Eigen::Vector3f x = out_state.camera_positions.segment<3>(3 * v);
+          if (!(x.z() > camera.near_plane)) break;
+          const Eigen::Vector2f uv = project(camera, x);
+          line.emplace_back(static_cast<int>(std::lround(uv.x())) - box.x, static_cast<int>(std::lround(uv.y())) - box.y);
+        }
+        if (line.size() == contour.size()) cv::polylines(open, line, true, cv::Scalar(0), 1, cv::LINE_8);
+      }
+      cv::distanceTransform(open, lid_distance, cv::DIST_L2, cv::DIST_MASK_3);
+    }
     // Every drawn pixel's own trust, for the other parts (teeth, tongue).
     cv::Mat ws;
     cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
@@ -555,7 +604,10 @@ struct FaceCompositor::Impl {
           if (eye && eyes_wide && !(f->weights.at<float>(bj, bi) >= kTrustedShareForFull * f->coverage.at<float>(bj, bi)))
             f = &*eyes_wide;
           const float trusted = f->weights.at<float>(bj, bi), coverage = f->coverage.at<float>(bj, bi);
-          if (trusted > 1e-4f && coverage > 1e-6f) {
+          if (!eye && lid_distance.at<float>(bj, bi) < lid_reach_px) {
+            a = own;
+            t = texture.at<cv::Vec3f>(bj, bi);
+          } else if (trusted > 1e-4f && coverage > 1e-6f) {
             a = std::clamp(trusted / (kTrustedShareForFull * coverage), 0.0f, 1.0f);
             // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
             const cv::Vec3f around = f->sums.at<cv::Vec3f>(bj, bi) / trusted;
@@ -914,6 +966,21 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     const float lo = std::min({light[0], light[9], light[18]}), hi = std::max({light[0], light[9], light[18]});
     if (!(lo > 0.f) || !(lo >= kMinLightChroma * hi)) return;
   }
+  // Vertices this close to an occluding boundary of the rendering are not observed: the fit is
+  // off by a pixel or two, and the 3x3 sample below reaches one more, so there the frame shows
+  // the other side (the eyeball or the lashes for a lid margin, the lip line or the mouth
+  // cavity for a lip, the background for the face's outline). Written into the map, those
+  // colours came back wherever the output shows the surface and the frame does not: on the
+  // webcam clip the lids d14 closes were greyer with them, with a light line along the lid
+  // margin. Such vertices keep what clearer views gave them, or FillUnobserved's colour from the
+  // skin around.
+  constexpr float kBoundaryClearancePx = 2.5f;
+  cv::Rect roi;
+  for (int j = 0; j < camera.height; ++j)
+    for (int i = 0; i < camera.width; ++i)
+      if (g.covered(i, j)) roi |= cv::Rect(i, j, 1, 1);
+  roi = (roi + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, camera.width, camera.height);
+  const cv::Mat boundary_px = roi.empty() ? cv::Mat() : im.BoundaryDistance(g, state, camera, roi);
   Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
   for (int v = 0; v < n; ++v) {
     const FacePart part = im.part_of(v);
@@ -924,6 +991,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     const int i = static_cast<int>(std::lround(uv.x())), j = static_cast<int>(std::lround(uv.y()));
     if (i < 1 || j < 1 || i >= camera.width - 1 || j >= camera.height - 1) continue;
     if (!g.covered(i, j) || std::abs(g.depth(i, j) - x.z()) > kDepthToleranceM) continue;  // hidden
+    if (boundary_px.empty() || !(boundary_px.at<float>(j - roi.y, i - roi.x) >= kBoundaryClearancePx)) continue;
     if (frame_depth && frame_depth->type() == CV_32FC1 && frame_depth->size() == frame_bgr.size()) {
       // With a depth map, only pixels whose measured depth confirms this surface: sensor holes
       // sit at silhouettes, where a misfit model samples the background.
