@@ -192,6 +192,7 @@ struct ReenactArgs {
   double target_rest_s = -1;       // the same for the target
   std::string mouth = "auto";      // --mouth: auto, a frame index of the target, or model
   std::string detail = "transient";  // --detail: the source's folds and wrinkles (detail_transfer.h)
+  bool closed_loop = false;          // --closed-loop: track the output again and score it (closed_loop.h)
   bool quiet = false;
 };
 
@@ -260,6 +261,11 @@ void run_reenact(const ReenactArgs& a) {
   if (udp && a.key.empty()) throw Error("--source '" + a.source + "': a udp:// source needs --key KEYFILE");
   if (!udp && !a.key.empty()) throw Error("--key is only used with a udp:// source");
   const reenact::ReenactMode mode = parse_mode(a.mode);
+  if (a.closed_loop && mode != reenact::ReenactMode::kReenact && mode != reenact::ReenactMode::kPassThrough)
+    throw Error("--closed-loop scores a reenactment or a pass-through, not --mode " + a.mode);
+  if (a.closed_loop && udp && mode == reenact::ReenactMode::kReenact)
+    throw Error("--closed-loop needs a source tracked here (a recording or a video): the udp:// stream carries the source's "
+                "expression relative to its neutral, not the expression to compare with");
   const tracker::LandmarkSourceChoice landmarks = parse_landmarks(a.landmarks);
   const reenact::RendererKind renderer = parse_renderer(a.renderer);
   const reenact::Appearance appearance = parse_appearance(a.appearance);
@@ -347,6 +353,23 @@ void run_reenact(const ReenactArgs& a) {
       throw Error("--sheet-frames: frame " + std::to_string(f) + " is not among the " + std::to_string(total) +
                   " output frames (0.." + std::to_string(total - 1) + ")");
   int sheets_written = 0;
+  // --closed-loop: the reenacted output tracked again by a tracker of its own (the detector's
+  // points, since the output has none stored; the camera the target's fit used, since the output
+  // is framed by it), its expression against the source's tracked one (the target's own in a
+  // pass-through) and against what was rendered, its calibrated identity against the target's.
+  std::unique_ptr<TrackedSource> loop;
+  std::optional<reenact::ClosedLoopScore> loop_score;
+  if (a.closed_loop) {
+    tracker::RgbdInputOptions loop_input = ro.input;
+    loop_input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+    tracker::TrackerOptions loop_options = ro.tracker;
+    loop_options.landmark_source = tracker::LandmarkSourceChoice::kDetector;
+    loop_options.focal_length.estimate = false;
+    loop = std::make_unique<TrackedSource>(model, loop_options, loop_input);
+    loop_score.emplace(tracker::TrackerModel::FromFaceModel(model), info.camera);
+  }
+  // A pass-through's rendering against its input over the face (PSNR, SSIM).
+  reenact::FaceFidelityTally fidelity;
   ProgressBar bar(total, !a.quiet);
 
   const auto start = Clock::now();
@@ -402,6 +425,27 @@ void run_reenact(const ReenactArgs& a) {
     if (out.bgr.cols != info.camera.width || out.bgr.rows != info.camera.height)
       throw Error("target '" + a.target + "': frame " + std::to_string(tf.index) + " has a different size");
     writer.write(out.bgr);
+    // Only reenacted frames: the loop calibrates on them, so its identity is the re-rendered
+    // face's (on the target's own frames, passed through while it calibrates, it would be the
+    // target's own by construction).
+    if (loop && out.reenacted) {
+      capture::RgbdFrame of;
+      of.index = tf.index;
+      of.timestamp_s = tf.timestamp_s;
+      of.camera = out.tracked.has_parameters ? out.tracked.camera : tf.camera;
+      of.color = out.bgr;
+      of.depth = out.depth;
+      const tracker::TrackedFrame lt = loop->Track(of);
+      const bool passed = mode == reenact::ReenactMode::kPassThrough;
+      // Frames rendered with the whole source expression (none fading in or out).
+      if (passed || (src && src->blend_weight > 0.99f && !src->neutral_subtracted)) {
+        const Eigen::VectorXf reference = passed ? out.target_params.delta : st.params.delta;
+        loop_score->AddLoop(lt, loop->tracker->calibrated(), loop->tracker->neutral().alpha, reference,
+                            out.output_params.delta, pipeline.target_neutral().alpha);
+      }
+    }
+    if (mode == reenact::ReenactMode::kPassThrough && out.reenacted)
+      fidelity.Add(reenact::MeasureFaceFidelity(tf.color, out.bgr, out.face_mask));
     if (!a.frames_dir.empty()) {
       char name[32];
       std::snprintf(name, sizeof(name), "frame_%06d.png", done);
@@ -470,6 +514,19 @@ void run_reenact(const ReenactArgs& a) {
       std::fprintf(stderr, "warning: the output ended after %d frames: %zu contact sheets were not written\n", done,
                    sheet_frames.size() - static_cast<size_t>(sheets_written));
   }
+  const reenact::FaceFidelityTally::Summary fid = fidelity.summary();
+  if (fid.frames > 0)
+    std::printf("fidelity (%s, pass-through): face PSNR %.2f dB (worst frame %.2f), SSIM %.4f over %d frames\n",
+                a.appearance.c_str(), fid.psnr_db, fid.psnr_db_min, fid.ssim, fid.frames);
+  std::optional<reenact::ClosedLoopScore::Summary> cl;
+  if (loop_score) {
+    cl = loop_score->summary();
+    std::printf("closed loop over %d frames: expression error %.3f against the %s (jawOpen %.3f), %.3f against the "
+                "rendered; identity %.2f mm from the target's\n",
+                cl->loop_frames, cl->expression_error,
+                mode == reenact::ReenactMode::kPassThrough ? "target's own" : "source's tracked", cl->jaw_open_error,
+                cl->expression_error_vs_rendered, cl->identity_error_mm);
+  }
   if (receiver) {
     const stream::ReceiverStatistics st = receiver->statistics();
     std::printf("stream: %llu datagrams applied, %llu rejected\n", static_cast<unsigned long long>(st.applied),
@@ -515,6 +572,20 @@ void run_reenact(const ReenactArgs& a) {
         {"target_held_still", held_still},
         {"agreement", agreement_json(agreement.summary())},
         {"light", light_json(light)}};
+    r["fidelity"] = fid.frames > 0 ? nlohmann::json{{"appearance", a.appearance},
+                                                    {"frames", fid.frames},
+                                                    {"face_psnr_db_mean", json_number(fid.psnr_db)},
+                                                    {"face_psnr_db_min", json_number(fid.psnr_db_min)},
+                                                    {"face_ssim_mean", json_number(fid.ssim)}}
+                                   : nlohmann::json();
+    r["closed_loop"] = cl ? nlohmann::json{{"frames", cl->loop_frames},
+                                           {"reference", mode == reenact::ReenactMode::kPassThrough ? "target" : "source"},
+                                           {"expression_error_mean", json_number(cl->expression_error)},
+                                           {"jaw_open_error_mean", json_number(cl->jaw_open_error)},
+                                           {"expression_error_vs_rendered_mean", json_number(cl->expression_error_vs_rendered)},
+                                           {"identity_error_mm_mean", json_number(cl->identity_error_mm)},
+                                           {"identity_vertex_error_mm_mean", json_number(cl->identity_vertex_error_mm)}}
+                          : nlohmann::json();
     if (source_tracker) {
       r["source_calibration_warning"] = warning(source_tracker->tracker->calibration_warning());
       r["source_frames"] = {{"tracked", source_tracker->frames}, {"skipped", source_by_time.skipped()},
@@ -1089,6 +1160,10 @@ void add_reenact_commands(CLI::App& app) {
                   "only, the udp:// stream carries no image): transient (default: what the expression adds against "
                   "the source's most relaxed frame; the target keeps its own skin), copy (the source's fine skin "
                   "detail replaces the target's, as in the paper), or off");
+    c->add_flag("--closed-loop", args->closed_loop,
+                "Track the output again and score it (docs/reenactment.md): its expression against the source's "
+                "tracked one (the target's own with --mode pass-through) and against what was rendered, its identity "
+                "against the target's; in the report's closed_loop section. Costs a third tracker per frame");
     c->add_option("--model", args->model, "Face model file (default: the installed/generated face-model.frm)");
     c->add_flag("--quiet", args->quiet, "No progress bar");
     c->callback([args] { run_reenact(*args); });

@@ -1,9 +1,14 @@
-// The demo's closed loop (closed_loop.h).
+// The reenactment's yardsticks (closed_loop.h).
 #include "face_reenact/reenact/closed_loop.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <utility>
+
+#include <opencv2/imgproc.hpp>
+
+#include "face_reenact/common/error.h"
 
 #include "face_reenact/gpu/cpu_renderer.h"
 #include "face_reenact/reenact/transfer.h"
@@ -84,6 +89,73 @@ ClosedLoopScore::Summary ClosedLoopScore::summary() const {
   s.source_expression_error = source_.value();
   s.target_identity_error_mm = target_identity_mm_.value();
   s.target_identity_vertex_error_mm = target_identity_vertex_.value();
+  return s;
+}
+
+FaceFidelity MeasureFaceFidelity(const cv::Mat& reference_bgr, const cv::Mat& output_bgr, const cv::Mat& mask) {
+  if (reference_bgr.type() != CV_8UC3 || output_bgr.type() != CV_8UC3 || mask.type() != CV_8UC1 ||
+      reference_bgr.size() != output_bgr.size() || mask.size() != reference_bgr.size())
+    throw Error("face fidelity: the frames must be 8-bit BGR of one size, the mask 8-bit of that size");
+  FaceFidelity f;
+  f.pixels = cv::countNonZero(mask);
+  if (f.pixels == 0) {
+    f.psnr_db = f.ssim = std::numeric_limits<double>::quiet_NaN();
+    return f;
+  }
+  double squared = 0;
+  for (int j = 0; j < mask.rows; ++j) {
+    const uchar* m = mask.ptr<uchar>(j);
+    const cv::Vec3b* a = reference_bgr.ptr<cv::Vec3b>(j);
+    const cv::Vec3b* b = output_bgr.ptr<cv::Vec3b>(j);
+    for (int i = 0; i < mask.cols; ++i)
+      if (m[i])
+        for (int c = 0; c < 3; ++c) {
+          const double d = static_cast<double>(a[i][c]) - static_cast<double>(b[i][c]);
+          squared += d * d;
+        }
+  }
+  const double mse = squared / (3.0 * f.pixels);
+  f.psnr_db = mse > 0 ? 10.0 * std::log10(255.0 * 255.0 / mse) : std::numeric_limits<double>::infinity();
+  // SSIM (Wang, Bovik, Sheikh, Simoncelli 2004): local means, variances and covariance under a
+  // Gaussian window, the map averaged over the face.
+  cv::Mat x, y;
+  cv::cvtColor(reference_bgr, x, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(output_bgr, y, cv::COLOR_BGR2GRAY);
+  x.convertTo(x, CV_64F);
+  y.convertTo(y, CV_64F);
+  const double c1 = std::pow(0.01 * 255.0, 2), c2 = std::pow(0.03 * 255.0, 2);
+  auto blur = [](const cv::Mat& in) {
+    cv::Mat out;
+    cv::GaussianBlur(in, out, cv::Size(11, 11), 1.5);
+    return out;
+  };
+  const cv::Mat mx = blur(x), my = blur(y);
+  const cv::Mat sxx = blur(x.mul(x)) - mx.mul(mx), syy = blur(y.mul(y)) - my.mul(my), sxy = blur(x.mul(y)) - mx.mul(my);
+  const cv::Mat numerator = (2.0 * mx.mul(my) + c1).mul(2.0 * sxy + c2);
+  const cv::Mat denominator = (mx.mul(mx) + my.mul(my) + c1).mul(sxx + syy + c2);
+  cv::Mat ssim_map;
+  cv::divide(numerator, denominator, ssim_map);
+  f.ssim = cv::mean(ssim_map, mask)[0];
+  return f;
+}
+
+void FaceFidelityTally::Add(const FaceFidelity& f) {
+  if (f.pixels <= 0 || std::isnan(f.psnr_db) || std::isnan(f.ssim)) return;
+  constexpr double kEqualPsnrDb = 99.0;  // an identical face region (infinite PSNR) counts so
+  const double psnr = std::min(f.psnr_db, kEqualPsnrDb);
+  psnr_min_ = frames_ == 0 ? psnr : std::min(psnr_min_, psnr);
+  psnr_sum_ += psnr;
+  ssim_sum_ += f.ssim;
+  ++frames_;
+}
+
+FaceFidelityTally::Summary FaceFidelityTally::summary() const {
+  Summary s;
+  s.frames = frames_;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  s.psnr_db = frames_ ? psnr_sum_ / frames_ : nan;
+  s.ssim = frames_ ? ssim_sum_ / frames_ : nan;
+  s.psnr_db_min = frames_ ? psnr_min_ : nan;
   return s;
 }
 

@@ -1,11 +1,17 @@
 #pragma once
-// The reenactment checked in a closed loop on actors with ground truth (`face-reenact demo`,
-// docs/reenactment.md): the reenacted output is tracked again, and its expressions are compared
-// with the source actor's true ones and its calibrated identity with the target actor's true one;
-// the source's tracking and the target's calibration are scored on the way. The front-end runs the
-// actors through the pipeline and feeds each frame here; the figures are the library's.
+// The reenactment's yardsticks (docs/reenactment.md).
+// - The closed loop: the reenacted output is tracked again, and its expressions are compared with
+//   the source actor's and its calibrated identity with the target actor's. On actors with ground
+//   truth (`face-reenact demo`) the references are the true ones, and the source's tracking and
+//   the target's calibration are scored on the way; on real video (`reenact --closed-loop`) they
+//   are the source's tracked expression and the target's calibrated identity.
+// - The rendering's fidelity: the re-rendered face region against the frame it re-renders (PSNR,
+//   SSIM), for a pass-through, where the output should be the input.
+// The front-end runs the actors through the pipeline and feeds each frame here; the figures are
+// the library's.
 #include <Eigen/Core>
 #include <memory>
+#include <opencv2/core.hpp>
 
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/tracker/evaluation.h"
@@ -59,6 +65,33 @@ class ClosedLoopScore {
   tracker::TrackerModel model_;  // before the meters, which hold a reference to it
   std::unique_ptr<IdentityMeter> target_identity_, loop_identity_;
   Mean expression_, jaw_, rendered_, identity_, identity_vertex_, source_, target_identity_mm_, target_identity_vertex_;
+};
+
+// The face region of an output frame against the frame it re-renders. Both CV_8UC3 of one size,
+// `mask` CV_8UC1 of that size (non-zero: the face). PSNR in dB over the masked pixels' three
+// channels (infinite where they are equal); SSIM of the luma (BT.601) with Gaussian windows of
+// sigma 1.5 and the constants of Wang et al. 2004, averaged over the masked pixels. NaN for both,
+// and 0 pixels, when the mask is empty. Throws Error on mismatched inputs.
+struct FaceFidelity {
+  double psnr_db = 0, ssim = 0;
+  int pixels = 0;
+};
+FaceFidelity MeasureFaceFidelity(const cv::Mat& reference_bgr, const cv::Mat& output_bgr, const cv::Mat& mask);
+
+// Means over a clip's frames (frames with an empty mask are not counted); NaN where none was.
+class FaceFidelityTally {
+ public:
+  void Add(const FaceFidelity& f);
+  struct Summary {
+    int frames = 0;
+    double psnr_db = 0, ssim = 0;  // means over the frames (a frame's infinite PSNR counts as 99 dB)
+    double psnr_db_min = 0;        // the worst frame
+  };
+  Summary summary() const;
+
+ private:
+  int frames_ = 0;
+  double psnr_sum_ = 0, ssim_sum_ = 0, psnr_min_ = 0;
 };
 
 }  // namespace face_reenact::reenact
