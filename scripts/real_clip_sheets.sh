@@ -37,6 +37,24 @@ src="$VIDEOS/liveportrait_d14.mp4" tgt="$VIDEOS/webcam_talking_640x480.wmv"
 mkdir -p "$OUT/brows"
 "$FR" reenact --source "$src" --target "$tgt" --frames 175 --out "$OUT/brows.mp4" --quiet \
       --sheets "$OUT/brows" --sheet-frames 36,59,172
+# Closed lids (docs/reenactment.md, "Lids the output closes"): d14 smiling with her eyes shut at output frame 75 (the
+# webcam clip at 15 fps), the eyes 4x (lids.png: target | output); on d12 (glasses) at its frame 125 too.
+mkdir -p "$OUT/lids"
+"$FR" reenact --source "$src" --target "$tgt" --frames 80 --out "$OUT/lids/webcam.mp4" --quiet --frames-dir "$OUT/lids/webcam" \
+      --sheets "$OUT/lids" --sheet-frames 75
+ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000075.png" -filter_complex \
+       "[0]select='eq(n\,75)',crop=160:60:245:175,scale=640:240:flags=neighbor[a];[1]crop=160:60:245:175,scale=640:240:flags=neighbor[b];[a][b]vstack" \
+       -frames:v 1 "$OUT/lids.png"
+"$FR" reenact --source "$src" --target "$VIDEOS/liveportrait_d12.mp4" --frames 130 --out "$OUT/lids/d12.mp4" --quiet \
+      --sheets "$OUT/lids/d12" --sheet-frames 125
+# The closed loop on real video (docs/reenactment.md, "Measured", "On real video"): each driving clip onto the webcam
+# clip, the output tracked again; and the albedo map's pass-through fidelity. Figures in closed_loop_*.json.
+for s in d14 d6 d0; do
+  "$FR" reenact --source "$VIDEOS/liveportrait_$s.mp4" --target "$tgt" --frames 150 --closed-loop \
+        --out "$OUT/closed_loop_$s.mp4" --report "$OUT/closed_loop_$s.json" --quiet
+done
+"$FR" reenact --source "$tgt" --target "$tgt" --frames 150 --mode pass-through --appearance albedo-map --closed-loop \
+      --out "$OUT/closed_loop_pass_through.mp4" --report "$OUT/closed_loop_pass_through.json" --quiet
 # The mouth interior (docs/reenactment.md, "Mouth"): the longest driving clip onto the whole webcam clip, whose
 # speaker opens the mouth wide facing the camera at frame 256; the same with the model's teeth and cavity beside it.
 for mouth in auto model; do
@@ -87,4 +105,4 @@ for pair in webcam:webcam_talking_640x480.wmv d14:liveportrait_d14.mp4; do
          -ss 0 -i "$VIDEOS/$clip" -filter_complex "[2]select='eq(n\,50)'[in];[in][0][1]hstack=3" -frames:v 1 \
          "$OUT/mirror_${name}.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), closed_loop_*.json (the output tracked again)"
