@@ -220,7 +220,7 @@ TEST(ReenactCliTest, PairsSourceAndTargetByTimeAndReportsEveryFrame) {
   // The source is tracked from a file, so its frames reach the detail transfer (Sec. 7.3).
   EXPECT_EQ(down.at("detail").at("mode"), "transient") << down.dump(2);
   EXPECT_TRUE(down.at("detail").at("frames").is_number());
-  EXPECT_EQ(down.at("detail").at("what").get<std::string>().find("none yet: no source frame"), std::string::npos)
+  EXPECT_EQ(down.at("detail").at("what").get<std::string>().find("none yet: no tracked source frame"), std::string::npos)
       << down.at("detail").dump();
   EXPECT_TRUE(down.at("stage_ms").at("detail").is_number());
 

@@ -429,7 +429,7 @@ int64_t DetailTransfer::rest_frame_index() const { return impl_->rest.empty() ? 
 std::string DetailTransfer::Description() const {
   const Impl& im = *impl_;
   if (im.options.mode == DetailMode::kOff) return "off";
-  if (im.now.empty()) return "none yet: no source frame (a udp:// stream carries expressions only)";
+  if (im.now.empty()) return "none yet: no tracked source frame has reached it (none does over a udp:// stream, which carries expressions only)";
   if (im.options.mode == DetailMode::kCopy) return "the source's skin detail, copied (the paper's transfer)";
   if (im.rest.empty()) return "none yet: the source has not faced the camera";
   std::ostringstream s;
