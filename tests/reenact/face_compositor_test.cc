@@ -391,6 +391,16 @@ EyeColours count_eye_colours(const cv::Mat& bgr, const cv::Mat& mask) {
   return n;
 }
 
+// The eye openings (iBUG 36-41, 42-47) of an evaluated face, filled.
+cv::Mat eye_openings(const FaceModel& model, const gpu::VertexState& state, const gpu::PinholeCamera& cam) {
+  cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  for (int first : {36, 42}) {
+    const std::vector<cv::Point> poly = project_vertices(state, cam, landmark_vertices(model, first, first + 5));
+    if (poly.size() == 6u) cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+  }
+  return mask;
+}
+
 // Eyes opened wider and turned further than the target's bare eyeball surface that the frame hides
 // under the lids. It took the lid's skin (a lid lies within the depth tolerance in front of the
 // eyeball) or the albedo map, the model's white eyeball. It now takes the frame's own eye around
@@ -460,23 +470,7 @@ TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
   turned.delta[arkit_blendshape_index("eyeLookInRight")] = 0.6f;
   const FaceCompositor fc(model, ReenactmentOptions{});
   const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
-  // The eye openings (iBUG 36-41, 42-47) of a parameter vector, filled.
-  auto openings = [&](const gpu::FaceParameters& p) {
-    const gpu::VertexState st = renderer.evaluate(p);
-    cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
-    for (int first : {36, 42}) {
-      std::vector<cv::Point> poly;
-      for (int k = first; k < first + 6; ++k)
-        for (const auto& l : model.landmarks)
-          if (l.ibug_index == k) {
-            const Eigen::Vector3f x = st.camera_positions.segment<3>(3 * l.vertex);
-            poly.emplace_back(static_cast<int>(std::lround(cam.fx * x.x() / x.z() + cam.cx)),
-                              static_cast<int>(std::lround(cam.fy * x.y() / x.z() + cam.cy)));
-          }
-      if (poly.size() == 6u) cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
-    }
-    return mask;
-  };
+  auto openings = [&](const gpu::FaceParameters& p) { return eye_openings(model, renderer.evaluate(p), cam); };
   const cv::Mat target_eyes = openings(target);
   ASSERT_GT(cv::countNonZero(target_eyes), 20) << "the target's eyes should be open";
   const cv::Mat plain = render_target(target, cam);
@@ -514,13 +508,7 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
   closed.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
   const FaceCompositor fc(model, ReenactmentOptions{});
   const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
-  const gpu::VertexState st = renderer.evaluate(target);
-  cv::Mat openings = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
-  for (int first : {36, 42}) {
-    const std::vector<cv::Point> poly = project_vertices(st, cam, landmark_vertices(model, first, first + 5));
-    ASSERT_EQ(poly.size(), 6u);
-    cv::fillPoly(openings, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
-  }
+  const cv::Mat openings = eye_openings(model, renderer.evaluate(target), cam);
   ASSERT_GT(cv::countNonZero(openings), 20) << "the target's eyes should be open";
   cv::Mat ring;
   cv::dilate(openings, ring, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(7, 7)));

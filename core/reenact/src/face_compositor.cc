@@ -294,19 +294,27 @@ struct FaceCompositor::Impl {
           open.at<uchar>(nj - roi.y, ni - roi.x) = 0;
         }
       }
-    for (const auto& contour : seam_contours) {
-      std::vector<cv::Point> line;
-      for (int32_t v : contour) {
-        const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
-        if (!(x.z() > camera.near_plane)) break;
-        const Eigen::Vector2f uv = project(camera, x);
-        line.emplace_back(static_cast<int>(std::lround(uv.x())) - roi.x, static_cast<int>(std::lround(uv.y())) - roi.y);
-      }
-      if (line.size() == contour.size()) cv::polylines(open, line, true, cv::Scalar(0), 1, cv::LINE_8);
-    }
+    DrawContours(seam_contours, ts, camera, roi.tl(), &open);
     cv::Mat dist;
     cv::distanceTransform(open, dist, cv::DIST_L2, cv::DIST_MASK_3);
     return dist;
+  }
+
+  // Each closed contour (vertex indices) as `state` projects it, a 1 px line of 0 in `open` (whose
+  // pixel (0, 0) is the image's `origin`). A contour with a point at or behind the near plane is
+  // left out.
+  static void DrawContours(const std::vector<std::vector<int32_t>>& contours, const gpu::VertexState& state,
+                           const gpu::PinholeCamera& camera, const cv::Point& origin, cv::Mat* open) {
+    for (const auto& contour : contours) {
+      std::vector<cv::Point> line;
+      for (int32_t v : contour) {
+        const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+        if (!(x.z() > camera.near_plane)) break;
+        const Eigen::Vector2f uv = project(camera, x);
+        line.emplace_back(static_cast<int>(std::lround(uv.x())) - origin.x, static_cast<int>(std::lround(uv.y())) - origin.y);
+      }
+      if (line.size() == contour.size()) cv::polylines(*open, line, true, cv::Scalar(0), 1, cv::LINE_8);
+    }
   }
 
   // Appearance::kFrameTexture: every drawn pixel of `g` (the output's G-buffer)
@@ -575,16 +583,7 @@ struct FaceCompositor::Impl {
     cv::Mat lid_distance;
     {
       cv::Mat open(box.size(), CV_8UC1, cv::Scalar(255));
-      for (const auto& contour : lid_contours) {
-        std::vector<cv::Point> line;
-        for (int32_t v : contour) {
-          const Eigen::Vector3f x = out_state.camera_positions.segment<3>(3 * v);
-          if (!(x.z() > camera.near_plane)) break;
-          const Eigen::Vector2f uv = project(camera, x);
-          line.emplace_back(static_cast<int>(std::lround(uv.x())) - box.x, static_cast<int>(std::lround(uv.y())) - box.y);
-        }
-        if (line.size() == contour.size()) cv::polylines(open, line, true, cv::Scalar(0), 1, cv::LINE_8);
-      }
+      DrawContours(lid_contours, out_state, camera, box.tl(), &open);
       cv::distanceTransform(open, lid_distance, cv::DIST_L2, cv::DIST_MASK_3);
     }
     // Every drawn pixel's own trust, for the other parts (teeth, tongue).
