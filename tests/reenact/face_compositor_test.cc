@@ -914,6 +914,45 @@ TEST(ReenactCompositorTest, ABarelyOpenedMouthHasNoGapDarkerThanTheCavity) {
   }
 }
 
+// The mouth interior goes over the face softened by about a camera's blur: drawn sharp, a barely
+// opened mouth's cavity was a row of hard, nearly black dashes along the lip line on the webcam
+// clip (d14 smiling, output frame 40), where the frame's own lip line is a soft shadow. Around the
+// opening no step between neighbouring pixels may be more than 80 % of the contrast between the
+// lips and the cavity: drawn sharp the steepest was 111 % (the whole step at once, teeth beside
+// the cavity), softened 59 %.
+TEST(ReenactCompositorTest, TheMouthInteriorsEdgeIsSoft) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.45f);
+  gpu::FaceParameters open = target;
+  open.delta[kJawOpenIndex] = 0.35f;
+  ReenactmentOptions o;
+  o.appearance = Appearance::kAlbedoMap;  // the interior at full strength
+  const FaceCompositor fc(*test_model(), o);
+  const Rendered t = make_target(fc, target, cam);
+  const CompositeResult c = fc.Compose(t.target, cam, target, open, &t.albedo);
+  ASSERT_TRUE(c.mouth_drawn);
+  cv::Mat zone, inside;
+  cv::dilate(c.mouth_mask, zone, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(7, 7)));
+  cv::erode(c.mouth_mask, inside, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
+  cv::Mat red;
+  cv::extractChannel(c.rendered_bgr, red, 2);
+  double cavity = 255.0, lips = 0.0;
+  cv::minMaxLoc(red, &cavity, nullptr, nullptr, nullptr, c.mouth_mask);
+  const cv::Mat ring = zone & ~c.mouth_mask;
+  lips = cv::mean(red, ring)[0];
+  ASSERT_GT(lips - cavity, 40.0) << "the lips should stand out from the cavity";
+  int steepest = 0;
+  for (int j = 0; j + 1 < red.rows; ++j)
+    for (int i = 0; i + 1 < red.cols; ++i) {
+      if (!zone.at<uchar>(j, i)) continue;
+      const int here = red.at<uchar>(j, i);
+      steepest = std::max({steepest, std::abs(here - red.at<uchar>(j, i + 1)), std::abs(here - red.at<uchar>(j + 1, i))});
+    }
+  RecordProperty("steepest_step_over_contrast", std::to_string(steepest / (lips - cavity)));
+  EXPECT_LT(steepest, 0.8 * (lips - cavity)) << "steepest step " << steepest << " against lips " << lips << " and cavity " << cavity;
+}
+
 }  // namespace
 }  // namespace face_reenact::reenact
 
