@@ -300,6 +300,17 @@ struct FaceCompositor::Impl {
     return dist;
   }
 
+  // The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
+  // inside the image; empty when nothing is covered.
+  static cv::Rect CoveredRect(const gpu::GBuffer& g, int margin) {
+    cv::Rect rect;
+    for (int j = 0; j < g.height; ++j)
+      for (int i = 0; i < g.width; ++i)
+        if (g.covered(i, j)) rect |= cv::Rect(i, j, 1, 1);
+    if (rect.empty()) return rect;
+    return (rect + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, g.width, g.height);
+  }
+
   // Each closed contour (vertex indices) as `state` projects it, a 1 px line of 0 in `open` (whose
   // pixel (0, 0) is the image's `origin`). A contour with a point at or behind the near plane is
   // left out.
@@ -341,12 +352,7 @@ struct FaceCompositor::Impl {
                          gpu::GBuffer* g) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
 
-    cv::Rect box;  // the drawn pixels to texture
-    for (int j = 0; j < h; ++j)
-      for (int i = 0; i < w; ++i) {
-        const size_t p = static_cast<size_t>(j) * w + i;
-        if (g->triangle[p] >= 0) box |= cv::Rect(i, j, 1, 1);
-      }
+    const cv::Rect box = CoveredRect(*g, 2);  // the drawn pixels to texture
     if (box.empty()) return;
     // The tracked geometry (the output's own when only the lighting or albedo differ).
     const bool same = same_geometry(target, output);
@@ -376,11 +382,8 @@ struct FaceCompositor::Impl {
     cv::Rect roi, mouth_zone;
     cv::Mat boundary_px;
     if (distrust) {
-      for (int j = 0; j < h; ++j)
-        for (int i = 0; i < w; ++i)
-          if (tg.triangle[static_cast<size_t>(j) * w + i] >= 0) roi |= cv::Rect(i, j, 1, 1);
       const int margin = static_cast<int>(std::ceil(ramp_px)) + 2;
-      roi = (roi + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
+      roi = CoveredRect(tg, margin);
       if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi);
       // Samples landing here are next to the opening the mouth pass redraws.
       if (mouth_redraw > 0.f) {
@@ -397,7 +400,6 @@ struct FaceCompositor::Impl {
     // within this depth of it: a few millimetres, more where one pixel spans more than that.
     constexpr float kShownToleranceM = 0.004f;
     constexpr float kMinShadingRatio = 0.5f, kMaxShadingRatio = 2.0f;
-    box = (box + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, w, h);
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
     cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
     cv::Mat sampled_at(box.size(), CV_32FC2, cv::Scalar(std::nanf(""), std::nanf("")));  // the frame position sampled
@@ -998,11 +1000,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   // margin. Such vertices keep what clearer views gave them, or FillUnobserved's colour from the
   // skin around.
   constexpr float kBoundaryClearancePx = 2.5f;
-  cv::Rect roi;
-  for (int j = 0; j < camera.height; ++j)
-    for (int i = 0; i < camera.width; ++i)
-      if (g.covered(i, j)) roi |= cv::Rect(i, j, 1, 1);
-  roi = (roi + cv::Size(4, 4) - cv::Point(2, 2)) & cv::Rect(0, 0, camera.width, camera.height);
+  const cv::Rect roi = Impl::CoveredRect(g, 2);
   const cv::Mat boundary_px = roi.empty() ? cv::Mat() : im.BoundaryDistance(g, state, camera, roi);
   Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
   for (int v = 0; v < n; ++v) {
