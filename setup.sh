@@ -80,6 +80,9 @@ build_model() {
   # The demo's real face (NASA's astronaut portrait, in the pinned scikit-image wheel): fetched
   # here for the main job and the tests alike (the tests never download); kept when present.
   "$BUILD/bin/face-reenact" demo --fetch-only
+  # The texture over the model's teeth, from the portrait's smile (docs/reenactment.md, "Teeth"):
+  # beside the model, where every front-end looks for it.
+  "$BUILD/bin/face-reenact" model teeth --quiet
 }
 
 run_main_job() {

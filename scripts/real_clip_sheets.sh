@@ -62,6 +62,20 @@ for mouth in auto model; do
   "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --out "$OUT/mouth_$mouth.mp4" \
         --report "$OUT/mouth_$mouth.json" --quiet --mouth "$mouth" --sheets "$OUT/mouth_$mouth" --sheet-frames 120,270,280
 done
+# The source actor's mouth standing in (docs/reenactment.md, "The source actor's mouth"): d6 onto the webcam clip, whose
+# speaker keeps his mouth shut until frame 256; output frames 30, 45, 60 and 85, the mouth 3x: `--mouth target` (the
+# model's teeth, textured) on top, the default (d6's own mouth in his light) below (mouth_source.png).
+for mouth in target auto; do
+  "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --frames 90 --out "$OUT/mouth_source_$mouth.mp4" \
+        --quiet --mouth "$mouth" --frames-dir "$OUT/mouth_source_$mouth"
+done
+crops=()
+for mouth in target auto; do
+  for f in 30 45 60 85; do crops+=(-i "$OUT/mouth_source_$mouth/frame_0000$f.png"); done
+done
+ffmpeg -loglevel error -y "${crops[@]}" -filter_complex \
+       "$(for k in 0 1 2 3 4 5 6 7; do printf '[%d]crop=140:90:180:250,scale=420:270:flags=neighbor[c%d];' $k $k; done)[c0][c1][c2][c3][c4][c5][c6][c7]xstack=inputs=8:layout=0_0|w0_0|w0+w1_0|w0+w1+w2_0|0_h0|w0_h0|w0+w1_h0|w0+w1+w2_h0" \
+       "$OUT/mouth_source.png"
 # The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"): d6's grimace (source frame ~252) onto the
 # webcam clip's output frame 126, without and with the transfer, and their difference x4 around mid-grey
 # (detail.png: the face; detail_zoom.png: the chin, 3x).

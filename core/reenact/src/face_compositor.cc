@@ -17,6 +17,7 @@
 #include "face_reenact/gpu/renderer.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/reenact/laplacian_blend.h"
+#include "face_reenact/reenact/teeth_texture.h"
 #include "face_reenact/reenact/transfer.h"
 #include "image_sampling.h"
 #include "shading.h"
@@ -83,6 +84,9 @@ struct FaceCompositor::Impl {
   // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
   // and the wall behind them). See irradiance_at.
   std::vector<char> in_mouth;
+  // The teeth's texture coordinates per vertex (TeethTextureCoordinates; NaN off the teeth).
+  std::vector<Eigen::Vector2f> teeth_uv;
+  std::vector<int32_t> skin_around_mouth;  // SkinAroundMouth's vertices
 
   Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), renderer(gpu::RenderModel::FromFaceModel(m)), options(o) {
     std::array<int32_t, 68> by_index;
@@ -100,6 +104,8 @@ struct FaceCompositor::Impl {
       seam_contours.push_back(std::move(contour));
     }
     FindMouthInterior();
+    teeth_uv = TeethTextureCoordinates(model);
+    FindSkinAroundMouth();
     neighbours.resize(static_cast<size_t>(model.num_vertices()));
     for (const auto& t : model.triangles)
       for (int k = 0; k < 3; ++k) {
@@ -148,6 +154,23 @@ struct FaceCompositor::Impl {
       const float t = span > 0.f ? std::clamp((x.x() - line[k].x()) / span, 0.0f, 1.0f) : 0.f;
       const Eigen::Vector3f ref = (1.f - t) * line[k] + t * line[k + 1];
       if (std::abs(x.y() - ref.y()) < kHalfHeightM && x.z() < ref.z() - kBehindM) in_mouth[static_cast<size_t>(v)] = 1;
+    }
+  }
+
+  // Face vertices 22-30 mm from the mouth's centre (the inner-lip vertices' mean) in the face's
+  // plane and at most 15 mm behind it: the skin of the upper lip, the cheeks beside the mouth and
+  // the chin, where a frame shows the actor's skin under this light (SkinAroundMouth).
+  void FindSkinAroundMouth() {
+    if (inner_lip_vertices.size() != 8) return;
+    Eigen::Vector3f centre = Eigen::Vector3f::Zero();
+    for (int32_t v : inner_lip_vertices) centre += model.mean_shape.segment<3>(3 * v);
+    centre /= 8.f;
+    constexpr float kInnerM = 0.022f, kOuterM = 0.030f, kBehindM = 0.015f;
+    for (int v = 0; v < model.num_vertices(); ++v) {
+      if (part_of(v) != FacePart::Face || in_mouth[static_cast<size_t>(v)]) continue;
+      const Eigen::Vector3f x = model.mean_shape.segment<3>(3 * v);
+      const float r = (x - centre).head<2>().norm();
+      if (r >= kInnerM && r <= kOuterM && x.z() >= centre.z() - kBehindM) skin_around_mouth.push_back(v);
     }
   }
 
@@ -672,6 +695,19 @@ struct FaceCompositor::Impl {
     return parts;
   }
   FacePart part_of(int32_t vertex) const { return model.vertex_part[static_cast<size_t>(vertex)]; }
+
+  // The teeth texture's pattern at G-buffer pixel p (a teeth pixel), its coordinates interpolated
+  // from the triangle's vertices; 1 without a texture.
+  Eigen::Vector3f TeethPatternAt(const gpu::GBuffer& g, size_t p) const {
+    if (!options.teeth_texture || options.teeth_texture->empty() || teeth_uv.empty()) return Eigen::Vector3f::Ones();
+    Eigen::Vector2f uv = Eigen::Vector2f::Zero();
+    for (int k = 0; k < 3; ++k) {
+      const int32_t v = g.vertices[3 * p + static_cast<size_t>(k)];
+      if (v < 0 || !teeth_uv[static_cast<size_t>(v)].allFinite()) return Eigen::Vector3f::Ones();
+      uv += g.barycentric[3 * p + static_cast<size_t>(k)] * teeth_uv[static_cast<size_t>(v)];
+    }
+    return TeethPattern(*options.teeth_texture, uv.x(), uv.y());
+  }
 };
 
 FaceCompositor::FaceCompositor(const FaceModel& model, const ReenactmentOptions& options) {
@@ -690,6 +726,35 @@ std::vector<Eigen::Vector2f> FaceCompositor::MouthOpening(const gpu::PinholeCame
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   return im.Opening(camera, im.renderer.evaluate(params, nullptr, im.threads()));
+}
+
+bool FaceCompositor::SkinAroundMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
+                                     const gpu::FaceParameters& params, Eigen::Vector3f* linear_rgb) const {
+  const Impl& im = *impl_;
+  std::string why;
+  if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
+  if (frame_bgr.type() != CV_8UC3 || frame_bgr.cols != camera.width || frame_bgr.rows != camera.height)
+    throw Error("reenactment: the frame must be 8-bit BGR of the camera's size");
+  const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
+  std::array<std::vector<float>, 3> channels;
+  for (int32_t v : im.skin_around_mouth) {
+    const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+    const Eigen::Vector3f n = state.camera_normals.segment<3>(3 * v);
+    if (!(x.z() > camera.near_plane) || !(n.dot(-x.normalized()) > 0.3f)) continue;  // facing the camera
+    const Eigen::Vector2f uv = project(camera, x);
+    if (!(uv.x() >= 0.f && uv.y() >= 0.f && uv.x() <= static_cast<float>(camera.width - 1) &&
+          uv.y() <= static_cast<float>(camera.height - 1)))
+      continue;
+    const Eigen::Vector3f c = internal::sample_linear(frame_bgr, uv.x(), uv.y());
+    for (int k = 0; k < 3; ++k) channels[static_cast<size_t>(k)].push_back(c[k]);
+  }
+  if (channels[0].size() < 20) return false;
+  for (int k = 0; k < 3; ++k) {
+    auto& ch = channels[static_cast<size_t>(k)];
+    std::nth_element(ch.begin(), ch.begin() + static_cast<long>(ch.size() / 2), ch.end());
+    (*linear_rgb)[k] = ch[ch.size() / 2];
+  }
+  return true;
 }
 
 void FaceCompositor::SetOptions(const ReenactmentOptions& options) {
@@ -894,9 +959,12 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                     ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
                                  kMaxTongueOcclusion)
                     : std::clamp(1.0f - depth_behind / kTeethOcclusionDepthM, kMinTeethOcclusion, 1.0f);
+            // The teeth's texture (teeth_texture.h): gaps, edges and darker corners on the band.
+            const Eigen::Vector3f pattern = part == FacePart::Tongue ? Eigen::Vector3f::Ones() : im.TeethPatternAt(g, p);
             // No darker than the cavity wall behind them: the fit's floor left edge-on teeth and
             // the tongue near black (see irradiance_at).
-            for (int c = 0; c < 3; ++c) interior[c] = std::max(occlusion * g.color[3 * p + static_cast<size_t>(c)], cavity_rgb[c]);
+            for (int c = 0; c < 3; ++c)
+              interior[c] = std::max(occlusion * pattern[c] * g.color[3 * p + static_cast<size_t>(c)], cavity_rgb[c]);
           } else {
             interior = cavity_rgb;
           }

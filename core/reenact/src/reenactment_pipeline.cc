@@ -1,5 +1,7 @@
 #include "face_reenact/reenact/reenactment_pipeline.h"
 
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -7,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/srgb.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/reenact/face_compositor.h"
@@ -23,6 +26,8 @@ using Clock = std::chrono::steady_clock;
 constexpr int kDenseAlbedoFrames = 8;
 constexpr int kAlbedoRefreshInterval = 15;
 constexpr int kLandmarkResetFrames = 3;
+// The source actor's opening stands in for the target's from this size on (a slit shows lips).
+constexpr double kSourceMouthMinAreaPx = 30.0;
 
 TrackingStatus coarse_status(tracker::TrackingStatus s) {
   switch (s) {
@@ -162,6 +167,37 @@ struct ReenactmentPipeline::Impl {
     if (!e.empty()) mouth = std::move(e);
   }
 
+  // The source actor's mouth in this source frame, in the target's colours, for a target that has
+  // not opened its own (ReenactmentOptions::source_mouth); empty when the source's mouth is not
+  // open enough, is turned away, or either actor's skin around the mouth is not in view.
+  MouthExemplar SourceMouth(const SourceView& view, const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
+                            const gpu::FaceParameters& params) const {
+    const float jaw = expression_weight(view.params.delta, kJawOpenIndex);
+    MouthExemplarOptions eo = options.mouth_exemplar_options;
+    // Any opening the output draws an interior for: the output opens as the source does.
+    eo.min_jaw_open = options.mouth_open_threshold;
+    eo.min_area_px = kSourceMouthMinAreaPx;
+    const std::vector<Eigen::Vector2f> opening = compositor.MouthOpening(view.camera, view.params);
+    if (!IsBetterMouthExemplar(MouthExemplar{}, opening, jaw, gpu::head_turn_from_camera_deg(view.params), eo)) return {};
+    Eigen::Vector3f target_skin, source_skin;
+    if (!compositor.SkinAroundMouth(target_bgr, camera, params, &target_skin) ||
+        !compositor.SkinAroundMouth(view.bgr, view.camera, view.params, &source_skin))
+      return {};
+    MouthExemplar e = CaptureMouthExemplar(view.bgr, opening, jaw, view.frame_index, eo);
+    if (e.empty()) return e;
+    // The ratio of the two skins is the ratio of the two lights and cameras (and of the skins'
+    // own tones, which a mouth's inside shares more than its teeth do); bounded, so a skin in a
+    // shadow cannot turn the teeth white-hot or black.
+    std::array<float, 3> gain{};
+    for (int c = 0; c < 3; ++c) gain[static_cast<size_t>(c)] = std::clamp(target_skin[c] / std::max(source_skin[c], 1e-3f), 0.25f, 4.f);
+    const auto& lut = srgb_decode_table();
+    e.bgr.forEach<cv::Vec3b>([&](cv::Vec3b& px, const int*) {
+      for (int k = 0; k < 3; ++k)  // BGR: channel k is RGB channel 2 - k
+        px[k] = static_cast<uchar>(std::lround(255.f * std::clamp(srgb_encode(lut[px[k]] * gain[static_cast<size_t>(2 - k)]), 0.f, 1.f)));
+    });
+    return e;
+  }
+
   std::string MouthInteriorDescription() const {
     if (!options.render_mouth) return "none: the mouth pass is off";
     if (!mouth.empty()) {
@@ -172,11 +208,19 @@ struct ReenactmentPipeline::Impl {
         << static_cast<int>(std::lround(mouth.area_px)) << " px opening)";
       return s.str();
     }
-    if (!options.mouth_exemplar) return "the model's teeth and a dark cavity (the target's own mouth is off)";
+    const std::string teeth = options.teeth_texture && !options.teeth_texture->empty()
+                                  ? "the model's teeth (textured from " + options.teeth_texture->source + ") and a dark cavity"
+                                  : "the model's teeth and a dark cavity";
+    if (!options.mouth_exemplar) return teeth + " (the target's own mouth is off)";
+    const std::string source = summary.source_mouth_frames > 0
+                                   ? "; the source actor's own mouth stood in on " +
+                                         std::to_string(summary.source_mouth_frames) +
+                                         (summary.source_mouth_frames == 1 ? " frame" : " frames")
+                                   : "";
     if (options.mouth_exemplar_frame >= 0)
-      return "the model's teeth and a dark cavity: frame " + std::to_string(options.mouth_exemplar_frame) +
-             " was not tracked with an open mouth in the frame";
-    return "the model's teeth and a dark cavity: the target has not opened the mouth wide enough while facing the camera";
+      return teeth + ": frame " + std::to_string(options.mouth_exemplar_frame) +
+             " was not tracked with an open mouth in the frame" + source;
+    return teeth + ": the target has not opened the mouth wide enough while facing the camera" + source;
   }
 };
 
@@ -440,14 +484,24 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     out.times.detail_ms = ms_since(t0);
 
     // --- re-render, mouth, composite.
+    // --- the source actor's own mouth, until the target has shown its own.
+    t0 = Clock::now();
+    MouthExemplar source_mouth;
+    if (transfer && source->view && im.mouth.empty() && im.options.source_mouth && im.options.mouth_exemplar &&
+        im.options.render_mouth &&
+        expression_weight(out.output_params.delta, kJawOpenIndex) > im.options.mouth_open_threshold)
+      source_mouth = im.SourceMouth(*source->view, out.bgr, fit_camera, target_params);
+    const double source_mouth_ms = ms_since(t0);
+    const MouthExemplar* mouth = source_mouth.empty() ? &im.mouth : &source_mouth;
+
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
     CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
-                                              input_depth.empty() ? nullptr : &input_depth, &im.mouth,
+                                              input_depth.empty() ? nullptr : &input_depth, mouth,
                                               with_detail ? &im.detail : nullptr);
     out.times.detail_ms += c.detail.ms;
     if (c.detail.pixels > 0) ++im.summary.detail_frames;
     out.times.render_ms += c.render_ms;
-    out.times.mouth_ms = c.mouth_ms + exemplar_ms;
+    out.times.mouth_ms = c.mouth_ms + exemplar_ms + source_mouth_ms;
     out.times.composite_ms = c.composite_ms;
     if (!c.drawn) return pass_through(TrackingStatus::kTracking, "the tracked face is outside the frame");
     out.bgr = c.bgr;
@@ -458,6 +512,8 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     }
     out.mouth_drawn = c.mouth_drawn;
     out.mouth_from_exemplar = c.mouth_from_exemplar;
+    out.mouth_from_source = c.mouth_from_exemplar && !source_mouth.empty();
+    if (out.mouth_from_source) ++im.summary.source_mouth_frames;
     out.reenacted = true;
   } catch (const Error& e) {
     // Non-finite or out-of-range tracked parameters: show the input, say why.

@@ -85,6 +85,14 @@ class FaceCompositor {
   // camera. The opening the mouth pass fills, and a MouthExemplar's polygon.
   std::vector<Eigen::Vector2f> MouthOpening(const gpu::PinholeCamera& camera, const gpu::FaceParameters& params) const;
 
+  // The colour of the skin around the mouth in `frame_bgr` (CV_8UC3, the camera's size) at the
+  // fit `params`: the per-channel median of the frame's linear colour where the face's skin
+  // vertices 22-30 mm from the mouth's centre (upper lip, cheeks, chin) project, those facing
+  // the camera. False when fewer than 20 of them land in the frame. What carries another
+  // actor's mouth into this one's light and camera (ReenactmentOptions::source_mouth).
+  bool SkinAroundMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
+                       Eigen::Vector3f* linear_rgb) const;
+
   // Adds the observation of `frame_bgr` at the tracked `params` to `map` (started from the model
   // albedo of params.beta when empty): each visible, camera-facing vertex's colour divided by
   // its SH irradiance, averaged with weight cos(view angle).

@@ -26,6 +26,7 @@
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/reenact/detail_transfer.h"
 #include "face_reenact/reenact/mouth_interior.h"
+#include "face_reenact/reenact/teeth_texture.h"
 #include "face_reenact/reenact/virtual_mirror.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "face_reenact/tracker/rgbd_input.h"
@@ -130,6 +131,19 @@ struct ReenactmentOptions {
   bool mouth_exemplar = true;
   int64_t mouth_exemplar_frame = -1;
   MouthExemplarOptions mouth_exemplar_options;
+  // Until the target has opened its own mouth, where the source actor's frame is here (a
+  // recording, a camera on this machine: SourceExpression::view; never over the UDP stream): the
+  // source's own mouth of that frame, warped into the output's opening as the target's still is,
+  // its colours carried from the source's light and camera into the target's by the skin around
+  // both mouths (FaceCompositor::SkinAroundMouth). The output's opening has the source's shape,
+  // so its teeth and tongue fit it; a target that never opens its mouth (a photo, a speaker who
+  // keeps it shut) otherwise shows the model's teeth. Off: the model's teeth meanwhile. Needs
+  // mouth_exemplar (and a frame named by mouth_exemplar_frame does not stop it before that frame).
+  bool source_mouth = true;
+  // The texture laid over the model's teeth wherever they are drawn (teeth_texture.h): the
+  // front-ends load the default one built at set-up beside the model (DefaultTeethTexturePath);
+  // null: the model's teeth in their flat colour.
+  std::shared_ptr<const TeethTexture> teeth_texture;
 
   // --- frame texture (Appearance::kFrameTexture) ---
   // A frame sample is distrusted near an occluding boundary of the target's own rendering (the
@@ -201,7 +215,9 @@ struct ReenactedFrame {
   TrackingStatus status = TrackingStatus::kLost;
   bool reenacted = false;     // a face was rendered and composited into `bgr`
   bool mouth_drawn = false;   // the mouth interior was drawn
-  bool mouth_from_exemplar = false;  // ... from the target's own open-mouth still (mouth_interior.h)
+  bool mouth_from_exemplar = false;  // ... from an open-mouth image (mouth_interior.h): the target's still or,
+                                     // with mouth_from_source, the source actor's frame
+  bool mouth_from_source = false;    // ReenactmentOptions::source_mouth drew the interior
   std::string message;        // why the input was passed through (empty when reenacted)
   gpu::FaceParameters target_params;  // the target's tracked P (meaningful when tracking)
   gpu::FaceParameters output_params;  // P that was rendered (target with the transferred expression)
@@ -228,8 +244,10 @@ struct PipelineSummary {
   StageTimes mean_times;  // mean over all processed frames
   std::string renderer;   // which rasteriser ran: "cpu", "vulkan (<device>)", "cpu (Vulkan unavailable: ...)"
   // Where an opened mouth's interior comes from: "the target's own mouth, frame N (jawOpen J)",
-  // or "the model's teeth and a dark cavity: ..." with the reason (ReenactmentOptions::mouth_exemplar).
+  // or "the model's teeth and a dark cavity: ..." with the reason (ReenactmentOptions::mouth_exemplar),
+  // and on how many frames the source actor's mouth stood in (ReenactmentOptions::source_mouth).
   std::string mouth_interior;
+  int source_mouth_frames = 0;
   // What wrinkle-level detail the output carries (DetailTransfer::Description), and on how many
   // frames it changed the face.
   std::string detail;
