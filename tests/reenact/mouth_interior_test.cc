@@ -207,6 +207,9 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   std::vector<cv::Point> poly;
   for (const auto& v : wide_opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
   cv::fillPoly(still, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
+  // ... and the inside of its lips, just past the opening, the same green (the still's crop keeps
+  // 3 px around it).
+  cv::polylines(still, std::vector<std::vector<cv::Point>>{poly}, true, cv::Scalar(40, 200, 40), 7);
   const MouthExemplar e = CaptureMouthExemplar(still, wide_opening, 0.8f, 0);
   ASSERT_FALSE(e.empty());
 
@@ -240,6 +243,29 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   const cv::Scalar mean_half = cv::mean(narrower.rendered_bgr, narrower.mouth_mask);
   EXPECT_LT(mean_half[1], mean_with[1] - 15.0);
   EXPECT_GT(green_share(narrower), 0.8);
+  // Just outside the opening, the model's mouth geometry the rasteriser draws up to the lips'
+  // silhouette takes the still too: on real video (d6 on the webcam clip) the model's tongue,
+  // poking past the inner-lip polygon over the lower lip, the lips' inner faces and the teeth
+  // there were a dark, stair-stepped wedge at the corners and a grey-green sliver. Here the
+  // output sticks the tongue out over its lower lip: within 4 px outside the polygon, the still's
+  // green (sampled just past its opening), not the model's tongue.
+  gpu::FaceParameters tongue = wide;
+  tongue.delta[kTongueOutIndex] = 0.7f;
+  const CompositeResult tongue_with = fc.Compose(frame, cam, target, tongue, &albedo, nullptr, &e);
+  cv::Mat inside = cv::Mat::zeros(cam.height, cam.width, CV_8UC1), ring;
+  std::vector<cv::Point> tp;
+  for (const auto& v : fc.MouthOpening(cam, tongue)) tp.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  cv::fillPoly(inside, std::vector<std::vector<cv::Point>>{tp}, cv::Scalar(255));
+  cv::dilate(inside, ring, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(9, 9)));
+  int green_outside = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      if (!ring.at<uchar>(j, i) || inside.at<uchar>(j, i)) continue;
+      const cv::Vec3b px = tongue_with.rendered_bgr.at<cv::Vec3b>(j, i);
+      if (px[1] > px[0] + 40 && px[1] > px[2] + 40) ++green_outside;
+    }
+  RecordProperty("green_outside_the_polygon", green_outside);
+  EXPECT_GT(green_outside, 16) << "25 measured; 8 when only the polygon took the still";
   // A still with another vertex count (a model without the eight inner-lip points) is not used.
   MouthExemplar odd = e;
   odd.opening.pop_back();

@@ -929,11 +929,33 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       // a soft shadow; a wider opening's teeth and its outline against the lips' rasterised inner
       // faces were stair-stepped. (0.8 px: at 1.2 the line nearly vanished.)
       constexpr float kInteriorSoftnessPx = 0.8f;
-      const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx));
+      // With an open-mouth image, the model's mouth geometry just outside the inner-lip polygon
+      // takes it too: the lips' inner faces and the teeth the rasteriser draws between the polygon
+      // and the lips' silhouette were a hard, stair-stepped dark wedge at the mouth's corners and
+      // a grey-green sliver under it (d6 on the webcam clip, frame 60). Mean-value coordinates
+      // extend past the polygon, so those pixels sample the image just past its opening: the
+      // inside of its lips.
+      constexpr int kBeyondOpeningPx = 6;
+      const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + (use_exemplar ? kBeyondOpeningPx : 0);
       cv::Rect zone = cv::boundingRect(polygon);
       zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                       (zone.height >> kSubpixelBits) + 2);
       zone = (zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
+      if (use_exemplar) {
+        for (int j = zone.y; j < zone.y + zone.height; ++j) {
+          uchar* orow = opening.ptr<uchar>(j);
+          for (int i = zone.x; i < zone.x + zone.width; ++i) {
+            const size_t p = static_cast<size_t>(j) * w + i;
+            if (orow[i] == 255 || g.triangle[p] < 0) continue;
+            const int32_t v0 = g.vertices[3 * p];
+            const FacePart part = im.part_of(v0);
+            const bool inside_geometry = part == FacePart::UpperTeeth || part == FacePart::LowerTeeth ||
+                                         part == FacePart::Tongue ||
+                                         (part == FacePart::Face && im.in_mouth[static_cast<size_t>(v0)]);
+            if (inside_geometry) orow[i] = 255;
+          }
+        }
+      }
       cv::Mat layer = cv::Mat::zeros(zone.size(), CV_32FC3), layer_alpha = cv::Mat::zeros(zone.size(), CV_32FC1);
       int drawn = 0, from_exemplar = 0;
       for (int j = zone.y; j < zone.y + zone.height; ++j) {
@@ -947,7 +969,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           const bool mouth_part = covered && (part == FacePart::UpperTeeth || part == FacePart::LowerTeeth ||
                                               part == FacePart::Tongue);
           const float depth_behind = covered ? g.position[3 * p + 2] - lip_z : 1.0f;
-          if (!mouth_part && covered && depth_behind <= kCavityDepthM) continue;  // the lips themselves
+          // The lips themselves (the inner faces of the lips take an open-mouth image's colour).
+          if (!mouth_part && covered && depth_behind <= kCavityDepthM && !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]))
+            continue;
           Eigen::Vector3f interior;
           if (use_exemplar && SampleMouthExemplar(*mouth, opening_px,
                                                   Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)), &interior)) {
