@@ -272,6 +272,20 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   EXPECT_FALSE(fc.Compose(frame, cam, target, wide, &albedo, nullptr, &odd).mouth_from_exemplar);
 }
 
+// A target frame rendered with known P (the pipeline's ground-truth target): the test face with
+// its mouth opened to `jaw`, frame `index` at 30 fps.
+capture::RgbdFrame ground_truth_frame(const gpu::PinholeCamera& cam, float jaw, int index) {
+  gpu::FaceParameters p = test_face(0.45f);
+  p.delta[kJawOpenIndex] = jaw;
+  capture::RgbdFrame f;
+  f.index = index;
+  f.timestamp_s = index / 30.0;
+  f.camera = cam;
+  f.color = render_target(p, cam);
+  f.ground_truth.params = p;
+  return f;
+}
+
 // The pipeline keeps a still of the target's own open mouth (ground-truth target: frames rendered
 // with known P) and says where the interior comes from.
 TEST(MouthInteriorTest, ThePipelineTakesTheTargetsWidestFrontalOpening) {
@@ -279,17 +293,7 @@ TEST(MouthInteriorTest, ThePipelineTakesTheTargetsWidestFrontalOpening) {
   const gpu::PinholeCamera cam = test_camera(320, 240);
   ReenactmentOptions o;
   o.use_ground_truth_target = true;
-  auto frame = [&](float jaw, int index) {
-    gpu::FaceParameters p = test_face(0.45f);
-    p.delta[kJawOpenIndex] = jaw;
-    capture::RgbdFrame f;
-    f.index = index;
-    f.timestamp_s = index / 30.0;
-    f.camera = cam;
-    f.color = render_target(p, cam);
-    f.ground_truth.params = p;
-    return f;
-  };
+  auto frame = [&](float jaw, int index) { return ground_truth_frame(cam, jaw, index); };
   SourceExpression open;
   open.weights[kJawOpenIndex] = 0.9f;
   {
@@ -344,17 +348,7 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
   const FaceCompositor fc(*test_model(), ReenactmentOptions{});
-  auto target_frame = [&](float jaw, int index) {
-    gpu::FaceParameters p = test_face(0.45f);
-    p.delta[kJawOpenIndex] = jaw;
-    capture::RgbdFrame f;
-    f.index = index;
-    f.timestamp_s = index / 30.0;
-    f.camera = cam;
-    f.color = render_target(p, cam);
-    f.ground_truth.params = p;
-    return f;
-  };
+  auto target_frame = [&](float jaw, int index) { return ground_truth_frame(cam, jaw, index); };
   // The source's frame: its mouth open, the opening painted green, the whole frame in a light
   // 0.6 times as bright (linear) as the target's.
   gpu::FaceParameters wide = test_face(0.45f);
