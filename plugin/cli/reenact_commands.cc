@@ -413,8 +413,8 @@ void run_reenact(const ReenactArgs& a) {
         ++source_statuses[tracker::tracking_status_name(st.status)];
       }
       expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
-      // The source frame the fit belongs to, for its folds and wrinkles (Sec. 7.3).
-      if (expr.blend_weight > 0.f && ro.detail.mode != reenact::DetailMode::kOff && !sf.color.empty())
+      // The source frame the fit belongs to, for its folds and wrinkles (Sec. 7.3) and its mouth.
+      if (expr.blend_weight > 0.f && ro.UsesSourceView() && !sf.color.empty())
         expr.view = std::make_shared<reenact::SourceView>(reenact::SourceView{sf.color, st.camera, st.params, sf.index});
       src = &expr;
     } else {

@@ -428,6 +428,13 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
     EXPECT_TRUE(r.mouth_drawn);
     EXPECT_FALSE(r.mouth_from_source);
   }
+  // The front-ends attach the source's frame whenever the detail or the mouth uses it: with the
+  // detail off (as here) the mouth still does.
+  EXPECT_TRUE(o.UsesSourceView());
+  o.source_mouth = false;
+  EXPECT_FALSE(o.UsesSourceView());
+  o.detail.mode = DetailMode::kTransient;
+  EXPECT_TRUE(o.UsesSourceView());
 }
 
 // --- the teeth proxy's texture (teeth_texture.h) ---

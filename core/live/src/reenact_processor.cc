@@ -112,9 +112,9 @@ class ReenactProcessor : public FrameProcessor {
       const reenact::ReenactedFrame& actor = *actor_result;
       if (actor.status == reenact::TrackingStatus::kTracking) {
         actor_expression_ = reenact::SourceFromParameters(actor.target_params, actor_->target_neutral());
-        // The actor's frame goes along for its folds and wrinkles (Sec. 7.3); a copy, since the
-        // grabber reuses its buffers. None with the detail transfer off.
-        if (target_->options().detail.mode != reenact::DetailMode::kOff)
+        // The actor's frame goes along for its folds and wrinkles (Sec. 7.3) and its mouth; a
+        // copy, since the grabber reuses its buffers. None when the options use neither.
+        if (target_->options().UsesSourceView())
           actor_expression_.view = std::make_shared<reenact::SourceView>(reenact::SourceView{
               input.actor_frame->color.clone(), actor.tracked.camera, actor.target_params, input.actor_frame->index});
         have_actor_expression_ = true;

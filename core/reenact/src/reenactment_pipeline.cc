@@ -54,6 +54,10 @@ void add_times(StageTimes* sum, const StageTimes& t) {
 
 }  // namespace
 
+bool ReenactmentOptions::UsesSourceView() const {
+  return detail.mode != DetailMode::kOff || (source_mouth && mouth_exemplar && render_mouth);
+}
+
 bool ReenactmentOptions::IsValid(std::string* why) const {
   auto fail = [&](const std::string& m) {
     if (why) *why = m;

@@ -187,6 +187,9 @@ struct ReenactmentOptions {
   bool use_ground_truth_target = false;
 
   bool IsValid(std::string* why) const;
+  // Whether a source frame (SourceExpression::view) is of use to these options: its folds and
+  // wrinkles (detail) or its mouth (source_mouth). Front-ends attach the frame only then.
+  bool UsesSourceView() const;
 };
 
 // Where the target's tracker is, in three states a front-end can show (ReenactedFrame::tracked
