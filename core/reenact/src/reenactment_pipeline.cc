@@ -487,7 +487,6 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     if (with_detail) im.detail.Observe(*source->view, source->blend_weight);
     out.times.detail_ms = ms_since(t0);
 
-    // --- re-render, mouth, composite.
     // --- the source actor's own mouth, until the target has shown its own.
     t0 = Clock::now();
     MouthExemplar source_mouth;
@@ -498,6 +497,7 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     const double source_mouth_ms = ms_since(t0);
     const MouthExemplar* mouth = source_mouth.empty() ? &im.mouth : &source_mouth;
 
+    // --- re-render, mouth, composite.
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
     CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
                                               input_depth.empty() ? nullptr : &input_depth, mouth,
