@@ -86,7 +86,7 @@ struct FaceCompositor::Impl {
   std::vector<char> in_mouth;
   // The teeth's texture coordinates per vertex (TeethTextureCoordinates; NaN off the teeth).
   std::vector<Eigen::Vector2f> teeth_uv;
-  std::vector<int32_t> skin_around_mouth;  // SkinAroundMouth's vertices
+  std::vector<int32_t> skin_around_mouth;  // ViewMouth's skin vertices
 
   Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), renderer(gpu::RenderModel::FromFaceModel(m)), options(o) {
     std::array<int32_t, 68> by_index;
@@ -159,7 +159,7 @@ struct FaceCompositor::Impl {
 
   // Face vertices 22-30 mm from the mouth's centre (the inner-lip vertices' mean) in the face's
   // plane and at most 15 mm behind it: the skin of the upper lip, the cheeks beside the mouth and
-  // the chin, where a frame shows the actor's skin under this light (SkinAroundMouth).
+  // the chin, where a frame shows the actor's skin under this light (ViewMouth).
   void FindSkinAroundMouth() {
     if (inner_lip_vertices.size() != 8) return;
     Eigen::Vector3f centre = Eigen::Vector3f::Zero();
@@ -323,6 +323,11 @@ struct FaceCompositor::Impl {
     return dist;
   }
 
+  // `rect` grown by `margin` on every side and kept inside a w x h image.
+  static cv::Rect GrownWithin(const cv::Rect& rect, int margin, int w, int h) {
+    return (rect + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
+  }
+
   // The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
   // inside the image; empty when nothing is covered.
   static cv::Rect CoveredRect(const gpu::GBuffer& g, int margin) {
@@ -331,7 +336,7 @@ struct FaceCompositor::Impl {
       for (int i = 0; i < g.width; ++i)
         if (g.covered(i, j)) rect |= cv::Rect(i, j, 1, 1);
     if (rect.empty()) return rect;
-    return (rect + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, g.width, g.height);
+    return GrownWithin(rect, margin, g.width, g.height);
   }
 
   // Each closed contour (vertex indices) as `state` projects it, a 1 px line of 0 in `open` (whose
@@ -728,14 +733,16 @@ std::vector<Eigen::Vector2f> FaceCompositor::MouthOpening(const gpu::PinholeCame
   return im.Opening(camera, im.renderer.evaluate(params, nullptr, im.threads()));
 }
 
-bool FaceCompositor::SkinAroundMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
-                                     const gpu::FaceParameters& params, Eigen::Vector3f* linear_rgb) const {
+FaceCompositor::MouthView FaceCompositor::ViewMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
+                                                   const gpu::FaceParameters& params) const {
   const Impl& im = *impl_;
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   if (frame_bgr.type() != CV_8UC3 || frame_bgr.cols != camera.width || frame_bgr.rows != camera.height)
     throw Error("reenactment: the frame must be 8-bit BGR of the camera's size");
   const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
+  MouthView view;
+  view.opening = im.Opening(camera, state);
   std::array<std::vector<float>, 3> channels;
   for (int32_t v : im.skin_around_mouth) {
     const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
@@ -748,13 +755,14 @@ bool FaceCompositor::SkinAroundMouth(const cv::Mat& frame_bgr, const gpu::Pinhol
     const Eigen::Vector3f c = internal::sample_linear(frame_bgr, uv.x(), uv.y());
     for (int k = 0; k < 3; ++k) channels[static_cast<size_t>(k)].push_back(c[k]);
   }
-  if (channels[0].size() < 20) return false;
+  if (channels[0].size() < 20) return view;
   for (int k = 0; k < 3; ++k) {
     auto& ch = channels[static_cast<size_t>(k)];
     std::nth_element(ch.begin(), ch.begin() + static_cast<long>(ch.size() / 2), ch.end());
-    (*linear_rgb)[k] = ch[ch.size() / 2];
+    view.skin[k] = ch[ch.size() / 2];
   }
-  return true;
+  view.has_skin = true;
+  return view;
 }
 
 void FaceCompositor::SetOptions(const ReenactmentOptions& options) {
@@ -940,7 +948,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       cv::Rect zone = cv::boundingRect(polygon);
       zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                       (zone.height >> kSubpixelBits) + 2);
-      zone = (zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
+      zone = Impl::GrownWithin(zone, margin, w, h);
       if (use_exemplar) {
         for (int j = zone.y; j < zone.y + zone.height; ++j) {
           uchar* orow = opening.ptr<uchar>(j);
@@ -948,10 +956,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
             const size_t p = static_cast<size_t>(j) * w + i;
             if (orow[i] == 255 || g.triangle[p] < 0) continue;
             const int32_t v0 = g.vertices[3 * p];
-            const FacePart part = im.part_of(v0);
-            const bool inside_geometry = part == FacePart::UpperTeeth || part == FacePart::LowerTeeth ||
-                                         part == FacePart::Tongue ||
-                                         (part == FacePart::Face && im.in_mouth[static_cast<size_t>(v0)]);
+            const bool inside_geometry = (kMouthParts & part_bit(im.part_of(v0))) || im.in_mouth[static_cast<size_t>(v0)];
             if (inside_geometry) orow[i] = 255;
           }
         }
@@ -966,8 +971,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           const int32_t v0 = g.vertices[3 * p];
           const bool covered = g.triangle[p] >= 0;
           const FacePart part = covered ? im.part_of(v0) : FacePart::Face;
-          const bool mouth_part = covered && (part == FacePart::UpperTeeth || part == FacePart::LowerTeeth ||
-                                              part == FacePart::Tongue);
+          const bool mouth_part = covered && (kMouthParts & part_bit(part));
           const float depth_behind = covered ? g.position[3 * p + 2] - lip_z : 1.0f;
           // The lips themselves (the inner faces of the lips take an open-mouth image's colour).
           if (!mouth_part && covered && depth_behind <= kCavityDepthM && !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]))

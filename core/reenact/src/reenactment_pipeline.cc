@@ -181,13 +181,13 @@ struct ReenactmentPipeline::Impl {
     // Any opening the output draws an interior for: the output opens as the source does.
     eo.min_jaw_open = options.mouth_open_threshold;
     eo.min_area_px = kSourceMouthMinAreaPx;
-    const std::vector<Eigen::Vector2f> opening = compositor.MouthOpening(view.camera, view.params);
-    if (!IsBetterMouthExemplar(MouthExemplar{}, opening, jaw, gpu::head_turn_from_camera_deg(view.params), eo)) return {};
-    Eigen::Vector3f target_skin, source_skin;
-    if (!compositor.SkinAroundMouth(target_bgr, camera, params, &target_skin) ||
-        !compositor.SkinAroundMouth(view.bgr, view.camera, view.params, &source_skin))
+    const FaceCompositor::MouthView source = compositor.ViewMouth(view.bgr, view.camera, view.params);
+    if (!IsBetterMouthExemplar(MouthExemplar{}, source.opening, jaw, gpu::head_turn_from_camera_deg(view.params), eo))
       return {};
-    MouthExemplar e = CaptureMouthExemplar(view.bgr, opening, jaw, view.frame_index, eo);
+    const FaceCompositor::MouthView target = compositor.ViewMouth(target_bgr, camera, params);
+    if (!source.has_skin || !target.has_skin) return {};
+    const Eigen::Vector3f &target_skin = target.skin, &source_skin = source.skin;
+    MouthExemplar e = CaptureMouthExemplar(view.bgr, source.opening, jaw, view.frame_index, eo);
     if (e.empty()) return e;
     // The ratio of the two skins is the ratio of the two lights and cameras (and of the skins'
     // own tones, which a mouth's inside shares more than its teeth do); bounded, so a skin in a
@@ -195,10 +195,13 @@ struct ReenactmentPipeline::Impl {
     std::array<float, 3> gain{};
     for (int c = 0; c < 3; ++c) gain[static_cast<size_t>(c)] = std::clamp(target_skin[c] / std::max(source_skin[c], 1e-3f), 0.25f, 4.f);
     const auto& lut = srgb_decode_table();
-    e.bgr.forEach<cv::Vec3b>([&](cv::Vec3b& px, const int*) {
-      for (int k = 0; k < 3; ++k)  // BGR: channel k is RGB channel 2 - k
-        px[k] = static_cast<uchar>(std::lround(255.f * std::clamp(srgb_encode(lut[px[k]] * gain[static_cast<size_t>(2 - k)]), 0.f, 1.f)));
-    });
+    // A plain loop over the small crop: cv::Mat::forEach would start OpenCV's own thread pool on
+    // the live session's threads (a thread more than the session names, seen by
+    // LiveSessionActorTest.RecordedSourceActorRunsItsOwnCaptureAndIsReported).
+    for (int j = 0; j < e.bgr.rows; ++j)
+      for (cv::Vec3b& px : cv::Mat_<cv::Vec3b>(e.bgr.row(j)))
+        for (int k = 0; k < 3; ++k)  // BGR: channel k is RGB channel 2 - k
+          px[k] = static_cast<uchar>(std::lround(255.f * std::clamp(srgb_encode(lut[px[k]] * gain[static_cast<size_t>(2 - k)]), 0.f, 1.f)));
     return e;
   }
 

@@ -97,32 +97,28 @@ std::pair<int, int> RefineToTheTeeth(const cv::Mat& photo_bgr, float gap, std::v
     const float y = std::clamp(p.y(), 0.f, static_cast<float>(photo_bgr.rows - 1));
     return toothness(internal::sample_linear(photo_bgr, x, y));
   };
-  // The column's samples, from above the upper line to below the lower one.
-  auto column = [&](int i, Eigen::Vector2f* start, Eigen::Vector2f* step) {
+  // Each column's direction (from its upper line to its lower one) and its samples, from `reach`
+  // above the upper line to `reach` below the lower one.
+  std::vector<Eigen::Vector2f> dirs(static_cast<size_t>(width));
+  std::vector<std::vector<float>> samples(static_cast<size_t>(width));
+  for (int i = 0; i < width; ++i) {
     const Eigen::Vector2f top = (*tops)[static_cast<size_t>(i)], bottom = (*bottoms)[static_cast<size_t>(i)];
     const Eigen::Vector2f dir = (bottom - top).norm() > 1e-3f ? (bottom - top).normalized() : Eigen::Vector2f(0.f, 1.f);
-    *start = top - reach * dir;
-    *step = kStepPx * dir;
-    std::vector<float> s;
+    dirs[static_cast<size_t>(i)] = dir;
+    const Eigen::Vector2f start = top - reach * dir, step = kStepPx * dir;
     const int n = static_cast<int>(((bottom - top).norm() + 2.f * reach) / kStepPx) + 1;
-    for (int k = 0; k < n; ++k) s.push_back(at(*start + static_cast<float>(k) * *step));
-    return s;
-  };
-  std::vector<float> middle;
-  for (int i = width / 8; i < width - width / 8; ++i) {
-    Eigen::Vector2f start, step;
-    const std::vector<float> s = column(i, &start, &step);
-    middle.insert(middle.end(), s.begin(), s.end());
+    for (int k = 0; k < n; ++k) samples[static_cast<size_t>(i)].push_back(at(start + static_cast<float>(k) * step));
   }
+  std::vector<float> middle;
+  for (int i = width / 8; i < width - width / 8; ++i)
+    middle.insert(middle.end(), samples[static_cast<size_t>(i)].begin(), samples[static_cast<size_t>(i)].end());
   if (middle.empty()) return {-1, -1};
   const float threshold = otsu_threshold(middle);
   std::vector<float> top_shift(static_cast<size_t>(width), 0.f), bottom_shift(static_cast<size_t>(width), 0.f);
   int first = -1, last = -1;
   for (int i = 0; i < width; ++i) {
-    Eigen::Vector2f start, step;
-    const std::vector<float> s = column(i, &start, &step);
-    const Eigen::Vector2f top = (*tops)[static_cast<size_t>(i)], bottom = (*bottoms)[static_cast<size_t>(i)];
-    const float length = (bottom - top).norm();
+    const std::vector<float>& s = samples[static_cast<size_t>(i)];
+    const float length = ((*bottoms)[static_cast<size_t>(i)] - (*tops)[static_cast<size_t>(i)]).norm();
     const int mid = static_cast<int>((reach + 0.5f * length) / kStepPx);
     if (mid < 0 || mid >= static_cast<int>(s.size()) || s[static_cast<size_t>(mid)] < threshold) continue;
     int a = mid, b = mid;
@@ -143,10 +139,9 @@ std::pair<int, int> RefineToTheTeeth(const cv::Mat& photo_bgr, float gap, std::v
   };
   std::vector<Eigen::Vector2f> new_tops = *tops, new_bottoms = *bottoms;
   for (int i = 0; i < width; ++i) {
-    const Eigen::Vector2f top = (*tops)[static_cast<size_t>(i)], bottom = (*bottoms)[static_cast<size_t>(i)];
-    const Eigen::Vector2f dir = (bottom - top).norm() > 1e-3f ? (bottom - top).normalized() : Eigen::Vector2f(0.f, 1.f);
-    new_tops[static_cast<size_t>(i)] = top + median9(top_shift, i) * dir;
-    new_bottoms[static_cast<size_t>(i)] = bottom + median9(bottom_shift, i) * dir;
+    const Eigen::Vector2f dir = dirs[static_cast<size_t>(i)];
+    new_tops[static_cast<size_t>(i)] = (*tops)[static_cast<size_t>(i)] + median9(top_shift, i) * dir;
+    new_bottoms[static_cast<size_t>(i)] = (*bottoms)[static_cast<size_t>(i)] + median9(bottom_shift, i) * dir;
   }
   *tops = std::move(new_tops);
   *bottoms = std::move(new_bottoms);

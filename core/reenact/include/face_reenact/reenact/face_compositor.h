@@ -85,13 +85,18 @@ class FaceCompositor {
   // camera. The opening the mouth pass fills, and a MouthExemplar's polygon.
   std::vector<Eigen::Vector2f> MouthOpening(const gpu::PinholeCamera& camera, const gpu::FaceParameters& params) const;
 
-  // The colour of the skin around the mouth in `frame_bgr` (CV_8UC3, the camera's size) at the
-  // fit `params`: the per-channel median of the frame's linear colour where the face's skin
+  // An actor's mouth in `frame_bgr` (CV_8UC3, the camera's size) at the fit `params`, from one
+  // evaluation of the model: the opening (MouthOpening's polygon) and the colour of the skin
+  // around it, the per-channel median of the frame's linear colour where the face's skin
   // vertices 22-30 mm from the mouth's centre (upper lip, cheeks, chin) project, those facing
-  // the camera. False when fewer than 20 of them land in the frame. What carries another
-  // actor's mouth into this one's light and camera (ReenactmentOptions::source_mouth).
-  bool SkinAroundMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
-                       Eigen::Vector3f* linear_rgb) const;
+  // the camera (has_skin false when fewer than 20 of them land in the frame). What carries
+  // another actor's mouth into this one's light and camera (ReenactmentOptions::source_mouth).
+  struct MouthView {
+    std::vector<Eigen::Vector2f> opening;
+    bool has_skin = false;
+    Eigen::Vector3f skin = Eigen::Vector3f::Zero();  // linear RGB
+  };
+  MouthView ViewMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params) const;
 
   // Adds the observation of `frame_bgr` at the tracked `params` to `map` (started from the model
   // albedo of params.beta when empty): each visible, camera-facing vertex's colour divided by

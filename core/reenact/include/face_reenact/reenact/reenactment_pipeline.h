@@ -135,7 +135,7 @@ struct ReenactmentOptions {
   // recording, a camera on this machine: SourceExpression::view; never over the UDP stream): the
   // source's own mouth of that frame, warped into the output's opening as the target's still is,
   // its colours carried from the source's light and camera into the target's by the skin around
-  // both mouths (FaceCompositor::SkinAroundMouth). The output's opening has the source's shape,
+  // both mouths (FaceCompositor::ViewMouth). The output's opening has the source's shape,
   // so its teeth and tongue fit it; a target that never opens its mouth (a photo, a speaker who
   // keeps it shut) otherwise shows the model's teeth. Off: the model's teeth meanwhile. Needs
   // mouth_exemplar (and a frame named by mouth_exemplar_frame does not stop it before that frame).
