@@ -31,6 +31,7 @@ using internal::sample_float;
 using internal::sample_linear;
 using internal::Gamma;
 using internal::irradiance;
+using internal::lit_normal;
 using internal::rendering_lighting;
 
 constexpr gpu::PartMask part_bit(FacePart p) { return gpu::PartMask{1} << static_cast<int>(p); }
@@ -188,6 +189,13 @@ struct FaceCompositor::Impl {
   // albedo map's division all use this, so they stay consistent with one another. Teeth and
   // tongue keep the plain fit: lit so, the lower teeth seen through a barely opened gap drew
   // white specks on the webcam clip; the mouth pass shades them (no darker than the cavity).
+  // The SH basis vertex v is lit at, from its camera-space normal and position: at lit_normal
+  // (the fit's light within the normals it saw) for the skin; the mouth's own surfaces keep
+  // their normal, their light has rules of its own (irradiance_at, the mouth pass).
+  std::array<float, 9> lit_basis(int v, const Eigen::Vector3f& normal, const Eigen::Vector3f& position) const {
+    const bool mouth = in_mouth[static_cast<size_t>(v)] || (kMouthParts & part_bit(part_of(v)));
+    return gpu::sh_basis(mouth ? normal : lit_normal(normal, position));
+  }
   float irradiance_at(const Gamma& light, const std::array<float, 9>& basis, int c, int v) const {
     const float e = irradiance(light, basis, c);
     if (!in_mouth[static_cast<size_t>(v)]) return e;
@@ -398,7 +406,7 @@ struct FaceCompositor::Impl {
     if (!same) {
       tracked_irradiance.resize(static_cast<size_t>(n));
       for (int v = 0; v < n; ++v) {
-        const auto basis = gpu::sh_basis(ts.camera_normals.segment<3>(3 * v));
+        const auto basis = lit_basis(v, ts.camera_normals.segment<3>(3 * v), ts.camera_positions.segment<3>(3 * v));
         for (int c = 0; c < 3; ++c) tracked_irradiance[static_cast<size_t>(v)][c] = irradiance_at(light, basis, c, v);
       }
     }
@@ -820,7 +828,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   }
   std::vector<Eigen::Vector3f> irradiance_out(static_cast<size_t>(n));  // uncapped, per vertex
   for (int v = 0; v < n; ++v) {
-    const auto basis = gpu::sh_basis(state.camera_normals.segment<3>(3 * v));
+    const auto basis = im.lit_basis(v, state.camera_normals.segment<3>(3 * v), state.camera_positions.segment<3>(3 * v));
     const bool mouth_part = kMouthParts & part_bit(im.part_of(v));
     // Teeth and tongue the map never saw: the model's, in the actor's cast (SkinCast).
     const bool unseen_mouth = use_map && mouth_part && !(albedo->weight.size() == n && albedo->weight[v] > 0.f);

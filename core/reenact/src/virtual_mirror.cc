@@ -442,7 +442,8 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
       if (!(covered.at<float>(j, i) > 0.f)) continue;
       const size_t p = static_cast<size_t>(j + roi.y) * w + (i + roi.x);
       const Eigen::Vector3f n(g.normal[3 * p], g.normal[3 * p + 1], g.normal[3 * p + 2]);
-      basis[static_cast<size_t>(j) * roi.width + i] = gpu::sh_basis(n.normalized());
+      const Eigen::Vector3f x(g.position[3 * p], g.position[3 * p + 1], g.position[3 * p + 2]);
+      basis[static_cast<size_t>(j) * roi.width + i] = gpu::sh_basis(internal::lit_normal(n.normalized(), x));
     }
   auto irradiance_at = [&](const Gamma& light, int i, int j) {
     const auto& b = basis[static_cast<size_t>(j) * roi.width + i];
