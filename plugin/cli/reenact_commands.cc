@@ -278,11 +278,7 @@ void run_reenact(const ReenactArgs& a) {
   ro.tracker.landmark_source = landmarks;
   ro.tracker.calibration_window_frames = a.calibration_window;
   ro.tracker.brows.enabled = !a.no_brows;
-  if (a.mouth == "model") {
-    ro.mouth_exemplar = false;
-  } else if (a.mouth == "target") {
-    ro.source_mouth = false;
-  } else if (a.mouth != "auto") {
+  if (!ro.SetMouth(a.mouth)) {
     char* end = nullptr;
     const long long frame = std::strtoll(a.mouth.c_str(), &end, 10);
     if (a.mouth.empty() || *end != '\0' || frame < 0)

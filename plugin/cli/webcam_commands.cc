@@ -60,6 +60,7 @@ struct WebcamArgs {
   std::string mirror_texture, mirror_at = "face", mirror_light;
   float mirror_opacity = 1.0f;
   std::string detail = "transient";  // the source actor's folds (LiveSession::Options::detail)
+  std::string mouth = "auto";        // an opened mouth's interior (LiveSession::Options::mouth)
 };
 
 // The pipeline choices a live session takes from the command line (webcam --target, bench live).
@@ -72,6 +73,7 @@ void apply_pipeline_args(const WebcamArgs& args, live::LiveSession::Options* o) 
   o->mirror_opacity = args.mirror_opacity;
   o->mirror_light = args.mirror_light;
   o->detail = args.detail;
+  o->mouth = args.mouth;
 }
 
 void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
@@ -88,6 +90,10 @@ void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
                   "with --mode mirror: re-light: front, left, right, top, bottom, warm, cool, or a .json with \"gamma\"");
   cmd->add_option("--detail", args->detail,
                   "the source actor's folds and wrinkles on the target (a camera or recording source): transient, copy or off")
+      ->capture_default_str();
+  cmd->add_option("--mouth", args->mouth,
+                  "an opened mouth's interior: auto (the target's own open mouth once seen; until then the source actor's own "
+                  "where it is a camera or recording here, else the model's teeth), target (the target's own only) or model")
       ->capture_default_str();
 }
 

@@ -149,6 +149,14 @@ TEST(LiveOptionsTest, ValidationNamesTheProblem) {
   EXPECT_NE(why.find("detail transfer must be transient, copy or off (got 'lots')"), std::string::npos) << why;
   o.detail = "off";
   EXPECT_TRUE(o.IsValid(&why)) << why;
+  EXPECT_EQ(o.mouth, "auto");
+  o.mouth = "wide";
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("the mouth must be auto, target or model (got 'wide')"), std::string::npos) << why;
+  for (const char* mouth : {"target", "model"}) {
+    o.mouth = mouth;
+    EXPECT_TRUE(o.IsValid(&why)) << why;
+  }
   OutputMode mode;
   EXPECT_TRUE(parse_output_mode("pass-through", &mode));
   EXPECT_EQ(mode, OutputMode::kPassThrough);
@@ -831,6 +839,8 @@ TEST_F(WebcamLiveCliTest, MissingRecordingKeyOrBadModeFailUpFront) {
   EXPECT_NE(out.find("recording '/nonexistent/rec': no such file"), std::string::npos) << out;
   EXPECT_EQ(run("webcam --device /dev/null --target /nonexistent/rec --mode sideways", &out), 1);
   EXPECT_NE(out.find("--mode 'sideways'"), std::string::npos) << out;
+  EXPECT_EQ(run("webcam --device /dev/null --target /dev/video63 --mouth wide", &out), 1);
+  EXPECT_NE(out.find("the mouth must be auto, target or model (got 'wide')"), std::string::npos) << out;
   EXPECT_EQ(run("webcam --device /dev/null --target /dev/video63 --source udp://9000", &out), 1);
   EXPECT_NE(out.find("key file"), std::string::npos) << out;
   EXPECT_EQ(run("webcam --device /dev/null --target /dev/video63 --source udp://9000 --key /nonexistent.key", &out), 1);

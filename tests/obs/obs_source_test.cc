@@ -312,7 +312,7 @@ TEST_F(ObsSourceTest, EveryPropertyIsLabelledAndDocumented) {
   obs_properties_destroy(props);
   for (const char* key : {"status", "target_kind", "target_camera", "target_path", "source_kind", "udp_port", "key_file",
                           "source_camera", "source_path", "model_path", "mode", "calibrate", "camera_resolution",
-                          "mirror_texture", "mirror_at", "mirror_opacity", "mirror_light", "mirror_light_file", "detail"})
+                          "mirror_texture", "mirror_at", "mirror_opacity", "mirror_light", "mirror_light_file", "detail", "mouth"})
     EXPECT_NE(std::find(names.begin(), names.end(), key), names.end()) << key;
 }
 
@@ -453,6 +453,12 @@ TEST_F(ObsSourceTest, IncompleteSettingsSayWhatIsMissing) {
   obs_source_update(source, settings);
   st = wait_status(source, 2s, changed_from(st.line));
   EXPECT_NE(st.line.find("the detail transfer must be transient, copy or off (got 'lots')"), std::string::npos) << st.line;
+  // And a mouth setting from one.
+  obs_data_set_string(settings, "detail", "off");
+  obs_data_set_string(settings, "mouth", "wide");
+  obs_source_update(source, settings);
+  st = wait_status(source, 2s, changed_from(st.line));
+  EXPECT_NE(st.line.find("the mouth must be auto, target or model (got 'wide')"), std::string::npos) << st.line;
   obs_data_release(settings);
 }
 

@@ -435,6 +435,17 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
   EXPECT_FALSE(o.UsesSourceView());
   o.detail.mode = DetailMode::kTransient;
   EXPECT_TRUE(o.UsesSourceView());
+  // The front-ends' one mouth setting (reenact --mouth, webcam --mouth, the OBS source's "mouth").
+  ReenactmentOptions m;
+  ASSERT_TRUE(m.SetMouth("model"));
+  EXPECT_FALSE(m.mouth_exemplar);
+  ASSERT_TRUE(m.SetMouth("target"));
+  EXPECT_TRUE(m.mouth_exemplar);
+  EXPECT_FALSE(m.source_mouth);
+  ASSERT_TRUE(m.SetMouth("auto"));
+  EXPECT_TRUE(m.mouth_exemplar && m.source_mouth);
+  EXPECT_FALSE(m.SetMouth("wide"));
+  EXPECT_TRUE(m.mouth_exemplar && m.source_mouth);
 }
 
 // --- the teeth proxy's texture (teeth_texture.h) ---

@@ -78,6 +78,7 @@ struct PipelineSettings {
   bool with_actor = false;       // a second pipeline tracks the source actor (camera or recording)
   MirrorSettings mirror;         // kMirror: the texture and light
   reenact::DetailMode detail = reenact::DetailMode::kTransient;  // the source actor's folds (Sec. 7.3)
+  std::string mouth = "auto";    // an opened mouth's interior (ReenactmentOptions::SetMouth)
 };
 
 // The reenactment pipeline on the model at `model_path` (mode kReenact, kPassThrough, kOverlay

@@ -24,6 +24,7 @@
 #include "face_reenact/stream/stream_key.h"
 #include "face_reenact/stream/udp.h"
 #include "face_reenact/tracker/solver_choice.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
 #include "face_reenact/reenact/virtual_mirror.h"
 #include "frame_processor.h"
 
@@ -212,6 +213,8 @@ bool LiveSession::Options::IsValid(std::string* why) const {
   reenact::DetailMode detail_mode;
   if (!reenact::ParseDetailMode(detail, &detail_mode))
     return fail("the detail transfer must be transient, copy or off (got '" + detail + "')");
+  if (reenact::ReenactmentOptions probe; !probe.SetMouth(mouth))
+    return fail("the mouth must be auto, target or model (got '" + mouth + "')");
   return true;
 }
 
@@ -475,6 +478,7 @@ void LiveSession::run() {
       settings.mirror = MirrorSettings{options_.mirror_texture, options_.mirror_at, options_.mirror_opacity,
                                        options_.mirror_light};
       reenact::ParseDetailMode(options_.detail, &settings.detail);  // validated by Options::IsValid
+      settings.mouth = options_.mouth;
       loading = std::async(std::launch::async, [model_path = options_.model_path, settings = std::move(settings),
                                                 stop = stop_source_.get_token()] {
         pthread_setname_np(pthread_self(), "fr-live-load");  // niced like the worker that starts it

@@ -70,6 +70,7 @@ class ReenactProcessor : public FrameProcessor {
                                                           settings.mirror.opacity, settings.mirror.light);
     options.renderer = settings.use_vulkan ? reenact::RendererKind::kVulkan : reenact::RendererKind::kCpu;
     options.detail.mode = settings.detail;
+    if (!options.SetMouth(settings.mouth)) throw Error("unknown mouth setting '" + settings.mouth + "'");
     options.teeth_texture = reenact::LoadDefaultTeethTexture(model_path, nullptr);
     target_ = std::make_unique<reenact::ReenactmentPipeline>(model_, options);
     if (settings.with_actor) {

@@ -54,6 +54,13 @@ void add_times(StageTimes* sum, const StageTimes& t) {
 
 }  // namespace
 
+bool ReenactmentOptions::SetMouth(const std::string& name) {
+  if (name != "auto" && name != "target" && name != "model") return false;
+  mouth_exemplar = name != "model";
+  source_mouth = name == "auto";
+  return true;
+}
+
 bool ReenactmentOptions::UsesSourceView() const {
   return detail.mode != DetailMode::kOff || (source_mouth && mouth_exemplar && render_mouth);
 }

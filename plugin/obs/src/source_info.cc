@@ -27,7 +27,9 @@ bool on_kind_modified(obs_properties_t* props, obs_property_t*, obs_data_t* sett
   obs_property_set_visible(obs_properties_get(props, kSourcePath), source == "recording");
   // Only a source actor filmed on this machine has folds and wrinkles to carry over.
   obs_property_set_visible(obs_properties_get(props, kDetail), source == "camera" || source == "recording");
-  const bool mirror = std::string(obs_data_get_string(settings, kMode)) == "mirror";
+  const std::string mode = obs_data_get_string(settings, kMode);
+  obs_property_set_visible(obs_properties_get(props, kMouth), mode == "reenact");
+  const bool mirror = mode == "mirror";
   for (const char* key : {kMirrorTexture, kMirrorAt, kMirrorOpacity, kMirrorLight, kMirrorLightFile})
     obs_property_set_visible(obs_properties_get(props, key), mirror);
   return true;
@@ -86,6 +88,9 @@ obs_properties_t* make_properties(FaceReenactSource* source) {
   obs_property_list_add_string(p, text("Mode.Mirror"), "mirror");
   obs_property_list_add_string(p, text("Mode.Raw"), "raw");
   obs_property_set_modified_callback(p, on_kind_modified);
+  p = obs_properties_add_list(props, kMouth, text("Mouth"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);
+  for (const char* mouth : {"auto", "target", "model"})
+    obs_property_list_add_string(p, text((std::string("Mouth.") + mouth).c_str()), mouth);
   obs_properties_add_path(props, kMirrorTexture, text("MirrorTexture"), OBS_PATH_FILE,
                           "Images (*.png *.jpg *.jpeg *.bmp *.webp);;All files (*.*)", nullptr);
   p = obs_properties_add_list(props, kMirrorAt, text("MirrorAt"), OBS_COMBO_TYPE_LIST, OBS_COMBO_FORMAT_STRING);

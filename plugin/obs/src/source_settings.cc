@@ -31,6 +31,7 @@ void set_defaults(obs_data_t* settings) {
   obs_data_set_default_string(settings, kMirrorLight, "");
   obs_data_set_default_string(settings, kMirrorLightFile, "");
   obs_data_set_default_string(settings, kDetail, "transient");
+  obs_data_set_default_string(settings, kMouth, "auto");
   obs_data_set_default_string(settings, kCameraResolution, "640x480");
 }
 
@@ -95,6 +96,7 @@ bool options_from_settings(obs_data_t* settings, live::LiveSession::Options* opt
   if (o.mode == live::OutputMode::kMirror && o.mirror_texture.empty() && o.mirror_light.empty())
     return fail("the mirror needs an image to paint on the face or a light");
   o.detail = str(kDetail);
+  o.mouth = str(kMouth);
   int w = 0, h = 0;
   char tail = 0;
   if (std::sscanf(str(kCameraResolution).c_str(), "%dx%d%c", &w, &h, &tail) == 2 && w > 0 && h > 0) {

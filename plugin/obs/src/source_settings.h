@@ -32,6 +32,7 @@ inline constexpr const char* kMirrorOpacity = "mirror_opacity";  // 0..1
 inline constexpr const char* kMirrorLight = "mirror_light";      // "" (the camera's) | a preset name
 inline constexpr const char* kMirrorLightFile = "mirror_light_file";  // a .json with "gamma" (overrides the preset)
 inline constexpr const char* kDetail = "detail";  // "transient" | "copy" | "off": the source actor's folds (Sec. 7.3)
+inline constexpr const char* kMouth = "mouth";    // "auto" | "target" | "model": an opened mouth's interior
 inline constexpr const char* kCameraResolution = "camera_resolution";  // "640x480", ...
 inline constexpr const char* kCalibrate = "calibrate";         // button
 inline constexpr const char* kStatus = "status";               // read-only status line

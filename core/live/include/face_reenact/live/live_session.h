@@ -214,6 +214,10 @@ class LiveSession : public output::FrameSource {
     // carries none. "off" also saves the copy of each source frame and the detail's share of the
     // render (about 5-15 ms per frame on two cores, docs/reenactment.md).
     std::string detail = "transient";
+    // The interior of an opened mouth (ReenactmentOptions::SetMouth): "auto" (the target's own
+    // open mouth once seen; until then the source actor's own where it is a camera or recording
+    // here, else the model's teeth), "target" (the target's own only) or "model".
+    std::string mouth = "auto";
     std::string thread_name = "fr-live";
 
     bool IsValid(std::string* why) const;

@@ -187,6 +187,13 @@ struct ReenactmentOptions {
   bool use_ground_truth_target = false;
 
   bool IsValid(std::string* why) const;
+  // The front-ends' one setting for the three switches above (reenact --mouth, webcam and bench
+  // live --mouth, the live session's and the OBS source's "mouth"): "auto" (the target's own
+  // open mouth once seen, the source actor's own mouth until then where its frames are here, else
+  // the model's teeth), "target" (the target's own only; the model's teeth until then) or
+  // "model" (the model's teeth and a dark cavity, always). False for any other name, options
+  // unchanged.
+  bool SetMouth(const std::string& name);
   // Whether a source frame (SourceExpression::view) is of use to these options: its folds and
   // wrinkles (detail) or its mouth (source_mouth). Front-ends attach the frame only then.
   bool UsesSourceView() const;
