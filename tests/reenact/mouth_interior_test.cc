@@ -186,6 +186,22 @@ TEST(MouthInteriorTest, BrightnessFollowsTheOpening) {
 
 // The compositor: an opened mouth shows the exemplar, not the model's teeth and cavity, and
 // darker where the output opens less than the still did.
+// A still of the actor's open mouth (`wide`): its frame with the opening painted green (the teeth
+// and cavity a camera would see there), and the inside of its lips, just past the opening, the
+// same green (the still's crop keeps 3 px around it).
+MouthExemplar green_still(const FaceCompositor& fc, const gpu::PinholeCamera& cam, const gpu::FaceParameters& wide) {
+  const std::vector<Eigen::Vector2f> wide_opening = fc.MouthOpening(cam, wide);
+  if (wide_opening.size() != 8u) return {};
+  cv::Mat still = render_target(wide, cam);
+  std::vector<cv::Point> poly;
+  for (const auto& v : wide_opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  cv::fillPoly(still, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
+  cv::polylines(still, std::vector<std::vector<cv::Point>>{poly}, true, cv::Scalar(40, 200, 40), 7);
+  return CaptureMouthExemplar(still, wide_opening, wide.delta[kJawOpenIndex], 0);
+}
+
+bool is_green(const cv::Vec3b& px) { return px[1] > px[0] + 40 && px[1] > px[2] + 40; }
+
 TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
@@ -197,20 +213,10 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   AlbedoMap albedo;
   fc.ObserveAlbedo(frame, cam, target, &albedo);
 
-  // The still: the actor's frame with the mouth wide open, its opening painted green (the teeth
-  // and cavity a camera would see there).
+  // The still: the actor's frame with the mouth wide open, painted green.
   gpu::FaceParameters wide = target;
   wide.delta[kJawOpenIndex] = 0.8f;
-  const std::vector<Eigen::Vector2f> wide_opening = fc.MouthOpening(cam, wide);
-  ASSERT_EQ(wide_opening.size(), 8u);
-  cv::Mat still = render_target(wide, cam);
-  std::vector<cv::Point> poly;
-  for (const auto& v : wide_opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
-  cv::fillPoly(still, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
-  // ... and the inside of its lips, just past the opening, the same green (the still's crop keeps
-  // 3 px around it).
-  cv::polylines(still, std::vector<std::vector<cv::Point>>{poly}, true, cv::Scalar(40, 200, 40), 7);
-  const MouthExemplar e = CaptureMouthExemplar(still, wide_opening, 0.8f, 0);
+  const MouthExemplar e = green_still(fc, cam, wide);
   ASSERT_FALSE(e.empty());
 
   auto green_share = [&](const CompositeResult& c) {
@@ -219,8 +225,7 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
       for (int i = 0; i < cam.width; ++i) {
         if (!c.mouth_mask.at<uchar>(j, i)) continue;
         ++n;
-        const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
-        if (px[1] > px[0] + 40 && px[1] > px[2] + 40) ++green;
+        if (is_green(c.rendered_bgr.at<cv::Vec3b>(j, i))) ++green;
       }
     return n ? static_cast<double>(green) / n : 0.0;
   };
@@ -261,8 +266,7 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   for (int j = 0; j < cam.height; ++j)
     for (int i = 0; i < cam.width; ++i) {
       if (!ring.at<uchar>(j, i) || inside.at<uchar>(j, i)) continue;
-      const cv::Vec3b px = tongue_with.rendered_bgr.at<cv::Vec3b>(j, i);
-      if (px[1] > px[0] + 40 && px[1] > px[2] + 40) ++green_outside;
+      if (is_green(tongue_with.rendered_bgr.at<cv::Vec3b>(j, i))) ++green_outside;
     }
   RecordProperty("green_outside_the_polygon", green_outside);
   EXPECT_GT(green_outside, 16) << "25 measured; 8 when only the polygon took the still";
@@ -270,6 +274,54 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   MouthExemplar odd = e;
   odd.opening.pop_back();
   EXPECT_FALSE(fc.Compose(frame, cam, target, wide, &albedo, nullptr, &odd).mouth_from_exemplar);
+}
+
+// Past the polygon the still goes only where the frame texture does not show the surface itself:
+// at a barely opened, pursed mouth the model's inner lip faces reach past the corners, where the
+// target's own lips are what the frame shows. On the webcam clip (d14, output frame 36; an opening
+// of 82 px) the still's dark opening drew a grey hook down a corner and a dot under it, 4-11 px
+// from the polygon, over lips the frame showed (trusted at 0.6-1). Here a target of a far-from-mean
+// identity (its first ten components at the values below, in standard deviations) with its lips
+// barely parted, the output parted more with the lips pushed out (mouthFunnel), the still green:
+// beyond 2 px outside the output's opening 7 green pixels before, none now; inside it the still.
+TEST(MouthInteriorTest, PastTheOpeningTheStillLeavesTheLipsTheFrameShows) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  gpu::FaceParameters target = test_face(0.45f);
+  const float identity[10] = {-2.19f, -1.26f, -0.24f, -0.85f, -1.72f, 0.41f, 4.71f, 1.29f, 1.86f, -4.96f};
+  target.alpha = Eigen::VectorXf::Zero(model.num_identity());
+  for (int k = 0; k < 10; ++k) target.alpha[k] = identity[k] * model.identity_sigma[k];
+  target.delta[kJawOpenIndex] = 0.05f;
+  const FaceCompositor fc(model, ReenactmentOptions{});  // the frame texture
+  const cv::Mat frame = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(frame, cam, target, &albedo);
+  gpu::FaceParameters wide = test_face(0.45f);
+  wide.delta[kJawOpenIndex] = 0.8f;
+  const MouthExemplar e = green_still(fc, cam, wide);
+  ASSERT_FALSE(e.empty());
+  gpu::FaceParameters out = target;
+  out.delta[kJawOpenIndex] = 0.25f;
+  out.delta[arkit_blendshape_index("mouthFunnel")] = 0.7f;
+  const CompositeResult c = fc.Compose(frame, cam, target, out, &albedo, nullptr, &e);
+  ASSERT_TRUE(c.mouth_from_exemplar);
+  cv::Mat inside = cv::Mat::zeros(cam.height, cam.width, CV_8UC1), near;
+  std::vector<cv::Point> poly;
+  for (const auto& v : fc.MouthOpening(cam, out)) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  cv::fillPoly(inside, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+  cv::dilate(inside, near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+  int green_inside = 0, green_beyond = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      if (!is_green(c.rendered_bgr.at<cv::Vec3b>(j, i))) continue;
+      if (inside.at<uchar>(j, i)) ++green_inside;
+      if (!near.at<uchar>(j, i)) ++green_beyond;
+    }
+  RecordProperty("green_inside", green_inside);
+  RecordProperty("green_beyond_2px", green_beyond);
+  EXPECT_GT(green_inside, 200) << "the opening shows the still";
+  EXPECT_EQ(green_beyond, 0) << "the lips the frame shows past the opening keep the frame's colour";
 }
 
 // A target frame rendered with known P (the pipeline's ground-truth target): the test face with

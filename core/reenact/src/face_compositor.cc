@@ -371,7 +371,8 @@ struct FaceCompositor::Impl {
   // shown when the target's own G-buffer at its projection lies at its depth. Other pixels keep
   // g->color (the albedo map). `e_out`: the output's per-vertex irradiance (uncapped), as
   // Compose computed it for the shading. `mouth_redraw`: how much of the mouth opening the
-  // mouth pass will replace (0..1).
+  // mouth pass will replace (0..1). `shown` (optional): set to the frame's trust in its own sample
+  // at each drawn pixel (0..1; 0 where the frame does not show the surface), frame-sized, CV_32FC1.
   //
   // A shown sample is still not trusted near an occluding boundary of the target's rendering
   // (BoundaryDistance; grazing views count too): the fit is off by a pixel or two, so a lip
@@ -385,8 +386,9 @@ struct FaceCompositor::Impl {
                          const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                          const gpu::VertexState& out_state, const std::vector<Eigen::Vector3f>& e_out,
                          const Gamma& light, const gpu::RenderOptions& ropt, float mouth_redraw,
-                         gpu::GBuffer* g) const {
+                         gpu::GBuffer* g, cv::Mat* shown = nullptr) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
+    if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
 
     const cv::Rect box = CoveredRect(*g, 2);  // the drawn pixels to texture
     if (box.empty()) return;
@@ -527,6 +529,7 @@ struct FaceCompositor::Impl {
       cv::GaussianBlur(footprint_trust, footprint_trust, cv::Size(0, 0), 1.0);
       weight = weight.mul(footprint_trust);
     }
+    if (shown) weight.copyTo((*shown)(box));
     // The albedo map's colour balance against this frame's: per channel, the frame's texture over
     // the albedo map's rendering where the frame is fully trusted. The map was learned under the
     // lighting of earlier frames; when the tracked light's colour has drifted since (on the webcam
@@ -872,9 +875,10 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
           : 1.0f;
   const bool mouth_pass = opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3;
+  cv::Mat frame_shown;  // frame texture: the frame's trust in its own sample of each drawn pixel
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
-                         mouth_pass ? mouth_alpha : 0.0f, &g);
+                         mouth_pass ? mouth_alpha : 0.0f, &g, &frame_shown);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
@@ -950,19 +954,29 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       // and the lips' silhouette were a hard, stair-stepped dark wedge at the mouth's corners and
       // a grey-green sliver under it (d6 on the webcam clip, frame 60). Mean-value coordinates
       // extend past the polygon, so those pixels sample the image just past its opening: the
-      // inside of its lips.
+      // inside of its lips. Only within kBeyondOpeningPx of the polygon, and only where the frame
+      // texture does not show that surface itself: at a barely opened, pursed mouth (d14 on the
+      // webcam clip, output frame 36; an opening of 82 px) the model's inner lip faces reach 4-11 px
+      // past the corners, where the target's own lip corner is what the frame shows (trusted at
+      // 0.6-1), and the image's dark opening drew a grey hook down the left corner and a dot
+      // under it.
       constexpr int kBeyondOpeningPx = 6;
+      constexpr float kShownByTheFrame = 0.5f;
       const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + (use_exemplar ? kBeyondOpeningPx : 0);
       cv::Rect zone = cv::boundingRect(polygon);
       zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                       (zone.height >> kSubpixelBits) + 2);
       zone = Impl::GrownWithin(zone, margin, w, h);
       if (use_exemplar) {
+        cv::Mat near_opening;
+        cv::dilate(opening(zone), near_opening,
+                   cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kBeyondOpeningPx + 1, 2 * kBeyondOpeningPx + 1)));
         for (int j = zone.y; j < zone.y + zone.height; ++j) {
           uchar* orow = opening.ptr<uchar>(j);
           for (int i = zone.x; i < zone.x + zone.width; ++i) {
             const size_t p = static_cast<size_t>(j) * w + i;
-            if (orow[i] == 255 || g.triangle[p] < 0) continue;
+            if (orow[i] == 255 || g.triangle[p] < 0 || !near_opening.at<uchar>(j - zone.y, i - zone.x)) continue;
+            if (!frame_shown.empty() && frame_shown.at<float>(j, i) >= kShownByTheFrame) continue;
             const int32_t v0 = g.vertices[3 * p];
             const bool inside_geometry = (kMouthParts & part_bit(im.part_of(v0))) || im.in_mouth[static_cast<size_t>(v0)];
             if (inside_geometry) orow[i] = 255;
