@@ -541,6 +541,52 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
 // target's own mouth (the tracker may read a closed mouth as slightly open: the demo's target
 // with dlib's points reads jawOpen 0.25); the interior fades in with the extra opening. The
 // albedo map draws the interior whenever the rendered mouth is open.
+// Lids the output closes further than the target's: the frame shows an open eye's margin around
+// the opening (the lower lid's rim, a sliver of eyeball where the fit misses by a pixel), and an
+// unmoved sample there kept it, trusted; beside the closed lid it drew a light line along the lash
+// line (d14 smiling with her eyes shut onto the webcam clip, output frame 95). Those samples are
+// now distrusted as next to a mouth the output opens. Here a 2 px rim around the target's open
+// eyes is painted white (292 pixels): with the output's eyes at blink 0.7, 81 stayed white before,
+// 4 now; with the eyes left open the whole rim is kept as the frame shows it.
+TEST(ReenactCompositorTest, LidsTheOutputClosesDropTheOpenEyesRim) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.4f);
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const cv::Mat openings = eye_openings(model, testing::test_renderer().evaluate(target), cam);
+  ASSERT_GT(cv::countNonZero(openings), 100) << "the target's eyes should be open";
+  cv::Mat rim;
+  cv::dilate(openings, rim, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+  rim &= ~openings;
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  cv::Mat frame = plain.clone();
+  frame.setTo(cv::Scalar(255, 255, 255), rim);
+  auto white_on_rim = [&](const CompositeResult& c) {
+    int n = 0;
+    for (int j = 0; j < cam.height; ++j)
+      for (int i = 0; i < cam.width; ++i) {
+        const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+        n += rim.at<uchar>(j, i) && std::min({px[0], px[1], px[2]}) > 200;
+      }
+    return n;
+  };
+  gpu::FaceParameters shut = target;
+  shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.7f;  // nearly shut; the lower lids barely move
+  shut.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.7f;
+  const int closed = white_on_rim(fc.Compose(frame, cam, target, shut, &albedo));
+  gpu::FaceParameters smile = target;  // the eyes left open, the face changed elsewhere
+  smile.delta[arkit_blendshape_index("mouthSmileLeft")] = 0.6f;
+  smile.delta[arkit_blendshape_index("mouthSmileRight")] = 0.6f;
+  const int open = white_on_rim(fc.Compose(frame, cam, target, smile, &albedo));
+  RecordProperty("white_rim_pixels_eyes_shut", closed);
+  RecordProperty("white_rim_pixels_eyes_open", open);
+  EXPECT_LE(closed, 8) << "the open eye's rim beside the closing lids";
+  EXPECT_GT(open, cv::countNonZero(rim) / 2) << "eyes left open keep the frame's rim";
+}
+
 TEST(ReenactCompositorTest, WithTheFrameTextureTheMouthInteriorFadesInWithTheExtraOpening) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);

@@ -81,6 +81,7 @@ struct FaceCompositor::Impl {
   // opening: where a closed mouth or eye meets itself, with no change of surface in a G-buffer.
   std::vector<std::vector<int32_t>> seam_contours;
   std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
+  std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
   // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
   // and the wall behind them). See irradiance_at.
@@ -101,7 +102,13 @@ struct FaceCompositor::Impl {
       for (int i = first; i <= last; ++i)
         if (by_index[static_cast<size_t>(i)] >= 0) contour.push_back(by_index[static_cast<size_t>(i)]);
       if (contour.size() < 3) continue;
-      if (first != 60) lid_contours.push_back(contour);
+      if (first != 60) {
+        // The model's +x is the person's left: iBUG 42-47 is the left eye (eyeBlinkLeft).
+        float x = 0.f;
+        for (int32_t v : contour) x += model.mean_shape[3 * v];
+        lid_blink_index.push_back(arkit_blendshape_index(x > 0.f ? "eyeBlinkLeft" : "eyeBlinkRight"));
+        lid_contours.push_back(contour);
+      }
       seam_contours.push_back(std::move(contour));
     }
     FindMouthInterior();
@@ -418,6 +425,7 @@ struct FaceCompositor::Impl {
     const float ramp_px = options.frame_texture_boundary_px;
     const bool distrust = !same && ramp_px > 0.f;
     cv::Rect roi, mouth_zone;
+    std::vector<std::pair<cv::Rect, float>> closing_lids;  // (zone, how much the output closes it further)
     cv::Mat boundary_px;
     if (distrust) {
       const int margin = static_cast<int>(std::ceil(ramp_px)) + 2;
@@ -432,6 +440,28 @@ struct FaceCompositor::Impl {
           mouth_zone |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
         }
         mouth_zone = mouth_zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin);
+      }
+      // Samples landing here are next to lids the output closes further than the target: the
+      // frame shows an open eye's margin there (the lower lid's rim, a sliver of the eyeball the
+      // fit misses by a pixel), which an unmoved sample keeps; beside a closed lid that rim drew a
+      // light line along the lash line (d14 smiling with her eyes shut onto the webcam clip, output
+      // frame 95: the lower lids' samples, unmoved and trusted, were the frame's eye white and
+      // rim). How much: the extra blink over kLidCloseSpan.
+      constexpr float kLidCloseSpan = 0.3f;
+      for (size_t k = 0; k < lid_contours.size(); ++k) {
+        const int b = lid_blink_index[k];
+        const float closing =
+            std::clamp((expression_weight(output.delta, b) - expression_weight(target.delta, b)) / kLidCloseSpan, 0.0f, 1.0f);
+        if (!(closing > 0.f)) continue;
+        cv::Rect zone;
+        for (int32_t v : lid_contours[k]) {
+          const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
+          if (!(x.z() > camera.near_plane)) continue;
+          const Eigen::Vector2f uv = project(camera, x);
+          zone |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
+        }
+        if (zone.empty()) continue;
+        closing_lids.push_back({zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin), closing});
       }
     }
     // A surface point counts as shown when the frame's visible surface at its projection is
@@ -490,8 +520,10 @@ struct FaceCompositor::Impl {
           if (!boundary_px.empty() && !eyeball) {
             // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
             const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
-            const bool by_mouth = mouth_zone.contains(cv::Point(static_cast<int>(u), static_cast<int>(vv)));
-            const float exposed = std::max(moved, by_mouth ? mouth_redraw : 0.0f);
+            const cv::Point at(static_cast<int>(u), static_cast<int>(vv));
+            float exposed = std::max(moved, mouth_zone.contains(at) ? mouth_redraw : 0.0f);
+            for (const auto& [zone, closing] : closing_lids)
+              if (zone.contains(at)) exposed = std::max(exposed, closing);
             if (exposed > 0.f) {
               const float d = sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y));
               const float away = std::clamp(2.0f * d / ramp_px - 1.0f, 0.0f, 1.0f);
