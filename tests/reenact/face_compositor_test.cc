@@ -587,6 +587,43 @@ TEST(ReenactCompositorTest, LidsTheOutputClosesDropTheOpenEyesRim) {
   EXPECT_GT(open, cv::countNonZero(rim) / 2) << "eyes left open keep the frame's rim";
 }
 
+// A mouth the output opens less than the target's: the frame texture shows the output's teeth
+// and tongue where the frame shows them, and the mouth pass draws them wherever it does not (before,
+// only an output opened wider than the target's had a mouth pass). On d12 as the target (its mouth
+// wide open, output frame 125, d6 baring clenched teeth) the output's lower teeth sampled points
+// the frame shows 18 px lower; distrusted, they took the albedo map's plain teeth, a hard
+// grey-green band along the lower lip. Here: a target's mouth wide open, the output's half as
+// open, baring its teeth: 578 pixels of interior drawn now where the frame does not show the
+// output's teeth (none before), all within the output's opening grown by 6 px; the target's own
+// expression redraws nothing.
+TEST(ReenactCompositorTest, TeethTheFrameDoesNotShowAreDrawnThoughTheOutputOpensLess) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  gpu::FaceParameters target = test_face(0.45f);
+  target.delta[kJawOpenIndex] = 0.6f;
+  gpu::FaceParameters out = target;
+  out.delta[kJawOpenIndex] = 0.3f;
+  for (const char* name : {"mouthUpperUpLeft", "mouthUpperUpRight", "mouthLowerDownLeft", "mouthLowerDownRight"})
+    out.delta[arkit_blendshape_index(name)] = 0.7f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const Rendered t = make_target(fc, target, cam);
+  const CompositeResult c = fc.Compose(t.target, cam, target, out, &t.albedo);
+  ASSERT_TRUE(c.drawn);
+  const int mouth_px = cv::countNonZero(c.mouth_mask);
+  RecordProperty("mouth_pixels", mouth_px);
+  EXPECT_TRUE(c.mouth_drawn);
+  EXPECT_GT(mouth_px, 100);
+  cv::Mat near = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  std::vector<cv::Point> poly;
+  for (const auto& v : fc.MouthOpening(cam, out)) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  cv::fillPoly(near, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+  cv::dilate(near, near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(13, 13)));
+  EXPECT_EQ(cv::countNonZero(c.mouth_mask & ~near), 0) << "interior drawn away from the opening";
+  // The target's own expression: the frame shows every surface, nothing is redrawn.
+  EXPECT_FALSE(fc.Compose(t.target, cam, target, target, &t.albedo).mouth_drawn);
+}
+
 TEST(ReenactCompositorTest, WithTheFrameTextureTheMouthInteriorFadesInWithTheExtraOpening) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);

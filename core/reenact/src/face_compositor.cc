@@ -952,7 +952,13 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // jawOpen / tongueOut blendshapes) darkened with depth, and a dark cavity wherever the
   // opening shows the inside of the head or nothing at all.
   start = Clock::now();
-  if (mouth_pass && mouth_alpha > 0.f) {
+  // With the frame texture, the interior is also drawn wherever the frame does not show the
+  // mouth's own surfaces (teeth, tongue, the cavity's wall) that the output's opening shows, even
+  // when the output opens no wider than the target: on d12 as the target (its mouth wide open,
+  // output frame 125, d6 baring clenched teeth) the output's lower teeth sampled points the frame
+  // shows 18 px lower; distrusted, they took the albedo map's plain teeth, a hard grey-green band
+  // along the lower lip.
+  if (mouth_pass && (mouth_alpha > 0.f || !frame_shown.empty())) {
     const std::vector<Eigen::Vector2f> opening_px = im.Opening(camera, state);
     float lip_z = 0.f;
     for (int32_t v : im.inner_lip_vertices) lip_z += state.camera_positions[3 * v + 2];
@@ -1030,6 +1036,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           // The lips themselves (the inner faces of the lips take an open-mouth image's colour).
           if (!mouth_part && covered && depth_behind <= kCavityDepthM && !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]))
             continue;
+          const float unshown = covered && !frame_shown.empty() ? 1.0f - std::clamp(frame_shown.at<float>(j, i), 0.0f, 1.0f) : 0.0f;
+          const float alpha = std::max(mouth_alpha, unshown) * static_cast<float>(orow[i]) / 255.0f;
+          if (!(alpha > 0.f)) continue;
           Eigen::Vector3f interior;
           if (use_exemplar && SampleMouthExemplar(*mouth, opening_px,
                                                   Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)), &interior)) {
@@ -1050,7 +1059,6 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           } else {
             interior = cavity_rgb;
           }
-          const float alpha = mouth_alpha * static_cast<float>(orow[i]) / 255.0f;
           cv::Vec3f& lp = layer.at<cv::Vec3f>(j - zone.y, i - zone.x);
           for (int c = 0; c < 3; ++c) lp[2 - c] = alpha * 255.0f * srgb_encode(interior[c]);
           layer_alpha.at<float>(j - zone.y, i - zone.x) = alpha;
