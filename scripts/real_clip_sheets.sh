@@ -37,16 +37,25 @@ src="$VIDEOS/liveportrait_d14.mp4" tgt="$VIDEOS/webcam_talking_640x480.wmv"
 mkdir -p "$OUT/brows"
 "$FR" reenact --source "$src" --target "$tgt" --frames 175 --out "$OUT/brows.mp4" --quiet \
       --sheets "$OUT/brows" --sheet-frames 36,59,172
-# Closed lids (docs/reenactment.md, "Lids the output closes"): d14 smiling with her eyes shut at output frame 75 (the
-# webcam clip at 15 fps), the eyes 4x (lids.png: target | output); on d12 (glasses) at its frame 125 too.
+# Closed lids (docs/reenactment.md, "Lids the output closes"): d14 smiling with her eyes shut at output frames 75 and
+# 95 (the webcam clip at 15 fps), the eyes 4x (lids.png, lids_95.png: target | output); on d12 (glasses) at its frame
+# 125 too.
 mkdir -p "$OUT/lids"
-"$FR" reenact --source "$src" --target "$tgt" --frames 80 --out "$OUT/lids/webcam.mp4" --quiet --frames-dir "$OUT/lids/webcam" \
-      --sheets "$OUT/lids" --sheet-frames 75
+"$FR" reenact --source "$src" --target "$tgt" --frames 100 --out "$OUT/lids/webcam.mp4" --quiet --frames-dir "$OUT/lids/webcam" \
+      --sheets "$OUT/lids" --sheet-frames 75,95
 ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000075.png" -filter_complex \
        "[0]select='eq(n\,75)',crop=160:60:245:175,scale=640:240:flags=neighbor[a];[1]crop=160:60:245:175,scale=640:240:flags=neighbor[b];[a][b]vstack" \
        -frames:v 1 "$OUT/lids.png"
+ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000095.png" -filter_complex \
+       "[0]select='eq(n\,95)',crop=200:70:200:170,scale=800:280:flags=neighbor[a];[1]crop=200:70:200:170,scale=800:280:flags=neighbor[b];[a][b]vstack" \
+       -frames:v 1 "$OUT/lids_95.png"
 "$FR" reenact --source "$src" --target "$VIDEOS/liveportrait_d12.mp4" --frames 130 --out "$OUT/lids/d12.mp4" --quiet \
       --sheets "$OUT/lids/d12" --sheet-frames 125
+# A mouth the output opens less than the target's (docs/reenactment.md): d6 baring clenched teeth onto d12's wide-open
+# mouth, output frame 125 (the sheet's mouth zoom; before, a grey-green band of the map's teeth along the lower lip).
+mkdir -p "$OUT/mouth_less"
+"$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$VIDEOS/liveportrait_d12.mp4" --frames 130 \
+      --out "$OUT/mouth_less/d12.mp4" --quiet --sheets "$OUT/mouth_less" --sheet-frames 40,80,125
 # The closed loop on real video (docs/reenactment.md, "Measured", "On real video"): each driving clip onto the webcam
 # clip, the output tracked again; and the albedo map's pass-through fidelity. Figures in closed_loop_*.json.
 for s in d14 d6 d0; do
