@@ -693,7 +693,7 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
     ASSERT_TRUE(session.wait_frame(0, 30s, &frame)) << session.status().Headline();
     LiveStatus s = wait_status(session, 30s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
     // Worker, target, actor (the pipeline's loading thread has ended).
-    EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before + 3);
+    EXPECT_EQ(test::settled_thread_count("fr-live", before + 3), before + 3);
     EXPECT_EQ(s.source_description, "recording '" + dir + "'");
     // A 160x120 face is too small for the landmark detector: the actor is waiting (no face
     // tracked yet) or, if it was tracked, live; never "none" or an error.

@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -14,6 +15,7 @@
 #include <opencv2/core/mat.hpp>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "face_reenact/capture/recording.h"
@@ -147,6 +149,22 @@ inline std::vector<int> thread_nice_values(const std::string& prefix) {
 inline int count_threads_with_prefix(const std::string& prefix) {
   int n = 0;
   for (const auto& name : thread_names()) n += name.rfind(prefix, 0) == 0;
+  return n;
+}
+
+// The count of threads with `prefix` once it is `expected`, or the last count after `timeout`.
+// A thread the session starts for one frame (RunBeside's "fr-actor-fit") carries its creator's
+// name ("fr-live") until it has run far enough to rename itself: on a loaded machine a count taken
+// at that moment saw one thread too many (the clean-clone suite, 2026-11-28). A thread that stays
+// is still counted every time.
+inline int settled_thread_count(const std::string& prefix, int expected,
+                                std::chrono::milliseconds timeout = std::chrono::seconds(5)) {
+  const auto end = std::chrono::steady_clock::now() + timeout;
+  int n = count_threads_with_prefix(prefix);
+  while (n != expected && std::chrono::steady_clock::now() < end) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    n = count_threads_with_prefix(prefix);
+  }
   return n;
 }
 
