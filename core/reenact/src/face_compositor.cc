@@ -182,6 +182,14 @@ struct FaceCompositor::Impl {
     }
   }
 
+  // The SH basis vertex v is lit at, from its camera-space normal and position: at lit_normal
+  // (the fit's light within the normals it saw) for the skin; the mouth's own surfaces keep
+  // their normal, their light has rules of its own (irradiance_at, the mouth pass).
+  std::array<float, 9> lit_basis(int v, const Eigen::Vector3f& normal, const Eigen::Vector3f& position) const {
+    const bool mouth = in_mouth[static_cast<size_t>(v)] || (kMouthParts & part_bit(part_of(v)));
+    return gpu::sh_basis(mouth ? normal : lit_normal(normal, position));
+  }
+
   // Irradiance of vertex v's channel c under `light` at the normal with SH basis `basis`.
   // Surfaces inside the mouth face up, down or away from the camera, where the SH fit is an
   // extrapolation floored at 15 % of its ambient part (irradiance()). Shaded so, the lips' inner
@@ -196,13 +204,6 @@ struct FaceCompositor::Impl {
   // albedo map's division all use this, so they stay consistent with one another. Teeth and
   // tongue keep the plain fit: lit so, the lower teeth seen through a barely opened gap drew
   // white specks on the webcam clip; the mouth pass shades them (no darker than the cavity).
-  // The SH basis vertex v is lit at, from its camera-space normal and position: at lit_normal
-  // (the fit's light within the normals it saw) for the skin; the mouth's own surfaces keep
-  // their normal, their light has rules of its own (irradiance_at, the mouth pass).
-  std::array<float, 9> lit_basis(int v, const Eigen::Vector3f& normal, const Eigen::Vector3f& position) const {
-    const bool mouth = in_mouth[static_cast<size_t>(v)] || (kMouthParts & part_bit(part_of(v)));
-    return gpu::sh_basis(mouth ? normal : lit_normal(normal, position));
-  }
   float irradiance_at(const Gamma& light, const std::array<float, 9>& basis, int c, int v) const {
     const float e = irradiance(light, basis, c);
     if (!in_mouth[static_cast<size_t>(v)]) return e;
@@ -907,10 +908,11 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
           : 1.0f;
   const bool mouth_pass = opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3;
-  cv::Mat frame_shown;  // frame texture: the frame's trust in its own sample of each drawn pixel
+  // Frame texture with a mouth pass: the frame's trust in its own sample of each drawn pixel.
+  cv::Mat frame_shown;
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
-                         mouth_pass ? mouth_alpha : 0.0f, &g, &frame_shown);
+                         mouth_pass ? mouth_alpha : 0.0f, &g, mouth_pass ? &frame_shown : nullptr);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
