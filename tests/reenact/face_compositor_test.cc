@@ -615,8 +615,7 @@ TEST(ReenactCompositorTest, TeethTheFrameDoesNotShowAreDrawnThoughTheOutputOpens
   EXPECT_TRUE(c.mouth_drawn);
   EXPECT_GT(mouth_px, 100);
   cv::Mat near = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
-  std::vector<cv::Point> poly;
-  for (const auto& v : fc.MouthOpening(cam, out)) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  const std::vector<cv::Point> poly = testing::pixel_polygon(fc.MouthOpening(cam, out));
   cv::fillPoly(near, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
   cv::dilate(near, near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(13, 13)));
   EXPECT_EQ(cv::countNonZero(c.mouth_mask & ~near), 0) << "interior drawn away from the opening";

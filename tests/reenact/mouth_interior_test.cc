@@ -29,6 +29,7 @@ using testing::render_target;
 using testing::test_camera;
 using testing::test_face;
 using testing::test_model;
+using testing::pixel_polygon;
 
 // An inner-lip-like octagon (iBUG 60-67 order: left corner, upper lip to the right corner, lower
 // lip back), made non-convex by a dent in the upper lip's middle (a philtrum's dip).
@@ -184,8 +185,6 @@ TEST(MouthInteriorTest, BrightnessFollowsTheOpening) {
   EXPECT_FLOAT_EQ(MouthInteriorBrightness(100.0, 0.0), 1.f);
 }
 
-// The compositor: an opened mouth shows the exemplar, not the model's teeth and cavity, and
-// darker where the output opens less than the still did.
 // A still of the actor's open mouth (`wide`): its frame with the opening painted green (the teeth
 // and cavity a camera would see there), and the inside of its lips, just past the opening, the
 // same green (the still's crop keeps 3 px around it).
@@ -193,8 +192,7 @@ MouthExemplar green_still(const FaceCompositor& fc, const gpu::PinholeCamera& ca
   const std::vector<Eigen::Vector2f> wide_opening = fc.MouthOpening(cam, wide);
   if (wide_opening.size() != 8u) return {};
   cv::Mat still = render_target(wide, cam);
-  std::vector<cv::Point> poly;
-  for (const auto& v : wide_opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  const std::vector<cv::Point> poly = pixel_polygon(wide_opening);
   cv::fillPoly(still, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
   cv::polylines(still, std::vector<std::vector<cv::Point>>{poly}, true, cv::Scalar(40, 200, 40), 7);
   return CaptureMouthExemplar(still, wide_opening, wide.delta[kJawOpenIndex], 0);
@@ -202,6 +200,8 @@ MouthExemplar green_still(const FaceCompositor& fc, const gpu::PinholeCamera& ca
 
 bool is_green(const cv::Vec3b& px) { return px[1] > px[0] + 40 && px[1] > px[2] + 40; }
 
+// The compositor: an opened mouth shows the exemplar, not the model's teeth and cavity, and
+// darker where the output opens less than the still did.
 TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
@@ -258,8 +258,7 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   tongue.delta[kTongueOutIndex] = 0.7f;
   const CompositeResult tongue_with = fc.Compose(frame, cam, target, tongue, &albedo, nullptr, &e);
   cv::Mat inside = cv::Mat::zeros(cam.height, cam.width, CV_8UC1), ring;
-  std::vector<cv::Point> tp;
-  for (const auto& v : fc.MouthOpening(cam, tongue)) tp.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  const std::vector<cv::Point> tp = pixel_polygon(fc.MouthOpening(cam, tongue));
   cv::fillPoly(inside, std::vector<std::vector<cv::Point>>{tp}, cv::Scalar(255));
   cv::dilate(inside, ring, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(9, 9)));
   int green_outside = 0;
@@ -307,8 +306,7 @@ TEST(MouthInteriorTest, PastTheOpeningTheStillLeavesTheLipsTheFrameShows) {
   const CompositeResult c = fc.Compose(frame, cam, target, out, &albedo, nullptr, &e);
   ASSERT_TRUE(c.mouth_from_exemplar);
   cv::Mat inside = cv::Mat::zeros(cam.height, cam.width, CV_8UC1), near;
-  std::vector<cv::Point> poly;
-  for (const auto& v : fc.MouthOpening(cam, out)) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  const std::vector<cv::Point> poly = pixel_polygon(fc.MouthOpening(cam, out));
   cv::fillPoly(inside, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
   cv::dilate(inside, near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
   int green_inside = 0, green_beyond = 0;
@@ -408,8 +406,7 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
   const std::vector<Eigen::Vector2f> opening = fc.MouthOpening(cam, wide);
   ASSERT_EQ(opening.size(), 8u);
   cv::Mat source_bgr = render_target(wide, cam);
-  std::vector<cv::Point> poly;
-  for (const auto& v : opening) poly.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  const std::vector<cv::Point> poly = pixel_polygon(opening);
   cv::fillPoly(source_bgr, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(40, 200, 40));
   const auto& lut = srgb_decode_table();
   source_bgr.forEach<cv::Vec3b>([&](cv::Vec3b& px, const int*) {

@@ -84,6 +84,13 @@ inline std::vector<cv::Point> project_vertices(const gpu::VertexState& state, co
   return out;
 }
 
+// Points rounded to the nearest pixel: a polygon for cv::fillPoly (e.g. FaceCompositor::MouthOpening's).
+inline std::vector<cv::Point> pixel_polygon(const std::vector<Eigen::Vector2f>& points) {
+  std::vector<cv::Point> out;
+  for (const auto& v : points) out.emplace_back(static_cast<int>(std::lround(v.x())), static_cast<int>(std::lround(v.y())));
+  return out;
+}
+
 // The test model as the tracker sees it, and a CPU renderer of it (made once per test program).
 inline const tracker::TrackerModel& test_tracker_model() {
   static const tracker::TrackerModel tmodel = tracker::TrackerModel::FromFaceModel(*test_model());
