@@ -128,4 +128,22 @@ for pair in webcam:webcam_talking_640x480.wmv d14:liveportrait_d14.mp4; do
          -ss 0 -i "$VIDEOS/$clip" -filter_complex "[2]select='eq(n\,50)'[in];[in][0][1]hstack=3" -frames:v 1 \
          "$OUT/mirror_${name}.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), closed_loop_*.json (the output tracked again)"
+# The actor's albedo texture (docs/reenactment.md, "The actor's albedo texture"): a pass-through with the albedo-map
+# appearance, the per-vertex albedo alone (--albedo-texture 0) against the texture, on the webcam clip (frame 30) and
+# on d14 (frame 70; the source d0 ends those runs): input | per-vertex | texture, the face 2x (albedo_texture_*.png).
+mkdir -p "$OUT/albedo_texture"
+for pair in webcam:webcam_talking_640x480.wmv:30:240:280:200:120 d14:liveportrait_d14.mp4:70:260:300:126:120; do
+  IFS=: read -r name clip frame cw ch cx cy <<< "$pair"
+  source="$VIDEOS/$clip"
+  [ "$name" = webcam ] || source="$VIDEOS/liveportrait_d0.mp4"
+  for size in 0 2048; do
+    "$FR" reenact --source "$source" --target "$VIDEOS/$clip" --frames $((frame + 1)) --mode pass-through \
+          --appearance albedo-map --albedo-texture "$size" --out "$OUT/albedo_texture/${name}_$size.mp4" \
+          --frames-dir "$OUT/albedo_texture/${name}_$size" --quiet
+  done
+  f="frame_$(printf %06d "$frame").png" crop="crop=$cw:$ch:$cx:$cy,scale=2*iw:-1"
+  ffmpeg -loglevel error -y -ss 0 -i "$VIDEOS/$clip" -i "$OUT/albedo_texture/${name}_0/$f" -i "$OUT/albedo_texture/${name}_2048/$f" \
+         -filter_complex "[0]select='eq(n\,$frame)',$crop[a];[1]$crop[b];[2]$crop[c];[a][b][c]hstack=3" -frames:v 1 \
+         "$OUT/albedo_texture_$name.png"
+done
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"

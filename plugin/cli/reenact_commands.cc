@@ -165,6 +165,27 @@ std::string stage_report(const reenact::PipelineSummary& s, double source_ms) {
   return o.str();
 }
 
+// The albedo texture's line: its views (frame, yaw, texels seen), or why there is none.
+std::string albedo_texture_line(const reenact::PipelineSummary& s) {
+  if (s.albedo_texture_views.empty()) return s.albedo_texture_note.empty() ? "none built (no tracked view yet)" : s.albedo_texture_note;
+  std::ostringstream o;
+  o.setf(std::ios::fixed);
+  o.precision(1);
+  o << s.albedo_texture_views.size() << " view(s):";
+  for (const auto& v : s.albedo_texture_views)
+    o << " frame " << v.frame_index << " (yaw " << v.yaw_deg << " deg, " << v.seen_texels << " texels)";
+  o << "; built " << s.albedo_texture_builds << " time(s), the last in " << s.albedo_texture_ms << " ms";
+  return o.str();
+}
+
+nlohmann::json albedo_texture_json(const reenact::PipelineSummary& s, int size) {
+  nlohmann::json views = nlohmann::json::array();
+  for (const auto& v : s.albedo_texture_views)
+    views.push_back({{"frame", v.frame_index}, {"yaw_deg", v.yaw_deg}, {"seen_texels", v.seen_texels}});
+  return {{"size", size}, {"builds", s.albedo_texture_builds}, {"last_build_ms", s.albedo_texture_ms},
+          {"views", views}, {"note", s.albedo_texture_note}};
+}
+
 // ------------------------------------------------------------------ reenact
 reenact::RendererKind parse_renderer(const std::string& s) {
   if (s == "cpu") return reenact::RendererKind::kCpu;
@@ -193,6 +214,7 @@ struct ReenactArgs {
   std::string mouth = "auto";      // --mouth: auto, a frame index of the target, or model
   std::string detail = "transient";  // --detail: the source's folds and wrinkles (detail_transfer.h)
   bool closed_loop = false;          // --closed-loop: track the output again and score it (closed_loop.h)
+  int albedo_texture = 2048;         // --albedo-texture: the target's albedo texture's side (0: none)
   bool quiet = false;
 };
 
@@ -274,6 +296,7 @@ void run_reenact(const ReenactArgs& a) {
   ro.mode = mode;
   ro.renderer = renderer;
   ro.appearance = appearance;
+  ro.albedo_texture.size = a.albedo_texture;
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
   ro.tracker.calibration_window_frames = a.calibration_window;
@@ -505,6 +528,7 @@ void run_reenact(const ReenactArgs& a) {
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
   std::printf("detail: %s (%d frames)\n", s.detail.c_str(), s.detail_frames);
+  std::printf("albedo texture: %s\n", albedo_texture_line(s).c_str());
   if (held_still) std::printf("target: a still, held for %d frames at %.3g fps (the source's length)\n", done, fps);
   if (source_rec && source_by_time.skipped() > 0)
     std::printf("source: %d frames tracked, %d skipped to keep its timing\n", source_tracker->frames, source_by_time.skipped());
@@ -563,6 +587,7 @@ void run_reenact(const ReenactArgs& a) {
         {"renderer", s.renderer},
         {"mouth_interior", s.mouth_interior},
         {"detail", {{"mode", a.detail}, {"frames", s.detail_frames}, {"what", s.detail}}},
+        {"albedo_texture", albedo_texture_json(s, a.albedo_texture)},
         {"solver", pipeline.tracking_solver()},
         {"camera", {{"target", target_camera}, {"source", source_camera}}},
         {"intrinsics", {{"target", intrinsics_description(a.target, info, target_camera)},
@@ -1030,8 +1055,11 @@ void run_bench(const BenchArgs& a) {
     reenact::RendererKind renderer;
     reenact::Appearance appearance;
     bool detail = false;  // with the source's folds (Sec. 7.3): the cpu run's output as the source frame
+    bool texture = true;  // with the albedo texture (albedo_texture.h: the default), one view of the first frame
   };
-  // The default (frame texture) with each rasteriser, and the albedo-map appearance on the CPU:
+  // The default (frame texture, the albedo texture beneath it) with each rasteriser, and the
+  // albedo-map appearance on the CPU with the texture and with the per-vertex albedo alone (the
+  // texture's cost: a lookup per drawn pixel):
   // the frame texture's extra cost is one more rasterisation (the tracked geometry, for
   // visibility) and a texture lookup per drawn pixel. The detail transfer's cost is its source
   // frame prepared (the fit rasterised over the face's box, a Laplacian pyramid) and read per pixel.
@@ -1040,12 +1068,14 @@ void run_bench(const BenchArgs& a) {
       {"vulkan", reenact::RendererKind::kVulkan, reenact::Appearance::kFrameTexture},
       {"cpu_albedo_map", reenact::RendererKind::kCpu, reenact::Appearance::kAlbedoMap},
       {"cpu_detail", reenact::RendererKind::kCpu, reenact::Appearance::kFrameTexture, true},
+      {"cpu_per_vertex", reenact::RendererKind::kCpu, reenact::Appearance::kAlbedoMap, false, false},
   };
   struct Run {
     std::unique_ptr<reenact::FaceCompositor> compositor;
     std::unique_ptr<reenact::DetailTransfer> detail;
     reenact::AlbedoMap albedo;
     Mean render, mouth, composite, detail_ms, total;
+    double texture_build_ms = 0;  // once: the layout, one view's unwrap and the blend
   };
   gpu::FaceParameters target = gpu::frontal_pose(0.45f);
   target.delta = Eigen::VectorXf::Zero(model.num_expression());
@@ -1057,6 +1087,14 @@ void run_bench(const BenchArgs& a) {
     runs[k].compositor = std::make_unique<reenact::FaceCompositor>(model, o);
     runs[k].compositor->ObserveAlbedo(background, cam, target, &runs[k].albedo);
     if (configs[k].detail) runs[k].detail = std::make_unique<reenact::DetailTransfer>(model, o.detail);
+    if (configs[k].texture) {
+      const auto t0 = Clock::now();
+      const auto layout = reenact::AlbedoTextureLayout::ForModel(model, o.albedo_texture.size);
+      const reenact::AlbedoTextureView view = runs[k].compositor->UnwrapAlbedo(background, cam, target, *layout);
+      runs[k].albedo.texture = std::make_shared<const reenact::AlbedoTexture>(
+          reenact::BlendAlbedoViews(layout, {view}, runs[k].albedo.albedo, o.albedo_texture.blend_levels));
+      runs[k].texture_build_ms = ms_since(t0);
+    }
   }
   cv::Mat source_bgr;  // the cpu run's output of this frame: a face moving as the target does
   // The configurations take turns frame by frame, so a slower stretch of this shared machine
@@ -1092,11 +1130,15 @@ void run_bench(const BenchArgs& a) {
                  {"composite_ms", run.composite.value()},
                  {"detail_ms", run.detail_ms.value()},
                  {"total_ms", run.total.value()}};
+    if (configs[k].texture) out[name]["texture_build_ms"] = run.texture_build_ms;
     if (!a.json)
       std::printf("%-14s %-40s render %6.2f ms  mouth %5.2f ms  composite %5.2f ms  detail %5.2f ms  total %6.2f ms  (%dx%d, %d frames)\n",
                   name.c_str(), renderer.c_str(), run.render.value(), run.mouth.value(), run.composite.value(),
                   run.detail_ms.value(), run.total.value(), w, h, a.frames);
   }
+  if (!a.json)
+    std::printf("the albedo texture (before the frames): built in %.1f ms (layout at %d, one view, blend)\n",
+                runs.front().texture_build_ms, reenact::AlbedoTextureOptions{}.size);
   if (a.json) std::printf("%s\n", out.dump(2).c_str());
 }
 
@@ -1135,6 +1177,11 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--appearance", args->appearance,
                   "frame-texture (default: the target frame's own colours, re-shaded) or albedo-map (the learned "
                   "per-vertex albedo only)");
+    c->add_option("--albedo-texture", args->albedo_texture,
+                  "Side of the target's albedo texture in the model's UV layout (paper Sec. 6.3; default 2048), built "
+                  "from a front view and one per side where the head turns, the detail of the re-rendered face where "
+                  "the frame does not show it and with --appearance albedo-map; 0: the per-vertex albedo alone")
+        ->check(CLI::IsMember({0, 256, 512, 1024, 2048, 4096}));
     c->add_option("--report", args->report,
                   "JSON report: frames reenacted / calibrating / lost and why, both actors' calibration warnings, "
                   "stage times, the target fit's agreement with its landmarks");

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <optional>
@@ -55,6 +56,72 @@ constexpr float kMaxTongueOcclusion = 0.55f;
 constexpr float kCavityDepthM = 0.003f;
 
 float luminance(const Eigen::Vector3f& rgb) { return linear_luminance(rgb[0], rgb[1], rgb[2]); }
+
+// --- What a frame's colour divided by the shading may teach the albedo: the per-vertex map
+// (ObserveAlbedo) and the texture's views (UnwrapAlbedo) take the same rules.
+constexpr float kAlbedoMinCos = 0.5f;  // grazing views are blurred, badly lit, near silhouettes
+constexpr float kAlbedoDepthToleranceM = 0.0025f;  // the view's own rendering at the point's depth
+constexpr float kAlbedoMeasuredDepthToleranceM = 0.015f;  // a depth map's measure of the point
+// A pixel this bright in any channel is clipped: its colour says nothing of the surface (a
+// blown-out window behind the face where the fit's silhouette overshoots it, a highlight).
+constexpr int kClippedLevel = 250;
+// Surface this close to an occluding boundary of the rendering is not observed: the fit is off by
+// a pixel or two, and the sample reaches one more, so there the frame shows the other side (the
+// eyeball or the lashes for a lid margin, the lip line or the mouth cavity for a lip, the
+// background for the face's outline). Written into the map, those colours came back wherever the
+// output shows the surface and the frame does not: on the webcam clip the lids d14 closes were
+// greyer with them, with a light line along the lid margin. Such surface keeps what clearer views
+// gave it, or the colour of the skin around.
+constexpr float kAlbedoBoundaryClearancePx = 2.5f;
+
+// A light whose colour is that far from white (one channel's ambient under a quarter of another's,
+// or none at all) is the lighting fit making up for something else (on the webcam clip, as the
+// camera's exposure dropped, green and blue ambient fell below zero); dividing the frame by it
+// would write that error into the map, which later frames show wherever the frame does not.
+bool light_usable_for_albedo(const Gamma& light) {
+  constexpr float kMinLightChroma = 0.25f;
+  const float lo = std::min({light[0], light[9], light[18]}), hi = std::max({light[0], light[9], light[18]});
+  return lo > 0.f && lo >= kMinLightChroma * hi;
+}
+
+// Only well-lit surface: where the fitted light is weak (below 40 % of its ambient part, or
+// nearly none), dividing by it amplifies every error of the lighting fit.
+bool well_lit(const Gamma& light, const std::array<float, 9>& basis, int c) {
+  const float e = irradiance(light, basis, c);
+  const float ambient = light[static_cast<size_t>(c * 9)] * basis[0];
+  return e > 0.05f && e > 0.4f * ambient;
+}
+
+// An observed albedo held against the model's `prior` at that point. Brightness may differ from
+// the prior by the range real faces show against a skin mean (brows and lips darker, not much
+// brighter): clamped to it. Far brighter than that is not this surface (the background behind a
+// fit whose silhouette overshoots the face, a highlight): false, rejected, since clamped, such a
+// pixel would still pull the point to 1.8 x the model's colour. Skin, lips and brows differ from
+// the model's albedo mostly in brightness; a large change of chromaticity is a wrong observation
+// (a background pixel at a silhouette, noise, a highlight), so the observed chromaticity is
+// pulled back to within kMaxChromaShift of the prior's.
+bool plausible_albedo(const Eigen::Vector3f& prior, Eigen::Vector3f* observed) {
+  constexpr float kMaxChromaShift = 0.1f;
+  constexpr float kMinBrightnessRatio = 0.15f, kMaxBrightnessRatio = 1.8f;
+  constexpr float kImplausiblyBright = 1.25f;  // rejected beyond kMaxBrightnessRatio by this
+  Eigen::Vector3f& o = *observed;
+  const float prior_l = prior.sum(), obs_l = o.sum();
+  if (prior_l > 1e-4f && obs_l > kMaxBrightnessRatio * prior_l * kImplausiblyBright) return false;
+  if (prior_l > 1e-4f && obs_l > 1e-4f) {
+    const float ratio = std::clamp(obs_l / prior_l, kMinBrightnessRatio, kMaxBrightnessRatio);
+    o *= ratio * prior_l / obs_l;
+    o = o.cwiseMin(1.0f);
+  }
+  const float obs_sum = o.sum(), prior_sum = prior.sum();
+  if (obs_sum > 1e-4f && prior_sum > 1e-4f) {
+    const Eigen::Vector3f obs_chroma = o / obs_sum, prior_chroma = prior / prior_sum;
+    const Eigen::Vector3f shift = obs_chroma - prior_chroma;
+    const float len = shift.norm();
+    if (len > kMaxChromaShift) o = obs_sum * (prior_chroma + shift * (kMaxChromaShift / len));
+    o = o.cwiseMax(0.0f).cwiseMin(1.0f);
+  }
+  return true;
+}
 
 // The pixel position (u, v) of camera-space point x (in front of the camera).
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
@@ -308,6 +375,59 @@ struct FaceCompositor::Impl {
     }
   }
 
+  // The albedo texture's colour of drawn pixels whose triangle it covers: the texture's albedo at
+  // the pixel's UV times the interpolation of a per-vertex factor, the per-vertex map's change
+  // since the texture was blended (`map` against texture.base, per channel, bounded to 0.5..2)
+  // times the irradiance Compose lit the vertex with (`shade`). The texture adds the detail, the
+  // map keeps the colour current (a camera's exposure drifting, later frames refining it).
+  struct TextureShading {
+    const AlbedoTexture* texture = nullptr;
+    std::vector<Eigen::Vector3f> factor;  // per vertex
+    bool Colour(const FaceModel& model, const gpu::GBuffer& g, size_t p, Eigen::Vector3f* rgb) const {
+      const int32_t t = g.triangle[p];
+      if (t < 0 || !texture->layout->textured[static_cast<size_t>(t)]) return false;
+      Eigen::Vector2f uv = Eigen::Vector2f::Zero();
+      Eigen::Vector3f f = Eigen::Vector3f::Zero();
+      for (size_t k = 0; k < 3; ++k) {
+        const float b = g.barycentric[3 * p + k];
+        const auto& c = model.corner_uvs[3 * static_cast<size_t>(t) + k];
+        uv += b * Eigen::Vector2f(c[0], c[1]);
+        f += b * factor[static_cast<size_t>(g.vertices[3 * p + k])];
+      }
+      Eigen::Vector3f a;
+      if (!texture->Sample(uv, &a)) return false;
+      *rgb = a.cwiseProduct(f);
+      return true;
+    }
+  };
+  // Null texture (none, or of another model): an empty TextureShading (texture null).
+  TextureShading MakeTextureShading(const AlbedoTexture* texture, const Eigen::VectorXf& map,
+                                    const std::vector<Eigen::Vector3f>& shade) const {
+    TextureShading ts;
+    if (!texture || texture->empty() || !texture->layout || texture->layout->textured.size() != model.triangles.size() ||
+        texture->base.size() != map.size() || static_cast<size_t>(map.size()) != 3 * shade.size())
+      return ts;
+    ts.texture = texture;
+    ts.factor.resize(shade.size());
+    for (size_t v = 0; v < shade.size(); ++v)
+      for (int c = 0; c < 3; ++c) {
+        const float then = texture->base[static_cast<Eigen::Index>(3 * v) + c], now = map[static_cast<Eigen::Index>(3 * v) + c];
+        ts.factor[v][c] = (then > 1e-4f ? std::clamp(now / then, 0.5f, 2.0f) : 1.0f) * shade[v][c];
+      }
+    return ts;
+  }
+  // Appearance::kAlbedoMap: every pixel the texture covers takes its colour.
+  void ApplyAlbedoTexture(const TextureShading& ts, gpu::GBuffer* g) const {
+    ParallelFor(g->height, threads(), [&](int j) {
+      Eigen::Vector3f rgb;
+      for (int i = 0; i < g->width; ++i) {
+        const size_t p = static_cast<size_t>(j) * static_cast<size_t>(g->width) + static_cast<size_t>(i);
+        if (!ts.Colour(model, *g, p, &rgb)) continue;
+        for (int c = 0; c < 3; ++c) g->color[3 * p + static_cast<size_t>(c)] = rgb[c];
+      }
+    });
+  }
+
   // Distance (pixels, over `roi`) from each pixel of `tg` (the target's rendering of `ts`) to the
   // nearest occluding boundary: a change of surface between neighbouring pixels (nothing drawn,
   // skin, an eyeball, teeth, tongue), a depth jump within one surface (an occluding contour such
@@ -377,7 +497,9 @@ struct FaceCompositor::Impl {
   // change of the point's shading from the tracked normal to the output's. The surface point is
   // the pixel's triangle and barycentrics evaluated on the target's tracked geometry; it is
   // shown when the target's own G-buffer at its projection lies at its depth. Other pixels keep
-  // g->color (the albedo map). `e_out`: the output's per-vertex irradiance (uncapped), as
+  // the albedo map: `fallback_texture`'s colour where it covers the surface (the texture is looked
+  // up only where some of the map shows), else g->color. `e_out`: the output's per-vertex
+  // irradiance (uncapped), as
   // Compose computed it for the shading. `mouth_redraw`: how much of the mouth opening the
   // mouth pass will replace (0..1). `shown` (optional): set to the frame's trust in its own sample
   // at each drawn pixel (0..1; 0 where the frame does not show the surface), frame-sized, CV_32FC1.
@@ -394,7 +516,7 @@ struct FaceCompositor::Impl {
                          const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                          const gpu::VertexState& out_state, const std::vector<Eigen::Vector3f>& e_out,
                          const Gamma& light, const gpu::RenderOptions& ropt, float mouth_redraw,
-                         gpu::GBuffer* g, cv::Mat* shown = nullptr) const {
+                         const TextureShading& fallback_texture, gpu::GBuffer* g, cv::Mat* shown = nullptr) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
     if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
 
@@ -693,9 +815,12 @@ struct FaceCompositor::Impl {
         // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
         // take the balance.
         const bool balance = !(kMouthParts & part_bit(part));
+        Eigen::Vector3f textured;
+        const bool from_texture = a < 1.0f && fallback_texture.texture && fallback_texture.Colour(model, *g, p, &textured);
         for (int c = 0; c < 3; ++c) {
           float& col = g->color[3 * p + static_cast<size_t>(c)];
-          const float map = balance ? std::min(1.0f, col * gain[c]) : col;
+          const float below = from_texture ? textured[c] : col;
+          const float map = balance ? std::min(1.0f, below * gain[c]) : below;
           col = a * std::min(1.0f, t[c]) + (1.0f - a) * map;
         }
       }
@@ -863,6 +988,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
     }
   }
   std::vector<Eigen::Vector3f> irradiance_out(static_cast<size_t>(n));  // uncapped, per vertex
+  std::vector<Eigen::Vector3f> shade(static_cast<size_t>(n));           // as drawn (capped)
   for (int v = 0; v < n; ++v) {
     const auto basis = im.lit_basis(v, state.camera_normals.segment<3>(3 * v), state.camera_positions.segment<3>(3 * v));
     const bool mouth_part = kMouthParts & part_bit(im.part_of(v));
@@ -883,6 +1009,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       float e_c = e[c];
       irradiance_out[static_cast<size_t>(v)][c] = e_c;
       if (cap) e_c = std::min(e_c, 1.05f * albedo->max_irradiance[c]);
+      shade[static_cast<size_t>(v)][c] = e_c;
       state.colors[3 * v + c] = state.albedo[3 * v + c] * e_c;
     }
   }
@@ -891,6 +1018,9 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   ropt.cull_back_faces = true;
   gpu::GBuffer& g = Impl::scratch_gbuffer(0);
   im.rasterize(state, output, camera, ropt, &g);
+  const Impl::TextureShading texture_shading =
+      im.MakeTextureShading(use_map ? albedo->texture.get() : nullptr, use_map ? albedo->albedo : Eigen::VectorXf(), shade);
+  if (texture_shading.texture && opt.appearance == Appearance::kAlbedoMap) im.ApplyAlbedoTexture(texture_shading, &g);
   const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
   const float target_jaw = expression_weight(target.delta, kJawOpenIndex);
   result.mouth_opened_wider = out_jaw > target_jaw + opt.mouth_open_threshold;
@@ -912,7 +1042,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   cv::Mat frame_shown;
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
-                         mouth_pass ? mouth_alpha : 0.0f, &g, mouth_pass ? &frame_shown : nullptr);
+                         mouth_pass ? mouth_alpha : 0.0f, texture_shading, &g, mouth_pass ? &frame_shown : nullptr);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
@@ -1127,39 +1257,9 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   gpu::GBuffer& g = Impl::scratch_gbuffer(1);
   im.rasterize(state, params, camera, ropt, &g);
   constexpr float kMaxWeight = 12.0f;      // later frames keep refining, never frozen
-  constexpr float kMinCos = 0.5f;          // grazing views are blurred, badly lit, near silhouettes
-  constexpr float kDepthToleranceM = 0.0025f;
-  // Skin, lips and brows differ from the model's albedo mostly in brightness; a large change of
-  // chromaticity is a wrong observation (a background pixel at a silhouette, noise, a highlight),
-  // so the observed chromaticity is pulled back to within this distance of the model's.
-  constexpr float kMaxChromaShift = 0.1f;
-  constexpr float kMinBrightnessRatio = 0.15f, kMaxBrightnessRatio = 1.8f;
-  // A pixel this bright in any channel is clipped: its colour says nothing of the surface (a
-  // blown-out window behind the face where the fit's silhouette overshoots it, a highlight).
-  constexpr int kClippedLevel = 250;
-  // Observations brighter than kMaxBrightnessRatio by this factor are rejected, not clamped.
-  constexpr float kImplausiblyBright = 1.25f;
   const Eigen::VectorXf model_albedo = state.albedo;
   const Gamma light = rendering_lighting(params.gamma);
-  // A light whose colour is that far from white (one channel's ambient under a quarter of
-  // another's, or none at all) is the lighting fit making up for something else (on the webcam
-  // clip, as the camera's exposure dropped, green and blue ambient fell below zero);
-  // dividing the frame by it would write that error into the map, which later frames show
-  // wherever the frame does not.
-  constexpr float kMinLightChroma = 0.25f;
-  {
-    const float lo = std::min({light[0], light[9], light[18]}), hi = std::max({light[0], light[9], light[18]});
-    if (!(lo > 0.f) || !(lo >= kMinLightChroma * hi)) return;
-  }
-  // Vertices this close to an occluding boundary of the rendering are not observed: the fit is
-  // off by a pixel or two, and the 3x3 sample below reaches one more, so there the frame shows
-  // the other side (the eyeball or the lashes for a lid margin, the lip line or the mouth
-  // cavity for a lip, the background for the face's outline). Written into the map, those
-  // colours came back wherever the output shows the surface and the frame does not: on the
-  // webcam clip the lids d14 closes were greyer with them, with a light line along the lid
-  // margin. Such vertices keep what clearer views gave them, or FillUnobserved's colour from the
-  // skin around.
-  constexpr float kBoundaryClearancePx = 2.5f;
+  if (!light_usable_for_albedo(light)) return;
   const cv::Rect roi = Impl::CoveredRect(g, 2);
   const cv::Mat boundary_px = roi.empty() ? cv::Mat() : im.BoundaryDistance(g, state, camera, roi);
   Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
@@ -1171,17 +1271,17 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     const Eigen::Vector2f uv = project(camera, x);
     const int i = static_cast<int>(std::lround(uv.x())), j = static_cast<int>(std::lround(uv.y()));
     if (i < 1 || j < 1 || i >= camera.width - 1 || j >= camera.height - 1) continue;
-    if (!g.covered(i, j) || std::abs(g.depth(i, j) - x.z()) > kDepthToleranceM) continue;  // hidden
-    if (boundary_px.empty() || !(boundary_px.at<float>(j - roi.y, i - roi.x) >= kBoundaryClearancePx)) continue;
+    if (!g.covered(i, j) || std::abs(g.depth(i, j) - x.z()) > kAlbedoDepthToleranceM) continue;  // hidden
+    if (boundary_px.empty() || !(boundary_px.at<float>(j - roi.y, i - roi.x) >= kAlbedoBoundaryClearancePx)) continue;
     if (frame_depth && frame_depth->type() == CV_32FC1 && frame_depth->size() == frame_bgr.size()) {
       // With a depth map, only pixels whose measured depth confirms this surface: sensor holes
       // sit at silhouettes, where a misfit model samples the background.
       const float d = frame_depth->at<float>(j, i);
-      if (!std::isfinite(d) || !(d > 0.f) || std::abs(d - x.z()) > 0.015f) continue;
+      if (!std::isfinite(d) || !(d > 0.f) || std::abs(d - x.z()) > kAlbedoMeasuredDepthToleranceM) continue;
     }
     const Eigen::Vector3f nrm = state.camera_normals.segment<3>(3 * v);
     const float cos_view = -nrm.dot(x.normalized());
-    if (cos_view < kMinCos) continue;
+    if (cos_view < kAlbedoMinCos) continue;
     const auto basis = gpu::sh_basis(nrm);
     // A 3x3 average (in linear light) of the pixels whose surface is this vertex's, against noise.
     Eigen::Vector3f linear = Eigen::Vector3f::Zero();
@@ -1189,7 +1289,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     bool clipped = false;
     for (int dj = -1; dj <= 1; ++dj)
       for (int di = -1; di <= 1; ++di) {
-        if (!g.covered(i + di, j + dj) || std::abs(g.depth(i + di, j + dj) - x.z()) > 2.0f * kDepthToleranceM) continue;
+        if (!g.covered(i + di, j + dj) || std::abs(g.depth(i + di, j + dj) - x.z()) > 2.0f * kAlbedoDepthToleranceM) continue;
         const cv::Vec3b px = frame_bgr.at<cv::Vec3b>(j + dj, i + di);
         if (px[0] >= kClippedLevel || px[1] >= kClippedLevel || px[2] >= kClippedLevel) clipped = true;
         for (int c = 0; c < 3; ++c) linear[c] += srgb_decode_table()[px[2 - c]];
@@ -1197,42 +1297,17 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
       }
     if (samples < 5 || clipped) continue;
     linear /= static_cast<float>(samples);
-    // Only well-lit vertices: where the fitted light is weak (below 40 % of its ambient part),
-    // dividing by it amplifies every error of the lighting fit.
     bool ok = true;
     Eigen::Vector3f observed;
     for (int c = 0; c < 3; ++c) {
-      const float e = irradiance(light, basis, c);
-      const float ambient = light[static_cast<size_t>(c * 9)] * basis[0];
-      if (!(e > 0.05f) || !(e > 0.4f * ambient)) ok = false;
+      if (!well_lit(light, basis, c)) ok = false;
       // Divided by the irradiance the re-rendering uses (the mouth's floor included), so the
       // observed colour is what it reproduces.
       observed[c] = std::clamp(linear[c] / std::max(im.irradiance_at(light, basis, c, v), 0.05f), 0.0f, 1.0f);
     }
     if (!ok) continue;
     for (int c = 0; c < 3; ++c) brightest[c] = std::max(brightest[c], irradiance(light, basis, c));
-    // Brightness may differ from the model's by the range real faces show against a skin mean
-    // (brows and lips darker, not much brighter). Far brighter than that is not this surface (the
-    // background behind a fit whose silhouette overshoots the face, a highlight): not observed,
-    // since clamped, such a pixel still pulls the vertex to 1.8 x the model's colour.
-    {
-      const float prior_l = model_albedo.segment<3>(3 * v).sum(), obs_l = observed.sum();
-      if (prior_l > 1e-4f && obs_l > kMaxBrightnessRatio * prior_l * kImplausiblyBright) continue;
-      if (prior_l > 1e-4f && obs_l > 1e-4f) {
-        const float ratio = std::clamp(obs_l / prior_l, kMinBrightnessRatio, kMaxBrightnessRatio);
-        observed *= ratio * prior_l / obs_l;
-        observed = observed.cwiseMin(1.0f);
-      }
-    }
-    const Eigen::Vector3f prior = model_albedo.segment<3>(3 * v);
-    const float obs_sum = observed.sum(), prior_sum = prior.sum();
-    if (obs_sum > 1e-4f && prior_sum > 1e-4f) {
-      const Eigen::Vector3f obs_chroma = observed / obs_sum, prior_chroma = prior / prior_sum;
-      const Eigen::Vector3f shift = obs_chroma - prior_chroma;
-      const float len = shift.norm();
-      if (len > kMaxChromaShift) observed = obs_sum * (prior_chroma + shift * (kMaxChromaShift / len));
-      observed = observed.cwiseMax(0.0f).cwiseMin(1.0f);
-    }
+    if (!plausible_albedo(model_albedo.segment<3>(3 * v), &observed)) continue;
     const float wv = cos_view * cos_view;
     const float wold = std::min(map->weight[v], kMaxWeight);
     map->albedo.segment<3>(3 * v) = (map->albedo.segment<3>(3 * v) * wold + observed * wv) / (wold + wv);
@@ -1240,6 +1315,115 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   }
   if (brightest.minCoeff() > 0.f) map->max_irradiance = brightest;
   im.FillUnobserved(model_albedo, map);
+}
+
+AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
+                                               const gpu::FaceParameters& params, const AlbedoTextureLayout& layout,
+                                               const cv::Mat* frame_depth) const {
+  std::string why;
+  if (!camera.IsValid(&why)) throw Error("albedo texture: invalid camera: " + why);
+  if (frame_bgr.type() != CV_8UC3 || frame_bgr.cols != camera.width || frame_bgr.rows != camera.height)
+    throw Error("albedo texture: the frame must be 8-bit BGR of the camera's size");
+  const Impl& im = *impl_;
+  if (layout.textured.size() != im.model.triangles.size())
+    throw Error("albedo texture: the layout belongs to another face model");
+  AlbedoTextureView view;
+  view.albedo = cv::Mat::zeros(layout.height, layout.width, CV_32FC3);
+  view.weight = cv::Mat::zeros(layout.height, layout.width, CV_32FC1);
+  view.yaw_deg = head_yaw_deg(params);
+  const Gamma light = rendering_lighting(params.gamma);
+  if (!light_usable_for_albedo(light)) return view;
+  const int n = im.model.num_vertices();
+  const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
+  gpu::RenderOptions ropt;
+  ropt.parts = im.drawn_parts();
+  gpu::GBuffer& g = Impl::scratch_gbuffer(1);
+  im.rasterize(state, params, camera, ropt, &g);
+  const cv::Rect roi = Impl::CoveredRect(g, 2);
+  if (roi.empty()) return view;
+  const cv::Mat boundary_px = im.BoundaryDistance(g, state, camera, roi);
+  // Per vertex, the irradiance the re-rendering shades it with (Compose), so the texel's albedo
+  // times the same interpolation reproduces the frame; and whether its light is strong enough.
+  std::vector<Eigen::Vector3f> lit(static_cast<size_t>(n));
+  std::vector<char> lit_well(static_cast<size_t>(n), 1);
+  for (int v = 0; v < n; ++v) {
+    const Eigen::Vector3f nrm = state.camera_normals.segment<3>(3 * v);
+    const auto basis = im.lit_basis(v, nrm, state.camera_positions.segment<3>(3 * v));
+    for (int c = 0; c < 3; ++c) {
+      lit[static_cast<size_t>(v)][c] = im.irradiance_at(light, basis, c, v);
+      if (!well_lit(light, gpu::sh_basis(nrm), c)) lit_well[static_cast<size_t>(v)] = 0;
+    }
+  }
+  const bool with_depth = frame_depth && frame_depth->type() == CV_32FC1 && frame_depth->size() == frame_bgr.size();
+  const float w_max = static_cast<float>(camera.width - 1), h_max = static_cast<float>(camera.height - 1);
+  // The weight rises from nothing at a grazing kMinCos to cos^2 at kFullCos and beyond, and from
+  // nothing at kAlbedoBoundaryClearancePx to full at twice that: the views' seams and the
+  // fallback's border fall where neither view is sharp, and the blend spreads them. Grazing
+  // surface is taken further than the per-vertex map takes it (kAlbedoMinCos): the sides of the
+  // nose face the camera at 0.3-0.5 in a frontal view, and a side view, where there is one,
+  // outweighs it by cos^2; without one, the frame's blurred colour there is still the actor's,
+  // where the per-vertex map's fill drew a grey nose.
+  constexpr float kMinCos = 0.2f, kFullCos = 0.4f;
+  // Pixels this close to a blown-out one (every channel clipped: a window, a lamp) are not taken:
+  // the fit's silhouette a few pixels off puts its edge, mixed with the skin, on the cheek (white
+  // flecks along the webcam clip's left cheek). Skin clipped in one channel is still skin (the
+  // overexposed webcam clip's cheeks are red-clipped over large areas): taken, a little too dark
+  // in that channel, as the frame shows it.
+  constexpr int kClippedReachPx = 3;
+  cv::Mat near_clipped;
+  {
+    std::vector<cv::Mat> channels;
+    cv::split(frame_bgr, channels);
+    cv::Mat clipped = (channels[0] >= kClippedLevel) & (channels[1] >= kClippedLevel) & (channels[2] >= kClippedLevel);
+    cv::dilate(clipped, near_clipped,
+               cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kClippedReachPx + 1, 2 * kClippedReachPx + 1)));
+  }
+  std::atomic<int> seen{0};
+  ParallelFor(layout.height, im.threads(), [&](int j) {
+    int seen_here = 0;
+    for (int i = 0; i < layout.width; ++i) {
+      const size_t texel = static_cast<size_t>(j) * static_cast<size_t>(layout.width) + static_cast<size_t>(i);
+      if (layout.triangle[texel] < 0) continue;
+      Eigen::Vector3f x = Eigen::Vector3f::Zero(), nrm = Eigen::Vector3f::Zero(), e = Eigen::Vector3f::Zero();
+      bool well = true;
+      for (size_t k = 0; k < 3; ++k) {
+        const int32_t v = layout.vertices[3 * texel + k];
+        const float b = layout.barycentric[3 * texel + k];
+        x += b * state.camera_positions.segment<3>(3 * v);
+        nrm += b * state.camera_normals.segment<3>(3 * v);
+        e += b * lit[static_cast<size_t>(v)];
+        well = well && lit_well[static_cast<size_t>(v)];
+      }
+      if (!well || !(x.z() > camera.near_plane) || !(nrm.norm() > 1e-6f)) continue;
+      const float facing = -nrm.normalized().dot(x.normalized());
+      if (facing < kMinCos) continue;
+      const Eigen::Vector2f px = project(camera, x);
+      if (!(px.x() >= 1.f) || !(px.y() >= 1.f) || !(px.x() <= w_max - 1.f) || !(px.y() <= h_max - 1.f)) continue;
+      const int pi = static_cast<int>(std::lround(px.x())), pj = static_cast<int>(std::lround(px.y()));
+      if (!g.covered(pi, pj) || std::abs(g.depth(pi, pj) - x.z()) > kAlbedoDepthToleranceM) continue;  // hidden
+      const float clearance = boundary_px.at<float>(pj - roi.y, pi - roi.x);
+      if (!(clearance > kAlbedoBoundaryClearancePx)) continue;
+      if (with_depth) {
+        const float d = frame_depth->at<float>(pj, pi);
+        if (!std::isfinite(d) || !(d > 0.f) || std::abs(d - x.z()) > kAlbedoMeasuredDepthToleranceM) continue;
+      }
+      if (near_clipped.at<uchar>(pj, pi)) continue;
+      const Eigen::Vector3f linear = sample_linear(frame_bgr, px.x(), px.y());
+      Eigen::Vector3f observed, prior = Eigen::Vector3f::Zero();
+      for (size_t k = 0; k < 3; ++k)
+        prior += layout.barycentric[3 * texel + k] * state.albedo.segment<3>(3 * layout.vertices[3 * texel + k]);
+      for (int c = 0; c < 3; ++c) observed[c] = std::clamp(linear[c] / std::max(e[c], 0.05f), 0.0f, 1.0f);
+      if (!plausible_albedo(prior, &observed)) continue;
+      const float cos_w = std::clamp((facing - kMinCos) / (kFullCos - kMinCos), 0.0f, 1.0f);
+      const float edge_w = std::clamp(clearance / kAlbedoBoundaryClearancePx - 1.0f, 0.0f, 1.0f);
+      view.albedo.at<cv::Vec3f>(j, i) = cv::Vec3f(observed[0], observed[1], observed[2]);
+      view.weight.at<float>(j, i) = cos_w * edge_w * std::min(facing, 1.0f) * std::min(facing, 1.0f);
+      ++seen_here;
+    }
+    seen += seen_here;
+  });
+  view.seen_texels = seen.load();
+  return view;
 }
 
 }  // namespace face_reenact::reenact

@@ -25,6 +25,9 @@ using Clock = std::chrono::steady_clock;
 // render per observation).
 constexpr int kDenseAlbedoFrames = 8;
 constexpr int kAlbedoRefreshInterval = 15;
+// The albedo texture is rebuilt for a better view at most once per this many tracked frames (a
+// build unwraps every view again: tens of milliseconds at 2048).
+constexpr int kAlbedoTextureRebuildFrames = 30;
 constexpr int kLandmarkResetFrames = 3;
 // The source actor's opening stands in for the target's from this size on (a slit shows lips).
 constexpr double kSourceMouthMinAreaPx = 30.0;
@@ -96,6 +99,7 @@ bool ReenactmentOptions::IsValid(std::string* why) const {
   std::string sub;
   if (!mouth_exemplar_options.IsValid(&sub)) return fail(sub);
   if (!detail.IsValid(&sub)) return fail(sub);
+  if (!albedo_texture.IsValid(&sub)) return fail(sub);
   if (!use_ground_truth_target) {
     if (!tracker.IsValid(&sub)) return fail("tracker: " + sub);
     if (!input.IsValid(&sub)) return fail("input: " + sub);
@@ -126,6 +130,18 @@ struct ReenactmentPipeline::Impl {
   gpu::FaceParameters neutral;
   AlbedoMap albedo;
   int albedo_observations = 0;
+  // The albedo texture's views (AlbedoViewChooser's slots): the frames kept until the next build.
+  struct KeptView {
+    cv::Mat bgr, depth;
+    gpu::PinholeCamera camera;
+    gpu::FaceParameters params;
+    int64_t frame_index = -1;
+  };
+  std::shared_ptr<const AlbedoTextureLayout> texture_layout;
+  AlbedoViewChooser view_chooser;
+  KeptView kept_views[3];
+  bool views_changed = false;
+  int texture_built_at = 0;  // tracked_frames at the last build
   MouthExemplar mouth;
   DetailTransfer detail;  // the source actor's frames: kept across target recalibrations
   int tracked_frames = 0;
@@ -133,7 +149,8 @@ struct ReenactmentPipeline::Impl {
   PipelineSummary summary;
   StageTimes time_sums;
 
-  Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), options(o), compositor(m, o), detail(m, o.detail) {
+  Impl(const FaceModel& m, const ReenactmentOptions& o)
+      : model(m), options(o), compositor(m, o), view_chooser(o.albedo_texture), detail(m, o.detail) {
     if (options.mode == ReenactMode::kMirror) mirror = std::make_unique<VirtualMirror>(m, options.mirror);
     neutral = gpu::frontal_pose(0.6f);
     MakeTracker();
@@ -150,8 +167,56 @@ struct ReenactmentPipeline::Impl {
   void ForgetActor() {
     albedo = AlbedoMap{};
     albedo_observations = 0;
+    view_chooser.Reset();
+    for (auto& k : kept_views) k = KeptView{};
+    views_changed = false;
+    texture_built_at = 0;
     mouth = MouthExemplar{};
     tracked_frames = 0;
+  }
+
+  // Keeps this tracked frame when it is a better view for the albedo texture, and builds the
+  // texture once the per-vertex map has its first observations (the texture is blended over it),
+  // again for a better view at most every kAlbedoTextureRebuildFrames. Returns the build's time.
+  double UpdateAlbedoTexture(const cv::Mat& frame_bgr, const cv::Mat& depth, int64_t frame_index,
+                             const gpu::PinholeCamera& camera, const gpu::FaceParameters& params) {
+    if (options.albedo_texture.size <= 0) {
+      summary.albedo_texture_note = "off";
+      return 0;
+    }
+    const AlbedoViewChooser::Slot slot = view_chooser.Consider(params);
+    if (slot != AlbedoViewChooser::kNone) {
+      kept_views[slot] = KeptView{frame_bgr.clone(), depth.empty() ? cv::Mat() : depth.clone(), camera, params, frame_index};
+      views_changed = true;
+    }
+    if (!views_changed || albedo_observations < kDenseAlbedoFrames) return 0;
+    if (albedo.texture && tracked_frames - texture_built_at < kAlbedoTextureRebuildFrames) return 0;
+    const auto start = Clock::now();
+    try {
+      if (!texture_layout) texture_layout = AlbedoTextureLayout::ForModel(model, options.albedo_texture.size);
+      std::vector<AlbedoTextureView> views;
+      for (const KeptView& k : kept_views) {
+        if (k.bgr.empty()) continue;
+        AlbedoTextureView v = compositor.UnwrapAlbedo(k.bgr, k.camera, k.params, *texture_layout,
+                                                      k.depth.empty() ? nullptr : &k.depth);
+        v.frame_index = k.frame_index;
+        views.push_back(std::move(v));
+      }
+      albedo.texture = std::make_shared<const AlbedoTexture>(
+          BlendAlbedoViews(texture_layout, views, albedo.albedo, options.albedo_texture.blend_levels));
+      summary.albedo_texture_views = albedo.texture->views;
+      summary.albedo_texture_note.clear();
+    } catch (const Error& e) {
+      // A model without a UV layout, a bad view: the per-vertex map alone, and the report says why.
+      summary.albedo_texture_note = std::string("none: ") + e.what();
+      options.albedo_texture.size = 0;
+    }
+    views_changed = false;
+    texture_built_at = tracked_frames;
+    const double ms = ms_since(start);
+    ++summary.albedo_texture_builds;
+    summary.albedo_texture_ms = ms;
+    return ms;
   }
 
   // Takes this tracked frame's open mouth as the interior when it is the one to keep
@@ -304,6 +369,12 @@ PipelineSummary ReenactmentPipeline::summary() const {
 }
 
 const MouthExemplar& ReenactmentPipeline::mouth_exemplar() const { return impl_->mouth; }
+
+bool ReenactmentPipeline::wants_side_views() const {
+  const Impl& im = *impl_;
+  return im.options.albedo_texture.size > 0 &&
+         (!im.view_chooser.filled(AlbedoViewChooser::kLeft) || !im.view_chooser.filled(AlbedoViewChooser::kRight));
+}
 
 ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, const SourceExpression* source) {
   std::string why;
@@ -479,6 +550,7 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
       ++im.albedo_observations;
       out.times.render_ms += ms_since(ta);
     }
+    out.times.render_ms += im.UpdateAlbedoTexture(out.bgr, out.depth, out.frame_index, fit_camera, target_params);
 
     // --- transfer (Eq. 15).
     auto t0 = Clock::now();

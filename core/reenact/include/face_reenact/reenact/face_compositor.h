@@ -13,6 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/albedo_texture.h"
 #include "face_reenact/reenact/detail_transfer.h"
 #include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
@@ -33,6 +34,9 @@ struct AlbedoMap {
   // re-rendering never lights a vertex brighter than that (a lighting fit extrapolated to
   // normals it never saw can be far too bright, e.g. on a forehead the fit misplaced).
   Eigen::Vector3f max_irradiance = Eigen::Vector3f::Zero();
+  // The actor's high-resolution albedo texture (albedo_texture.h), built from a few views;
+  // null until then. Where it covers the face, the re-rendering takes its detail.
+  std::shared_ptr<const AlbedoTexture> texture;
   bool empty() const { return albedo.size() == 0; }
 };
 
@@ -105,6 +109,18 @@ class FaceCompositor {
   // 1.5 cm (the fit overshoots onto the background, an occluder) are not observed.
   void ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
                      AlbedoMap* map, const cv::Mat* frame_depth = nullptr) const;
+
+  // One view of the albedo texture (albedo_texture.h): for each texel of `layout`, the frame's
+  // colour where `params` puts that surface point, divided by the shading the re-rendering gives
+  // it (so the texture times the same shading gives the frame back), with a weight that is 0
+  // where the frame does not show the point clearly (hidden, within
+  // 2.5 px of an occluding boundary, grazing, clipped, badly lit, or an implausible colour: the
+  // per-vertex map's rules, ObserveAlbedo) and rises towards cos^2 of the view angle. With
+  // `frame_depth`, only where the measured depth confirms the surface. Throws
+  // face_reenact::Error on a bad camera or frame, or a layout of another model.
+  AlbedoTextureView UnwrapAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
+                                 const gpu::FaceParameters& params, const AlbedoTextureLayout& layout,
+                                 const cv::Mat* frame_depth = nullptr) const;
 
   const FaceModel& model() const;
   // "cpu", "vulkan (<device>)", or "cpu (Vulkan unavailable: <why>)" after a failed open.

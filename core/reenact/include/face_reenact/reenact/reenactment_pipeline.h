@@ -24,6 +24,7 @@
 
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/reenact/albedo_texture.h"
 #include "face_reenact/reenact/detail_transfer.h"
 #include "face_reenact/reenact/mouth_interior.h"
 #include "face_reenact/reenact/teeth_texture.h"
@@ -155,6 +156,12 @@ struct ReenactmentOptions {
   // at 640x480 is common) and rises linearly to 1 at this distance. 0 turns the fallback off.
   float frame_texture_boundary_px = 4.0f;
 
+  // --- the actor's albedo texture (Sec. 6.3; albedo_texture.h) ---
+  // Built from the target's tracked frames (a front view and one per side where the head turns
+  // enough) once the per-vertex map has its first observations, rebuilt when a clearly better
+  // view arrives; the re-rendering takes its detail wherever it covers the face. size 0: off.
+  AlbedoTextureOptions albedo_texture;
+
   // --- compositing (Sec. 7.4.2) ---
   int blend_levels = 5;              // Laplacian pyramid levels (>= 1; 1 = plain alpha blend)
   float mask_erosion_px = 1.5f;      // the face mask is eroded by this (at full size) before
@@ -262,6 +269,12 @@ struct PipelineSummary {
   // frames it changed the face.
   std::string detail;
   int detail_frames = 0;
+  // The albedo texture (ReenactmentOptions::albedo_texture): how often it was built, what the
+  // last build took, and its views (frame, yaw, texels seen); empty views: none built.
+  int albedo_texture_builds = 0;
+  double albedo_texture_ms = 0;  // the last build: the views' unwraps and their blend
+  std::vector<AlbedoTexture::ViewInfo> albedo_texture_views;
+  std::string albedo_texture_note;  // why there is none, when it is off or failed
   std::string BriefReport() const;
 };
 
@@ -324,6 +337,9 @@ class ReenactmentPipeline {
   PipelineSummary summary() const;
   // The target's open-mouth still in use (empty: none yet, or mouth_exemplar off).
   const MouthExemplar& mouth_exemplar() const;
+  // Whether the albedo texture (ReenactmentOptions::albedo_texture) still lacks a view turned to
+  // either side (AlbedoViewChooser): the live status asks the target to turn the head once.
+  bool wants_side_views() const;
 
  private:
   struct Impl;
