@@ -228,6 +228,25 @@ TEST(LiveStatusTest, HeadlineAsksForAnOpenMouthUntilTheTeethAreSeen) {
   EXPECT_EQ(s.Headline().find("open your mouth"), std::string::npos) << s.Headline();
 }
 
+// Once the mouth is seen, the albedo texture's side views (reenact/albedo_texture.h): the line asks
+// for a turn to each side, after the open mouth and before a calibration warning, and only while
+// tracking.
+TEST(LiveStatusTest, HeadlineAsksForATurnOfTheHeadAfterTheOpenMouth) {
+  LiveStatus s = tracking_at_30_fps();
+  s.wants_head_turn = true;
+  EXPECT_EQ(s.StateLine(), "Tracking: turn your head slowly to each side once (for the skin's texture)");
+  s.wants_open_mouth = true;
+  EXPECT_EQ(s.StateLine(), "Tracking: open your mouth wide once, facing the camera (for the teeth)");
+  s.wants_open_mouth = false;
+  s.calibration_warning = "the face was not at rest while calibrating (cheekPuff 0.74)";
+  EXPECT_NE(s.Headline().find("turn your head"), std::string::npos) << s.Headline();
+  s.wants_head_turn = false;
+  EXPECT_NE(s.Headline().find("not at rest"), std::string::npos) << s.Headline();
+  s.wants_head_turn = true;
+  s.tracking = TrackingState::kLost;
+  EXPECT_EQ(s.Headline().find("turn your head"), std::string::npos) << s.Headline();
+}
+
 // While calibrating, the line says what to do and how far it is; the state line that front-ends
 // log on change leaves out what moves on its own (rates, progress, a lost frame's measurements).
 TEST(LiveStatusTest, CalibratingSaysHoldStillAndTheStateLineLeavesOutTheNumbers) {

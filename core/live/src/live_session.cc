@@ -142,10 +142,12 @@ std::string status_line(const LiveStatus& s, bool numbers) {
     } else if (s.tracking != TrackingState::kTracking && numbers && !s.pipeline_message.empty()) {
       line += " (" + s.pipeline_message + ")";  // a per-frame reason, with its measurements
     }
-    // The open-mouth request first: it goes away by itself once the mouth opened, and then a
-    // warning of the calibration shows.
+    // One request at a time, each gone by itself once done: the open mouth first (the teeth),
+    // then a turn to each side (the skin's texture), then a warning of the calibration.
     if (s.tracking == TrackingState::kTracking && s.wants_open_mouth)
       line += ": open your mouth wide once, facing the camera (for the teeth)";
+    else if (s.tracking == TrackingState::kTracking && s.wants_head_turn)
+      line += ": turn your head slowly to each side once (for the skin's texture)";
     else if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty())
       line += " (calibrated while the face was not at rest: calibrate again with a relaxed face)";
   }
@@ -530,7 +532,7 @@ void LiveSession::run() {
     uint64_t sequence = 0;
     TrackingState tracking = TrackingState::kOff;
     std::string message, calibration_warning, calibration_progress;
-    bool wants_open_mouth = false;
+    bool wants_open_mouth = false, wants_head_turn = false;
     Clock::time_point window_start = Clock::now();
     int64_t window_frames = 0;
     double window_ms = 0;
@@ -553,6 +555,7 @@ void LiveSession::run() {
       shown.calibration_warning = out.calibration_warning;
       shown.calibration_progress = out.calibration_progress;
       shown.wants_open_mouth = out.wants_open_mouth;
+      shown.wants_head_turn = out.wants_head_turn;
       ++shown.window_frames;
       shown.window_ms += ms_since(job.started, published.produced);
       latest_ = published;
@@ -651,7 +654,7 @@ void LiveSession::run() {
     now = Clock::now();
     TrackingState tracking;
     std::string frame_message, calibration_warning, calibration_progress;
-    bool wants_open_mouth = false;
+    bool wants_open_mouth = false, wants_head_turn = false;
     double output_fps, process_ms;
     {
       std::lock_guard lock(mu_);
@@ -668,6 +671,7 @@ void LiveSession::run() {
       calibration_warning = shown.calibration_warning;
       calibration_progress = shown.calibration_progress;
       wants_open_mouth = shown.wants_open_mouth;
+      wants_head_turn = shown.wants_head_turn;
       output_fps = shown.output_fps;
       process_ms = shown.process_ms;
     }
@@ -690,6 +694,7 @@ void LiveSession::run() {
     s.calibration_warning = pipeline_ready ? calibration_warning : "";
     s.calibration_progress = pipeline_ready && tracking == TrackingState::kCalibrating ? calibration_progress : "";
     s.wants_open_mouth = pipeline_ready && tracking == TrackingState::kTracking && wants_open_mouth && !target_is_still_;
+    s.wants_head_turn = pipeline_ready && tracking == TrackingState::kTracking && wants_head_turn && !target_is_still_;
     s.output_fps = ts.open ? output_fps : 0;
     s.process_ms = process_ms;
     if (source_spec_.kind == InputKind::kUdp) {

@@ -160,6 +160,8 @@ class ReenactProcessor : public FrameProcessor {
     const reenact::ReenactmentOptions& o = target_->options();
     out.wants_open_mouth = result.status == reenact::TrackingStatus::kTracking && o.mode == reenact::ReenactMode::kReenact &&
                            o.render_mouth && o.mouth_exemplar && o.mouth_exemplar_frame < 0 && target_->mouth_exemplar().empty();
+    out.wants_head_turn = result.status == reenact::TrackingStatus::kTracking && o.mode == reenact::ReenactMode::kReenact &&
+                          target_->wants_side_views();
     return out;
   }
 

@@ -87,6 +87,11 @@ struct LiveStatus {
   // (reenact/mouth_interior.h), so an opened mouth shows the model's teeth and a dark cavity; the
   // status line asks the target to open the mouth wide once, facing the camera.
   bool wants_open_mouth = false;
+  // While tracking in the reenact mode, once the mouth is seen: the target's albedo texture
+  // (reenact/albedo_texture.h) has no view turned to one side or the other yet, so a turned head
+  // shows the per-vertex colours on the far cheek; the status line asks the target to turn the
+  // head slowly to each side once.
+  bool wants_head_turn = false;
   // Expression source.
   SourceState source = SourceState::kNone;
   std::string source_description;  // "udp port 9000", "recording 'actor'"
