@@ -22,13 +22,7 @@ using testing::render_target;
 using testing::test_camera;
 using testing::test_face;
 using testing::test_model;
-
-double mean_abs_diff(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-  cv::Mat d;
-  cv::absdiff(a, b, d);
-  const cv::Scalar m = cv::mean(d, mask);
-  return (m[0] + m[1] + m[2]) / 3.0;
-}
+using testing::mean_abs_diff;
 
 gpu::FaceParameters turned(float yaw_deg, float distance = 0.5f) {
   gpu::FaceParameters p = test_face(distance);

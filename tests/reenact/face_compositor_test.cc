@@ -26,13 +26,7 @@ using testing::test_face;
 using testing::test_model;
 using testing::landmark_vertices;
 using testing::project_vertices;
-
-double mean_abs_diff(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-  cv::Mat d;
-  cv::absdiff(a, b, d);
-  const cv::Scalar m = cv::mean(d, mask);
-  return (m[0] + m[1] + m[2]) / 3.0;
-}
+using testing::mean_abs_diff;
 
 struct Rendered {
   cv::Mat target;

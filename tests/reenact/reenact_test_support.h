@@ -101,6 +101,14 @@ inline const gpu::CpuRenderer& test_renderer() {
   return renderer;
 }
 
+// The mean absolute difference of two 8-bit BGR images over `mask`, averaged over the channels.
+inline double mean_abs_diff(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+  cv::Mat d;
+  cv::absdiff(a, b, d);
+  const cv::Scalar m = cv::mean(d, mask);
+  return (m[0] + m[1] + m[2]) / 3.0;
+}
+
 // The CPU renderer's image of `params` (skin parts over a grey background) as 8-bit sRGB BGR.
 inline cv::Mat render_target(const gpu::FaceParameters& params, const gpu::PinholeCamera& camera) {
   const tracker::InputFrame f =
