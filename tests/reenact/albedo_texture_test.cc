@@ -3,7 +3,9 @@
 // parameters are known.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
+#include <thread>
 
 #include <opencv2/imgproc.hpp>
 
@@ -310,6 +312,43 @@ TEST(AlbedoTextureTest, ThePipelineBuildsItFromAFrontAndTwoSideViews) {
   const PipelineSummary off = run(0);
   EXPECT_TRUE(off.albedo_texture_views.empty());
   EXPECT_EQ(off.albedo_texture_note, "off");
+}
+
+// In the background (the live session), the build runs beside the frames and a later frame takes
+// it: the same views, and the frames keep coming meanwhile.
+TEST(AlbedoTextureTest, ABackgroundBuildIsTakenByALaterFrame) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(160, 120);
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  o.albedo_texture.size = 1024;
+  o.albedo_texture.background = true;
+  ReenactmentPipeline pipeline(*test_model(), o);
+  int index = 0;
+  auto process = [&](float yaw) {
+    capture::RgbdFrame f;
+    f.index = index;
+    f.timestamp_s = index++ / 30.0;
+    f.camera = cam;
+    f.ground_truth.params = turned(yaw, 0.4f);
+    f.color = render_target(*f.ground_truth.params, cam);
+    EXPECT_TRUE(pipeline.Process(f, nullptr).reenacted);
+  };
+  for (float yaw : {3.f, 0.f, -20.f, -18.f, 20.f, 17.f, 1.f, 0.f, 0.f}) process(yaw);
+  // The ninth tracked frame started the build; frames go on until one takes it (at most 10 s).
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (pipeline.summary().albedo_texture_builds == 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    process(0.f);
+  }
+  const PipelineSummary s = pipeline.summary();
+  ASSERT_EQ(s.albedo_texture_builds, 1) << s.albedo_texture_note;
+  ASSERT_EQ(s.albedo_texture_views.size(), 3u);
+  EXPECT_EQ(s.albedo_texture_views[0].frame_index, 1);
+  EXPECT_GT(s.albedo_texture_ms, 0.0);
+  // A recalibration while nothing is in flight, and the pipeline's end with one in flight, are safe.
+  pipeline.RequestCalibration();
+  process(0.f);
 }
 
 // A layout of another model is refused, not read out of bounds.

@@ -1337,8 +1337,10 @@ AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const g
   const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
   gpu::RenderOptions ropt;
   ropt.parts = im.drawn_parts();
+  // The CPU rasteriser whatever options.renderer says: the unwrap may run beside the frame's own
+  // rendering (AlbedoTextureOptions::background), and the Vulkan renderer is not shared.
   gpu::GBuffer& g = Impl::scratch_gbuffer(1);
-  im.rasterize(state, params, camera, ropt, &g);
+  im.renderer.rasterize(state, camera, ropt, &g, im.threads());
   const cv::Rect roi = Impl::CoveredRect(g, 2);
   if (roi.empty()) return view;
   const cv::Mat boundary_px = im.BoundaryDistance(g, state, camera, roi);

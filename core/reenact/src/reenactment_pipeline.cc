@@ -4,7 +4,10 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <future>
 #include <sstream>
+
+#include <pthread.h>
 
 #include <opencv2/imgproc.hpp>
 
@@ -148,6 +151,15 @@ struct ReenactmentPipeline::Impl {
   int frames_without_face = 0;
   PipelineSummary summary;
   StageTimes time_sums;
+  // What a build made: the texture (and the layout, kept for the next), or why there is none.
+  struct BuildResult {
+    std::shared_ptr<const AlbedoTextureLayout> layout;
+    std::shared_ptr<const AlbedoTexture> texture;
+    std::string error;
+  };
+  // A background build of the albedo texture in flight (AlbedoTextureOptions::background). Last
+  // member: destroyed first, it waits for the build, which reads the compositor and the model.
+  std::future<BuildResult> texture_build;
 
   Impl(const FaceModel& m, const ReenactmentOptions& o)
       : model(m), options(o), compositor(m, o), view_chooser(o.albedo_texture), detail(m, o.detail) {
@@ -165,6 +177,8 @@ struct ReenactmentPipeline::Impl {
   }
 
   void ForgetActor() {
+    if (texture_build.valid()) texture_build.wait();  // its views are the actor's being forgotten
+    texture_build = {};
     albedo = AlbedoMap{};
     albedo_observations = 0;
     view_chooser.Reset();
@@ -177,46 +191,79 @@ struct ReenactmentPipeline::Impl {
 
   // Keeps this tracked frame when it is a better view for the albedo texture, and builds the
   // texture once the per-vertex map has its first observations (the texture is blended over it),
-  // again for a better view at most every kAlbedoTextureRebuildFrames. Returns the build's time.
+  // again for a better view at most every kAlbedoTextureRebuildFrames. With
+  // AlbedoTextureOptions::background the build runs on a thread of its own and a later frame
+  // takes the result. Returns the time spent on this thread.
   double UpdateAlbedoTexture(const cv::Mat& frame_bgr, const cv::Mat& depth, int64_t frame_index,
                              const gpu::PinholeCamera& camera, const gpu::FaceParameters& params) {
     if (options.albedo_texture.size <= 0) {
-      summary.albedo_texture_note = "off";
+      if (summary.albedo_texture_note.empty()) summary.albedo_texture_note = "off";
       return 0;
     }
+    const auto start = Clock::now();
+    if (texture_build.valid() && texture_build.wait_for(std::chrono::seconds(0)) == std::future_status::ready)
+      TakeAlbedoTexture(texture_build.get());
     const AlbedoViewChooser::Slot slot = view_chooser.Consider(params);
     if (slot != AlbedoViewChooser::kNone) {
       kept_views[slot] = KeptView{frame_bgr.clone(), depth.empty() ? cv::Mat() : depth.clone(), camera, params, frame_index};
       views_changed = true;
     }
-    if (!views_changed || albedo_observations < kDenseAlbedoFrames) return 0;
-    if (albedo.texture && tracked_frames - texture_built_at < kAlbedoTextureRebuildFrames) return 0;
-    const auto start = Clock::now();
-    try {
-      if (!texture_layout) texture_layout = AlbedoTextureLayout::ForModel(model, options.albedo_texture.size);
-      std::vector<AlbedoTextureView> views;
-      for (const KeptView& k : kept_views) {
-        if (k.bgr.empty()) continue;
-        AlbedoTextureView v = compositor.UnwrapAlbedo(k.bgr, k.camera, k.params, *texture_layout,
-                                                      k.depth.empty() ? nullptr : &k.depth);
-        v.frame_index = k.frame_index;
-        views.push_back(std::move(v));
-      }
-      albedo.texture = std::make_shared<const AlbedoTexture>(
-          BlendAlbedoViews(texture_layout, views, albedo.albedo, options.albedo_texture.blend_levels));
-      summary.albedo_texture_views = albedo.texture->views;
-      summary.albedo_texture_note.clear();
-    } catch (const Error& e) {
-      // A model without a UV layout, a bad view: the per-vertex map alone, and the report says why.
-      summary.albedo_texture_note = std::string("none: ") + e.what();
-      options.albedo_texture.size = 0;
-    }
+    if (!views_changed || albedo_observations < kDenseAlbedoFrames || texture_build.valid()) return ms_since(start);
+    if (albedo.texture && tracked_frames - texture_built_at < kAlbedoTextureRebuildFrames) return ms_since(start);
     views_changed = false;
     texture_built_at = tracked_frames;
-    const double ms = ms_since(start);
+    // The build reads copies (the kept frames are never written in place, a new view replaces
+    // its slot's Mat) and the compositor's const, CPU-only unwrap.
+    std::vector<KeptView> views;
+    for (const KeptView& k : kept_views)
+      if (!k.bgr.empty()) views.push_back(k);
+    auto build = [this, views = std::move(views), base = Eigen::VectorXf(albedo.albedo),
+                  size = options.albedo_texture.size, levels = options.albedo_texture.blend_levels,
+                  layout = texture_layout]() mutable -> BuildResult {
+      const auto t0 = Clock::now();
+      BuildResult r;
+      try {
+        if (!layout) layout = AlbedoTextureLayout::ForModel(model, size);
+        r.layout = layout;
+        std::vector<AlbedoTextureView> unwrapped;
+        for (const KeptView& k : views) {
+          AlbedoTextureView v =
+              compositor.UnwrapAlbedo(k.bgr, k.camera, k.params, *layout, k.depth.empty() ? nullptr : &k.depth);
+          v.frame_index = k.frame_index;
+          unwrapped.push_back(std::move(v));
+        }
+        auto texture = std::make_shared<AlbedoTexture>(BlendAlbedoViews(layout, unwrapped, base, levels));
+        texture->build_ms = ms_since(t0);
+        r.texture = std::move(texture);
+      } catch (const Error& e) {
+        r.error = e.what();
+      }
+      return r;
+    };
+    if (options.albedo_texture.background) {
+      texture_build = std::async(std::launch::async, [build = std::move(build)]() mutable {
+        pthread_setname_np(pthread_self(), "fr-albedo-tex");
+        return build();
+      });
+    } else {
+      TakeAlbedoTexture(build());
+    }
+    return ms_since(start);
+  }
+
+  void TakeAlbedoTexture(BuildResult r) {
+    if (r.layout) texture_layout = r.layout;
     ++summary.albedo_texture_builds;
-    summary.albedo_texture_ms = ms;
-    return ms;
+    if (!r.texture) {
+      // A model without a UV layout, a bad view: the per-vertex map alone, and the report says why.
+      summary.albedo_texture_note = "none: " + r.error;
+      options.albedo_texture.size = 0;
+      return;
+    }
+    summary.albedo_texture_ms = r.texture->build_ms;
+    summary.albedo_texture_views = r.texture->views;
+    summary.albedo_texture_note.clear();
+    albedo.texture = std::move(r.texture);
   }
 
   // Takes this tracked frame's open mouth as the interior when it is the one to keep
@@ -323,6 +370,9 @@ void ReenactmentPipeline::SetOptions(const ReenactmentOptions& options) {
                                options.tracker.calibration_frames != im.options.tracker.calibration_frames ||
                                options.tracker.solver != im.options.tracker.solver ||
                                options.tracker.solver_device != im.options.tracker.solver_device;
+  // A background build of the albedo texture reads the compositor's options: let it finish (a
+  // later frame takes its result).
+  if (im.texture_build.valid()) im.texture_build.wait();
   im.compositor.SetOptions(options);
   im.detail.SetOptions(options.detail);
   im.options = options;

@@ -116,7 +116,8 @@ class FaceCompositor {
   // where the frame does not show the point clearly (hidden, within
   // 2.5 px of an occluding boundary, grazing, clipped, badly lit, or an implausible colour: the
   // per-vertex map's rules, ObserveAlbedo) and rises towards cos^2 of the view angle. With
-  // `frame_depth`, only where the measured depth confirms the surface. Throws
+  // `frame_depth`, only where the measured depth confirms the surface. Rasterises on the CPU and
+  // changes nothing, so it may run on another thread beside Compose. Throws
   // face_reenact::Error on a bad camera or frame, or a layout of another model.
   AlbedoTextureView UnwrapAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
                                  const gpu::FaceParameters& params, const AlbedoTextureLayout& layout,
