@@ -32,6 +32,18 @@ gpu::FaceParameters turned(float yaw_deg, float distance = 0.5f) {
   return p;
 }
 
+// A target frame of the face turned by `yaw_deg`, with its ground truth (the pipeline's
+// use_ground_truth_target).
+capture::RgbdFrame frame_turned(float yaw_deg, int index, const gpu::PinholeCamera& cam) {
+  capture::RgbdFrame f;
+  f.index = index;
+  f.timestamp_s = index / 30.0;
+  f.camera = cam;
+  f.ground_truth.params = turned(yaw_deg, 0.4f);
+  f.color = render_target(*f.ground_truth.params, cam);
+  return f;
+}
+
 // The per-vertex map and the texture of one frame, as the pipeline makes them.
 AlbedoMap learn(const FaceCompositor& fc, const std::shared_ptr<const AlbedoTextureLayout>& layout,
                 const std::vector<std::pair<cv::Mat, gpu::FaceParameters>>& views, const gpu::PinholeCamera& cam) {
@@ -168,12 +180,7 @@ TEST(AlbedoTextureTest, HoldsTheDetailThePerVertexMapCannot) {
   ReenactmentOptions o;
   o.appearance = Appearance::kAlbedoMap;
   const FaceCompositor fc(*test_model(), o);
-  cv::Mat target = render_target(p, cam);
-  cv::Mat pattern(target.size(), CV_16SC3);
-  cv::RNG rng(7);
-  rng.fill(pattern, cv::RNG::UNIFORM, cv::Scalar::all(-18), cv::Scalar::all(19));
-  cv::Mat detailed;
-  cv::add(target, pattern, detailed, cv::noArray(), CV_8UC3);
+  const cv::Mat detailed = testing::with_fine_pattern(render_target(p, cam));
   const auto layout = AlbedoTextureLayout::ForModel(*test_model(), 2048);
   AlbedoMap with = learn(fc, layout, {{detailed, p}}, cam);
   AlbedoMap without = with;
@@ -290,13 +297,7 @@ TEST(AlbedoTextureTest, ThePipelineBuildsItFromAFrontAndTwoSideViews) {
     const float yaws[] = {3.f, 0.f, -20.f, -18.f, 20.f, 17.f, 1.f, 0.f, 0.f, 0.f};
     int index = 0;
     for (float yaw : yaws) {
-      capture::RgbdFrame f;
-      f.index = index;
-      f.timestamp_s = index++ / 30.0;
-      f.camera = cam;
-      f.ground_truth.params = turned(yaw, 0.4f);
-      f.color = render_target(*f.ground_truth.params, cam);
-      const ReenactedFrame r = pipeline.Process(f, nullptr);
+      const ReenactedFrame r = pipeline.Process(frame_turned(yaw, index++, cam), nullptr);
       EXPECT_TRUE(r.reenacted) << r.message;
     }
     return pipeline.summary();
@@ -325,15 +326,7 @@ TEST(AlbedoTextureTest, ABackgroundBuildIsTakenByALaterFrame) {
   o.albedo_texture.background = true;
   ReenactmentPipeline pipeline(*test_model(), o);
   int index = 0;
-  auto process = [&](float yaw) {
-    capture::RgbdFrame f;
-    f.index = index;
-    f.timestamp_s = index++ / 30.0;
-    f.camera = cam;
-    f.ground_truth.params = turned(yaw, 0.4f);
-    f.color = render_target(*f.ground_truth.params, cam);
-    EXPECT_TRUE(pipeline.Process(f, nullptr).reenacted);
-  };
+  auto process = [&](float yaw) { EXPECT_TRUE(pipeline.Process(frame_turned(yaw, index++, cam), nullptr).reenacted); };
   for (float yaw : {3.f, 0.f, -20.f, -18.f, 20.f, 17.f, 1.f, 0.f, 0.f}) process(yaw);
   // The ninth tracked frame started the build; frames go on until one takes it (at most 10 s).
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);

@@ -79,12 +79,7 @@ TEST(ReenactCompositorTest, FrameTextureKeepsDetailTheAlbedoMapCannotHold) {
   const FaceCompositor textured(*test_model(), o);
   o.appearance = Appearance::kAlbedoMap;
   const FaceCompositor smooth(*test_model(), o);
-  cv::Mat target = render_target(p, cam);
-  cv::Mat pattern(target.size(), CV_16SC3);
-  cv::RNG rng(7);
-  rng.fill(pattern, cv::RNG::UNIFORM, cv::Scalar::all(-18), cv::Scalar::all(19));
-  cv::Mat detailed;
-  cv::add(target, pattern, detailed, cv::noArray(), CV_8UC3);
+  const cv::Mat detailed = testing::with_fine_pattern(render_target(p, cam));
   AlbedoMap albedo;
   textured.ObserveAlbedo(detailed, cam, p, &albedo);
   const CompositeResult a = textured.Compose(detailed, cam, p, p, &albedo);

@@ -123,4 +123,15 @@ inline cv::Mat render_target(const gpu::FaceParameters& params, const gpu::Pinho
   return bgr;
 }
 
+// `image` with a per-pixel pattern of +-18 levels added (seeded): a stand-in for pores, stubble and
+// the camera's grain, finer than the mesh.
+inline cv::Mat with_fine_pattern(const cv::Mat& image, int seed = 7) {
+  cv::Mat pattern(image.size(), CV_16SC3);
+  cv::RNG rng(static_cast<uint64_t>(seed));
+  rng.fill(pattern, cv::RNG::UNIFORM, cv::Scalar::all(-18), cv::Scalar::all(19));
+  cv::Mat detailed;
+  cv::add(image, pattern, detailed, cv::noArray(), CV_8UC3);
+  return detailed;
+}
+
 }  // namespace face_reenact::reenact::testing
