@@ -270,7 +270,7 @@ std::shared_ptr<const AlbedoTextureLayout> AlbedoTextureLayout::ForModel(const F
   return layout;
 }
 
-bool AlbedoTexture::Sample(const Eigen::Vector2f& uv, Eigen::Vector3f* rgb) const {
+bool AlbedoTexture::Sample(const Eigen::Vector2f& uv, Eigen::Vector3f* rgb, float* seen_weight) const {
   if (empty() || !layout) return false;
   const Eigen::Vector2f x = layout->ToTexel(uv);
   if (!(x.x() >= 0.f) || !(x.y() >= 0.f) || x.x() > static_cast<float>(albedo.cols - 1) ||
@@ -280,6 +280,9 @@ bool AlbedoTexture::Sample(const Eigen::Vector2f& uv, Eigen::Vector3f* rgb) cons
   const cv::Vec3f a = albedo.at<cv::Vec3f>(s.j0, s.i0), b = albedo.at<cv::Vec3f>(s.j0, s.i1),
                   c = albedo.at<cv::Vec3f>(s.j1, s.i0), d = albedo.at<cv::Vec3f>(s.j1, s.i1);
   for (int ch = 0; ch < 3; ++ch) (*rgb)[ch] = s.mix(a[ch], b[ch], c[ch], d[ch]);
+  if (seen_weight)
+    *seen_weight = s.mix(seen.at<float>(s.j0, s.i0), seen.at<float>(s.j0, s.i1), seen.at<float>(s.j1, s.i0),
+                         seen.at<float>(s.j1, s.i1));
   return true;
 }
 

@@ -73,6 +73,9 @@ constexpr int kClippedLevel = 250;
 // greyer with them, with a light line along the lid margin. Such surface keeps what clearer views
 // gave it, or the colour of the skin around.
 constexpr float kAlbedoBoundaryClearancePx = 2.5f;
+// Under the frame texture, the albedo texture replaces the per-vertex map in full where its views'
+// summed weight reaches this (a view facing the surface at cos 0.45), in part below.
+constexpr float kTextureSeenForFull = 0.2f;
 
 // A light whose colour is that far from white (one channel's ambient under a quarter of another's,
 // or none at all) is the lighting fit making up for something else (on the webcam clip, as the
@@ -383,7 +386,8 @@ struct FaceCompositor::Impl {
   struct TextureShading {
     const AlbedoTexture* texture = nullptr;
     std::vector<Eigen::Vector3f> factor;  // per vertex
-    bool Colour(const FaceModel& model, const gpu::GBuffer& g, size_t p, Eigen::Vector3f* rgb) const {
+    bool Colour(const FaceModel& model, const gpu::GBuffer& g, size_t p, Eigen::Vector3f* rgb,
+                float* seen_weight = nullptr) const {
       const int32_t t = g.triangle[p];
       if (t < 0 || !texture->layout->textured[static_cast<size_t>(t)]) return false;
       Eigen::Vector2f uv = Eigen::Vector2f::Zero();
@@ -395,7 +399,7 @@ struct FaceCompositor::Impl {
         f += b * factor[static_cast<size_t>(g.vertices[3 * p + k])];
       }
       Eigen::Vector3f a;
-      if (!texture->Sample(uv, &a)) return false;
+      if (!texture->Sample(uv, &a, seen_weight)) return false;
       *rgb = a.cwiseProduct(f);
       return true;
     }
@@ -815,11 +819,16 @@ struct FaceCompositor::Impl {
         // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
         // take the balance.
         const bool balance = !(kMouthParts & part_bit(part));
+        // The texture as far as a view saw the surface (its unseen texels are the per-vertex map
+        // blurred by the blend's coarse levels: the map itself is the better fallback there).
         Eigen::Vector3f textured;
-        const bool from_texture = a < 1.0f && fallback_texture.texture && fallback_texture.Colour(model, *g, p, &textured);
+        float seen = 0.f;
+        const bool from_texture =
+            a < 1.0f && fallback_texture.texture && fallback_texture.Colour(model, *g, p, &textured, &seen);
+        const float texture_share = from_texture ? std::clamp(seen / kTextureSeenForFull, 0.0f, 1.0f) : 0.0f;
         for (int c = 0; c < 3; ++c) {
           float& col = g->color[3 * p + static_cast<size_t>(c)];
-          const float below = from_texture ? textured[c] : col;
+          const float below = texture_share * textured[c] + (1.0f - texture_share) * col;
           const float map = balance ? std::min(1.0f, below * gain[c]) : below;
           col = a * std::min(1.0f, t[c]) + (1.0f - a) * map;
         }

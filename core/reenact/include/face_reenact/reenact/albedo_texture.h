@@ -95,8 +95,9 @@ struct AlbedoTexture {
   std::vector<ViewInfo> views;
   double build_ms = 0;
   bool empty() const { return albedo.empty(); }
-  // Bilinear albedo at `uv` (linear RGB); false outside the layout's rectangle.
-  bool Sample(const Eigen::Vector2f& uv, Eigen::Vector3f* rgb) const;
+  // Bilinear albedo at `uv` (linear RGB) and, when asked, the views' summed weight there (`seen`);
+  // false outside the layout's rectangle.
+  bool Sample(const Eigen::Vector2f& uv, Eigen::Vector3f* rgb, float* seen_weight = nullptr) const;
 };
 
 // The texture of `views` (each over `layout`) blended per pyramid level (Burt and Adelson):
