@@ -143,13 +143,14 @@ std::string status_line(const LiveStatus& s, bool numbers) {
       line += " (" + s.pipeline_message + ")";  // a per-frame reason, with its measurements
     }
     // One request at a time, each gone by itself once done: the open mouth first (the teeth),
-    // then a turn to each side (the skin's texture), then a warning of the calibration.
+    // then a warning of the calibration (it shows in every frame until acted on), then a turn to
+    // each side (the skin's texture; a person who never turns keeps a fine picture).
     if (s.tracking == TrackingState::kTracking && s.wants_open_mouth)
       line += ": open your mouth wide once, facing the camera (for the teeth)";
-    else if (s.tracking == TrackingState::kTracking && s.wants_head_turn)
-      line += ": turn your head slowly to each side once (for the skin's texture)";
     else if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty())
       line += " (calibrated while the face was not at rest: calibrate again with a relaxed face)";
+    else if (s.tracking == TrackingState::kTracking && s.wants_head_turn)
+      line += ": turn your head slowly to each side once (for the skin's texture)";
   }
   bool stream = s.source_description.rfind("udp", 0) == 0;
   std::string what = stream ? "stream" : "source actor";
