@@ -1090,9 +1090,8 @@ void run_bench(const BenchArgs& a) {
     if (configs[k].texture) {
       const auto t0 = Clock::now();
       const auto layout = reenact::AlbedoTextureLayout::ForModel(model, o.albedo_texture.size);
-      const reenact::AlbedoTextureView view = runs[k].compositor->UnwrapAlbedo(background, cam, target, *layout);
-      runs[k].albedo.texture = std::make_shared<const reenact::AlbedoTexture>(
-          reenact::BlendAlbedoViews(layout, {view}, runs[k].albedo.albedo, o.albedo_texture.blend_levels));
+      runs[k].albedo.texture = std::make_shared<const reenact::AlbedoTexture>(runs[k].compositor->BuildAlbedoTexture(
+          {{background, cv::Mat(), cam, target, 0}}, layout, runs[k].albedo.albedo, o.albedo_texture.blend_levels));
       runs[k].texture_build_ms = ms_since(t0);
     }
   }

@@ -49,9 +49,9 @@ AlbedoMap learn(const FaceCompositor& fc, const std::shared_ptr<const AlbedoText
                 const std::vector<std::pair<cv::Mat, gpu::FaceParameters>>& views, const gpu::PinholeCamera& cam) {
   AlbedoMap map;
   for (const auto& [frame, p] : views) fc.ObserveAlbedo(frame, cam, p, &map);
-  std::vector<AlbedoTextureView> unwrapped;
-  for (const auto& [frame, p] : views) unwrapped.push_back(fc.UnwrapAlbedo(frame, cam, p, *layout));
-  map.texture = std::make_shared<const AlbedoTexture>(BlendAlbedoViews(layout, unwrapped, map.albedo, 5));
+  std::vector<FaceCompositor::AlbedoTextureFrame> frames;
+  for (const auto& [frame, p] : views) frames.push_back({frame, cv::Mat(), cam, p, -1});
+  map.texture = std::make_shared<const AlbedoTexture>(fc.BuildAlbedoTexture(frames, layout, map.albedo, 5));
   return map;
 }
 

@@ -1,7 +1,6 @@
 #include "face_reenact/reenact/albedo_texture.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <map>
@@ -18,8 +17,6 @@
 
 namespace face_reenact::reenact {
 namespace {
-
-using Clock = std::chrono::steady_clock;
 
 // Smallest pyramid level side the blend goes down to.
 constexpr int kMinLevelSide = 8;
@@ -61,24 +58,6 @@ float closest_on_segment(const Eigen::Vector2f& a, const Eigen::Vector2f& b, con
   return len2 > 0.f ? std::clamp((p - a).dot(ab) / len2, 0.0f, 1.0f) : 0.f;
 }
 
-// The Laplacian pyramid of `image` over `levels` levels (the last one the coarse residual).
-std::vector<cv::Mat> laplacian_pyramid(const cv::Mat& image, int levels) {
-  std::vector<cv::Mat> gauss{image};
-  for (int l = 1; l < levels; ++l) {
-    cv::Mat down;
-    cv::pyrDown(gauss.back(), down);
-    gauss.push_back(down);
-  }
-  std::vector<cv::Mat> lap(static_cast<size_t>(levels));
-  for (int l = 0; l + 1 < levels; ++l) {
-    cv::Mat up;
-    cv::pyrUp(gauss[static_cast<size_t>(l) + 1], up, gauss[static_cast<size_t>(l)].size());
-    lap[static_cast<size_t>(l)] = gauss[static_cast<size_t>(l)] - up;
-  }
-  lap.back() = gauss.back();
-  return lap;
-}
-
 std::vector<cv::Mat> gaussian_pyramid(const cv::Mat& image, int levels) {
   std::vector<cv::Mat> gauss{image};
   for (int l = 1; l < levels; ++l) {
@@ -87,6 +66,19 @@ std::vector<cv::Mat> gaussian_pyramid(const cv::Mat& image, int levels) {
     gauss.push_back(down);
   }
   return gauss;
+}
+
+// The Laplacian pyramid of `image` over `levels` levels (the last one the coarse residual).
+std::vector<cv::Mat> laplacian_pyramid(const cv::Mat& image, int levels) {
+  const std::vector<cv::Mat> gauss = gaussian_pyramid(image, levels);
+  std::vector<cv::Mat> lap(static_cast<size_t>(levels));
+  for (int l = 0; l + 1 < levels; ++l) {
+    cv::Mat up;
+    cv::pyrUp(gauss[static_cast<size_t>(l) + 1], up, gauss[static_cast<size_t>(l)].size());
+    lap[static_cast<size_t>(l)] = gauss[static_cast<size_t>(l)] - up;
+  }
+  lap.back() = gauss.back();
+  return lap;
 }
 
 // `image` (CV_32FC3) where `mask` (CV_32FC1, 0..1) is 0 filled smoothly from where it is not
@@ -289,7 +281,6 @@ bool AlbedoTexture::Sample(const Eigen::Vector2f& uv, Eigen::Vector3f* rgb, floa
 AlbedoTexture BlendAlbedoViews(std::shared_ptr<const AlbedoTextureLayout> layout,
                                const std::vector<AlbedoTextureView>& views, const Eigen::VectorXf& base_albedo,
                                int levels) {
-  const auto start = Clock::now();
   if (!layout || layout->texels() == 0) throw Error("albedo texture: no layout");
   const AlbedoTextureLayout& L = *layout;
   const cv::Size size(L.width, L.height);
@@ -317,8 +308,8 @@ AlbedoTexture BlendAlbedoViews(std::shared_ptr<const AlbedoTextureLayout> layout
   int lv = std::max(1, levels);
   while (lv > 1 && std::min(L.width, L.height) >> (lv - 1) < kMinLevelSide) --lv;
 
-  // Each view's image: its albedo where it sees, the base elsewhere (so its pyramid has no edge
-  // where its view ends); its weight, and the base's.
+  // Each view's image: its albedo where it sees, filled smoothly elsewhere (fill_holes, so its
+  // pyramid has no edge where its view ends); its weight, and the base's.
   std::vector<std::vector<cv::Mat>> lap, wgt;
   lap.push_back(laplacian_pyramid(base, lv));
   wgt.push_back(gaussian_pyramid(assigned * kBaseWeight, lv));
@@ -360,7 +351,6 @@ AlbedoTexture BlendAlbedoViews(std::shared_ptr<const AlbedoTextureLayout> layout
     result = up + blended[static_cast<size_t>(l)];
   }
   cv::min(cv::max(result, 0.0), 1.0, out.albedo);
-  out.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   return out;
 }
 

@@ -503,8 +503,7 @@ struct FaceCompositor::Impl {
   // shown when the target's own G-buffer at its projection lies at its depth. Other pixels keep
   // the albedo map: `fallback_texture`'s colour where it covers the surface (the texture is looked
   // up only where some of the map shows), else g->color. `e_out`: the output's per-vertex
-  // irradiance (uncapped), as
-  // Compose computed it for the shading. `mouth_redraw`: how much of the mouth opening the
+  // irradiance (uncapped), as Compose computed it for the shading. `mouth_redraw`: how much of the mouth opening the
   // mouth pass will replace (0..1). `shown` (optional): set to the frame's trust in its own sample
   // at each drawn pixel (0..1; 0 where the frame does not show the surface), frame-sized, CV_32FC1.
   //
@@ -1324,6 +1323,22 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   }
   if (brightest.minCoeff() > 0.f) map->max_irradiance = brightest;
   im.FillUnobserved(model_albedo, map);
+}
+
+AlbedoTexture FaceCompositor::BuildAlbedoTexture(const std::vector<AlbedoTextureFrame>& frames,
+                                                 std::shared_ptr<const AlbedoTextureLayout> layout,
+                                                 const Eigen::VectorXf& base_albedo, int levels) const {
+  const auto start = Clock::now();
+  if (!layout) throw Error("albedo texture: no layout");
+  std::vector<AlbedoTextureView> views;
+  for (const AlbedoTextureFrame& f : frames) {
+    AlbedoTextureView v = UnwrapAlbedo(f.bgr, f.camera, f.params, *layout, f.depth.empty() ? nullptr : &f.depth);
+    v.frame_index = f.frame_index;
+    views.push_back(std::move(v));
+  }
+  AlbedoTexture texture = BlendAlbedoViews(std::move(layout), views, base_albedo, levels);
+  texture.build_ms = ms_since(start);
+  return texture;
 }
 
 AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,

@@ -134,12 +134,7 @@ struct ReenactmentPipeline::Impl {
   AlbedoMap albedo;
   int albedo_observations = 0;
   // The albedo texture's views (AlbedoViewChooser's slots): the frames kept until the next build.
-  struct KeptView {
-    cv::Mat bgr, depth;
-    gpu::PinholeCamera camera;
-    gpu::FaceParameters params;
-    int64_t frame_index = -1;
-  };
+  using KeptView = FaceCompositor::AlbedoTextureFrame;
   std::shared_ptr<const AlbedoTextureLayout> texture_layout;
   AlbedoViewChooser view_chooser;
   KeptView kept_views[3];
@@ -220,21 +215,11 @@ struct ReenactmentPipeline::Impl {
     auto build = [this, views = std::move(views), base = Eigen::VectorXf(albedo.albedo),
                   size = options.albedo_texture.size, levels = options.albedo_texture.blend_levels,
                   layout = texture_layout]() mutable -> BuildResult {
-      const auto t0 = Clock::now();
       BuildResult r;
       try {
         if (!layout) layout = AlbedoTextureLayout::ForModel(model, size);
         r.layout = layout;
-        std::vector<AlbedoTextureView> unwrapped;
-        for (const KeptView& k : views) {
-          AlbedoTextureView v =
-              compositor.UnwrapAlbedo(k.bgr, k.camera, k.params, *layout, k.depth.empty() ? nullptr : &k.depth);
-          v.frame_index = k.frame_index;
-          unwrapped.push_back(std::move(v));
-        }
-        auto texture = std::make_shared<AlbedoTexture>(BlendAlbedoViews(layout, unwrapped, base, levels));
-        texture->build_ms = ms_since(t0);
-        r.texture = std::move(texture);
+        r.texture = std::make_shared<const AlbedoTexture>(compositor.BuildAlbedoTexture(views, layout, base, levels));
       } catch (const Error& e) {
         r.error = e.what();
       }

@@ -93,7 +93,7 @@ struct AlbedoTexture {
     int seen_texels = 0;
   };
   std::vector<ViewInfo> views;
-  double build_ms = 0;
+  double build_ms = 0;  // the views' unwraps and the blend (FaceCompositor::BuildAlbedoTexture)
   bool empty() const { return albedo.empty(); }
   // Bilinear albedo at `uv` (linear RGB) and, when asked, the views' summed weight there (`seen`);
   // false outside the layout's rectangle.

@@ -123,6 +123,19 @@ class FaceCompositor {
                                  const gpu::FaceParameters& params, const AlbedoTextureLayout& layout,
                                  const cv::Mat* frame_depth = nullptr) const;
 
+  // One frame the albedo texture is built from: the frame, its depth (may be empty), its fit.
+  struct AlbedoTextureFrame {
+    cv::Mat bgr, depth;
+    gpu::PinholeCamera camera;
+    gpu::FaceParameters params;
+    int64_t frame_index = -1;
+  };
+  // The albedo texture of `frames` over `layout`: each unwrapped (UnwrapAlbedo), blended over the
+  // per-vertex `base_albedo` (BlendAlbedoViews); build_ms is the whole. Thread-safe as UnwrapAlbedo.
+  AlbedoTexture BuildAlbedoTexture(const std::vector<AlbedoTextureFrame>& frames,
+                                   std::shared_ptr<const AlbedoTextureLayout> layout,
+                                   const Eigen::VectorXf& base_albedo, int levels) const;
+
   const FaceModel& model() const;
   // "cpu", "vulkan (<device>)", or "cpu (Vulkan unavailable: <why>)" after a failed open.
   std::string renderer_description() const;
