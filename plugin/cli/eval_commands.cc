@@ -180,6 +180,11 @@ struct EvalBindingsArgs {
   double fov_deg = 60.0;
   double radius_mm = 25.0;
   bool all_inner_landmarks = false, brow_landmarks = false;
+  // Each frame fitted alone as `eval fit` fits a photo (PhotoFitter: every inner point, the brows,
+  // the jaw on the contour), every `every`-th frame: the bindings the yardstick's fit needs,
+  // measured on frames that are not its photos.
+  bool photo_fit = false;
+  int every = 1;
 };
 
 // "17-29,31" -> {17, ..., 29, 31}.
@@ -213,6 +218,14 @@ void run_eval_bindings(const EvalBindingsArgs& a) {
   so.points = parse_points(a.points);
   so.radius_m = a.radius_mm / 1000.0;
   tracker::LandmarkBindingSearch search(model, face_model.mirror_vertex, so);
+  std::unique_ptr<tracker::PhotoFitter> photo_fitter;
+  std::unique_ptr<lm::LandmarkDetector> detector;
+  if (a.photo_fit) {
+    tracker::PhotoFitOptions po;
+    po.horizontal_fov_deg = a.fov_deg;
+    photo_fitter = std::make_unique<tracker::PhotoFitter>(model, po);
+    detector = std::make_unique<lm::LandmarkDetector>(lm::DetectorOptions{});
+  }
   for (const std::string& input : a.inputs) {
     capture::VideoReader::Options vo;
     vo.horizontal_fov_deg = a.fov_deg;
@@ -228,6 +241,13 @@ void run_eval_bindings(const EvalBindingsArgs& a) {
     int read = 0, used = 0;
     while ((a.frames <= 0 || read < a.frames) && source->read_next(&frame)) {
       ++read;
+      if (photo_fitter) {
+        if ((read - 1) % a.every != 0) continue;
+        const tracker::PhotoFit fit = photo_fitter->Fit(frame.color, detector.get());
+        if (!fit.ok || !fit.tracked.agreement.agrees() || !fit.tracked.agreement.landmark_warning.empty()) continue;
+        used += search.Add(fit.params, fit.camera, tracker::DetectedLandmarks(fit.detected, 1.0f));
+        continue;
+      }
       const tracker::InputFrame in = rgbd.Convert(frame);
       const tracker::TrackedFrame t = tracker.Track(in);
       const bool fit = tracker::tracking_status_has_fit(t.status);
@@ -294,6 +314,9 @@ void add_eval(CLI::App& app) {
   bind->add_flag("--all-inner-landmarks", bargs->all_inner_landmarks, "track with the eye points and the nose base too");
   bind->add_flag("--brow-landmarks", bargs->brow_landmarks,
                  "track with the brows too (not for searching the brows themselves: the fit would hold them where they are bound)");
+  bind->add_flag("--photo-fit", bargs->photo_fit,
+                 "fit each frame alone as `eval fit` fits a photo (every inner point, the brows, the jaw on the contour) instead of tracking");
+  bind->add_option("--every", bargs->every, "with --photo-fit: every N-th frame (default 1)")->check(CLI::Range(1, 10000));
   bind->add_option("--model", bargs->model, "face model file (default: the installed/generated face-model.frm)");
   bind->callback([bargs] { run_eval_bindings(*bargs); });
 }

@@ -265,6 +265,18 @@ TEST(EvalBindingsCli, MeasuresTheBindingsOnAVideoAndRefusesBadPoints) {
   for (const auto& p : report["points"]) {
     EXPECT_LE(p["best_error"].get<double>(), p["current_error"].get<double>() + 1e-12) << p.dump();
   }
+  // Each frame fitted alone as `eval fit` fits a photo: every third of six frames.
+  const SubprocessResult zero = run_subprocess({cli(), "eval", "bindings", "--input", video, "--photo-fit", "--every", "0"});
+  EXPECT_NE(zero.exit_code, 0) << zero.output;
+  EXPECT_NE(zero.output.find("--every"), std::string::npos) << zero.output;
+  const SubprocessResult photo = run_subprocess({cli(), "eval", "bindings", "--input", video, "--photo-fit", "--every",
+                                                 "3", "--frames", "6", "--points", "36,45", "--out", json});
+  ASSERT_EQ(photo.exit_code, 0) << photo.output;
+  std::ifstream photo_in(json);
+  const nlohmann::json photo_report = nlohmann::json::parse(photo_in);
+  EXPECT_GT(photo_report["frames"].get<int>(), 0);
+  EXPECT_LE(photo_report["frames"].get<int>(), 2);
+  ASSERT_EQ(photo_report["points"].size(), 2u);
 }
 
 TEST(PhotoFitOptions, RefuseWhatIsNotOnePhoto) {
@@ -350,8 +362,19 @@ TEST(EvaluateFitOnAnnotatedPhotos, SaysWhatIsWrongWithEachBadPhotoAndGoesOn) {
   EXPECT_LT(takeo->fit.jaw, 0.11);
   EXPECT_LT(takeo->fit.all, 0.065);
   EXPECT_LT(takeo->pose_disagreement_deg, 15.0);
+  // The points it scored are in the entry (and the report), so a binding's systematic offset
+  // can be told from a miss of the model's reach.
+  const landmarks::Shape68 truth = landmarks::read_pts((fs::path(folder.dir.path()) / "takeo.pts").string());
+  EXPECT_NEAR(MeasureShapeErrors(takeo->fit_points, truth).all, takeo->fit.all, 1e-9);
+  EXPECT_NEAR(MeasureShapeErrors(takeo->detector_points, truth).inner, takeo->detector.inner, 1e-9);
   const nlohmann::json j = r.ToJson();
   EXPECT_EQ(j["scored"], 1);
+  for (const auto& e : j["per_image"]) {
+    if (e["status"] != "fitted") continue;
+    ASSERT_EQ(e["fit_points"].size(), 68u);
+    EXPECT_NEAR(e["fit_points"][30][0].get<double>(), takeo->fit_points[30].x(), 1e-3);
+    EXPECT_EQ(e["detector_points"].size(), 68u);
+  }
   EXPECT_TRUE(j["fit_nme"]["inner"]["mean"].is_number());
   EXPECT_EQ(j["fit_nme_per_point_mean"].size(), 68u);
 }

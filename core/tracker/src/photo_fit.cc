@@ -180,6 +180,13 @@ nlohmann::json FitEvalReport::ToJson() const {
       p["euler_deg"] = {e.euler_deg.x(), e.euler_deg.y(), e.euler_deg.z()};
       p["expression"] = std::vector<float>(e.expression.data(), e.expression.data() + e.expression.size());
       p["pose_disagreement_deg"] = json_number(e.pose_disagreement_deg);
+      auto points_json = [](const landmarks::Shape68& s) {
+        nlohmann::json a = nlohmann::json::array();
+        for (const auto& q : s) a.push_back({q.x(), q.y()});
+        return a;
+      };
+      p["detector_points"] = points_json(e.detector_points);
+      p["fit_points"] = points_json(e.fit_points);
     }
     p["detect_ms"] = e.detect_ms;
     p["fit_ms"] = e.fit_ms;
@@ -242,6 +249,8 @@ FitEvalReport EvaluateFitOnAnnotatedPhotos(const std::string& folder, PhotoFitte
         e.euler_deg = fit.params.euler.cast<double>() * (180.0 / M_PI);
         e.expression = fit.params.delta;
         e.pose_disagreement_deg = fit.tracked.agreement.pose_disagreement_deg;
+        e.detector_points = fit.detected.points;
+        e.fit_points = fit.fitted.points;
         ++report.scored;
         det_all.push_back(e.detector.all);
         det_inner.push_back(e.detector.inner);

@@ -112,6 +112,9 @@ struct FitEvalImage {
   Eigen::Vector3d euler_deg = Eigen::Vector3d::Zero();  // the fitted head rotation (FaceParameters::euler)
   Eigen::VectorXf expression;  // the fitted blendshape weights (FaceParameters::delta)
   double pose_disagreement_deg = FitAgreement::kNaN;  // fit_agreement.h's, against the detector's points
+  // The 68 points in pixels (scored images): where the detector and the fit put each, so a
+  // binding's systematic offset can be told from a miss of the model's reach.
+  landmarks::Shape68 detector_points{}, fit_points{};
   double detect_ms = 0, fit_ms = 0;
 };
 
