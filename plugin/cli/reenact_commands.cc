@@ -353,10 +353,12 @@ void run_reenact(const ReenactArgs& a) {
   ro.tracker.focal_length.estimate = estimate_focal_length(a.camera, target->info());
   reenact::ReenactmentPipeline pipeline(model, ro);
   std::unique_ptr<TrackedSource> source_tracker;
+  std::unique_ptr<NamedThread> source_thread;  // the source's tracking, beside the target's
   if (source_rec) {
     tracker::TrackerOptions so = ro.tracker;
     so.focal_length.estimate = estimate_focal_length(a.camera, source_rec->info());
     source_tracker = std::make_unique<TrackedSource>(model, so, ro.input);
+    source_thread = std::make_unique<NamedThread>("fr-source-track");
   }
   SourceByTime source_by_time(source_rec.get());
 
@@ -425,9 +427,9 @@ void run_reenact(const ReenactArgs& a) {
           source_tracker->tracker->RequestCalibration();
           source_rest_requested = true;
         }
-        // The two actors' trackers are independent: the source's runs on a thread of its own
-        // while this one tracks the target (the render needs both), so both cores work.
-        st = RunBeside("fr-source-track", [&] { return source_tracker->Track(sf); },
+        // The two actors' trackers are independent: the source's runs on a kept thread of its
+        // own while this one tracks the target (the render needs both), so both cores work.
+        st = RunBeside(*source_thread, [&] { return source_tracker->Track(sf); },
                        [&] { tracked_target = pipeline.Track(tf); });
         ++source_statuses[tracker::tracking_status_name(st.status)];
       }

@@ -1,15 +1,22 @@
 // ParallelFor: every item runs exactly once on any thread count, exceptions reach the caller,
-// and calls from inside items (nested) or from several threads at once finish.
+// and calls from inside items (nested) or from several threads at once finish. NamedThread and
+// RunBeside: one kept, named thread for work handed over again and again.
 #include "face_reenact/common/parallel.h"
 
 #include <gtest/gtest.h>
+#include <pthread.h>
 
 #include <atomic>
-#include <set>
+#include <chrono>
+#include <future>
 #include <mutex>
+#include <set>
 #include <stdexcept>
+#include <string>
 #include <thread>
 #include <vector>
+
+#include "face_reenact/common/thread_cpu.h"
 
 namespace face_reenact {
 namespace {
@@ -72,6 +79,107 @@ TEST(ParallelFor, CallsFromSeveralThreadsAtOnceFinish) {
   }
   for (auto& t : callers) t.join();
   EXPECT_EQ(sum.load(), 4L * 200 * (15 * 16 / 2));
+}
+
+}  // namespace
+}  // namespace face_reenact
+
+namespace face_reenact {
+namespace {
+
+std::string current_thread_name() {
+  char name[16] = {};
+  pthread_getname_np(pthread_self(), name, sizeof name);
+  return name;
+}
+
+int threads_named(const std::string& name) {
+  int n = 0;
+  for (const ThreadInfo& t : ProcessThreads()) n += t.name == name;
+  return n;
+}
+
+// The kept thread has its name from the moment it exists (a thread started per job carried its
+// creator's name until it renamed itself, which a per-thread CPU table could catch), runs every
+// job on that one thread in the order given, and hands results and exceptions back.
+TEST(NamedThread, IsNamedBeforeItIsSeenAndRunsEveryJobInOrder) {
+  std::thread::id kept;
+  {
+    NamedThread worker("fr-test-kept");
+    EXPECT_EQ(threads_named("fr-test-kept"), 1);
+    std::vector<int> order;
+    std::vector<std::future<int>> results;
+    for (int k = 0; k < 20; ++k) {
+      results.push_back(worker.Submit([&order, &kept, k] {
+        EXPECT_EQ(current_thread_name(), "fr-test-kept");
+        if (k == 0) kept = std::this_thread::get_id();
+        EXPECT_EQ(std::this_thread::get_id(), kept);
+        order.push_back(k);
+        return k * k;
+      }));
+    }
+    for (int k = 0; k < 20; ++k) EXPECT_EQ(results[static_cast<size_t>(k)].get(), k * k);
+    for (int k = 0; k < 20; ++k) EXPECT_EQ(order[static_cast<size_t>(k)], k);
+    auto failed = worker.Submit([]() -> int { throw std::runtime_error("job failed"); });
+    EXPECT_THROW(failed.get(), std::runtime_error);
+    EXPECT_EQ(worker.Submit([] { return 7; }).get(), 7);  // still serving after a failure
+  }
+  EXPECT_EQ(threads_named("fr-test-kept"), 0);  // joined
+  EXPECT_NE(kept, std::this_thread::get_id());
+}
+
+// Destroyed with jobs still queued, it runs them before it joins: a job may hold the only copy of
+// work whose owner waits for it elsewhere (the albedo texture's build).
+TEST(NamedThread, RunsTheJobsAlreadySubmittedBeforeItJoins) {
+  std::atomic<int> ran{0};
+  {
+    NamedThread worker("fr-test-drain");
+    for (int k = 0; k < 5; ++k) {
+      worker.Submit([&ran] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        ran.fetch_add(1);
+      });
+    }
+  }
+  EXPECT_EQ(ran.load(), 5);
+}
+
+// Both halves run at once (each waits for the other to start), the kept thread serves every
+// step, and an exception from the caller's half waits for the other half first.
+TEST(RunBeside, RunsBothHalvesAtOnceOnTheKeptThread) {
+  NamedThread beside("fr-test-beside");
+  std::set<std::thread::id> beside_ids;
+  for (int step = 0; step < 10; ++step) {
+    std::atomic<int> started{0};
+    double waited = -1;
+    const int r = RunBeside(
+        beside,
+        [&] {
+          started.fetch_add(1);
+          while (started.load() < 2) std::this_thread::yield();
+          beside_ids.insert(std::this_thread::get_id());
+          return step;
+        },
+        [&] {
+          started.fetch_add(1);
+          while (started.load() < 2) std::this_thread::yield();
+        },
+        &waited);
+    EXPECT_EQ(r, step);
+    EXPECT_GE(waited, 0.0);
+  }
+  EXPECT_EQ(beside_ids.size(), 1u);
+  std::atomic<bool> beside_done{false};
+  EXPECT_THROW(RunBeside(
+                   beside,
+                   [&] {
+                     std::this_thread::sleep_for(std::chrono::milliseconds(20));
+                     beside_done = true;
+                     return 0;
+                   },
+                   [] { throw std::runtime_error("here failed"); }),
+               std::runtime_error);
+  EXPECT_TRUE(beside_done.load());
 }
 
 }  // namespace

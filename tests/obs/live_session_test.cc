@@ -701,6 +701,7 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
   REQUIRE_RECORDING(dir);
   const char* model = std::getenv("FR_MODEL");
   int before = test::count_threads_with_prefix("fr-live");
+  const int actor_threads_before = test::count_threads_with_prefix("fr-actor-fit");
   LiveSession::Options o;
   o.target = dir;
   o.source = dir;  // the same recording as the source actor
@@ -713,6 +714,8 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
     LiveStatus s = wait_status(session, 30s, [](const LiveStatus& st) { return st.pipeline_ready && st.frames_out > 3; });
     // Worker, target, actor (the pipeline's loading thread has ended).
     EXPECT_EQ(test::settled_thread_count("fr-live", before + 3), before + 3);
+    // The actor's fit runs beside the target's on one kept thread, not one per frame.
+    EXPECT_EQ(test::count_threads_with_prefix("fr-actor-fit"), actor_threads_before + 1);
     EXPECT_EQ(s.source_description, "recording '" + dir + "'");
     // A 160x120 face is too small for the landmark detector: the actor is waiting (no face
     // tracked yet) or, if it was tracked, live; never "none" or an error.
@@ -726,6 +729,7 @@ TEST(LiveSessionActorTest, RecordedSourceActorRunsItsOwnCaptureAndIsReported) {
       EXPECT_NE(s.Headline().find("source actor"), std::string::npos) << s.Headline();
   }
   EXPECT_EQ(test::count_threads_with_prefix("fr-live"), before);
+  EXPECT_EQ(test::count_threads_with_prefix("fr-actor-fit"), actor_threads_before);
 }
 
 TEST(FrameGrabberTest, InvalidOptionsThrowAndStatusesDescribeTheInput) {

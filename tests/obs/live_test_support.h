@@ -153,10 +153,11 @@ inline int count_threads_with_prefix(const std::string& prefix) {
 }
 
 // The count of threads with `prefix` once it is `expected`, or the last count after `timeout`.
-// A thread the session starts for one frame (RunBeside's "fr-actor-fit") carries its creator's
-// name ("fr-live") until it has run far enough to rename itself: on a loaded machine a count taken
-// at that moment saw one thread too many (the clean-clone suite, 2026-11-28). A thread that stays
-// is still counted every time.
+// A thread that is ending or starting about now (the pipeline's loading thread, "fr-live-load",
+// ends once the model is loaded) may be counted or not at any one moment; a thread that stays is
+// counted every time. (Until 2026-11-29 the actor's fit ran on a thread started per frame that
+// carried its creator's name, "fr-live", until it renamed itself: the clean-clone suite once saw
+// one thread too many. It is a kept NamedThread now, named before it is seen.)
 inline int settled_thread_count(const std::string& prefix, int expected,
                                 std::chrono::milliseconds timeout = std::chrono::seconds(5)) {
   const auto end = std::chrono::steady_clock::now() + timeout;

@@ -7,6 +7,9 @@
 #include <condition_variable>
 #include <deque>
 #include <exception>
+#include <future>
+#include <memory>
+#include <string>
 #include <mutex>
 #include <system_error>
 #include <thread>
@@ -120,6 +123,48 @@ void ParallelFor(int count, int threads, const std::function<void(int item)>& it
   }
   for (const auto& f : failures) {
     if (f) std::rethrow_exception(f);
+  }
+}
+
+NamedThread::NamedThread(std::string name) : name_(std::move(name)) {
+  // Shared, since the thread may still be inside set_value when the wait below returns.
+  auto named = std::make_shared<std::promise<void>>();
+  std::future<void> ready = named->get_future();
+  thread_ = std::thread([this, named] {
+    pthread_setname_np(pthread_self(), name_.substr(0, 15).c_str());
+    named->set_value();
+    Loop();
+  });
+  ready.wait();
+}
+
+NamedThread::~NamedThread() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+  }
+  wake_.notify_one();
+  thread_.join();
+}
+
+void NamedThread::Post(std::function<void()> job) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    jobs_.push_back(std::move(job));
+  }
+  wake_.notify_one();
+}
+
+void NamedThread::Loop() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  for (;;) {
+    wake_.wait(lock, [&] { return stopping_ || !jobs_.empty(); });
+    if (jobs_.empty()) return;  // stopping, every submitted job run
+    std::function<void()> job = std::move(jobs_.front());
+    jobs_.pop_front();
+    lock.unlock();
+    job();  // a packaged task: its exception goes to its future
+    lock.lock();
   }
 }
 

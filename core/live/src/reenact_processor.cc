@@ -82,6 +82,7 @@ class ReenactProcessor : public FrameProcessor {
       reenact::ReenactmentOptions actor_options = options;
       actor_options.mode = reenact::ReenactMode::kOff;
       actor_ = std::make_unique<reenact::ReenactmentPipeline>(model_, actor_options);
+      actor_thread_ = std::make_unique<NamedThread>("fr-actor-fit");
     }
   }
 
@@ -100,13 +101,13 @@ class ReenactProcessor : public FrameProcessor {
                                      ActorOutcome* actor_out) override {
     auto staged = std::make_unique<Staged>();
     ActorOutcome actor_outcome;
-    // The source actor's tracker is independent of the target's: it runs on a thread of its own
-    // while the target is tracked (both cores work; `reenact` does the same), and the frame waits
+    // The source actor's tracker is independent of the target's: it runs on a kept thread of its
+    // own while the target is tracked (both cores work; `reenact` does the same), and the frame waits
     // for it only where it takes longer (ActorOutcome::ms).
     std::optional<reenact::ReenactedFrame> actor_result;
     auto track_target = [&] { staged->target = target_->Track(target); };
     if (actor_ && input.actor_frame) {
-      actor_result = RunBeside("fr-actor-fit", [&] { return actor_->Process(*input.actor_frame, nullptr); },
+      actor_result = RunBeside(*actor_thread_, [&] { return actor_->Process(*input.actor_frame, nullptr); },
                                track_target, &actor_outcome.ms);
     } else {
       track_target();
@@ -179,6 +180,7 @@ class ReenactProcessor : public FrameProcessor {
   FaceModel model_;  // outlives the pipelines (declared first)
   std::unique_ptr<reenact::ReenactmentPipeline> target_;
   std::unique_ptr<reenact::ReenactmentPipeline> actor_;
+  std::unique_ptr<NamedThread> actor_thread_;  // the actor's fit, beside the target's (after actor_: joins first)
   reenact::SourceExpression actor_expression_;
   bool have_actor_expression_ = false;
 };

@@ -7,11 +7,10 @@
 #include <future>
 #include <sstream>
 
-#include <pthread.h>
-
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/common/srgb.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/model/face_model.h"
@@ -152,9 +151,11 @@ struct ReenactmentPipeline::Impl {
     std::shared_ptr<const AlbedoTexture> texture;
     std::string error;
   };
-  // A background build of the albedo texture in flight (AlbedoTextureOptions::background). Last
-  // member: destroyed first, it waits for the build, which reads the compositor and the model.
+  // A background build of the albedo texture in flight (AlbedoTextureOptions::background), on a
+  // kept thread started with the first. The thread is the last member: destroyed first, it
+  // finishes the build, which reads the compositor and the model.
   std::future<BuildResult> texture_build;
+  std::unique_ptr<NamedThread> texture_thread;
 
   Impl(const FaceModel& m, const ReenactmentOptions& o)
       : model(m), options(o), compositor(m, o), view_chooser(o.albedo_texture), detail(m, o.detail) {
@@ -226,10 +227,8 @@ struct ReenactmentPipeline::Impl {
       return r;
     };
     if (options.albedo_texture.background) {
-      texture_build = std::async(std::launch::async, [build = std::move(build)]() mutable {
-        pthread_setname_np(pthread_self(), "fr-albedo-tex");
-        return build();
-      });
+      if (!texture_thread) texture_thread = std::make_unique<NamedThread>("fr-albedo-tex");
+      texture_build = texture_thread->Submit(std::move(build));
     } else {
       TakeAlbedoTexture(build());
     }

@@ -10,8 +10,15 @@
 #include <pthread.h>
 
 #include <chrono>
+#include <condition_variable>
+#include <deque>
 #include <functional>
 #include <future>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <type_traits>
 
 namespace face_reenact {
 
@@ -26,18 +33,53 @@ void ParallelFor(int count, int threads, const std::function<void(int item)>& it
 // most 8 (beyond that the products here are bound by memory bandwidth).
 int ResolvedThreadCount(int requested);
 
+// A thread kept for one kind of work handed to it again and again (the source actor's fit beside
+// the target's, each frame; the albedo texture's rebuilds), named once before anything can see
+// it: a thread started per job carried its creator's name until it renamed itself, which a
+// per-thread CPU table could catch, and it started with a cold stack, cache and thread-local
+// scratch each time. Jobs run one at a time in the order submitted. Destroying it runs the jobs
+// already submitted, then joins: whatever they read must outlive it (make it the last member).
+class NamedThread {
+ public:
+  // `name`: at most 15 characters (the per-thread CPU tables show it). Returns once the thread
+  // runs under that name. Throws std::system_error when no thread can be started.
+  explicit NamedThread(std::string name);
+  ~NamedThread();
+  NamedThread(const NamedThread&) = delete;
+  NamedThread& operator=(const NamedThread&) = delete;
+
+  const std::string& name() const { return name_; }
+
+  // Runs `job` on this thread after the jobs before it; the future has its result or exception.
+  template <class Job>
+  auto Submit(Job&& job) -> std::future<std::invoke_result_t<std::decay_t<Job>&>> {
+    using Result = std::invoke_result_t<std::decay_t<Job>&>;
+    auto task = std::make_shared<std::packaged_task<Result()>>(std::forward<Job>(job));
+    std::future<Result> result = task->get_future();
+    Post([task] { (*task)(); });
+    return result;
+  }
+
+ private:
+  void Post(std::function<void()> job);
+  void Loop();
+
+  std::string name_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::deque<std::function<void()>> jobs_;
+  bool stopping_ = false;
+  std::thread thread_;
+};
+
 // Two independent halves of one step at once (the source actor's tracking and the target's):
-// runs `beside` on a thread of its own, named `thread_name` (at most 15 characters; the per-thread
-// CPU tables show it), while the caller runs `here`, and returns what `beside` returned once both
-// are done. `waited_ms`, when given, gets the time the caller waited for `beside` after `here`
-// ended: what the second half added to the step. If `here` throws, `beside` is waited for first
-// (it may read what the caller releases next), then the exception goes on.
+// runs `beside` on `beside_thread` while the caller runs `here`, and returns what `beside`
+// returned once both are done. `waited_ms`, when given, gets the time the caller waited for
+// `beside` after `here` ended: what the second half added to the step. If `here` throws, `beside`
+// is waited for first (it may read what the caller releases next), then the exception goes on.
 template <class Beside, class Here>
-auto RunBeside(const char* thread_name, Beside&& beside, Here&& here, double* waited_ms = nullptr) {
-  auto done = std::async(std::launch::async, [&beside, thread_name] {
-    pthread_setname_np(pthread_self(), thread_name);
-    return beside();
-  });
+auto RunBeside(NamedThread& beside_thread, Beside&& beside, Here&& here, double* waited_ms = nullptr) {
+  auto done = beside_thread.Submit([&beside] { return beside(); });
   try {
     here();
   } catch (...) {
