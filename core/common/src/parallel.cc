@@ -9,8 +9,8 @@
 #include <exception>
 #include <future>
 #include <memory>
-#include <string>
 #include <mutex>
+#include <string>
 #include <system_error>
 #include <thread>
 #include <vector>
