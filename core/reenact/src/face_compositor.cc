@@ -597,6 +597,7 @@ struct FaceCompositor::Impl {
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
     cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
     cv::Mat sampled_at(box.size(), CV_32FC2, cv::Scalar(std::nanf(""), std::nanf("")));  // the frame position sampled
+    cv::Mat seen_at = cv::Mat::zeros(box.size(), CV_32FC3), ratio_at = cv::Mat::zeros(box.size(), CV_32FC3);
     // Rows of the box on the pool's threads: each pixel writes only its own texture, weight and
     // coverage, so the result is the same for any thread count.
     constexpr int kRowsPerItem = 8;
@@ -638,6 +639,8 @@ struct FaceCompositor::Impl {
           const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
           cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
           for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
+          seen_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(seen[0], seen[1], seen[2]);
+          ratio_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(ratio[0], ratio[1], ratio[2]);
           float trust = 1.0f;
           // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
           // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
@@ -663,6 +666,31 @@ struct FaceCompositor::Impl {
           weight.at<float>(bj, bi) = trust;
         }
     });
+    // The change of shading, smoothed over about a pixel. It comes from per-vertex irradiance, and
+    // where the output's expression folds the mesh (a lower lip rolled out by the source's grimace)
+    // the normals of one row of narrow triangles along the crease turn away from the light: the
+    // ratio fell to 0.76 for one pixel row along the lower lip's bottom edge and drew a dotted dark
+    // line there (d6 onto the webcam clip, frame 60; the frame's own edge is a smooth 4-pixel
+    // ramp). Smoothed over the shown pixels only (a normalised convolution), so no colour leaks
+    // across what the frame does not show. The same geometry changes nothing (the ratio is 1).
+    constexpr double kShadingSmoothSigmaPx = 1.0;
+    if (!same) {
+      cv::Mat shown_mask(box.size(), CV_32FC1);
+      for (int bj = 0; bj < box.height; ++bj)
+        for (int bi = 0; bi < box.width; ++bi)
+          shown_mask.at<float>(bj, bi) = std::isnan(sampled_at.at<cv::Vec2f>(bj, bi)[0]) ? 0.f : 1.f;
+      cv::Mat ratio_sum, mask_sum;
+      cv::GaussianBlur(ratio_at, ratio_sum, cv::Size(0, 0), kShadingSmoothSigmaPx);
+      cv::GaussianBlur(shown_mask, mask_sum, cv::Size(0, 0), kShadingSmoothSigmaPx);
+      for (int bj = 0; bj < box.height; ++bj)
+        for (int bi = 0; bi < box.width; ++bi) {
+          if (!(shown_mask.at<float>(bj, bi) > 0.f)) continue;
+          const cv::Vec3f ratio = ratio_sum.at<cv::Vec3f>(bj, bi) / std::max(1e-6f, mask_sum.at<float>(bj, bi));
+          const cv::Vec3f seen = seen_at.at<cv::Vec3f>(bj, bi);
+          cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
+          for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
+        }
+    }
     // A sample is not trusted where the frame shows the surface squeezed: the output spreads
     // over each pixel less than about half a pixel of the frame (the determinant of the
     // output-to-frame map below kMinFootprint; full trust from kFullFootprint). A lid the output
