@@ -597,7 +597,10 @@ struct FaceCompositor::Impl {
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
     cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
     cv::Mat sampled_at(box.size(), CV_32FC2, cv::Scalar(std::nanf(""), std::nanf("")));  // the frame position sampled
-    cv::Mat seen_at = cv::Mat::zeros(box.size(), CV_32FC3), ratio_at = cv::Mat::zeros(box.size(), CV_32FC3);
+    // The frame's sample and the change of shading apart, for the smoothing below (only where the
+    // geometry changes: the same geometry keeps a ratio of 1 and needs neither).
+    cv::Mat seen_at, ratio_at;
+    if (!same) seen_at = cv::Mat::zeros(box.size(), CV_32FC3), ratio_at = cv::Mat::zeros(box.size(), CV_32FC3);
     // Rows of the box on the pool's threads: each pixel writes only its own texture, weight and
     // coverage, so the result is the same for any thread count.
     constexpr int kRowsPerItem = 8;
@@ -639,8 +642,10 @@ struct FaceCompositor::Impl {
           const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
           cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
           for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
-          seen_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(seen[0], seen[1], seen[2]);
-          ratio_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(ratio[0], ratio[1], ratio[2]);
+          if (!same) {
+            seen_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(seen[0], seen[1], seen[2]);
+            ratio_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(ratio[0], ratio[1], ratio[2]);
+          }
           float trust = 1.0f;
           // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
           // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
