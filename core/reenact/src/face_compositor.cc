@@ -1194,29 +1194,80 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           }
         }
       }
+      // The lips themselves, as the rasteriser drew them in and around the opening (the inner
+      // faces of the lips take an open-mouth image's colour, so they are not lips here).
+      auto lip_at = [&](int i, int j) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (g.triangle[p] < 0) return false;
+        const int32_t v0 = g.vertices[3 * p];
+        return !(kMouthParts & part_bit(im.part_of(v0))) && g.position[3 * p + 2] - lip_z <= kCavityDepthM &&
+               !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]);
+      };
+      // Where the output rolls a lip out (d6's grimace on the webcam clip, frame 60), the faces
+      // between the lip's rim and its body turn away from the camera and are culled: the rim is
+      // left as a strip one or two pixels high inside the opening, the teeth showing through the
+      // gap behind it; elsewhere along the line the rim's pixels stick out of the lip's edge one at
+      // a time. Unseen by the frame, the rim takes the albedo map's colour of the lip's inner face,
+      // which the mouth's shadow taught: they drew a dotted dark line along the teeth. No lip looks
+      // like that. Lip pixels in the opening or within kLipStripReachPx of it that a 3x3 cross of
+      // lip does not fit over are drawn as the interior: the open-mouth image's there, or else the
+      // interior drawn around them.
+      constexpr int kLipStripReachPx = 2;
+      cv::Mat lips(zone.size(), CV_8UC1), solid_lips, near_lips;
+      for (int j = 0; j < zone.height; ++j)
+        for (int i = 0; i < zone.width; ++i) lips.at<uchar>(j, i) = lip_at(i + zone.x, j + zone.y) ? 255 : 0;
+      cv::morphologyEx(lips, solid_lips, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_CROSS, cv::Size(3, 3)));
+      cv::dilate(opening(zone), near_lips,
+                 cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kLipStripReachPx + 1, 2 * kLipStripReachPx + 1)));
+      struct Strip {
+        int i, j;
+        float alpha;
+      };
+      // A strip gives way only to an interior lighter than itself: what it drew was a dark line,
+      // and at a smiling mouth's corners, where the opening tapers into the lips (d14 on the webcam
+      // clip), the cavity's colour would lengthen the dark opening.
+      auto rim_gives_way = [&](int i, int j, const cv::Vec3f& colour) {
+        const cv::Vec3f& own = rendered.at<cv::Vec3f>(j, i);
+        return colour[0] + colour[1] + colour[2] >= own[0] + own[1] + own[2];
+      };
+      std::vector<Strip> strips;  // lip strips that take the colour of the interior around them
       cv::Mat layer = cv::Mat::zeros(zone.size(), CV_32FC3), layer_alpha = cv::Mat::zeros(zone.size(), CV_32FC1);
       int drawn = 0, from_exemplar = 0;
+      // One pixel of the interior layer drawn: its masks and depth.
+      auto mark_drawn = [&](int i, int j, uchar coverage, float alpha) {
+        if (coverage >= 128) result.mouth_mask.at<uchar>(j, i) = 255;
+        result.face_mask.at<uchar>(j, i) = 255;
+        // The output depth has no surface in an opening that shows mostly the interior.
+        if (alpha >= 0.5f) result.face_depth.at<float>(j, i) = 0.0f;
+        ++drawn;
+      };
       for (int j = zone.y; j < zone.y + zone.height; ++j) {
         const uchar* orow = opening.ptr<uchar>(j);
         for (int i = zone.x; i < zone.x + zone.width; ++i) {
-          if (!orow[i]) continue;
+          const bool lip = lips.at<uchar>(j - zone.y, i - zone.x) != 0;
+          const bool strip = lip && solid_lips.at<uchar>(j - zone.y, i - zone.x) == 0 &&
+                             near_lips.at<uchar>(j - zone.y, i - zone.x) != 0;
+          if (lip && !strip) continue;
+          // How much of the pixel is the opening's: a strip's all of it.
+          const uchar coverage = strip ? 255 : orow[i];
+          if (!coverage) continue;
           const size_t p = static_cast<size_t>(j) * w + i;
           const int32_t v0 = g.vertices[3 * p];
           const bool covered = g.triangle[p] >= 0;
           const FacePart part = covered ? im.part_of(v0) : FacePart::Face;
           const bool mouth_part = covered && (kMouthParts & part_bit(part));
           const float depth_behind = covered ? g.position[3 * p + 2] - lip_z : 1.0f;
-          // The lips themselves (the inner faces of the lips take an open-mouth image's colour).
-          if (!mouth_part && covered && depth_behind <= kCavityDepthM && !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]))
-            continue;
           const float unshown = covered && !frame_shown.empty() ? 1.0f - std::clamp(frame_shown.at<float>(j, i), 0.0f, 1.0f) : 0.0f;
-          const float alpha = std::max(mouth_alpha, unshown) * static_cast<float>(orow[i]) / 255.0f;
+          const float alpha = std::max(mouth_alpha, unshown) * static_cast<float>(coverage) / 255.0f;
           if (!(alpha > 0.f)) continue;
           Eigen::Vector3f interior;
           if (use_exemplar && SampleMouthExemplar(*mouth, opening_px,
                                                   Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)), &interior)) {
             interior *= exemplar_light;
             ++from_exemplar;
+          } else if (strip) {
+            strips.push_back({i, j, alpha});
+            continue;
           } else if (mouth_part) {
             const float occlusion =
                 part == FacePart::Tongue
@@ -1232,15 +1283,39 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           } else {
             interior = cavity_rgb;
           }
-          cv::Vec3f& lp = layer.at<cv::Vec3f>(j - zone.y, i - zone.x);
-          for (int c = 0; c < 3; ++c) lp[2 - c] = alpha * 255.0f * srgb_encode(interior[c]);
+          cv::Vec3f colour;
+          for (int c = 0; c < 3; ++c) colour[2 - c] = 255.0f * srgb_encode(interior[c]);
+          if (strip && !rim_gives_way(i, j, colour)) continue;
+          layer.at<cv::Vec3f>(j - zone.y, i - zone.x) = alpha * colour;
           layer_alpha.at<float>(j - zone.y, i - zone.x) = alpha;
-          if (orow[i] >= 128) result.mouth_mask.at<uchar>(j, i) = 255;
-          result.face_mask.at<uchar>(j, i) = 255;
-          // The output depth has no surface in an opening that shows mostly the interior.
-          if (alpha >= 0.5f) result.face_depth.at<float>(j, i) = 0.0f;
-          ++drawn;
+          mark_drawn(i, j, coverage, alpha);
         }
+      }
+      // Each strip pixel: the mean colour of the interior drawn in its 5x5 neighbourhood (the
+      // cavity's where there is none).
+      for (const Strip& s : strips) {
+        const int li = s.i - zone.x, lj = s.j - zone.y;
+        cv::Vec3f sum(0.f, 0.f, 0.f);
+        float weight = 0.f;
+        for (int dj = -2; dj <= 2; ++dj)
+          for (int di = -2; di <= 2; ++di) {
+            const int y = lj + dj, x = li + di;
+            if (x < 0 || y < 0 || x >= zone.width || y >= zone.height) continue;
+            const float a = layer_alpha.at<float>(y, x);
+            if (!(a > 0.f)) continue;
+            sum += layer.at<cv::Vec3f>(y, x);  // premultiplied: the alpha-weighted mean
+            weight += a;
+          }
+        cv::Vec3f colour;
+        if (weight > 0.f) {
+          colour = sum / weight;
+        } else {
+          for (int c = 0; c < 3; ++c) colour[2 - c] = 255.0f * srgb_encode(cavity_rgb[c]);
+        }
+        if (!rim_gives_way(s.i, s.j, colour)) continue;
+        layer.at<cv::Vec3f>(lj, li) = s.alpha * colour;
+        layer_alpha.at<float>(lj, li) = s.alpha;
+        mark_drawn(s.i, s.j, 255, s.alpha);
       }
       if (drawn > 0) {
         cv::GaussianBlur(layer, layer, cv::Size(0, 0), kInteriorSoftnessPx);
