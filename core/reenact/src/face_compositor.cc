@@ -1170,15 +1170,19 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       // webcam clip, output frame 36; an opening of 82 px) the model's inner lip faces reach 4-11 px
       // past the corners, where the target's own lip corner is what the frame shows (trusted at
       // 0.6-1), and the image's dark opening drew a grey hook down the left corner and a dot
-      // under it.
+      // under it. Without an image the teeth and the wall behind the lips (more than
+      // kCavityDepthM behind their line) there are the mouth pass's too, shaded as inside the
+      // opening; left to the face's rendering they were unshaded: a lower lip rolled in over an
+      // opened jaw showed white specks of back teeth at the mouth's corners.
       constexpr int kBeyondOpeningPx = 6;
       constexpr float kShownByTheFrame = 0.5f;
-      const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + (use_exemplar ? kBeyondOpeningPx : 0);
+      const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + kBeyondOpeningPx;
       cv::Rect zone = cv::boundingRect(polygon);
       zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                       (zone.height >> kSubpixelBits) + 2);
       zone = Impl::GrownWithin(zone, margin, w, h);
-      if (use_exemplar) {
+      cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
+      {
         cv::Mat near_opening;
         cv::dilate(opening(zone), near_opening,
                    cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kBeyondOpeningPx + 1, 2 * kBeyondOpeningPx + 1)));
@@ -1189,8 +1193,12 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
             if (orow[i] == 255 || g.triangle[p] < 0 || !near_opening.at<uchar>(j - zone.y, i - zone.x)) continue;
             if (!frame_shown.empty() && frame_shown.at<float>(j, i) >= kShownByTheFrame) continue;
             const int32_t v0 = g.vertices[3 * p];
-            const bool inside_geometry = (kMouthParts & part_bit(im.part_of(v0))) || im.in_mouth[static_cast<size_t>(v0)];
-            if (inside_geometry) orow[i] = 255;
+            const bool inside_geometry =
+                (kMouthParts & part_bit(im.part_of(v0))) ||
+                (im.in_mouth[static_cast<size_t>(v0)] && (use_exemplar || g.position[3 * p + 2] - lip_z > kCavityDepthM));
+            if (!inside_geometry) continue;
+            orow[i] = 255;
+            past_opening.at<uchar>(j - zone.y, i - zone.x) = 255;
           }
         }
       }
@@ -1286,6 +1294,12 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           cv::Vec3f colour;
           for (int c = 0; c < 3; ++c) colour[2 - c] = 255.0f * srgb_encode(interior[c]);
           if (strip && !rim_gives_way(i, j, colour)) continue;
+          // Under the softened layer's edge the face's rendering shows through: past the polygon,
+          // for teeth that is their unshaded colour, which drew light specks along the opening's
+          // edge. Where the layer takes such a pixel whole, the rendering under it is the
+          // interior's colour too.
+          if (mouth_part && alpha >= 1.0f && past_opening.at<uchar>(j - zone.y, i - zone.x))
+            rendered.at<cv::Vec3f>(j, i) = colour;
           layer.at<cv::Vec3f>(j - zone.y, i - zone.x) = alpha * colour;
           layer_alpha.at<float>(j - zone.y, i - zone.x) = alpha;
           mark_drawn(i, j, coverage, alpha);
