@@ -1181,6 +1181,61 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                       (zone.height >> kSubpixelBits) + 2);
       zone = Impl::GrownWithin(zone, margin, w, h);
+      // The lips themselves, as the rasteriser drew them in and around the opening (the inner
+      // faces of the lips take an open-mouth image's colour, so they are not lips here).
+      auto lip_at = [&](int i, int j) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (g.triangle[p] < 0) return false;
+        const int32_t v0 = g.vertices[3 * p];
+        return !(kMouthParts & part_bit(im.part_of(v0))) && g.position[3 * p + 2] - lip_z <= kCavityDepthM &&
+               !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]);
+      };
+      cv::Mat lips(zone.size(), CV_8UC1);
+      for (int j = 0; j < zone.height; ++j)
+        for (int i = 0; i < zone.width; ++i) lips.at<uchar>(j, i) = lip_at(i + zone.x, j + zone.y) ? 255 : 0;
+      // A barely opened mouth (the opening under kBarelyOpenPx high on average: its area over its
+      // width) is covered by the model's lips, but their meshes do not quite meet everywhere:
+      // through gaps of one or two pixels the tongue or the teeth behind show. Taken as the opening
+      // (its anti-aliased edge, or the geometry just past it, below) they drew a dashed dark line
+      // along the lips where the frame's lip line is a soft shadow (d14 smiling with her eyes shut
+      // on the webcam clip, output frame 73: dashes of (107, 57, 55) between lips at (190, 130,
+      // 135)); they are lip, in the colour of the lip pixels above and below them. A wider opening
+      // keeps them: there the lips do not meet, and what shows between them is the mouth's inside.
+      constexpr float kBarelyOpenPx = 2.0f;
+      float left = std::numeric_limits<float>::infinity(), right = -left;
+      for (const Eigen::Vector2f& uv : opening_px) {
+        left = std::min(left, uv.x());
+        right = std::max(right, uv.x());
+      }
+      const bool barely_open = PolygonArea(opening_px) < kBarelyOpenPx * std::max(1.0, static_cast<double>(right - left));
+      // A gap pixel takes the mean of the nearest lip pixels above and below it (within 2 px).
+      auto fill_lip_gap = [&](int i, int j) {
+        cv::Vec3f sum(0.f, 0.f, 0.f);
+        int n = 0;
+        for (const int step : {-1, 1})
+          for (int d = 1; d <= 2; ++d) {
+            const int y = j + step * d;
+            if (y < zone.y || y >= zone.y + zone.height || !lips.at<uchar>(y - zone.y, i - zone.x)) continue;
+            sum += rendered.at<cv::Vec3f>(y, i);
+            ++n;
+            break;
+          }
+        if (n > 0) rendered.at<cv::Vec3f>(j, i) = sum / static_cast<float>(n);
+      };
+      cv::Mat lip_gaps = cv::Mat::zeros(zone.size(), CV_8UC1);
+      if (barely_open) {
+        cv::morphologyEx(lips, lip_gaps, cv::MORPH_CLOSE, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(1, 3)));
+        lip_gaps &= ~lips;
+      }
+      for (int j = zone.y; j < zone.y + zone.height; ++j)
+        for (int i = zone.x; i < zone.x + zone.width; ++i) {
+          if (!lip_gaps.at<uchar>(j - zone.y, i - zone.x)) continue;
+          const size_t p = static_cast<size_t>(j) * w + i;
+          // Only what the frame does not show: where it does, its own pixel is what the gap shows.
+          if (g.triangle[p] < 0 || (!frame_shown.empty() && frame_shown.at<float>(j, i) >= kShownByTheFrame)) continue;
+          fill_lip_gap(i, j);
+          lips.at<uchar>(j - zone.y, i - zone.x) = 255;
+        }
       cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
       {
         cv::Mat near_opening;
@@ -1197,20 +1252,12 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                 (kMouthParts & part_bit(im.part_of(v0))) ||
                 (im.in_mouth[static_cast<size_t>(v0)] && (use_exemplar || g.position[3 * p + 2] - lip_z > kCavityDepthM));
             if (!inside_geometry) continue;
+            if (lips.at<uchar>(j - zone.y, i - zone.x)) continue;  // a gap between the lips, filled above
             orow[i] = 255;
             past_opening.at<uchar>(j - zone.y, i - zone.x) = 255;
           }
         }
       }
-      // The lips themselves, as the rasteriser drew them in and around the opening (the inner
-      // faces of the lips take an open-mouth image's colour, so they are not lips here).
-      auto lip_at = [&](int i, int j) {
-        const size_t p = static_cast<size_t>(j) * w + i;
-        if (g.triangle[p] < 0) return false;
-        const int32_t v0 = g.vertices[3 * p];
-        return !(kMouthParts & part_bit(im.part_of(v0))) && g.position[3 * p + 2] - lip_z <= kCavityDepthM &&
-               !(use_exemplar && im.in_mouth[static_cast<size_t>(v0)]);
-      };
       // Where the output rolls a lip out (d6's grimace on the webcam clip, frame 60), the faces
       // between the lip's rim and its body turn away from the camera and are culled: the rim is
       // left as a strip one or two pixels high inside the opening, the teeth showing through the
@@ -1221,9 +1268,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       // lip does not fit over are drawn as the interior: the open-mouth image's there, or else the
       // interior drawn around them.
       constexpr int kLipStripReachPx = 2;
-      cv::Mat lips(zone.size(), CV_8UC1), solid_lips, near_lips;
-      for (int j = 0; j < zone.height; ++j)
-        for (int i = 0; i < zone.width; ++i) lips.at<uchar>(j, i) = lip_at(i + zone.x, j + zone.y) ? 255 : 0;
+      cv::Mat solid_lips, near_lips;
       cv::morphologyEx(lips, solid_lips, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_CROSS, cv::Size(3, 3)));
       cv::dilate(opening(zone), near_lips,
                  cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kLipStripReachPx + 1, 2 * kLipStripReachPx + 1)));
