@@ -23,6 +23,7 @@ namespace {
 using testing::render_target;
 using testing::test_camera;
 using testing::test_face;
+using testing::albedo_map_options;
 using testing::test_model;
 using testing::mean_abs_diff;
 
@@ -177,9 +178,7 @@ TEST(AlbedoTextureTest, HoldsTheDetailThePerVertexMapCannot) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
   const gpu::FaceParameters p = test_face(0.5f);
-  ReenactmentOptions o;
-  o.appearance = Appearance::kAlbedoMap;
-  const FaceCompositor fc(*test_model(), o);
+  const FaceCompositor fc(*test_model(), albedo_map_options());
   const cv::Mat detailed = testing::with_fine_pattern(render_target(p, cam));
   const auto layout = AlbedoTextureLayout::ForModel(*test_model(), 2048);
   AlbedoMap with = learn(fc, layout, {{detailed, p}}, cam);

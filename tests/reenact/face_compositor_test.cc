@@ -23,6 +23,7 @@ namespace {
 using testing::render_target;
 using testing::test_camera;
 using testing::test_face;
+using testing::albedo_map_options;
 using testing::test_model;
 using testing::landmark_vertices;
 using testing::project_vertices;
@@ -624,9 +625,7 @@ TEST(ReenactCompositorTest, NoUnshadedTeethPastTheOpeningsCorners) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(640, 480);
   const gpu::FaceParameters target = test_face(0.5f);
-  ReenactmentOptions o;
-  o.appearance = Appearance::kAlbedoMap;
-  const FaceCompositor fc(*test_model(), o);
+  const FaceCompositor fc(*test_model(), albedo_map_options());
   const Rendered t = make_target(fc, target, cam);
   gpu::FaceParameters out = target;
   out.delta[kJawOpenIndex] = 0.45f;
@@ -785,9 +784,7 @@ TEST(ReenactCompositorTest, UnseenTeethTakeTheCastOfTheLearnedSkin) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
   const gpu::FaceParameters target = test_face(0.45f);
-  ReenactmentOptions o;
-  o.appearance = Appearance::kAlbedoMap;
-  const FaceCompositor fc(*test_model(), o);
+  const FaceCompositor fc(*test_model(), albedo_map_options());
   const Rendered t = make_target(fc, target, cam);
   AlbedoMap tinted = t.albedo;
   const FaceModel& m = *test_model();
@@ -1101,9 +1098,7 @@ TEST(ReenactCompositorTest, TheMouthInteriorsEdgeIsSoft) {
   const gpu::FaceParameters target = test_face(0.45f);
   gpu::FaceParameters open = target;
   open.delta[kJawOpenIndex] = 0.35f;
-  ReenactmentOptions o;
-  o.appearance = Appearance::kAlbedoMap;  // the interior at full strength
-  const FaceCompositor fc(*test_model(), o);
+  const FaceCompositor fc(*test_model(), albedo_map_options());  // the interior at full strength
   const Rendered t = make_target(fc, target, cam);
   const CompositeResult c = fc.Compose(t.target, cam, target, open, &t.albedo);
   ASSERT_TRUE(c.mouth_drawn);

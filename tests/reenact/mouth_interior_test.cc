@@ -28,6 +28,7 @@ namespace {
 using testing::render_target;
 using testing::test_camera;
 using testing::test_face;
+using testing::albedo_map_options;
 using testing::test_model;
 using testing::pixel_polygon;
 
@@ -206,9 +207,7 @@ TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);
   const gpu::FaceParameters target = test_face(0.45f);
-  ReenactmentOptions o;
-  o.appearance = Appearance::kAlbedoMap;  // the interior wherever the rendered mouth opens
-  const FaceCompositor fc(*test_model(), o);
+  const FaceCompositor fc(*test_model(), albedo_map_options());  // the interior wherever the rendered mouth opens
   const cv::Mat frame = render_target(target, cam);
   AlbedoMap albedo;
   fc.ObserveAlbedo(frame, cam, target, &albedo);

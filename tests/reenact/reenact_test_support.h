@@ -16,6 +16,7 @@
 #include "face_reenact/gpu/cpu_renderer.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/model_file.h"
+#include "face_reenact/reenact/reenactment_pipeline.h"
 #include "face_reenact/tracker/solver.h"
 #include "face_reenact/tracker/tracker_model.h"
 
@@ -61,6 +62,14 @@ inline gpu::FaceParameters test_face(float distance) {
     p.gamma[static_cast<size_t>(c * 9 + 2)] = -0.6f * tint;  // z: from the camera side
   }
   return p;
+}
+
+// The default options but for the albedo map's appearance (the whole face re-rendered, the mouth
+// interior at full strength wherever the rendered mouth opens).
+inline ReenactmentOptions albedo_map_options() {
+  ReenactmentOptions o;
+  o.appearance = Appearance::kAlbedoMap;
+  return o;
 }
 
 // The model vertices of iBUG landmarks first..last, in that order (the inner lips: 60, 67).
