@@ -1173,7 +1173,11 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       // under it. Without an image the teeth and the wall behind the lips (more than
       // kCavityDepthM behind their line) there are the mouth pass's too, shaded as inside the
       // opening; left to the face's rendering they were unshaded: a lower lip rolled in over an
-      // opened jaw showed white specks of back teeth at the mouth's corners.
+      // opened jaw showed white specks of back teeth at the mouth's corners. No farther past the
+      // polygon than the opening is high on average (its area over its width): over a barely opened
+      // mouth (d14 smiling with her eyes shut, output frame 73; about a pixel high) the lips' inner
+      // faces at the corners, 4-11 mm behind the lip line, took the image's dark corner of a wide
+      // opening, a dark blob at each corner of a closed-looking mouth.
       constexpr int kBeyondOpeningPx = 6;
       constexpr float kShownByTheFrame = 0.5f;
       const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + kBeyondOpeningPx;
@@ -1207,7 +1211,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
         left = std::min(left, uv.x());
         right = std::max(right, uv.x());
       }
-      const bool barely_open = PolygonArea(opening_px) < kBarelyOpenPx * std::max(1.0, static_cast<double>(right - left));
+      const double mean_height_px = PolygonArea(opening_px) / std::max(1.0, static_cast<double>(right - left));
+      const bool barely_open = mean_height_px < kBarelyOpenPx;
       // A gap pixel takes the mean of the nearest lip pixels above and below it (within 2 px).
       auto fill_lip_gap = [&](int i, int j) {
         cv::Vec3f sum(0.f, 0.f, 0.f);
@@ -1238,9 +1243,10 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
         }
       cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
       {
+        const int beyond_px = std::clamp(static_cast<int>(std::lround(mean_height_px)), 1, kBeyondOpeningPx);
         cv::Mat near_opening;
         cv::dilate(opening(zone), near_opening,
-                   cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kBeyondOpeningPx + 1, 2 * kBeyondOpeningPx + 1)));
+                   cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * beyond_px + 1, 2 * beyond_px + 1)));
         for (int j = zone.y; j < zone.y + zone.height; ++j) {
           uchar* orow = opening.ptr<uchar>(j);
           for (int i = zone.x; i < zone.x + zone.width; ++i) {
