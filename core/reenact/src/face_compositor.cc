@@ -57,6 +57,12 @@ constexpr float kCavityDepthM = 0.003f;
 
 float luminance(const Eigen::Vector3f& rgb) { return linear_luminance(rgb[0], rgb[1], rgb[2]); }
 
+// Linear RGB as the composite's pixels hold it: sRGB-encoded BGR, 0..255 as float.
+cv::Vec3f display_bgr(float r, float g, float b) {
+  return cv::Vec3f(255.0f * srgb_encode(b), 255.0f * srgb_encode(g), 255.0f * srgb_encode(r));
+}
+cv::Vec3f display_bgr(const Eigen::Vector3f& rgb) { return display_bgr(rgb[0], rgb[1], rgb[2]); }
+
 // --- What a frame's colour divided by the shading may teach the albedo: the per-vertex map
 // (ObserveAlbedo) and the texture's views (UnwrapAlbedo) take the same rules.
 constexpr float kAlbedoMinCos = 0.5f;  // grazing views are blurred, badly lit, near silhouettes
@@ -1103,8 +1109,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
              (opt.depth_occluder_m > 0.f && z - d > opt.depth_occluder_m)))
           continue;  // the fit overshoots onto the background, or something covers the face
       }
-      cv::Vec3f& px = rendered.at<cv::Vec3f>(j, i);
-      for (int c = 0; c < 3; ++c) px[2 - c] = 255.0f * srgb_encode(g.color[3 * p + static_cast<size_t>(c)]);
+      rendered.at<cv::Vec3f>(j, i) = display_bgr(g.color[3 * p], g.color[3 * p + 1], g.color[3 * p + 2]);
       result.face_mask.at<uchar>(j, i) = 255;
       result.face_depth.at<float>(j, i) = g.position[3 * p + 2];
     }
@@ -1342,8 +1347,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           } else {
             interior = cavity_rgb;
           }
-          cv::Vec3f colour;
-          for (int c = 0; c < 3; ++c) colour[2 - c] = 255.0f * srgb_encode(interior[c]);
+          const cv::Vec3f colour = display_bgr(interior);
           if (strip && !rim_gives_way(i, j, colour)) continue;
           // Under the softened layer's edge the face's rendering shows through: past the polygon,
           // for teeth that is their unshaded colour, which drew light specks along the opening's
@@ -1358,6 +1362,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       }
       // Each strip pixel: the mean colour of the interior drawn in its 5x5 neighbourhood (the
       // cavity's where there is none).
+      const cv::Vec3f cavity_bgr = display_bgr(cavity_rgb);
       for (const Strip& s : strips) {
         const int li = s.i - zone.x, lj = s.j - zone.y;
         cv::Vec3f sum(0.f, 0.f, 0.f);
@@ -1371,12 +1376,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
             sum += layer.at<cv::Vec3f>(y, x);  // premultiplied: the alpha-weighted mean
             weight += a;
           }
-        cv::Vec3f colour;
-        if (weight > 0.f) {
-          colour = sum / weight;
-        } else {
-          for (int c = 0; c < 3; ++c) colour[2 - c] = 255.0f * srgb_encode(cavity_rgb[c]);
-        }
+        const cv::Vec3f colour = weight > 0.f ? cv::Vec3f(sum / weight) : cavity_bgr;
         if (!rim_gives_way(s.i, s.j, colour)) continue;
         layer.at<cv::Vec3f>(lj, li) = s.alpha * colour;
         layer_alpha.at<float>(lj, li) = s.alpha;
