@@ -207,6 +207,7 @@ struct ReenactArgs {
   std::vector<int> sheet_frames;   // --sheet-frames: which (default: three spread over the output)
   int frames = 0;
   int calibration_window = 0;      // as `track --calibration-window`, for both actors
+  int relaxed_recalibration = tracker::TrackerOptions{}.relaxed_recalibration_frames;  // as track's, both actors
   bool no_brows = false;           // as `track --no-brows`, for both actors
   CameraArgs camera;               // --fov / --intrinsics of both actors' videos (none: estimated)
   double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
@@ -300,6 +301,7 @@ void run_reenact(const ReenactArgs& a) {
   ro.input.landmark_source = landmarks;
   ro.tracker.landmark_source = landmarks;
   ro.tracker.calibration_window_frames = a.calibration_window;
+  ro.tracker.relaxed_recalibration_frames = a.relaxed_recalibration;
   ro.tracker.brows.enabled = !a.no_brows;
   if (!ro.SetMouth(a.mouth)) {
     char* end = nullptr;
@@ -582,6 +584,7 @@ void run_reenact(const ReenactArgs& a) {
                       {"tracked_not_drawn", s.frames - s.reenacted_frames - s.calibrating_frames - s.lost_frames}}},
         {"lost_reasons", lost},
         {"target_calibration_warning", warning(pipeline.calibration_warning())},
+        {"target_relaxed_recalibration", relaxed_recalibration_json(pipeline.relaxed_recalibration())},
         {"stage_ms", {{"source_track", source_ms}, {"target_track", s.mean_times.track_ms},
                       {"transfer", s.mean_times.transfer_ms}, {"render", s.mean_times.render_ms},
                       {"mouth", s.mean_times.mouth_ms}, {"composite", s.mean_times.composite_ms},
@@ -596,6 +599,7 @@ void run_reenact(const ReenactArgs& a) {
                         {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), source_camera))
                                               : nlohmann::json()}}},
         {"calibration_window_frames", a.calibration_window},
+        {"relaxed_recalibration_frames", a.relaxed_recalibration},
         {"target_held_still", held_still},
         {"agreement", agreement_json(agreement.summary())},
         {"light", light_json(light)}};
@@ -615,6 +619,7 @@ void run_reenact(const ReenactArgs& a) {
                           : nlohmann::json();
     if (source_tracker) {
       r["source_calibration_warning"] = warning(source_tracker->tracker->calibration_warning());
+      r["source_relaxed_recalibration"] = relaxed_recalibration_json(source_tracker->tracker->relaxed_recalibration());
       r["source_frames"] = {{"tracked", source_tracker->frames}, {"skipped", source_by_time.skipped()},
                             {"statuses", source_statuses}};
     } else {
@@ -1191,6 +1196,10 @@ void add_reenact_commands(CLI::App& app) {
     c->add_option("--calibration-window", args->calibration_window,
                   "Calibrate each actor on the most varied head poses among this many frames (as track; default 0: the "
                   "first frames)")
+        ->check(CLI::Range(0, 100000));
+    c->add_option("--relaxed-recalibration", args->relaxed_recalibration,
+                  "After a calibration not at rest, calibrate each actor again on the most relaxed of this many "
+                  "frames (as track; 0: off)")
         ->check(CLI::Range(0, 100000));
     c->add_flag("--no-brows", args->no_brows,
                 "Do not read either actor's brows from the detector's brow points (as track; the brow blendshapes are "

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "face_reenact/capture/recording.h"
+#include "face_reenact/tracker/face_tracker.h"
 #include "face_reenact/tracker/fit_agreement.h"
 
 namespace face_reenact::cli {
@@ -25,6 +26,14 @@ inline std::string intrinsics_description(const std::string& input, const captur
   std::snprintf(fov, sizeof(fov), "%.1f", camera["horizontal_fov_deg"].get<double>());
   return std::string("principal point at the centre, ") + fov + " degrees horizontal field of view (" +
          camera["from"].get<std::string>() + ")";
+}
+
+// The calibration again on the most relaxed frames after one not at rest
+// (FaceTracker::relaxed_recalibration()): null when no watch was needed.
+inline nlohmann::json relaxed_recalibration_json(const tracker::FaceTracker::RelaxedRecalibration& r) {
+  if (!r.searched) return nlohmann::json();
+  return {{"recalibrated", r.recalibrated}, {"first_weight", r.first_weight}, {"relaxed_weight", r.relaxed_weight},
+          {"frames", r.frame_indices},      {"message", r.message}};
 }
 
 // The report's "agreement" section (FitAgreementTally::Summary).

@@ -219,6 +219,7 @@ struct TrackArgs {
   int calibration_frames = 5;
   int calibration_frame_stride = 1;
   int calibration_window = TrackerOptions{}.calibration_window_frames;
+  int relaxed_recalibration = TrackerOptions{}.relaxed_recalibration_frames;
   bool all_inner_landmarks = false;
   bool brow_landmarks = false;
   bool no_gaze = false;
@@ -251,6 +252,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.calibration_frames = a.calibration_frames;
   o.calibration_frame_stride = a.calibration_frame_stride;
   o.calibration_window_frames = a.calibration_window;
+  o.relaxed_recalibration_frames = a.relaxed_recalibration;
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
     s->energy.all_inner_landmarks = a.all_inner_landmarks;
     s->energy.use_brow_landmarks = a.brow_landmarks;
@@ -562,6 +564,9 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   // Null when the calibrated neutral looks at rest (TrackerOptions::rest_warning_weight).
   j["calibration_warning"] =
       tracker.calibration_warning().empty() ? nlohmann::json() : nlohmann::json(tracker.calibration_warning());
+  // The calibration again on the most relaxed frames after one not at rest (null: none was needed).
+  j["relaxed_recalibration_frames"] = tracker.options().relaxed_recalibration_frames;
+  j["relaxed_recalibration"] = relaxed_recalibration_json(tracker.relaxed_recalibration());
   // Depth against colour on the calibration's first frame with depth (null without depth).
   const tracker::DepthAlignment& da = tracker.depth_alignment();
   j["depth_alignment"] = da.measured ? nlohmann::json{{"shift_px", {da.shift_x, da.shift_y}},
@@ -761,6 +766,11 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--calibration-window", targs->calibration_window,
                  "Watch this many usable frames (the actor turning the head) and calibrate on the --calibration-frames "
                  "among them with the most varied head poses (default 0: the first usable frames)")
+      ->check(CLI::Range(0, 100000));
+  tc->add_option("--relaxed-recalibration", targs->relaxed_recalibration,
+                 "After a calibration not at rest, watch this many tracked frames for the most relaxed ones and "
+                 "calibrate again on them, keeping the new identity if its neutral is more at rest (default " +
+                     std::to_string(TrackerOptions{}.relaxed_recalibration_frames) + "; 0: off)")
       ->check(CLI::Range(0, 100000));
   tc->add_flag("--all-inner-landmarks", targs->all_inner_landmarks,
               "Also fit the 12 eye points and the nose base (33): for exact landmarks such as a recording's, where they "

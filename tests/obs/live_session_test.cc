@@ -247,6 +247,23 @@ TEST(LiveStatusTest, HeadlineAsksForATurnOfTheHeadAfterTheOpenMouth) {
   EXPECT_EQ(s.Headline().find("turn your head"), std::string::npos) << s.Headline();
 }
 
+// A calibration not at rest that the tracker is about to take again on a relaxed face: the line
+// asks for that face instead of a press of Calibrate; once the watch is over, the warning's line
+// again (the second calibration clears the warning when it finds a relaxed face).
+TEST(LiveStatusTest, HeadlineAsksForARelaxedFaceWhileTheTrackerLooksForOne) {
+  LiveStatus s = tracking_at_30_fps();
+  s.calibration_warning = "the face was not at rest while calibrating (mouthStretchLeft 0.37)";
+  s.wants_relaxed_face = true;
+  EXPECT_EQ(s.StateLine(),
+            "Tracking: relax your face for a few seconds, mouth closed (calibrated while it was not at rest; it "
+            "calibrates again then)");
+  s.wants_relaxed_face = false;
+  EXPECT_EQ(s.StateLine(), "Tracking (calibrated while the face was not at rest: calibrate again with a relaxed face)");
+  s.wants_open_mouth = true;
+  s.wants_relaxed_face = true;
+  EXPECT_NE(s.StateLine().find("open your mouth"), std::string::npos) << s.StateLine();
+}
+
 // While calibrating, the line says what to do and how far it is; the state line that front-ends
 // log on change leaves out what moves on its own (rates, progress, a lost frame's measurements).
 TEST(LiveStatusTest, CalibratingSaysHoldStillAndTheStateLineLeavesOutTheNumbers) {

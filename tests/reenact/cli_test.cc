@@ -243,6 +243,10 @@ TEST(ReenactCliTest, PairsSourceAndTargetByTimeAndReportsEveryFrame) {
     EXPECT_TRUE(down.at("stage_ms").at(key).is_number()) << key;
   EXPECT_TRUE(down.at("agreement").at("fit_frames").is_number());
   EXPECT_TRUE(down.contains("target_calibration_warning") && down.contains("source_calibration_warning"));
+  for (const char* key : {"target_relaxed_recalibration", "source_relaxed_recalibration"}) {
+    ASSERT_TRUE(down.contains(key)) << key;
+    EXPECT_TRUE(down.at(key).is_null() || down.at(key).at("recalibrated").is_boolean()) << down.at(key).dump();
+  }
   EXPECT_TRUE(down.at("mouth_interior").is_string()) << "where an opened mouth's interior came from";
   // The source is tracked from a file, so its frames reach the detail transfer (Sec. 7.3).
   EXPECT_EQ(down.at("detail").at("mode"), "transient") << down.dump(2);

@@ -102,6 +102,15 @@ TEST(FaceTrackerOptions, DefaultsValidAndBadValuesRejected) {
   bad = o;
   bad.calibration_identity_components = -2;
   expect_invalid(bad, "component");
+  bad = o;
+  bad.relaxed_recalibration_frames = bad.calibration_frames - 1;
+  expect_invalid(bad, "relaxed_recalibration_frames");
+  bad = o;
+  bad.relaxed_margin = std::numeric_limits<float>::quiet_NaN();
+  expect_invalid(bad, "relaxed_margin");
+  bad = o;
+  bad.relaxed_recalibration_above = -0.1f;
+  expect_invalid(bad, "relaxed_recalibration_above");
   // More components than the model has is a model/options mismatch.
   TrackerOptions too_many = o;
   too_many.calibration_identity_components = 1000;
@@ -830,6 +839,63 @@ TEST(FaceTracker, ABackgroundCalibrationLetsFramesPassAndGivesTheForegroundIdent
   EXPECT_EQ(background.neutral().delta, foreground.neutral().delta);
   EXPECT_EQ(background.calibration_warning(), foreground.calibration_warning());
   EXPECT_EQ(background.Track(render_frame(cpu, sequence_parameters(*model, 6))).status, TrackingStatus::kTracking);
+}
+
+// In the background too, a calibration not at rest is followed by one on the most relaxed frames
+// after it: the actor smiles for the two calibration frames, then rests. The frames of the second
+// solve are held like the first's, and the identity it gives is kept (the smile leaves the neutral).
+TEST(FaceTracker, ABackgroundCalibrationNotAtRestRunsAgainOnRelaxedFrames) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  TrackerOptions o = fast_options(2);
+  o.background_calibration = true;
+  o.relaxed_recalibration_frames = 4;
+  FaceTracker tracker(*model, o);
+  const CpuSolver& cpu = tracker.cpu_solver();
+  auto frame = [&](int k) {
+    gpu::FaceParameters p = testing::true_parameters(*model, 0.5f, 11);
+    p.delta.setZero();
+    if (k < 2) {
+      for (const char* name : {"mouthSmileLeft", "mouthSmileRight"}) p.delta[arkit_blendshape_index(name)] = 1.f;
+    }
+    p.euler.y() += 0.05f * std::sin(0.4f * static_cast<float>(k));
+    return render_frame(cpu, p);
+  };
+  // Tracks frames from *k on until one comes back with another status than kCalibrating.
+  auto until_not_calibrating = [&](int* k) {
+    TrackedFrame t;
+    for (int tries = 0; tries < 3000; ++tries) {
+      t = tracker.Track(frame(*k));
+      ++*k;
+      if (t.status != TrackingStatus::kCalibrating) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return t;
+  };
+  int k = 0;
+  TrackedFrame t = until_not_calibrating(&k);
+  ASSERT_EQ(t.status, TrackingStatus::kCalibrated) << t.message;
+  ASSERT_FALSE(tracker.calibration_warning().empty()) << "the smile should be in the first neutral";
+  EXPECT_NE(t.message.find("watching the next 4 frames"), std::string::npos) << t.message;
+  ASSERT_TRUE(tracker.relaxed_recalibration().searched);
+  // The watch: four tracked frames, the last of which starts the solve on the relaxed ones.
+  for (int w = 0; w < 4; ++w) {
+    t = tracker.Track(frame(k++));
+    ASSERT_EQ(t.status, TrackingStatus::kTracking) << t.message;
+  }
+  EXPECT_NE(t.message.find("calibrating again on the 2 most relaxed of the 4 frames"), std::string::npos) << t.message;
+  EXPECT_TRUE(tracker.calibration_progress().solving);
+  t = until_not_calibrating(&k);
+  ASSERT_EQ(t.status, TrackingStatus::kCalibrated) << t.message;
+  EXPECT_NE(t.message.find("calibrated again on the 2 most relaxed frames"), std::string::npos) << t.message;
+  const FaceTracker::RelaxedRecalibration& rr = tracker.relaxed_recalibration();
+  EXPECT_TRUE(rr.recalibrated);
+  EXPECT_LT(rr.relaxed_weight, rr.first_weight - 0.2f) << rr.message;
+  EXPECT_TRUE(tracker.calibration_warning().empty()) << tracker.calibration_warning();
+  for (int64_t f : rr.frame_indices) EXPECT_GE(f, 2);
+  EXPECT_LT(t.landmark_error_px, 3.0) << t.message;
+  // Once: the frames after it are tracked, with no further watch.
+  for (int w = 0; w < 6; ++w) EXPECT_EQ(tracker.Track(frame(k++)).status, TrackingStatus::kTracking);
 }
 
 // A background calibration under way ends without being applied when a new one is requested (a

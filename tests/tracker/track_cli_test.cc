@@ -482,6 +482,52 @@ TEST(TrackCli, CalibrationWhileSmilingIsReported) {
   EXPECT_NE(lines[2]["message"].get<std::string>().find("not at rest"), std::string::npos) << lines[2]["message"];
 }
 
+// An actor who smiles while the calibration runs and then relaxes: the frames after it are
+// watched, the calibration runs again on the most relaxed of them, and its identity is kept (the
+// neutral is more at rest, the warning gone). One who smiles throughout keeps the first calibration
+// and the warning: no frame was more relaxed.
+TEST(TrackCli, CalibrationNotAtRestRunsAgainOnTheMostRelaxedFrames) {
+  REQUIRE_FIXTURE();
+  const std::string smile = R"({"mouthSmileLeft": 1, "mouthSmileRight": 1, "cheekSquintLeft": 0.5, "cheekSquintRight": 0.5})";
+  struct Case {
+    const char* name;
+    const char* rest;  // the expression from 0.15 s on (frame 5 at 30 fps)
+  };
+  for (const Case& c : {Case{"smile_then_rest", "{}"}, Case{"smile_throughout", nullptr}}) {
+    SCOPED_TRACE(c.name);
+    const fs::path out = fx.dir / c.name;
+    fs::create_directories(out);
+    const std::string later = c.rest ? c.rest : smile;
+    const SubprocessResult synth = synth_scripted(
+        out,
+        R"({"keyframes": [{"time": 0.0, "expression": )" + smile + R"(, "head": {"yaw_deg": -6}},
+                          {"time": 0.05, "expression": )" + smile + R"(, "head": {"yaw_deg": 0}},
+                          {"time": 0.15, "expression": )" + later + R"(, "head": {"yaw_deg": 4}},
+                          {"time": 0.5, "expression": )" + later + R"(, "head": {"yaw_deg": -2}}]})",
+        "7331", 16, "320x240");
+    ASSERT_EQ(synth.exit_code, 0) << synth.output;
+    const auto [report, lines] = track_stored(out, "p", {"--relaxed-recalibration", "8", "--min-face-width", "20"});
+    ASSERT_EQ(lines.size(), 16u);
+    const nlohmann::json& rr = report["relaxed_recalibration"];
+    ASSERT_TRUE(rr.is_object()) << report.dump();
+    EXPECT_GT(rr["first_weight"].get<double>(), 0.3) << rr.dump();
+    // Calibrated on frames 0-1 (smiling); the watch ends on the 8th tracked frame after: frame 9.
+    const std::string message = lines[9]["message"];
+    if (c.rest) {
+      EXPECT_EQ(rr["recalibrated"], true) << rr.dump();
+      EXPECT_LT(rr["relaxed_weight"].get<double>(), 0.3) << rr.dump();
+      EXPECT_TRUE(report["calibration_warning"].is_null()) << report["calibration_warning"];
+      EXPECT_EQ(lines[9]["status"], "calibrated") << message;
+      EXPECT_NE(message.find("calibrated again on the 2 most relaxed frames"), std::string::npos) << message;
+      for (const auto& f : rr["frames"]) EXPECT_GE(f.get<int>(), 4) << rr.dump();  // the relaxed face, not the smile
+    } else {
+      EXPECT_EQ(rr["recalibrated"], false) << rr.dump();
+      EXPECT_TRUE(report["calibration_warning"].is_string()) << report.dump();
+      EXPECT_NE(message.find("the calibration stays"), std::string::npos) << message;
+    }
+  }
+}
+
 // --calibration-start lower-energy: the report names both starts' final energies and keeps the
 // lower one.
 TEST(TrackCli, LowerEnergyCalibrationSolvesBothStartsAndKeepsTheLower) {

@@ -34,6 +34,7 @@ struct ProcessedFrame {
   std::string calibration_progress;        // the target's, while calibrating (LiveStatus::calibration_progress)
   bool wants_open_mouth = false;  // LiveStatus::wants_open_mouth
   bool wants_head_turn = false;   // LiveStatus::wants_head_turn
+  bool wants_relaxed_face = false;  // LiveStatus::wants_relaxed_face
   LiveStageTimes times;  // the pipeline's rows (the session adds worker_other_ms and total_ms)
 };
 

@@ -147,6 +147,8 @@ std::string status_line(const LiveStatus& s, bool numbers) {
     // each side (the skin's texture; a person who never turns keeps a fine picture).
     if (s.tracking == TrackingState::kTracking && s.wants_open_mouth)
       line += ": open your mouth wide once, facing the camera (for the teeth)";
+    else if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty() && s.wants_relaxed_face)
+      line += ": relax your face for a few seconds, mouth closed (calibrated while it was not at rest; it calibrates again then)";
     else if (s.tracking == TrackingState::kTracking && !s.calibration_warning.empty())
       line += " (calibrated while the face was not at rest: calibrate again with a relaxed face)";
     else if (s.tracking == TrackingState::kTracking && s.wants_head_turn)
@@ -533,7 +535,7 @@ void LiveSession::run() {
     uint64_t sequence = 0;
     TrackingState tracking = TrackingState::kOff;
     std::string message, calibration_warning, calibration_progress;
-    bool wants_open_mouth = false, wants_head_turn = false;
+    bool wants_open_mouth = false, wants_head_turn = false, wants_relaxed_face = false;
     Clock::time_point window_start = Clock::now();
     int64_t window_frames = 0;
     double window_ms = 0;
@@ -557,6 +559,7 @@ void LiveSession::run() {
       shown.calibration_progress = out.calibration_progress;
       shown.wants_open_mouth = out.wants_open_mouth;
       shown.wants_head_turn = out.wants_head_turn;
+      shown.wants_relaxed_face = out.wants_relaxed_face;
       ++shown.window_frames;
       shown.window_ms += ms_since(job.started, published.produced);
       latest_ = published;
@@ -655,7 +658,7 @@ void LiveSession::run() {
     now = Clock::now();
     TrackingState tracking;
     std::string frame_message, calibration_warning, calibration_progress;
-    bool wants_open_mouth = false, wants_head_turn = false;
+    bool wants_open_mouth = false, wants_head_turn = false, wants_relaxed_face = false;
     double output_fps, process_ms;
     {
       std::lock_guard lock(mu_);
@@ -673,6 +676,7 @@ void LiveSession::run() {
       calibration_progress = shown.calibration_progress;
       wants_open_mouth = shown.wants_open_mouth;
       wants_head_turn = shown.wants_head_turn;
+      wants_relaxed_face = shown.wants_relaxed_face;
       output_fps = shown.output_fps;
       process_ms = shown.process_ms;
     }
@@ -696,6 +700,7 @@ void LiveSession::run() {
     s.calibration_progress = pipeline_ready && tracking == TrackingState::kCalibrating ? calibration_progress : "";
     s.wants_open_mouth = pipeline_ready && tracking == TrackingState::kTracking && wants_open_mouth && !target_is_still_;
     s.wants_head_turn = pipeline_ready && tracking == TrackingState::kTracking && wants_head_turn && !target_is_still_;
+    s.wants_relaxed_face = pipeline_ready && tracking == TrackingState::kTracking && wants_relaxed_face;
     s.output_fps = ts.open ? output_fps : 0;
     s.process_ms = process_ms;
     if (source_spec_.kind == InputKind::kUdp) {

@@ -93,6 +93,7 @@ class ReenactProcessor : public FrameProcessor {
     reenact::SourceExpression source;
     bool has_source = false;
     std::string calibration_warning;
+    bool wants_relaxed_face = false;
     std::string calibration_progress;
     double actor_ms = 0;
   };
@@ -137,6 +138,7 @@ class ReenactProcessor : public FrameProcessor {
       staged->has_source = true;
     }
     staged->calibration_warning = target_->calibration_warning();
+    staged->wants_relaxed_face = target_->watching_for_relaxed_face();
     if (staged->target.frame.status == reenact::TrackingStatus::kCalibrating)
       staged->calibration_progress = target_->calibration_progress().Brief();
     if (actor_ && !actor_->calibration_warning().empty())
@@ -157,6 +159,7 @@ class ReenactProcessor : public FrameProcessor {
     out.tracking = tracking_from(result.status);
     out.message = result.message;
     out.calibration_warning = staged.calibration_warning;
+    out.wants_relaxed_face = staged.wants_relaxed_face && !staged.calibration_warning.empty();
     if (result.status == reenact::TrackingStatus::kCalibrating) out.calibration_progress = staged.calibration_progress;
     // The reenacted mouth wants a still of the target's own open mouth (mouth_interior.h); until
     // there is one the status asks for it. Render's side owns the still: read here.

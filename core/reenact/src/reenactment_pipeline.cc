@@ -374,6 +374,14 @@ std::string ReenactmentPipeline::calibration_warning() const {
   return impl_->tracker ? impl_->tracker->calibration_warning() : std::string();
 }
 
+bool ReenactmentPipeline::watching_for_relaxed_face() const {
+  return impl_->tracker && impl_->tracker->watching_for_relaxed_face();
+}
+
+tracker::FaceTracker::RelaxedRecalibration ReenactmentPipeline::relaxed_recalibration() const {
+  return impl_->tracker ? impl_->tracker->relaxed_recalibration() : tracker::FaceTracker::RelaxedRecalibration();
+}
+
 tracker::FaceTracker::FocalLengthReport ReenactmentPipeline::focal_length_report() const {
   return impl_->tracker ? impl_->tracker->focal_length_report() : tracker::FaceTracker::FocalLengthReport();
 }

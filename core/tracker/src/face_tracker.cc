@@ -154,6 +154,9 @@ struct FaceTracker::CalibrationOutcome {
   // solve (on the calibration's thread when it runs in the background).
   DepthAlignment depth_alignment;
   double solve_ms = 0;            // the joint solve(s)
+  // A calibration on the most relaxed frames after one not at rest: that one's strongest weight,
+  // which this one's neutral has to beat to be kept (NaN: an ordinary calibration).
+  float relaxed_of = std::numeric_limits<float>::quiet_NaN();
   StageTimes reread_times;        // the neutral's re-reads
 };
 
@@ -359,6 +362,13 @@ bool TrackerOptions::IsValid(std::string* why) const {
     return fail(why, "tracker: calibration_window_frames must be at least calibration_frames");
   if (calibration_window_frames > 0 && calibration_frame_stride != 1)
     return fail(why, "tracker: calibration_window_frames chooses the frames itself: leave calibration_frame_stride at 1");
+  if (relaxed_recalibration_frames < 0 || relaxed_recalibration_frames > 100000)
+    return fail(why, "tracker: relaxed_recalibration_frames must be 0..100000 (0: off)");
+  if (relaxed_recalibration_frames > 0 && relaxed_recalibration_frames < calibration_frames)
+    return fail(why, "tracker: relaxed_recalibration_frames must be at least calibration_frames (or 0: off)");
+  if (!(relaxed_margin >= 0.f && relaxed_margin <= 1.f)) return fail(why, "tracker: relaxed_margin must be 0..1");
+  if (!(relaxed_recalibration_above >= 0.f && relaxed_recalibration_above <= 1.f))
+    return fail(why, "tracker: relaxed_recalibration_above must be 0..1");
   if (calibration_identity_components < -1 || calibration_albedo_components < -1) {
     return fail(why, "tracker: calibration component counts must be -1 (all) or >= 0");
   }
@@ -428,6 +438,8 @@ void FaceTracker::Reset() {
   calibration_summary_ = SolverSummary();
   calibration_start_report_ = CalibrationStartReport();
   calibration_warning_.clear();
+  StopWatchingForRelaxedFrames();
+  relaxed_report_ = RelaxedRecalibration();
   depth_alignment_ = DepthAlignment();
   focal_length_ = FocalLengthReport();
   ClearCalibrationFrames();
@@ -560,6 +572,8 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     CancelBackgroundCalibration();
     collecting_ = true;
     ClearCalibrationFrames();
+    StopWatchingForRelaxedFrames();
+    relaxed_report_ = RelaxedRecalibration();
   }
   if (frame.new_face) {
     // Another person: neither the last fit's pose nor its lighting is theirs, and their identity
@@ -621,7 +635,9 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       CalibrationOutcome o = background_->Take();
       background_.reset();
       just_calibrated = ApplyCalibration(&o, &calibration_note);
-      if (just_calibrated) {
+      // A calibration on relaxed frames ran on frames up to seconds old: this frame starts from
+      // the last tracked one (with the new identity), not from the newest of those.
+      if (just_calibrated && std::isnan(o.relaxed_of)) {
         // This frame starts from the set's newest frame's joint fit (the frame that completed the
         // set; with a window, the last one kept).
         const auto newest = std::max_element(o.frame_indices.begin(), o.frame_indices.end());
@@ -836,6 +852,10 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       if (out.status == TrackingStatus::kCalibrated)
         out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
     }
+  } else if (relaxed_watching_) {
+    WatchForRelaxedFrame(*input, &out);
+    if (out.status == TrackingStatus::kCalibrated)
+      out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
   }
   out.message = note_prefix + out.message;  // a background calibration that ended on this frame
   previous_ = out;
@@ -925,6 +945,8 @@ FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames() {
   o.starts = std::move(calibration_starts_);
   o.frame_indices = std::move(calibration_frame_indices_);
   ClearCalibrationFrames();
+  if (relaxed_pending_) o.relaxed_of = relaxed_report_.first_weight;
+  relaxed_pending_ = false;
   // The focal length is searched once per input (the first calibration), and only on frames
   // without depth: a depth camera's intrinsics are its own.
   o.search_focal_length = options_.focal_length.estimate && !focal_length_.searched && !o.inputs.empty() &&
@@ -1046,6 +1068,7 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
   const TrackerModel& m = solver_.model();
   const int frames = static_cast<int>(o->inputs.size());
   const Termination termination = o->summary.termination;
+  const bool relaxed = !std::isnan(o->relaxed_of);
   if (termination == Termination::kStopped) {
     // Half a calibration is not an identity: keep the old one and the collected frames.
     *message = "calibration over " + std::to_string(frames) + " frames stopped before it finished (" + o->summary.message + ")";
@@ -1059,9 +1082,33 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
   if (termination == Termination::kNoValidResiduals || termination == Termination::kNonFinite) {
     // Keep the previous identity and collect a fresh set of frames.
     *message = "calibration over " + std::to_string(frames) + " frames failed (" + o->summary.message +
-               "); collecting new frames";
+               (relaxed ? "); the first calibration stays" : "); collecting new frames");
     calibration_summary_ = std::move(o->summary);
     return false;
+  }
+  std::string relaxed_note;
+  if (relaxed) {
+    // Kept only when its neutral is more at rest than the first calibration's.
+    int k = -1;
+    const float w = RestWeight(o->neutral_delta, &k);
+    relaxed_report_.relaxed_weight = w;
+    relaxed_report_.frame_indices = o->frame_indices;
+    const auto& names = arkit_blendshape_names();
+    const std::string name = m.num_expression() == static_cast<int>(names.size()) && k >= 0 ? names[static_cast<size_t>(k)] : "";
+    if (!(w < o->relaxed_of)) {
+      relaxed_report_.message = format(
+          "calibrated again on the %d most relaxed frames after it: their neutral is no more at rest (%s %.2f against "
+          "%.2f), so the first calibration stays",
+          frames, name.c_str(), w, o->relaxed_of);
+      *message = relaxed_report_.message;
+      return false;
+    }
+    relaxed_report_.recalibrated = true;
+    relaxed_note = format(
+        "calibrated again on the %d most relaxed frames since the first calibration, which was not at rest (strongest "
+        "neutral weight %.2f -> %.2f, %s): ",
+        frames, o->relaxed_of, w, name.c_str());
+    relaxed_report_.message = relaxed_note.substr(0, relaxed_note.size() - 2);
   }
   identity_.alpha = o->params[0].alpha;
   identity_.beta = o->params[0].beta;
@@ -1069,8 +1116,12 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
   neutral_.delta = o->neutral_delta;
   if (options_.brows.enabled && brows_.usable()) {
     // The brows are read against the rest the reader learns, with the new identity from here on.
+    // Not after a calibration on relaxed frames: the reader has learned the actor's resting brows
+    // over the seconds watched, which the new identity moves by a millimetre or so; learned
+    // afresh, a frown 20 frames later was read as half its depth (d14, frames 114-121: browDown
+    // 0.63 against 0.7 and more).
     brows_.ClearBrows(&neutral_.delta);
-    brows_.Reset();
+    if (!relaxed) brows_.Reset();
   }
   calibrated_ = true;
   collecting_ = false;
@@ -1083,7 +1134,7 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
     start_note += format(", E %.4g against %.4g", o->summary.final_energy.total(),
                          report.kept == CalibrationStart::kNeutral ? report.per_frame_fits_energy : report.neutral_energy) +
                   (report.kept == CalibrationStart::kNeutral ? " from the per-frame fits'" : " from neutral");
-  *message = "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + o->summary.BriefReport() + ")";
+  *message = relaxed_note + "calibrated over " + std::to_string(frames) + " frames " + start_note + " (" + o->summary.BriefReport() + ")";
   if (o->search_focal_length) {
     focal_length_.searched = true;
     focal_length_.estimate = o->focal_length;
@@ -1096,7 +1147,82 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
                             " The depth terms fit the face worse for it";
   if (!calibration_warning_.empty()) *message += "; " + calibration_warning_;
   calibration_summary_ = o->summary;
+  // A first calibration not at rest: the next frames are watched for more relaxed ones.
+  StopWatchingForRelaxedFrames();
+  const float rest_weight = RestWeight(neutral_.delta);
+  if (!relaxed && options_.relaxed_recalibration_frames > 0 && rest_weight > options_.relaxed_recalibration_above) {
+    relaxed_watching_ = true;
+    relaxed_report_ = RelaxedRecalibration();
+    relaxed_report_.searched = true;
+    relaxed_report_.first_weight = rest_weight;
+    *message += format("; watching the next %d frames for a more relaxed face to calibrate on", options_.relaxed_recalibration_frames);
+  }
   return true;
+}
+
+float FaceTracker::RestWeight(Eigen::VectorXf delta, int* index) const {
+  if (gaze_.available() && delta.size() >= solver_.model().num_expression())
+    for (const GazeEstimator::Weight& w : gaze_.WeightsFor(0.f, 0.f)) delta[w.index] = 0.f;
+  if (options_.brows.enabled && brows_.usable()) brows_.ClearBrows(&delta);
+  Eigen::Index k = -1;
+  const float w = delta.size() > 0 ? delta.maxCoeff(&k) : 0.f;
+  if (index) *index = static_cast<int>(k);
+  return std::max(w, 0.f);
+}
+
+void FaceTracker::StopWatchingForRelaxedFrames() {
+  relaxed_watching_ = false;
+  relaxed_pending_ = false;
+  relaxed_frames_seen_ = 0;
+  relaxed_kept_.clear();
+}
+
+void FaceTracker::WatchForRelaxedFrame(const InputFrame& input, TrackedFrame* out) {
+  ++relaxed_frames_seen_;
+  // A fit whose points stray from the landmarks says little about the face's expression.
+  if (out->agreement.landmark_warning.empty()) {
+    const float w = RestWeight(out->params.delta);
+    if (w <= relaxed_report_.first_weight - options_.relaxed_margin) {
+      RelaxedCandidate c{input, out->params, out->frame_index, w};
+      if (static_cast<int>(relaxed_kept_.size()) < options_.calibration_frames) {
+        relaxed_kept_.push_back(std::move(c));
+      } else {
+        auto worst = std::max_element(relaxed_kept_.begin(), relaxed_kept_.end(),
+                                      [](const RelaxedCandidate& a, const RelaxedCandidate& b) { return a.weight < b.weight; });
+        if (w < worst->weight) *worst = std::move(c);
+      }
+    }
+  }
+  if (relaxed_frames_seen_ < options_.relaxed_recalibration_frames) return;
+  const int watched = relaxed_frames_seen_;
+  if (static_cast<int>(relaxed_kept_.size()) < options_.calibration_frames) {
+    relaxed_report_.message =
+        format("%d of the %d frames after the calibration were more relaxed (strongest weight %.2f or less; %d needed): the calibration stays",
+               static_cast<int>(relaxed_kept_.size()), watched, relaxed_report_.first_weight - options_.relaxed_margin,
+               options_.calibration_frames);
+    out->message += "; " + relaxed_report_.message;
+    StopWatchingForRelaxedFrames();
+    return;
+  }
+  std::sort(relaxed_kept_.begin(), relaxed_kept_.end(),
+            [](const RelaxedCandidate& a, const RelaxedCandidate& b) { return a.frame_index < b.frame_index; });
+  ClearCalibrationFrames();
+  for (RelaxedCandidate& c : relaxed_kept_) {
+    calibration_inputs_.push_back(std::move(c.input));
+    calibration_starts_.push_back(c.params);
+    calibration_frame_indices_.push_back(c.frame_index);
+  }
+  StopWatchingForRelaxedFrames();
+  relaxed_pending_ = true;
+  const std::string fit_message = out->message;
+  if (options_.background_calibration) {
+    StartBackgroundCalibration();
+    out->message = "calibrating again on the " + std::to_string(options_.calibration_frames) + " most relaxed of the " +
+                   std::to_string(watched) + " frames since the first calibration (started); " + fit_message;
+    return;
+  }
+  Calibrate(input, out->params, out);
+  out->message += "; " + fit_message;
 }
 
 void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out) {

@@ -92,6 +92,10 @@ struct LiveStatus {
   // shows the per-vertex colours on the far cheek; the status line asks the target to turn the
   // head slowly to each side once.
   bool wants_head_turn = false;
+  // With a calibration_warning, while the target's tracker watches the next frames for a relaxed
+  // face to calibrate again on (tracker::TrackerOptions::relaxed_recalibration_frames): the status
+  // line asks for a relaxed face instead of a press of Calibrate.
+  bool wants_relaxed_face = false;
   // Expression source.
   SourceState source = SourceState::kNone;
   std::string source_description;  // "udp port 9000", "recording 'actor'"

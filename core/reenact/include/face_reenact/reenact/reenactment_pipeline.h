@@ -324,6 +324,12 @@ class ReenactmentPipeline {
   // Non-empty when the target's last calibration saw a face not at rest
   // (tracker::FaceTracker::calibration_warning()): the front-end should ask for a new one.
   std::string calibration_warning() const;
+  // The target's tracker is watching for a relaxed face to calibrate again on
+  // (tracker::FaceTracker::watching_for_relaxed_face()).
+  bool watching_for_relaxed_face() const;
+  // The target's calibration again on its most relaxed frames (FaceTracker::relaxed_recalibration();
+  // searched false without a tracker or before one was needed).
+  tracker::FaceTracker::RelaxedRecalibration relaxed_recalibration() const;
   // The target tracker's focal length search (tracker::FaceTracker::focal_length_report(); not
   // searched with ground truth or before the first calibration).
   tracker::FaceTracker::FocalLengthReport focal_length_report() const;
