@@ -9,15 +9,11 @@ OUT="${1:?usage: $0 OUT_DIR [FRAMES] [-- TRACK_ARGS...]}"
 FRAMES="${2:-300}"
 shift $(( $# >= 2 ? 2 : 1 ))
 [ "${1:-}" = "--" ] && shift
-ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-FR="${FR_CLI:-$ROOT/build/bin/face-reenact}"
-VIDEOS="$ROOT/../shared/data/videos"
-[ -d "$VIDEOS" ] || { echo "no $VIDEOS: the shared real clips are not beside this clone" >&2; exit 1; }
+source "$(dirname "${BASH_SOURCE[0]}")/real_clips.sh"
 mkdir -p "$OUT"
 echo "| clip (frames) | pose off the landmarks' median / p95 / max, deg | beyond 15 deg | inner-point NME median / p95 | beyond 5 % | lost | GN iterations per frame | synthesis + analysis ms per frame | field of view |"
 echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
-for clip in webcam_talking_640x480.wmv liveportrait_d14.mp4 liveportrait_d12.mp4 liveportrait_d0.mp4 \
-            liveportrait_d6.mp4 liveportrait_d10.mp4 multi_face.avi; do
+for clip in "${REAL_CLIPS[@]}"; do
   name="${clip%.*}"
   "$FR" track --input "$VIDEOS/$clip" --frames "$FRAMES" --out "$OUT/$name.params.jsonl" \
         --report "$OUT/$name.track.json" --quiet "$@"

@@ -7,10 +7,7 @@
 set -euo pipefail
 OUT="${1:?usage: $0 OUT_DIR [FRAMES]}"
 FRAMES="${2:-150}"
-ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-FR="${FR_CLI:-$ROOT/build/bin/face-reenact}"
-VIDEOS="$ROOT/../shared/data/videos"
-[ -d "$VIDEOS" ] || { echo "no $VIDEOS: the shared real clips are not beside this clone" >&2; exit 1; }
+source "$(dirname "${BASH_SOURCE[0]}")/real_clips.sh"
 mkdir -p "$OUT"
 
 # Three frames of a video, side by side (half size), into a PNG.

@@ -9,15 +9,11 @@
 set -euo pipefail
 OUT="${1:?usage: $0 OUT_DIR [FRAMES]}"
 FRAMES="${2:-150}"
-ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-FR="${FR_CLI:-$ROOT/build/bin/face-reenact}"
-VIDEOS="$ROOT/../shared/data/videos"
-[ -d "$VIDEOS" ] || { echo "no $VIDEOS: the shared real clips are not beside this clone" >&2; exit 1; }
+source "$(dirname "${BASH_SOURCE[0]}")/real_clips.sh"
 mkdir -p "$OUT"
 echo "| clip | first neutral (strongest) | warning before | frames kept | neutral after | warning after | inner NME after, off -> on | pose off the PnP after, off -> on (deg) |"
 echo "| --- | --- | --- | --- | --- | --- | --- | --- |"
-for clip in webcam_talking_640x480.wmv liveportrait_d14.mp4 liveportrait_d12.mp4 liveportrait_d0.mp4 \
-            liveportrait_d6.mp4 liveportrait_d10.mp4 multi_face.avi; do
+for clip in "${REAL_CLIPS[@]}"; do
   name="${clip%.*}"
   for mode in on off; do
     extra=()
