@@ -896,6 +896,37 @@ TEST(FaceTracker, ABackgroundCalibrationNotAtRestRunsAgainOnRelaxedFrames) {
   EXPECT_LT(t.landmark_error_px, 3.0) << t.message;
   // Once: the frames after it are tracked, with no further watch.
   for (int w = 0; w < 6; ++w) EXPECT_EQ(tracker.Track(frame(k++)).status, TrackingStatus::kTracking);
+  EXPECT_FALSE(tracker.watching_for_relaxed_face());
+}
+
+// A watch for relaxed frames under way ends with a requested calibration (the Calibrate button): the
+// new one starts from its own frames, and the report of the old watch is gone.
+TEST(FaceTracker, ARequestedCalibrationEndsTheWatchForRelaxedFrames) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  TrackerOptions o = fast_options(2);
+  o.relaxed_recalibration_frames = 50;
+  FaceTracker tracker(*model, o);
+  const CpuSolver& cpu = tracker.cpu_solver();
+  auto frame = [&](int k, float smile) {
+    gpu::FaceParameters p = testing::true_parameters(*model, 0.5f, 11);
+    p.delta.setZero();
+    for (const char* name : {"mouthSmileLeft", "mouthSmileRight"}) p.delta[arkit_blendshape_index(name)] = smile;
+    p.euler.y() += 0.05f * std::sin(0.4f * static_cast<float>(k));
+    return render_frame(cpu, p);
+  };
+  tracker.Track(frame(0, 1.f));
+  ASSERT_EQ(tracker.Track(frame(1, 1.f)).status, TrackingStatus::kCalibrated);
+  ASSERT_TRUE(tracker.watching_for_relaxed_face());
+  EXPECT_EQ(tracker.Track(frame(2, 0.f)).status, TrackingStatus::kTracking);
+  tracker.RequestCalibration();
+  EXPECT_EQ(tracker.Track(frame(3, 0.f)).status, TrackingStatus::kCalibrating);
+  EXPECT_FALSE(tracker.watching_for_relaxed_face());
+  EXPECT_FALSE(tracker.relaxed_recalibration().searched);
+  // Calibrated at rest this time: no watch, no warning.
+  EXPECT_EQ(tracker.Track(frame(4, 0.f)).status, TrackingStatus::kCalibrated);
+  EXPECT_FALSE(tracker.watching_for_relaxed_face());
+  EXPECT_TRUE(tracker.calibration_warning().empty()) << tracker.calibration_warning();
 }
 
 // A background calibration under way ends without being applied when a new one is requested (a
