@@ -1221,7 +1221,21 @@ void FaceTracker::WatchForRelaxedFrame(const InputFrame& input, TrackedFrame* ou
                    std::to_string(watched) + " frames since the first calibration (started); " + fit_message;
     return;
   }
+  const gpu::FaceParameters tracked = out->params;
   Calibrate(input, out->params, out);
+  if (out->status == TrackingStatus::kCalibrated) {
+    // Calibrate's solve of this frame with the new identity reads no lids, gaze or brows (TrackImpl
+    // reads them per frame): this frame keeps the ones it was tracked with, or the eyes and brows of
+    // a stream in full swing would drop for one frame (d14 onto the webcam clip, output frame 94:
+    // the closed eyes opened for a frame).
+    const auto& names = arkit_blendshape_names();
+    if (solver_.model().num_expression() == static_cast<int>(names.size()))
+      for (size_t k = 0; k < names.size(); ++k) {
+        const std::string name = names[k];
+        if (name.rfind("eye", 0) == 0 || name.rfind("brow", 0) == 0)
+          out->params.delta[static_cast<Eigen::Index>(k)] = tracked.delta[static_cast<Eigen::Index>(k)];
+      }
+  }
   out->message += "; " + fit_message;
 }
 
