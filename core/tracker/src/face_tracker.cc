@@ -106,8 +106,18 @@ std::array<float, gpu::kNumShParameters> initial_lighting(const TrackerModel& mo
   return gpu::ambient_sh(irradiance);
 }
 
+// Blendshape k's ARKit name, for messages ("blendshape k" on a model with other blendshapes).
+std::string BlendshapeName(const TrackerModel& model, Eigen::Index k) {
+  const auto& names = arkit_blendshape_names();
+  if (model.num_expression() == static_cast<int>(names.size()) && k >= 0 && k < static_cast<Eigen::Index>(names.size()))
+    return names[static_cast<size_t>(k)];
+  return "blendshape " + std::to_string(k);
+}
+
 // The calibration's neutral expression against TrackerOptions::rest_warning_weight: "" when the
 // actor looked at rest, else the strongest weights (ARKit names) and what to do about them.
+// `neutral` holds no gaze and no brows the brow reader reads (ApplyCalibration clears them), so
+// its strongest weight is FaceTracker::RestWeight's.
 std::string NotAtRestWarning(const TrackerModel& model, const Eigen::VectorXf& neutral, float threshold) {
   if (threshold <= 0.f) return "";
   std::vector<std::pair<float, int>> strong;
@@ -115,14 +125,9 @@ std::string NotAtRestWarning(const TrackerModel& model, const Eigen::VectorXf& n
     if (neutral[k] > threshold) strong.emplace_back(neutral[k], static_cast<int>(k));
   if (strong.empty()) return "";
   std::sort(strong.rbegin(), strong.rend());
-  const auto& names = arkit_blendshape_names();
   std::string list;
-  for (size_t i = 0; i < std::min<size_t>(strong.size(), 3); ++i) {
-    const int k = strong[i].second;
-    const std::string name = model.num_expression() == static_cast<int>(names.size()) ? names[static_cast<size_t>(k)]
-                                                                                      : "blendshape " + std::to_string(k);
-    list += (i ? ", " : "") + name + format(" %.2f", strong[i].first);
-  }
+  for (size_t i = 0; i < std::min<size_t>(strong.size(), 3); ++i)
+    list += (i ? ", " : "") + BlendshapeName(model, strong[i].second) + format(" %.2f", strong[i].first);
   return "the face was not at rest while calibrating (" + list +
          "): part of that expression is now in the identity; calibrate again with a relaxed face and closed mouth";
 }
@@ -543,24 +548,28 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
     a.failure = format("landmarks %.1f px from the fitted model (limit %.1f px)", a.landmark_error_px,
                        options_.loss.lost_landmark_error_px);
   }
-  if (a.failure.empty() && options_.gaze.enabled) {
-    // The lids only on fits that place the eyes well: with depth and the calibrated identity
-    // (before the calibration, on the mean face, open eyes read 0.5-1.0 on synthetic actors).
-    // TrackImpl reads `lids` only on frames without depth and with the lids on.
-    const bool landmark_lids = lids && lids->ok;
-    if (landmark_lids) eye_openness_.WriteBlink(*lids, &a.params.delta);
-    a.gaze = gaze_.Read(solver_.renderer(), input, &a.params, options_.gaze,
-                        calibrated_ && (so.energy.use_point || so.energy.use_plane));
-    if (landmark_lids) {
-      a.gaze.lids_read = true;
-      a.gaze.blink = lids->blink;
-      const double nan = std::numeric_limits<double>::quiet_NaN();
-      a.gaze.open_fraction = {nan, nan};  // a colour reading's; the eye points have none
-      a.gaze.lids_message = "read from the eye points";
-    }
-    times->gaze_ms += a.gaze.ms;
-  }
+  if (a.failure.empty()) a.gaze = ReadEyes(input, lids, so.energy.use_point || so.energy.use_plane, &a.params, times);
   return a;
+}
+
+GazeReading FaceTracker::ReadEyes(const InputFrame& input, const EyeOpennessReading* lids, bool use_depth,
+                                  gpu::FaceParameters* params, StageTimes* times) const {
+  if (!options_.gaze.enabled) return {};
+  // The lids only on fits that place the eyes well: with depth and the calibrated identity
+  // (before the calibration, on the mean face, open eyes read 0.5-1.0 on synthetic actors).
+  // TrackImpl reads `lids` only on frames without depth and with the lids on.
+  const bool landmark_lids = lids && lids->ok;
+  if (landmark_lids) eye_openness_.WriteBlink(*lids, &params->delta);
+  GazeReading gaze = gaze_.Read(solver_.renderer(), input, params, options_.gaze, calibrated_ && use_depth);
+  if (landmark_lids) {
+    gaze.lids_read = true;
+    gaze.blink = lids->blink;
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    gaze.open_fraction = {nan, nan};  // a colour reading's; the eye points have none
+    gaze.lids_message = "read from the eye points";
+  }
+  times->gaze_ms += gaze.ms;
+  return gaze;
 }
 
 TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_ms*/) {
@@ -686,7 +695,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       StartBackgroundCalibration();
       out.message = CalibrationProgressMessage() + " (started; hold still)";
     } else if (CalibrationReady()) {
-      Calibrate(*input, start, &out);
+      Calibrate(*input, start, &lids, &out);
       if (out.status == TrackingStatus::kCalibrated) {
         have_fit_ = true;
         out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
@@ -847,13 +856,13 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
       StartBackgroundCalibration();
       out.message = CalibrationProgressMessage() + " (started; hold still); " + fit_message;
     } else if (CalibrationReady()) {
-      Calibrate(*input, out.params, &out);
+      Calibrate(*input, out.params, &lids, &out);
       // The frame's parameters are now the joint fit's (or a solve with the new identity).
       if (out.status == TrackingStatus::kCalibrated)
         out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
     }
   } else if (relaxed_watching_) {
-    WatchForRelaxedFrame(*input, &out);
+    WatchForRelaxedFrame(*input, &lids, &out);
     if (out.status == TrackingStatus::kCalibrated)
       out.agreement = MeasureFitAgreement(m, WithCamera(*input, out.camera), out.params, options_.loss.agreement);
   }
@@ -937,7 +946,7 @@ FaceTracker::CalibrationProgress FaceTracker::calibration_progress() const {
   return p;
 }
 
-FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames() {
+FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames(float relaxed_of) {
   // Taken out first, so that a solve that throws (caught in Track) starts a fresh collection
   // instead of retrying the same set on every frame.
   CalibrationOutcome o;
@@ -945,8 +954,7 @@ FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames() {
   o.starts = std::move(calibration_starts_);
   o.frame_indices = std::move(calibration_frame_indices_);
   ClearCalibrationFrames();
-  if (relaxed_pending_) o.relaxed_of = relaxed_report_.first_weight;
-  relaxed_pending_ = false;
+  o.relaxed_of = relaxed_of;
   // The focal length is searched once per input (the first calibration), and only on frames
   // without depth: a depth camera's intrinsics are its own.
   o.search_focal_length = options_.focal_length.estimate && !focal_length_.searched && !o.inputs.empty() &&
@@ -954,8 +962,8 @@ FaceTracker::CalibrationOutcome FaceTracker::TakeCalibrationFrames() {
   return o;
 }
 
-void FaceTracker::StartBackgroundCalibration() {
-  background_ = std::make_unique<BackgroundCalibration>(*this, TakeCalibrationFrames(), options_.stop);
+void FaceTracker::StartBackgroundCalibration(float relaxed_of) {
+  background_ = std::make_unique<BackgroundCalibration>(*this, TakeCalibrationFrames(relaxed_of), options_.stop);
 }
 
 void FaceTracker::CancelBackgroundCalibration() { background_.reset(); }
@@ -1093,8 +1101,7 @@ bool FaceTracker::ApplyCalibration(CalibrationOutcome* o, std::string* message) 
     const float w = RestWeight(o->neutral_delta, &k);
     relaxed_report_.relaxed_weight = w;
     relaxed_report_.frame_indices = o->frame_indices;
-    const auto& names = arkit_blendshape_names();
-    const std::string name = m.num_expression() == static_cast<int>(names.size()) && k >= 0 ? names[static_cast<size_t>(k)] : "";
+    const std::string name = BlendshapeName(m, k);
     if (!(w < o->relaxed_of)) {
       relaxed_report_.message = format(
           "calibrated again on the %d most relaxed frames after it: their neutral is no more at rest (%s %.2f against "
@@ -1172,12 +1179,11 @@ float FaceTracker::RestWeight(Eigen::VectorXf delta, int* index) const {
 
 void FaceTracker::StopWatchingForRelaxedFrames() {
   relaxed_watching_ = false;
-  relaxed_pending_ = false;
   relaxed_frames_seen_ = 0;
   relaxed_kept_.clear();
 }
 
-void FaceTracker::WatchForRelaxedFrame(const InputFrame& input, TrackedFrame* out) {
+void FaceTracker::WatchForRelaxedFrame(const InputFrame& input, const EyeOpennessReading* lids, TrackedFrame* out) {
   ++relaxed_frames_seen_;
   // A fit whose points stray from the landmarks says little about the face's expression.
   if (out->agreement.landmark_warning.empty()) {
@@ -1213,34 +1219,21 @@ void FaceTracker::WatchForRelaxedFrame(const InputFrame& input, TrackedFrame* ou
     calibration_frame_indices_.push_back(c.frame_index);
   }
   StopWatchingForRelaxedFrames();
-  relaxed_pending_ = true;
+  const float relaxed_of = relaxed_report_.first_weight;
   const std::string fit_message = out->message;
   if (options_.background_calibration) {
-    StartBackgroundCalibration();
+    StartBackgroundCalibration(relaxed_of);
     out->message = "calibrating again on the " + std::to_string(options_.calibration_frames) + " most relaxed of the " +
                    std::to_string(watched) + " frames since the first calibration (started); " + fit_message;
     return;
   }
-  const gpu::FaceParameters tracked = out->params;
-  Calibrate(input, out->params, out);
-  if (out->status == TrackingStatus::kCalibrated) {
-    // Calibrate's solve of this frame with the new identity reads no lids, gaze or brows (TrackImpl
-    // reads them per frame): this frame keeps the ones it was tracked with, or the eyes and brows of
-    // a stream in full swing would drop for one frame (d14 onto the webcam clip, output frame 94:
-    // the closed eyes opened for a frame).
-    const auto& names = arkit_blendshape_names();
-    if (solver_.model().num_expression() == static_cast<int>(names.size()))
-      for (size_t k = 0; k < names.size(); ++k) {
-        const std::string name = names[k];
-        if (name.rfind("eye", 0) == 0 || name.rfind("brow", 0) == 0)
-          out->params.delta[static_cast<Eigen::Index>(k)] = tracked.delta[static_cast<Eigen::Index>(k)];
-      }
-  }
+  Calibrate(input, out->params, lids, out, relaxed_of);
   out->message += "; " + fit_message;
 }
 
-void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out) {
-  CalibrationOutcome o = TakeCalibrationFrames();
+void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start,
+                            const EyeOpennessReading* lids, TrackedFrame* out, float relaxed_of) {
+  CalibrationOutcome o = TakeCalibrationFrames(relaxed_of);
   SolveCalibration(&o, options_.stop);
   out->times.calibration_ms = o.solve_ms;
   for (double StageTimes::*t : {&StageTimes::pyramid_ms, &StageTimes::synthesis_ms, &StageTimes::analysis_ms,
@@ -1255,18 +1248,28 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
   start_now.translation.z() *= out->camera.fx / current.camera.fx;
   // This frame's parameters: its joint fit when it is a calibration frame (always, without a
   // window: it completed the set), else a tracking solve with the new identity.
+  // Either way its eyes and brows are read as on every tracked frame (the joint solve reads none;
+  // without them a stream's closed eyes opened for this one frame: d14 onto the webcam clip, output
+  // frame 94, after the calibration on relaxed frames).
+  const bool use_depth = options_.tracking_solver.energy.use_point || options_.tracking_solver.energy.use_plane;
   const auto in_set = std::find(o.frame_indices.begin(), o.frame_indices.end(), out->frame_index);
   if (in_set != o.frame_indices.end()) {
     out->params = o.params[static_cast<size_t>(in_set - o.frame_indices.begin())];
+    out->params.alpha = identity_.alpha;
+    out->params.beta = identity_.beta;
+    out->gaze = ReadEyes(current_now, lids, use_depth, &out->params, &out->times);
   } else {
     gpu::FaceParameters start = start_now;
     start.alpha = identity_.alpha;
     start.beta = identity_.beta;
-    const Attempt a = Solve(current_now, start, /*reinit=*/false, &out->times, options_.stop);
+    const Attempt a = Solve(current_now, start, /*reinit=*/false, &out->times, options_.stop, lids);
     out->params = a.failure.empty() ? a.params : start_now;
+    out->gaze = a.gaze;
   }
   out->params.alpha = identity_.alpha;
   out->params.beta = identity_.beta;
+  // The brows TrackImpl read on this frame (the reader, learning the actor's rest, reads a frame once).
+  if (options_.brows.enabled && out->brows.ok) brows_.Write(out->brows, &out->params.delta);
   out->landmark_error_px = LandmarkReprojectionError(solver_.model(), current_now, out->params, options_.loss.min_landmark_confidence,
                                                      options_.calibration_solver.energy.inner_landmarks_only);
   out->has_parameters = true;

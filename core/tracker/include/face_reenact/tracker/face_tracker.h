@@ -518,22 +518,32 @@ class FaceTracker {
   // weights before the gaze is read in the opening they leave.
   Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times,
                 const std::stop_token& stop, const EyeOpennessReading* lids = nullptr) const;
+  // The eyes of a fit `*params` of `input`: the lids from the eye points (`lids`, when read) and
+  // the gaze, written into its eye weights (after every solve that passed its checks). `use_depth`:
+  // the fit had depth terms (the gaze then reads the lids' opening from the colour too).
+  GazeReading ReadEyes(const InputFrame& input, const EyeOpennessReading* lids, bool use_depth,
+                       gpu::FaceParameters* params, StageTimes* times) const;
   // A joint calibration over a set of frames: its inputs and what it found (face_tracker.cc).
   struct CalibrationOutcome;
   // The thread running one calibration in the background (TrackerOptions::background_calibration).
   class BackgroundCalibration;
   // Calibrates on the collected frames; `current` (frame out->frame_index, fitted from
-  // `current_start` when the set does not hold it) gets the new identity's fit.
-  void Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, TrackedFrame* out);
+  // `current_start` when the set does not hold it) gets the new identity's fit, with its eyes read
+  // from `lids` and the gaze and its brows (out->brows, read by TrackImpl) as on any tracked frame.
+  // `relaxed_of`: see TakeCalibrationFrames.
+  void Calibrate(const InputFrame& current, const gpu::FaceParameters& current_start, const EyeOpennessReading* lids,
+                 TrackedFrame* out, float relaxed_of = std::numeric_limits<float>::quiet_NaN());
   // The collected frames, taken out of the set (which starts afresh), ready for SolveCalibration.
-  CalibrationOutcome TakeCalibrationFrames();
+  // `relaxed_of`: the strongest weight of a calibration not at rest, when these are the most
+  // relaxed frames after it (its neutral must beat it to be kept); NaN for an ordinary calibration.
+  CalibrationOutcome TakeCalibrationFrames(float relaxed_of);
   // The joint solve(s) and the neutral's re-reads over `o`'s frames; changes no member, so it can
   // run on the background thread while the tracking thread only holds frames. `stop` ends it.
   void SolveCalibration(CalibrationOutcome* o, const std::stop_token& stop) const;
   // Takes a finished calibration's identity and neutral (true), or keeps the old ones: a stopped
   // solve puts its frames back, a failed one leaves a fresh collection (false). *message says which.
   bool ApplyCalibration(CalibrationOutcome* o, std::string* message);
-  void StartBackgroundCalibration();
+  void StartBackgroundCalibration(float relaxed_of = std::numeric_limits<float>::quiet_NaN());
   // Ends a background calibration under way (a request, a reset, a new solver) without applying it.
   void CancelBackgroundCalibration();
   // Offers a usable frame (with its fit or landmark pose as the joint solve's start) to the
@@ -583,7 +593,6 @@ class FaceTracker {
     float weight = 0.f;  // its strongest weight that the rest warning counts
   };
   bool relaxed_watching_ = false;
-  bool relaxed_pending_ = false;  // the next calibration taken is the one on the relaxed frames
   int relaxed_frames_seen_ = 0;
   std::vector<RelaxedCandidate> relaxed_kept_;  // the most relaxed so far, at most calibration_frames
   RelaxedRecalibration relaxed_report_;
@@ -592,7 +601,7 @@ class FaceTracker {
   float RestWeight(Eigen::VectorXf delta, int* index = nullptr) const;
   // Offers a tracked frame to the watch; at its end starts the calibration on the kept frames
   // (in the background, or at once into *out).
-  void WatchForRelaxedFrame(const InputFrame& input, TrackedFrame* out);
+  void WatchForRelaxedFrame(const InputFrame& input, const EyeOpennessReading* lids, TrackedFrame* out);
   void StopWatchingForRelaxedFrames();
   TrackedFrame previous_;  // last frame's result
   TrackedFrame last_good_;
