@@ -15,6 +15,7 @@
 #include "face_reenact/common/srgb.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/cpu_renderer.h"
+#include "face_parts.h"
 #include "image_sampling.h"
 
 namespace face_reenact::reenact {
@@ -316,7 +317,7 @@ struct DetailTransfer::Impl {
     crop.width = box.width;
     crop.height = box.height;
     gpu::RenderOptions ropt;
-    ropt.parts = gpu::PartMask{1} << static_cast<int>(FacePart::Face);
+    ropt.parts = internal::part_bit(FacePart::Face);
     ropt.cull_back_faces = true;
     renderer.rasterize(state, crop, ropt, &scratch, threads());
     f.depth = cv::Mat::zeros(crop.height, crop.width, CV_32FC1);

@@ -1,6 +1,6 @@
 #pragma once
-// Sub-pixel sampling of images, shared by the compositor's frame texture and the mouth interior's
-// warp (internal to fr_reenact).
+// Pixel-level helpers of the re-rendering (internal to fr_reenact): sub-pixel sampling, shared by
+// the compositor's frame texture and the mouth interior's warp, and the composite's pixel encoding.
 #include <algorithm>
 
 #include <Eigen/Core>
@@ -46,6 +46,17 @@ inline Eigen::Vector3f sample_linear(const cv::Mat& bgr, float x, float y) {
     out[ch] = s.mix(lut[a[k]], lut[b[k]], lut[c[k]], lut[d[k]]);
   }
   return out;
+}
+
+// Linear RGB as the composite's pixels hold it: sRGB-encoded BGR, 0..255 as float.
+inline cv::Vec3f display_bgr(float r, float g, float b) {
+  return cv::Vec3f(255.0f * srgb_encode(b), 255.0f * srgb_encode(g), 255.0f * srgb_encode(r));
+}
+inline cv::Vec3f display_bgr(const Eigen::Vector3f& rgb) { return display_bgr(rgb[0], rgb[1], rgb[2]); }
+
+// `rect` grown by `margin` on every side and kept inside a w x h image.
+inline cv::Rect grown_within(const cv::Rect& rect, int margin, int w, int h) {
+  return (rect + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
 }
 
 }  // namespace face_reenact::reenact::internal

@@ -19,6 +19,7 @@
 #include "face_reenact/common/srgb.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/cpu_renderer.h"
+#include "face_parts.h"
 #include "image_sampling.h"
 #include "shading.h"
 
@@ -28,7 +29,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using internal::Gamma;
 
-constexpr gpu::PartMask part_bit(FacePart p) { return gpu::PartMask{1} << static_cast<int>(p); }
+using internal::part_bit;
 
 // A named region in the face's own frame: s across (in outer-eye-corner distances, 0 between the
 // eyes, positive towards the person's left, the image's right), t down (in eye-line-to-mouth

@@ -1,0 +1,50 @@
+#pragma once
+// The mouth pass of paper Sec. 7.4.1 (internal to fr_reenact): what the re-rendered face shows
+// inside its lip opening. The compositor (face_compositor.cc) renders the output face, teeth and
+// tongue included, and hands the pass its G-buffer; the pass draws the interior over it: the
+// actor's own open mouth warped into the opening (mouth_interior.h), or the model's teeth and
+// tongue darkened with depth and a dark cavity behind them, and mends what the rasterised lips
+// leave around a barely opened mouth. docs/reenactment.md ("Mouth") says why each rule is there.
+#include <array>
+#include <functional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "face_reenact/gpu/image_formation.h"
+#include "face_reenact/model/face_model.h"
+#include "face_reenact/reenact/mouth_interior.h"
+
+namespace face_reenact::reenact::internal {
+
+// One output frame's mouth, as the compositor knows it.
+struct MouthPassInput {
+  const gpu::GBuffer* gbuffer = nullptr;  // the output's rendering (colour as shaded)
+  std::vector<Eigen::Vector2f> opening;   // the inner-lip polygon in pixels (iBUG 60-67); empty: none
+  float lip_z = 0.f;                      // the inner-lip vertices' mean camera depth (m)
+  const std::vector<FacePart>* vertex_part = nullptr;  // the model's part of each vertex
+  const std::vector<char>* in_mouth = nullptr;         // face vertices behind the inner lip line
+  // The teeth texture's pattern at a teeth pixel of the G-buffer (1 without a texture).
+  std::function<Eigen::Vector3f(size_t pixel)> teeth_pattern;
+  Eigen::Vector3f entering_light = Eigen::Vector3f::Ones();  // linear irradiance entering the opening
+  Eigen::Vector3f skin_cast = Eigen::Vector3f::Ones();       // the actor's skin against the model's
+  const MouthExemplar* exemplar = nullptr;  // the actor's own open mouth, or null
+  // How much of the interior replaces what the opening shows (0..1), and with the frame texture
+  // the frame's trust in its own sample of each drawn pixel (frame-sized CV_32FC1; null: none).
+  float mouth_alpha = 1.f;
+  const cv::Mat* frame_shown = nullptr;
+};
+
+struct MouthPassResult {
+  bool drawn = false;          // some interior pixel was drawn
+  bool from_exemplar = false;  // some of it from the open-mouth image
+};
+
+// Draws the interior into `rendered` (float BGR 0..255, frame-sized) and marks the pixels it drew
+// in the compositor's masks: `face_mask` (drawn), `mouth_mask` (mostly the opening's, CV_8UC1) and
+// `face_depth` (0 where the opening shows mostly the interior).
+MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered, cv::Mat* face_mask, cv::Mat* mouth_mask,
+                          cv::Mat* face_depth);
+
+}  // namespace face_reenact::reenact::internal
