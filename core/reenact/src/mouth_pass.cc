@@ -44,15 +44,11 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   const cv::Mat frame_shown = in.frame_shown ? *in.frame_shown : cv::Mat();
   const std::vector<char>& in_mouth = *in.in_mouth;
   auto part_of = [&](int32_t v) { return (*in.vertex_part)[static_cast<size_t>(v)]; };
-  // The opening's coverage of each pixel, anti-aliased at 1/16 px: a hard-edged polygon drew
-  // the lip line as a staircase of interior and lip pixels (seen on the webcam clip).
   constexpr int kSubpixelBits = 4;
   std::vector<cv::Point> polygon;
   for (const Eigen::Vector2f& uv : opening_px)
     polygon.emplace_back(static_cast<int>(std::lround(uv.x() * (1 << kSubpixelBits))),
                          static_cast<int>(std::lround(uv.y() * (1 << kSubpixelBits))));
-  cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
-  cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255), cv::LINE_AA, kSubpixelBits);
   // Light reaching the cavity: the part of the target's lighting that enters the opening.
   Eigen::Vector3f cavity_rgb;
   for (int c = 0; c < 3; ++c) cavity_rgb[c] = in.entering_light[c] * kCavityAlbedo[c] * in.skin_cast[c];
@@ -85,7 +81,9 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // polygon than the opening is high on average (its area over its width): over a barely opened
   // mouth (d14 smiling with her eyes shut, output frame 73; about a pixel high) the lips' inner
   // faces at the corners, 4-11 mm behind the lip line, took the image's dark corner of a wide
-  // opening, a dark blob at each corner of a closed-looking mouth.
+  // opening, a dark blob at each corner of a closed-looking mouth. Smaller so, the blobs stayed
+  // (the cavity's colour, 7 px long, where no image stood in): a barely opened mouth (below)
+  // takes nothing past its polygon, and those faces keep the face's rendering, the lips' colour.
   constexpr int kBeyondOpeningPx = 6;
   constexpr float kShownByTheFrame = 0.5f;
   const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + kBeyondOpeningPx;
@@ -93,6 +91,41 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                   (zone.height >> kSubpixelBits) + 2);
   zone = grown_within(zone, margin, w, h);
+  // A barely opened mouth: the opening under kBarelyOpenPx high on average (its area over its
+  // width). The rules for it follow.
+  constexpr float kBarelyOpenPx = 2.0f;
+  float left = std::numeric_limits<float>::infinity(), right = -left;
+  for (const Eigen::Vector2f& uv : opening_px) {
+    left = std::min(left, uv.x());
+    right = std::max(right, uv.x());
+  }
+  const double mean_height_px = PolygonArea(opening_px) / std::max(1.0, static_cast<double>(right - left));
+  const bool barely_open = mean_height_px < kBarelyOpenPx;
+  // The opening's coverage of each pixel, anti-aliased at 1/16 px: a hard-edged polygon drew
+  // the lip line as a staircase of interior and lip pixels (seen on the webcam clip). Over a barely
+  // opened mouth, the share of kCoverageSamples x kCoverageSamples samples inside the polygon
+  // instead: OpenCV's anti-aliased fill draws every edge as a line a pixel or two wide, so an
+  // opening thinner than a pixel was covered in full, a dark stroke 2-3 px high along the last
+  // 12 px to a corner (d14 with closed lips onto the webcam clip, output frame 73). Not over wider openings: there the fill's fuller edge darkens the cavity wall the
+  // rasteriser draws just inside the polygon, which the exact share left lighter, and the teeth
+  // at the corners stood out against it (NoUnshadedTeethPastTheOpeningsCorners, 2 specks).
+  constexpr int kCoverageSamples = 4;
+  cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
+  if (!barely_open) {
+    cv::fillPoly(opening, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255), cv::LINE_AA, kSubpixelBits);
+  } else if (!zone.empty()) {
+    std::vector<cv::Point> fine;
+    // Pixel i spans [i - 0.5, i + 0.5]; its samples sit at the centres of its kCoverageSamples parts.
+    for (const Eigen::Vector2f& uv : opening_px)
+      fine.emplace_back(
+          static_cast<int>(std::lround(((uv.x() - zone.x + 0.5f) * kCoverageSamples - 0.5f) * (1 << kSubpixelBits))),
+          static_cast<int>(std::lround(((uv.y() - zone.y + 0.5f) * kCoverageSamples - 0.5f) * (1 << kSubpixelBits))));
+    cv::Mat samples = cv::Mat::zeros(zone.height * kCoverageSamples, zone.width * kCoverageSamples, CV_8UC1);
+    cv::fillPoly(samples, std::vector<std::vector<cv::Point>>{fine}, cv::Scalar(255), cv::LINE_8, kSubpixelBits);
+    cv::Mat coverage;
+    cv::resize(samples, coverage, zone.size(), 0, 0, cv::INTER_AREA);
+    coverage.copyTo(opening(zone));
+  }
   // The lips themselves, as the rasteriser drew them in and around the opening (the inner
   // faces of the lips take an open-mouth image's colour, so they are not lips here).
   auto lip_at = [&](int i, int j) {
@@ -113,14 +146,6 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // on the webcam clip, output frame 73: dashes of (107, 57, 55) between lips at (190, 130,
   // 135)); they are lip, in the colour of the lip pixels above and below them. A wider opening
   // keeps them: there the lips do not meet, and what shows between them is the mouth's inside.
-  constexpr float kBarelyOpenPx = 2.0f;
-  float left = std::numeric_limits<float>::infinity(), right = -left;
-  for (const Eigen::Vector2f& uv : opening_px) {
-    left = std::min(left, uv.x());
-    right = std::max(right, uv.x());
-  }
-  const double mean_height_px = PolygonArea(opening_px) / std::max(1.0, static_cast<double>(right - left));
-  const bool barely_open = mean_height_px < kBarelyOpenPx;
   // A gap pixel takes the mean of the nearest lip pixels above and below it (within 2 px).
   auto fill_lip_gap = [&](int i, int j) {
     cv::Vec3f sum(0.f, 0.f, 0.f);
@@ -150,7 +175,7 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
       lips.at<uchar>(j - zone.y, i - zone.x) = 255;
     }
   cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
-  {
+  if (!barely_open) {
     const int beyond_px = std::clamp(static_cast<int>(std::lround(mean_height_px)), 1, kBeyondOpeningPx);
     cv::Mat near_opening;
     cv::dilate(opening(zone), near_opening,
