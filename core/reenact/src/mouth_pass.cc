@@ -164,6 +164,18 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   if (barely_open) {
     cv::morphologyEx(lips, lip_gaps, cv::MORPH_CLOSE, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(1, 3)));
     lip_gaps &= ~lips;
+    // So are the teeth and the tongue the rasteriser draws just outside the polygon (within 2 px):
+    // such an opening takes nothing past its polygon (below), and left to the face's rendering they
+    // were a white speck on the lip line (d14 onto the webcam clip, output frame 95: a tooth pixel
+    // at 193 between lips at 125-145).
+    cv::Mat near_opening;
+    cv::dilate(opening(zone), near_opening, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+    for (int j = zone.y; j < zone.y + zone.height; ++j)
+      for (int i = zone.x; i < zone.x + zone.width; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (opening.at<uchar>(j, i) || !near_opening.at<uchar>(j - zone.y, i - zone.x) || g.triangle[p] < 0) continue;
+        if (kMouthParts & part_bit(part_of(g.vertices[3 * p]))) lip_gaps.at<uchar>(j - zone.y, i - zone.x) = 255;
+      }
   }
   for (int j = zone.y; j < zone.y + zone.height; ++j)
     for (int i = zone.x; i < zone.x + zone.width; ++i) {
