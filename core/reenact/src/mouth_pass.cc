@@ -161,20 +161,24 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
     if (n > 0) rendered.at<cv::Vec3f>(j, i) = sum / static_cast<float>(n);
   };
   cv::Mat lip_gaps = cv::Mat::zeros(zone.size(), CV_8UC1);
+  constexpr uchar kUnderOnly = 128;  // a gap whose pixel the opening partly covers (below)
   if (barely_open) {
     cv::morphologyEx(lips, lip_gaps, cv::MORPH_CLOSE, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(1, 3)));
     lip_gaps &= ~lips;
-    // So are the teeth and the tongue the rasteriser draws just outside the polygon (within 2 px):
-    // such an opening takes nothing past its polygon (below), and left to the face's rendering they
-    // were a white speck on the lip line (d14 onto the webcam clip, output frame 95: a tooth pixel
-    // at 193 between lips at 125-145).
+    // So are the teeth and the tongue the rasteriser draws on the polygon's edge or just outside it
+    // (within 2 px): such an opening takes nothing past its polygon (below), and left to the face's
+    // rendering, in full or under a partly covered pixel, they were white specks and dashes on the
+    // lip line (d14 onto the webcam clip, output frames 95-97: tooth pixels at 170-190 between lips
+    // at 125-145).
     cv::Mat near_opening;
     cv::dilate(opening(zone), near_opening, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
     for (int j = zone.y; j < zone.y + zone.height; ++j)
       for (int i = zone.x; i < zone.x + zone.width; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
-        if (opening.at<uchar>(j, i) || !near_opening.at<uchar>(j - zone.y, i - zone.x) || g.triangle[p] < 0) continue;
-        if (kMouthParts & part_bit(part_of(g.vertices[3 * p]))) lip_gaps.at<uchar>(j - zone.y, i - zone.x) = 255;
+        if (opening.at<uchar>(j, i) == 255 || !near_opening.at<uchar>(j - zone.y, i - zone.x) || g.triangle[p] < 0) continue;
+        // On the edge (partly the opening's) only the rendering under the interior's share is lip.
+        if ((kMouthParts & part_bit(part_of(g.vertices[3 * p]))) && !lip_gaps.at<uchar>(j - zone.y, i - zone.x))
+          lip_gaps.at<uchar>(j - zone.y, i - zone.x) = opening.at<uchar>(j, i) ? kUnderOnly : 255;
       }
   }
   for (int j = zone.y; j < zone.y + zone.height; ++j)
@@ -184,7 +188,7 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
       // Only what the frame does not show: where it does, its own pixel is what the gap shows.
       if (g.triangle[p] < 0 || (!frame_shown.empty() && frame_shown.at<float>(j, i) >= kShownByTheFrame)) continue;
       fill_lip_gap(i, j);
-      lips.at<uchar>(j - zone.y, i - zone.x) = 255;
+      if (lip_gaps.at<uchar>(j - zone.y, i - zone.x) != kUnderOnly) lips.at<uchar>(j - zone.y, i - zone.x) = 255;
     }
   cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
   if (!barely_open) {
