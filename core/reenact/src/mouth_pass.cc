@@ -106,9 +106,10 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // opened mouth, the share of kCoverageSamples x kCoverageSamples samples inside the polygon
   // instead: OpenCV's anti-aliased fill draws every edge as a line a pixel or two wide, so an
   // opening thinner than a pixel was covered in full, a dark stroke 2-3 px high along the last
-  // 12 px to a corner (d14 with closed lips onto the webcam clip, output frame 73). Not over wider openings: there the fill's fuller edge darkens the cavity wall the
-  // rasteriser draws just inside the polygon, which the exact share left lighter, and the teeth
-  // at the corners stood out against it (NoUnshadedTeethPastTheOpeningsCorners, 2 specks).
+  // 12 px to a corner (d14 with closed lips onto the webcam clip, output frame 73). Not over wider
+  // openings: there the fill's fuller edge darkens the cavity wall the rasteriser draws just inside
+  // the polygon, which the exact share left lighter, and the teeth at the corners stood out
+  // against it (NoUnshadedTeethPastTheOpeningsCorners, 2 specks).
   constexpr int kCoverageSamples = 4;
   cv::Mat opening = cv::Mat::zeros(h, w, CV_8UC1);
   if (!barely_open) {
@@ -126,6 +127,12 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
     cv::resize(samples, coverage, zone.size(), 0, 0, cv::INTER_AREA);
     coverage.copyTo(opening(zone));
   }
+  // The zone's pixels within `reach_px` of the opening as it stands (nonzero: near).
+  auto near_the_opening = [&](int reach_px) {
+    cv::Mat near;
+    cv::dilate(opening(zone), near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach_px + 1, 2 * reach_px + 1)));
+    return near;
+  };
   // The lips themselves, as the rasteriser drew them in and around the opening (the inner
   // faces of the lips take an open-mouth image's colour, so they are not lips here).
   auto lip_at = [&](int i, int j) {
@@ -170,8 +177,8 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
     // rendering, in full or under a partly covered pixel, they were white specks and dashes on the
     // lip line (d14 onto the webcam clip, output frames 95-97: tooth pixels at 170-190 between lips
     // at 125-145).
-    cv::Mat near_opening;
-    cv::dilate(opening(zone), near_opening, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+    constexpr int kGapReachPx = 2;
+    const cv::Mat near_opening = near_the_opening(kGapReachPx);
     for (int j = zone.y; j < zone.y + zone.height; ++j)
       for (int i = zone.x; i < zone.x + zone.width; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
@@ -193,9 +200,7 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
   if (!barely_open) {
     const int beyond_px = std::clamp(static_cast<int>(std::lround(mean_height_px)), 1, kBeyondOpeningPx);
-    cv::Mat near_opening;
-    cv::dilate(opening(zone), near_opening,
-               cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * beyond_px + 1, 2 * beyond_px + 1)));
+    const cv::Mat near_opening = near_the_opening(beyond_px);
     for (int j = zone.y; j < zone.y + zone.height; ++j) {
       uchar* orow = opening.ptr<uchar>(j);
       for (int i = zone.x; i < zone.x + zone.width; ++i) {
@@ -223,10 +228,9 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // lip does not fit over are drawn as the interior: the open-mouth image's there, or else the
   // interior drawn around them.
   constexpr int kLipStripReachPx = 2;
-  cv::Mat solid_lips, near_lips;
+  cv::Mat solid_lips;
   cv::morphologyEx(lips, solid_lips, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_CROSS, cv::Size(3, 3)));
-  cv::dilate(opening(zone), near_lips,
-             cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kLipStripReachPx + 1, 2 * kLipStripReachPx + 1)));
+  const cv::Mat near_lips = near_the_opening(kLipStripReachPx);
   struct Strip {
     int i, j;
     float alpha;

@@ -1252,6 +1252,8 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
   // without them a stream's closed eyes opened for this one frame: d14 onto the webcam clip, output
   // frame 94, after the calibration on relaxed frames).
   const bool use_depth = options_.tracking_solver.energy.use_point || options_.tracking_solver.energy.use_plane;
+  start_now.alpha = identity_.alpha;
+  start_now.beta = identity_.beta;
   const auto in_set = std::find(o.frame_indices.begin(), o.frame_indices.end(), out->frame_index);
   if (in_set != o.frame_indices.end()) {
     out->params = o.params[static_cast<size_t>(in_set - o.frame_indices.begin())];
@@ -1259,15 +1261,10 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     out->params.beta = identity_.beta;
     out->gaze = ReadEyes(current_now, lids, use_depth, &out->params, &out->times);
   } else {
-    gpu::FaceParameters start = start_now;
-    start.alpha = identity_.alpha;
-    start.beta = identity_.beta;
-    const Attempt a = Solve(current_now, start, /*reinit=*/false, &out->times, options_.stop, lids);
+    const Attempt a = Solve(current_now, start_now, /*reinit=*/false, &out->times, options_.stop, lids);
     out->params = a.failure.empty() ? a.params : start_now;
     out->gaze = a.gaze;
   }
-  out->params.alpha = identity_.alpha;
-  out->params.beta = identity_.beta;
   // The brows TrackImpl read on this frame (the reader, learning the actor's rest, reads a frame once).
   if (options_.brows.enabled && out->brows.ok) brows_.Write(out->brows, &out->params.delta);
   out->landmark_error_px = LandmarkReprojectionError(solver_.model(), current_now, out->params, options_.loss.min_landmark_confidence,
