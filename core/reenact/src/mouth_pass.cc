@@ -25,6 +25,9 @@ constexpr float kMinTongueOcclusion = 0.15f;
 constexpr float kMaxTongueOcclusion = 0.55f;
 // A face-part surface this far behind the lip line (inside the lip opening) is the cavity wall.
 constexpr float kCavityDepthM = 0.003f;
+// Any face surface this far behind the lip line that shows beside the opening is the inside of
+// the mouth seen past a lip (the model's mouth bag); the skin beside the mouth is never this deep.
+constexpr float kInsideTheMouthM = 0.03f;
 
 }  // namespace
 
@@ -85,8 +88,9 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // (the cavity's colour, 7 px long, where no image stood in): a barely opened mouth (below)
   // takes nothing past its polygon, and those faces keep the face's rendering, the lips' colour.
   constexpr int kBeyondOpeningPx = 6;
+  constexpr int kFollowInsidePx = 8;  // below
   constexpr float kShownByTheFrame = 0.5f;
-  const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + kBeyondOpeningPx;
+  const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + kBeyondOpeningPx + kFollowInsidePx;
   cv::Rect zone = cv::boundingRect(polygon);
   zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,
                   (zone.height >> kSubpixelBits) + 2);
@@ -199,23 +203,44 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
     }
   cv::Mat past_opening = cv::Mat::zeros(zone.size(), CV_8UC1);  // taken past the polygon (below)
   if (!barely_open) {
-    const int beyond_px = std::clamp(static_cast<int>(std::lround(mean_height_px)), 1, kBeyondOpeningPx);
-    const cv::Mat near_opening = near_the_opening(beyond_px);
+    // The mouth's inside past the polygon that the frame does not show: teeth, tongue, the faces
+    // behind the lip line, and any face surface far behind it (the inside of the mouth seen past
+    // a lip pulled down), lip gaps excepted.
+    cv::Mat inside = cv::Mat::zeros(zone.size(), CV_8UC1);
     for (int j = zone.y; j < zone.y + zone.height; ++j) {
-      uchar* orow = opening.ptr<uchar>(j);
+      const uchar* orow = opening.ptr<uchar>(j);
       for (int i = zone.x; i < zone.x + zone.width; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
-        if (orow[i] == 255 || g.triangle[p] < 0 || !near_opening.at<uchar>(j - zone.y, i - zone.x)) continue;
+        if (orow[i] == 255 || g.triangle[p] < 0) continue;
         if (!frame_shown.empty() && frame_shown.at<float>(j, i) >= kShownByTheFrame) continue;
         const int32_t v0 = g.vertices[3 * p];
+        const float depth_behind = g.position[3 * p + 2] - lip_z;
         const bool inside_geometry =
-            (kMouthParts & part_bit(part_of(v0))) ||
-            (in_mouth[static_cast<size_t>(v0)] && (use_exemplar || g.position[3 * p + 2] - lip_z > kCavityDepthM));
+            (kMouthParts & part_bit(part_of(v0))) || depth_behind > kInsideTheMouthM ||
+            (in_mouth[static_cast<size_t>(v0)] && (use_exemplar || depth_behind > kCavityDepthM));
         if (!inside_geometry) continue;
         if (lips.at<uchar>(j - zone.y, i - zone.x)) continue;  // a gap between the lips, filled above
-        orow[i] = 255;
-        past_opening.at<uchar>(j - zone.y, i - zone.x) = 255;
+        inside.at<uchar>(j - zone.y, i - zone.x) = 255;
       }
+    }
+    const int beyond_px = std::clamp(static_cast<int>(std::lround(mean_height_px)), 1, kBeyondOpeningPx);
+    past_opening = inside & near_the_opening(beyond_px);
+    // Where a lip the output pulls far from the polygon (d6's bared teeth onto d10, output frame
+    // 120: mouthLowerDown 0.67 over jawOpen 0.48) leaves more of the inside than that between the
+    // polygon and the lip, the rest of it was left to the face's rendering: the albedo map's teeth
+    // and tongue, a grey-green stroke along each side of the lower lip. The taken region follows
+    // the inside where it continues from there, a pixel at a time, up to kFollowInsidePx farther.
+    for (int step = 0; step < kFollowInsidePx; ++step) {
+      cv::Mat grown;
+      cv::dilate(past_opening, grown, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+      grown &= inside;
+      if (cv::countNonZero(grown != past_opening) == 0) break;
+      past_opening = grown;
+    }
+    for (int j = zone.y; j < zone.y + zone.height; ++j) {
+      uchar* orow = opening.ptr<uchar>(j);
+      for (int i = zone.x; i < zone.x + zone.width; ++i)
+        if (past_opening.at<uchar>(j - zone.y, i - zone.x)) orow[i] = 255;
     }
   }
   // Where the output rolls a lip out (d6's grimace on the webcam clip, frame 60), the faces
