@@ -167,7 +167,11 @@ std::string stage_report(const reenact::PipelineSummary& s, double source_ms) {
 
 // The albedo texture's line: its views (frame, yaw, texels seen), or why there is none.
 std::string albedo_texture_line(const reenact::PipelineSummary& s) {
-  if (s.albedo_texture_views.empty()) return s.albedo_texture_note.empty() ? "none built (no tracked view yet)" : s.albedo_texture_note;
+  if (s.albedo_texture_views.empty())
+    return s.albedo_texture_note.empty()
+               ? "none built: no tracked frame yet with the mouth closed and the eyes open (jawOpen and eyeBlink at "
+                 "most 0.35) facing the camera (the per-vertex albedo map stands in)"
+               : s.albedo_texture_note;
   std::ostringstream o;
   o.setf(std::ios::fixed);
   o.precision(1);

@@ -272,11 +272,26 @@ TEST(AlbedoTextureTest, ViewsAreAFrontAndATurnToEachSideAtRest) {
   EXPECT_EQ(chooser.Consider(broken), AlbedoViewChooser::kNone);
   chooser.Reset();
   EXPECT_EQ(chooser.filled_count(), 0);
+  // A head pitched against the camera (a phone held low: d10 throughout) is the front view while
+  // no level one is; a level one replaces it, and it never replaces a level one. Too steep, none.
+  auto pitched = [](float pitch_deg) {
+    gpu::FaceParameters p = turned(0.f);
+    p.euler[0] += pitch_deg * static_cast<float>(M_PI / 180.0);
+    return p;
+  };
+  EXPECT_EQ(chooser.Consider(pitched(40.f)), AlbedoViewChooser::kNone) << "too steep";
+  EXPECT_EQ(chooser.Consider(pitched(20.f)), AlbedoViewChooser::kFront);
+  EXPECT_EQ(chooser.Consider(turned(3.f)), AlbedoViewChooser::kFront);
+  EXPECT_EQ(chooser.Consider(pitched(-20.f)), AlbedoViewChooser::kNone);
+  chooser.Reset();
 
   o.size = 10;
   EXPECT_FALSE(o.IsValid(&why));
   o = AlbedoTextureOptions{};
   o.side_yaw_deg = std::nanf("");
+  EXPECT_FALSE(o.IsValid(&why));
+  o = AlbedoTextureOptions{};
+  o.max_front_pitch_deg = 0.f;
   EXPECT_FALSE(o.IsValid(&why));
   o = AlbedoTextureOptions{};
   o.size = 0;  // off

@@ -134,6 +134,8 @@ bool AlbedoTextureOptions::IsValid(std::string* why) const {
   if (!(min_side_yaw_deg > 0.f) || !(side_yaw_deg >= min_side_yaw_deg) || !(max_side_yaw_deg >= side_yaw_deg) ||
       !(max_side_yaw_deg <= 60.f))
     return fail("albedo texture side views need 0 < min_side_yaw_deg <= side_yaw_deg <= max_side_yaw_deg <= 60");
+  if (!(max_front_pitch_deg > 0.f) || !(max_front_pitch_deg <= 60.f))
+    return fail("albedo texture max_front_pitch_deg must be in (0, 60]");
   if (!(max_expression > 0.f) || !(max_expression <= 1.f)) return fail("albedo texture max_expression must be in (0, 1]");
   if (blend_levels < 1 || blend_levels > 10) return fail("albedo texture blend_levels must be in 1..10");
   return true;
@@ -372,12 +374,19 @@ AlbedoViewChooser::Slot AlbedoViewChooser::Consider(const gpu::FaceParameters& p
       expression_weight(params.delta, blink_right) > options_.max_expression)
     return kNone;
   const float yaw = head_yaw_deg(params);
-  // Mostly a turn about the vertical: a face looking up or down shows its chin or brow, not a side.
   const float turn = gpu::head_turn_from_camera_deg(params);
-  if (turn > std::abs(yaw) + 12.f) return kNone;
   Slot slot = kNone;
   float distance = 0.f;
-  if (std::abs(yaw) < options_.min_side_yaw_deg) {
+  if (turn > std::abs(yaw) + 12.f) {
+    // Mostly a turn about the horizontal: a face looking up or down shows its chin or brow, not a
+    // side. It is still the front view of an actor who never faces the camera level (a phone held
+    // low, a laptop's camera below the eyes: d10 is pitched about 20 degrees throughout, and its
+    // 125 frames gave no texture), so it may fill the front slot, at the distance of its whole
+    // turn where a level view counts only its yaw: a level view at rest soon replaces it.
+    if (turn > options_.max_front_pitch_deg) return kNone;
+    slot = kFront;
+    distance = turn;
+  } else if (std::abs(yaw) < options_.min_side_yaw_deg) {
     slot = kFront;
     distance = std::abs(yaw);
   } else if (std::abs(yaw) <= options_.max_side_yaw_deg) {

@@ -37,6 +37,9 @@ struct AlbedoTextureOptions {
   float side_yaw_deg = 20.0f;
   float min_side_yaw_deg = 8.0f;
   float max_side_yaw_deg = 35.0f;
+  // A front view turned mostly up or down (the head pitched against the camera) is taken only
+  // while no level one is, and only up to this turn (degrees).
+  float max_front_pitch_deg = 30.0f;
   // A view shows the face at rest enough: jawOpen and each eyeBlink at most this (an open mouth
   // stretches the lips' skin, a blink shows the lid where the eye is usually seen).
   float max_expression = 0.35f;
@@ -115,7 +118,8 @@ AlbedoTexture BlendAlbedoViews(std::shared_ptr<const AlbedoTextureLayout> layout
 // image).
 float head_yaw_deg(const gpu::FaceParameters& params);
 
-// Which tracked frames become the texture's views: the one closest to facing the camera, and per
+// Which tracked frames become the texture's views: the one closest to facing the camera (one turned
+// mostly up or down, up to options.max_front_pitch_deg, only while no level one is), and per
 // side the one turned closest to options.side_yaw_deg (between min_ and max_side_yaw_deg), each
 // with the mouth and eyes near rest (options.max_expression) and, among those, the nearest to
 // rest overall (the expression's summed weights count as 4 degrees each). Consider() says which
