@@ -654,6 +654,45 @@ TEST(ReenactCompositorTest, NoUnshadedTeethPastTheOpeningsCorners) {
   EXPECT_EQ(specks, 0) << "teeth drawn unshaded past the opening";
 }
 
+// Issue #28: the rig can push the model's teeth through the skin: jawForward over an opened jaw
+// moves the lower teeth forward through the chin (d6 baring her teeth onto d10, output frame 120:
+// a pale blob on the chin 30 px below the lips). Farther than 16 px from the inner-lip polygon the
+// output shows the skin behind them, exactly what a rendering without the mouth's parts shows.
+// Here (an identity half a deviation from the mean) 1870 pixels showed the teeth before, none now.
+TEST(ReenactCompositorTest, TeethPushedThroughTheChinAreNotDrawn) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  gpu::FaceParameters target = test_face(0.5f);
+  // An identity away from the mean (the mean face's teeth stay inside; many others' do not).
+  target.alpha = Eigen::VectorXf::Zero(test_model()->num_identity());
+  for (int k = 0; k < target.alpha.size(); ++k) target.alpha[k] = 0.5f * std::sin(1.7f * static_cast<float>(k));
+  gpu::FaceParameters out = target;
+  out.delta[kJawOpenIndex] = 0.48f;
+  out.delta[arkit_blendshape_index("jawForward")] = 0.42f;
+  out.delta[arkit_blendshape_index("mouthLowerDownLeft")] = 0.67f;
+  out.delta[arkit_blendshape_index("mouthLowerDownRight")] = 0.67f;
+  out.delta[arkit_blendshape_index("mouthUpperUpLeft")] = 0.6f;
+  out.delta[arkit_blendshape_index("mouthUpperUpRight")] = 0.9f;
+  ReenactmentOptions with_mouth = albedo_map_options(), without = albedo_map_options();
+  without.render_mouth = false;
+  const FaceCompositor fc(*test_model(), with_mouth), skin_only(*test_model(), without);
+  const Rendered t = make_target(fc, target, cam);
+  const CompositeResult a = fc.Compose(t.target, cam, target, out, &t.albedo);
+  const CompositeResult b = skin_only.Compose(t.target, cam, target, out, &t.albedo);
+  ASSERT_TRUE(a.drawn && b.drawn);
+  cv::Mat near = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  cv::fillPoly(near, std::vector<std::vector<cv::Point>>{testing::pixel_polygon(fc.MouthOpening(cam, out))}, cv::Scalar(255));
+  // 16 px, and the softened mouth layer's edge (the rendering, before the blend into the frame).
+  const int reach = 16 + 2;
+  cv::dilate(near, near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
+  cv::Mat diff, gray;
+  cv::absdiff(a.rendered_bgr, b.rendered_bgr, diff);
+  cv::cvtColor(diff, gray, cv::COLOR_BGR2GRAY);
+  const int differ = cv::countNonZero((gray > 2) & ~near);
+  RecordProperty("pixels_differing_away_from_the_mouth", differ);
+  EXPECT_EQ(differ, 0) << "the mouth's parts drawn away from the mouth";
+}
+
 TEST(ReenactCompositorTest, WithTheFrameTextureTheMouthInteriorFadesInWithTheExtraOpening) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(320, 240);

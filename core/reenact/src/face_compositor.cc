@@ -883,10 +883,64 @@ struct FaceCompositor::Impl {
     return cast;
   }
 
+  // The model's teeth and tongue are inside the head, but the rig can push them through the skin:
+  // jawForward over an opened jaw moves the lower teeth forward through the chin (d6 baring her
+  // teeth onto d10, output frame 120: jawForward 0.42, jawOpen 0.48; a pale blob on the chin 30
+  // px below the lips, the albedo map's teeth where the frame could not be sampled). Nothing of
+  // them can be seen farther than kStrayMouthPartsPx from the inner-lip polygon (the mouth pass
+  // reaches 14 px past it); there the skin behind them is drawn, from a rendering of the skin
+  // alone, made only on the frames that need it.
+  void DrawSkinOverStrayMouthParts(const gpu::VertexState& state, const gpu::FaceParameters& params,
+                                   const gpu::PinholeCamera& camera, const gpu::RenderOptions& ropt,
+                                   gpu::GBuffer* g) const {
+    if (!(ropt.parts & kMouthParts)) return;
+    const std::vector<Eigen::Vector2f> opening = Opening(camera, state);
+    if (opening.size() < 3) return;
+    constexpr int kStrayMouthPartsPx = 16;
+    std::vector<cv::Point> polygon;
+    for (const Eigen::Vector2f& uv : opening)
+      polygon.emplace_back(static_cast<int>(std::lround(uv.x())), static_cast<int>(std::lround(uv.y())));
+    const int w = g->width, h = g->height;
+    const cv::Rect zone = grown_within(cv::boundingRect(polygon), kStrayMouthPartsPx + 1, w, h);
+    cv::Mat near_mouth = cv::Mat::zeros(std::max(1, zone.height), std::max(1, zone.width), CV_8UC1);
+    if (!zone.empty()) {
+      std::vector<cv::Point> local;
+      for (const cv::Point& q : polygon) local.push_back(q - zone.tl());
+      cv::fillPoly(near_mouth, std::vector<std::vector<cv::Point>>{local}, cv::Scalar(255));
+      cv::dilate(near_mouth, near_mouth,
+                 cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kStrayMouthPartsPx + 1, 2 * kStrayMouthPartsPx + 1)));
+    }
+    std::vector<size_t> stray;
+    for (int j = 0; j < h; ++j)
+      for (int i = 0; i < w; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (g->triangle[p] < 0 || !(kMouthParts & part_bit(part_of(g->vertices[3 * p])))) continue;
+        if (zone.contains(cv::Point(i, j)) && near_mouth.at<uchar>(j - zone.y, i - zone.x)) continue;
+        stray.push_back(p);
+      }
+    if (stray.empty()) return;
+    gpu::RenderOptions skin_only = ropt;
+    skin_only.parts &= ~kMouthParts;
+    gpu::GBuffer& skin = scratch_gbuffer(2);
+    rasterize(state, params, camera, skin_only, &skin);
+    // In place, within the rectangle the output's draw covered (its trace stays valid).
+    for (const size_t p : stray) {
+      g->triangle[p] = skin.triangle[p];
+      for (size_t k = 0; k < 3; ++k) {
+        g->vertices[3 * p + k] = skin.vertices[3 * p + k];
+        g->color[3 * p + k] = skin.color[3 * p + k];
+        g->position[3 * p + k] = skin.position[3 * p + k];
+        g->normal[3 * p + k] = skin.normal[3 * p + k];
+        g->barycentric[3 * p + k] = skin.barycentric[3 * p + k];
+      }
+    }
+  }
+
   // Per-thread G-buffers reused from frame to frame (16 values per pixel; allocating them anew
-  // every frame cost more than rasterising at 640x480). 0: the output, 1: the tracked geometry.
+  // every frame cost more than rasterising at 640x480). 0: the output, 1: the tracked geometry,
+  // 2: the output's skin alone (DrawSkinOverStrayMouthParts; allocated on first use).
   static gpu::GBuffer& scratch_gbuffer(int which) {
-    thread_local std::array<gpu::GBuffer, 2> buffers;
+    thread_local std::array<gpu::GBuffer, 3> buffers;
     return buffers[static_cast<size_t>(which)];
   }
 
@@ -1046,6 +1100,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   ropt.cull_back_faces = true;
   gpu::GBuffer& g = Impl::scratch_gbuffer(0);
   im.rasterize(state, output, camera, ropt, &g);
+  im.DrawSkinOverStrayMouthParts(state, output, camera, ropt, &g);
   const Impl::TextureShading texture_shading =
       im.MakeTextureShading(use_map ? albedo->texture.get() : nullptr, use_map ? albedo->albedo : Eigen::VectorXf(), shade);
   if (texture_shading.texture && opt.appearance == Appearance::kAlbedoMap) im.ApplyAlbedoTexture(texture_shading, &g);
