@@ -53,6 +53,13 @@ ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000095.png"
 mkdir -p "$OUT/mouth_less"
 "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$VIDEOS/liveportrait_d12.mp4" --frames 130 \
       --out "$OUT/mouth_less/d12.mp4" --quiet --sheets "$OUT/mouth_less" --sheet-frames 40,80,125
+# A source baring her teeth with the lips pulled apart onto an actor filmed from below (docs/reenactment.md, "Farther
+# past the polygon, where the inside continues", "Teeth pushed through the skin", and the albedo texture's pitched front
+# view): d6 onto d10, output frames 109 and 120 (the mouth zoom: no grey-green strokes beside the lower lip, no pale
+# blob on the chin).
+mkdir -p "$OUT/bared_teeth"
+"$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$VIDEOS/liveportrait_d10.mp4" --frames 125 \
+      --out "$OUT/bared_teeth/d10.mp4" --quiet --sheets "$OUT/bared_teeth" --sheet-frames 109,120
 # The closed loop on real video (docs/reenactment.md, "Measured", "On real video"): each driving clip onto the webcam
 # clip, the output tracked again; and the albedo map's pass-through fidelity. Figures in closed_loop_*.json.
 for s in d14 d6 d0; do
@@ -143,4 +150,4 @@ for pair in webcam:webcam_talking_640x480.wmv:30:240:280:200:120 d14:liveportrai
          -filter_complex "[0]select='eq(n\,$frame)',$crop[a];[1]$crop[b];[2]$crop[c];[a][b][c]hstack=3" -frames:v 1 \
          "$OUT/albedo_texture_$name.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"
