@@ -57,6 +57,7 @@ class WorkerPool {
   }
 
   void Run(Job* job, int helpers) {
+    bool wake = false;  // read under the lock: a helper may take a seat the moment it is queued
     {
       std::lock_guard<std::mutex> lock(mutex_);
       // Grow on demand; a failure to start one more thread only means fewer helpers.
@@ -68,9 +69,10 @@ class WorkerPool {
         }
       }
       job->seats = std::min(helpers, static_cast<int>(workers_.size()));
-      if (job->seats > 0) queue_.push_back(job);
+      wake = job->seats > 0;
+      if (wake) queue_.push_back(job);
     }
-    if (job->seats > 0) work_.notify_all();
+    if (wake) work_.notify_all();
     job->Run();
     std::unique_lock<std::mutex> lock(mutex_);
     // Every item is taken: no helper may join from now on.
