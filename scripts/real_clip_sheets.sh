@@ -40,6 +40,9 @@ mkdir -p "$OUT/brows"
 mkdir -p "$OUT/lids"
 "$FR" reenact --source "$src" --target "$tgt" --frames 100 --out "$OUT/lids/webcam.mp4" --quiet --frames-dir "$OUT/lids/webcam" \
       --sheets "$OUT/lids" --sheet-frames 75,95
+ffmpeg -loglevel error -y -i "$tgt" -i "$OUT/lids/webcam/frame_000053.png" -filter_complex \
+       "[0]select='eq(n\,53)',crop=150:40:170:198,scale=600:160:flags=neighbor[a];[1]crop=150:40:170:198,scale=600:160:flags=neighbor[b];[a][b]vstack" \
+       -frames:v 1 "$OUT/eyes_webcam.png"
 ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000075.png" -filter_complex \
        "[0]select='eq(n\,75)',crop=160:60:245:175,scale=640:240:flags=neighbor[a];[1]crop=160:60:245:175,scale=640:240:flags=neighbor[b];[a][b]vstack" \
        -frames:v 1 "$OUT/lids.png"
@@ -59,7 +62,18 @@ mkdir -p "$OUT/mouth_less"
 # blob on the chin).
 mkdir -p "$OUT/bared_teeth"
 "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$VIDEOS/liveportrait_d10.mp4" --frames 125 \
-      --out "$OUT/bared_teeth/d10.mp4" --quiet --sheets "$OUT/bared_teeth" --sheet-frames 109,120
+      --out "$OUT/bared_teeth/d10.mp4" --quiet --sheets "$OUT/bared_teeth" --sheet-frames 109,120 \
+      --frames-dir "$OUT/bared_teeth/d10"
+# The eyes (docs/reenactment.md, "Lids the output lowers part way, a gaze turned hard aside"): the same run's output
+# frames 30, 100 and 120 (d6 squinting and looking aside), the eyes 3x, target above output (eyes.png: no pale band or
+# reddish line along the lowered lids, no pink patch on the white); and the webcam clip's frame 53 from the lids run
+# below (d14 looking hard aside: the bared white in the camera's dim grey, not a bright wedge; eyes_webcam.png).
+eyes=()
+for f in 30 100 120; do eyes+=(-i "$VIDEOS/liveportrait_d10.mp4" -i "$OUT/bared_teeth/d10/frame_$(printf %06d "$f").png"); done
+ffmpeg -loglevel error -y "${eyes[@]}" -filter_complex \
+       "[0]select='eq(n\,30)'[t0];[2]select='eq(n\,100)'[t1];[4]select='eq(n\,120)'[t2];$(for k in 0 1 2; do
+          printf '[t%d]crop=200:56:160:205,scale=600:168:flags=neighbor[a%d];[%d]crop=200:56:160:205,scale=600:168:flags=neighbor[b%d];' $k $k $((2 * k + 1)) $k
+        done)[a0][b0][a1][b1][a2][b2]vstack=6" -frames:v 1 "$OUT/eyes.png"
 # The closed loop on real video (docs/reenactment.md, "Measured", "On real video"): each driving clip onto the webcam
 # clip, the output tracked again; and the albedo map's pass-through fidelity. Figures in closed_loop_*.json.
 for s in d14 d6 d0; do

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <functional>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -447,6 +448,41 @@ TEST(ReenactCompositorTest, EyesOpenedWiderTakeTheFramesEyeNotTheModelsWhite) {
   EXPECT_LT(white, all / 20) << white << " of " << all << " eyeball pixels are the model's white";
 }
 
+// A gaze turned hard aside bares eyeball surface the frame never shows, farther from its shown
+// eyeball than the fill reaches. It took the albedo map's eyeball, the model's white: on the
+// webcam clip (a dim camera, eye whites about 0.3 in linear light) a bright blue-white wedge beside
+// the iris (d14 onto it, output frames 19 and 53). It now takes the eye's white as the frame shows
+// it (the brightest quarter inside the target's lids). Here the frame's eyes are a dim grey: 29 of
+// 668 eye pixels were drawn brighter than 150 before, none now.
+TEST(ReenactCompositorTest, EyeballTheFrameDoesNotShowTakesTheFramesWhite) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters turned = target;
+  for (const char* name : {"eyeWideLeft", "eyeWideRight", "eyeLookOutLeft", "eyeLookInRight"})
+    turned.delta[arkit_blendshape_index(name)] = 1.f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  cv::Mat frame = plain.clone();
+  cv::Mat target_eyes = eye_openings(model, testing::test_renderer().evaluate(target), cam);
+  cv::dilate(target_eyes, target_eyes, cv::Mat());
+  frame.setTo(cv::Scalar(90, 90, 90), target_eyes);
+  const CompositeResult c = fc.Compose(frame, cam, target, turned, &albedo);
+  ASSERT_TRUE(c.drawn);
+  cv::Mat eyes = eye_openings(model, testing::test_renderer().evaluate(turned), cam) & c.face_mask;
+  int bright = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+      bright += eyes.at<uchar>(j, i) && std::min({px[0], px[1], px[2]}) > 150;
+    }
+  RecordProperty("bright_eye_pixels", std::to_string(bright) + " of " + std::to_string(cv::countNonZero(eyes)));
+  EXPECT_LE(bright, 5) << "eyeball pixels drawn the model's white beside the frame's dim eyes";
+}
+
 // A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
 // eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
 // map, which holds no iris (on the webcam clip it drew the eyes reddish brown).
@@ -525,6 +561,117 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
   RecordProperty("blue_tinted_lid_pixels", std::to_string(tinted) + " of " + std::to_string(all));
   ASSERT_GT(all, 10);
   EXPECT_LT(tinted, all / 10) << tinted << " of " << all << " closed-lid pixels are tinted by the frame's blue";
+}
+
+// Lids the output lowers part way (a squint, a sleepy look): the frame's lash line along the
+// upper lid margin moves down with it. Its samples lie at the lid's occluding boundary and the
+// lid moves, so the boundary rule distrusted them; the map has no lash line (it observes no lid
+// margin), and the lowered lid was drawn as a band of bare skin over the eye, or a reddish line
+// where the frame's iris and the map's lid mixed (d6 onto d10, output frames 100 and 120). Here a
+// dark 3 px lash line is painted along the target's upper lid margins: with the lids lowered, the
+// output's margins must be dark, and a light rim (white here) must still not come along.
+TEST(ReenactCompositorTest, LidsTheOutputLowersKeepTheFramesLashLine) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters lowered = target;
+  lowered.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.35f;
+  lowered.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.35f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
+  // The upper lid margins (iBUG 36-39, 42-45), drawn 3 px wide.
+  auto margins = [&](const gpu::FaceParameters& p) {
+    cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+    const gpu::VertexState state = renderer.evaluate(p);
+    for (int first : {36, 42})
+      cv::polylines(mask, std::vector<std::vector<cv::Point>>{project_vertices(state, cam, landmark_vertices(model, first, first + 3))},
+                    false, cv::Scalar(255), 3);
+    return mask;
+  };
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  // The output's margin pixels (the lines' middles) whose colour passes `test`, with `lash` painted.
+  auto on_margins = [&](const cv::Scalar& lash, const std::function<bool(const cv::Vec3b&)>& test, int* all) {
+    cv::Mat frame = plain.clone();
+    frame.setTo(lash, margins(target));
+    const CompositeResult c = fc.Compose(frame, cam, target, lowered, &albedo);
+    EXPECT_TRUE(c.drawn);
+    cv::Mat out_margins = margins(lowered) & c.face_mask;
+    cv::erode(out_margins, out_margins, cv::Mat());
+    *all = cv::countNonZero(out_margins);
+    int n = 0;
+    for (int j = 0; j < cam.height; ++j)
+      for (int i = 0; i < cam.width; ++i) n += out_margins.at<uchar>(j, i) && test(c.bgr.at<cv::Vec3b>(j, i));
+    return n;
+  };
+  const auto is_dark = [](const cv::Vec3b& px) { return std::max({px[0], px[1], px[2]}) < 90; };
+  int all = 0;
+  const int dark = on_margins(cv::Scalar(30, 30, 30), is_dark, &all);
+  // The same with the gaze turned too (the eyeball's samples move elsewhere; the lid's last row
+  // beside it is no squeeze): 90 of 164 dark looking up, 43 of 154 down (the rig lowers the lids
+  // further), 84 of 162 out, 76 of 156 in; none before.
+  for (const auto& [left, right] : {std::pair{"eyeLookUpLeft", "eyeLookUpRight"}, std::pair{"eyeLookDownLeft", "eyeLookDownRight"},
+                                    std::pair{"eyeLookOutLeft", "eyeLookOutRight"}, std::pair{"eyeLookInLeft", "eyeLookInRight"}}) {
+    const gpu::FaceParameters level = lowered;
+    lowered.delta[arkit_blendshape_index(left)] = 0.8f;
+    lowered.delta[arkit_blendshape_index(right)] = 0.8f;
+    int n = 0;
+    const int d = on_margins(cv::Scalar(30, 30, 30), is_dark, &n);
+    EXPECT_GT(d, n / 5) << left << ": the lash line should follow a lid lowered over a turned eye";
+    lowered = level;
+  }
+  const int white = on_margins(cv::Scalar(255, 255, 255), [](const cv::Vec3b& px) { return std::min({px[0], px[1], px[2]}) > 200; }, &all);
+  RecordProperty("dark_margin_pixels", std::to_string(dark) + " of " + std::to_string(all));
+  RecordProperty("white_margin_pixels", white);
+  ASSERT_GT(all, 30);
+  // Before: 20 of 160 dark; now 100. White stays where it stayed before (20 pixels: samples the
+  // boundary rule trusts); the dark-sample rule adds none.
+  EXPECT_GT(dark, all / 2) << "the lowered lids' margins should keep the frame's lash line";
+  EXPECT_LT(white, dark / 3) << "a light rim must not come along as the dark line does";
+}
+
+// A gaze turned away from the nose moves the eyeball's samples toward the inner corner, where
+// the frame shows the caruncle: pink flesh that does not turn with the eye, inside the model's
+// eyeball (its lids are fitted to the corners' landmarks). Carried onto the white, it drew a pink
+// patch there (d6 looking hard aside onto d10, output frame 120). Here the frame's inner corners
+// are painted red (a tenth of the eye's width around each): with the eyes turned out, red must
+// stay at the corners.
+TEST(ReenactCompositorTest, AGazeTurnDoesNotCarryTheInnerCornerOntoTheWhite) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters turned = target;
+  turned.delta[arkit_blendshape_index("eyeLookOutLeft")] = 1.0f;
+  turned.delta[arkit_blendshape_index("eyeLookOutRight")] = 1.0f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::VertexState state = testing::test_renderer().evaluate(target);
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  cv::Mat frame = plain.clone(), corners = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  for (const auto& [inner, outer] : {std::pair{39, 36}, std::pair{42, 45}}) {
+    const std::vector<cv::Point> at = project_vertices(state, cam, landmark_vertices(model, inner, inner));
+    const std::vector<cv::Point> across = project_vertices(state, cam, landmark_vertices(model, outer, outer));
+    ASSERT_EQ(at.size(), 1u);
+    ASSERT_EQ(across.size(), 1u);
+    const double width = cv::norm(at[0] - across[0]);
+    ASSERT_GT(width, 20.0);
+    cv::circle(frame, at[0], static_cast<int>(std::lround(0.1 * width)), cv::Scalar(0, 0, 255), cv::FILLED);
+    cv::circle(corners, at[0], static_cast<int>(std::lround(0.1 * width)) + 3, cv::Scalar(255), cv::FILLED);
+  }
+  const CompositeResult c = fc.Compose(frame, cam, target, turned, &albedo);
+  ASSERT_TRUE(c.drawn);
+  int carried = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      const cv::Vec3b px = c.bgr.at<cv::Vec3b>(j, i);
+      carried += !corners.at<uchar>(j, i) && px[2] > 2 * std::max(px[0], px[1]) + 40;
+    }
+  RecordProperty("red_carried_pixels", carried);
+  EXPECT_LE(carried, 3) << "the caruncle's red carried onto the eyes' white";
 }
 
 // With the frame texture, a mouth the output opens no wider than the tracked one shows the

@@ -144,6 +144,7 @@ struct FaceCompositor::Impl {
   std::vector<std::vector<int32_t>> seam_contours;
   std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
   std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
+  std::vector<std::array<int32_t, 2>> eye_corners;  // per eye: its inner and outer corner (iBUG 39/36, 42/45)
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
   // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
   // and the wall behind them). See irradiance_at.
@@ -173,6 +174,9 @@ struct FaceCompositor::Impl {
       }
       seam_contours.push_back(std::move(contour));
     }
+    for (const auto& [inner, outer] : {std::pair{39, 36}, std::pair{42, 45}})
+      if (by_index[static_cast<size_t>(inner)] >= 0 && by_index[static_cast<size_t>(outer)] >= 0)
+        eye_corners.push_back({by_index[static_cast<size_t>(inner)], by_index[static_cast<size_t>(outer)]});
     FindMouthInterior();
     teeth_uv = TeethTextureCoordinates(model);
     FindSkinAroundMouth();
@@ -577,6 +581,23 @@ struct FaceCompositor::Impl {
         closing_lids.push_back({zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin), closing});
       }
     }
+    // The eyes' inner corners in the frame, and each eye's width there: the corner holds the
+    // caruncle, pink flesh the model's eyeball covers (its lids are fitted to the corners' landmarks,
+    // not to where the white begins). The caruncle does not turn with the eye; an eyeball sample the
+    // gaze moves onto it drew a pink patch on the white (d6 looking hard aside onto d10, output
+    // frame 120: the samples moved 9 px toward the nose). Moved samples that land within
+    // kCaruncleShare of the eye's width from the inner corner are not trusted (full trust from
+    // twice that); unmoved ones keep the frame's own corner.
+    constexpr float kCaruncleShare = 0.1f;
+    std::vector<std::pair<Eigen::Vector2f, float>> inner_corners;  // (position, eye width) in pixels
+    if (distrust)
+      for (const auto& [inner, outer] : eye_corners) {
+        const Eigen::Vector3f a = ts.camera_positions.segment<3>(3 * inner), b = ts.camera_positions.segment<3>(3 * outer);
+        if (!(a.z() > camera.near_plane) || !(b.z() > camera.near_plane)) continue;
+        const Eigen::Vector2f ua = project(camera, a);
+        const float width = (project(camera, b) - ua).norm();
+        if (width > 1.f) inner_corners.push_back({ua, width});
+      }
     // A surface point counts as shown when the frame's visible surface at its projection is
     // within this depth of it: a few millimetres, more where one pixel spans more than that.
     constexpr float kShownToleranceM = 0.004f;
@@ -634,13 +655,19 @@ struct FaceCompositor::Impl {
             ratio_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(ratio[0], ratio[1], ratio[2]);
           }
           float trust = 1.0f;
+          // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
+          const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
           // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
           // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
           // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
-          // moved by the gaze is what the reenactment is to show.
+          // moved by the gaze is what the reenactment is to show. Only the caruncle is not.
+          if (eyeball && moved > 0.f)
+            for (const auto& [corner, width] : inner_corners) {
+              const float share = (Eigen::Vector2f(u, vv) - corner).norm() / width;
+              const float away = std::clamp(share / kCaruncleShare - 1.0f, 0.0f, 1.0f);
+              trust = std::min(trust, 1.0f - moved * (1.0f - away));
+            }
           if (!boundary_px.empty() && !eyeball) {
-            // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
-            const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
             const cv::Point at(static_cast<int>(u), static_cast<int>(vv));
             float exposed = std::max(moved, mouth_zone.contains(at) ? mouth_redraw : 0.0f);
             for (const auto& [zone, closing] : closing_lids)
@@ -691,14 +718,29 @@ struct FaceCompositor::Impl {
     // the band drew the closed lids blue-grey on the webcam clip. Such pixels fill like other
     // distrusted ones (the map where no trusted skin is near).
     constexpr float kMinFootprint = 0.35f, kFullFootprint = 0.55f;
+    cv::Mat footprint_trust(box.size(), CV_32FC1, cv::Scalar(1.0f));
     {
-      cv::Mat footprint_trust(box.size(), CV_32FC1, cv::Scalar(1.0f));
+      // The footprint of one surface: a lid's last row beside the eyeball (which the gaze moves
+      // elsewhere) is no squeeze; there the difference looks at the pixel behind, on the lid. On
+      // d6 onto d10 (output frame 30) the lid margin's lash-line samples were distrusted as
+      // squeezed, and the map's skin drew an orange line over the iris.
+      auto eyeball_at = [&](int bj, int bi) {
+        return kEyeParts & part_bit(part_of(g->vertices[3 * (static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x))]));
+      };
+      auto step = [&](int bj, int bi, int dj, int di, cv::Vec2f* d) {
+        const cv::Vec2f at = sampled_at.at<cv::Vec2f>(bj, bi), ahead = sampled_at.at<cv::Vec2f>(bj + dj, bi + di);
+        if (std::isnan(ahead[0])) return false;
+        if (eyeball_at(bj + dj, bi + di) == eyeball_at(bj, bi)) return *d = ahead - at, true;
+        if (bj - dj < 0 || bi - di < 0) return false;
+        const cv::Vec2f behind = sampled_at.at<cv::Vec2f>(bj - dj, bi - di);
+        if (std::isnan(behind[0]) || eyeball_at(bj - dj, bi - di) != eyeball_at(bj, bi)) return false;
+        return *d = at - behind, true;
+      };
       for (int bj = 0; bj + 1 < box.height; ++bj)
         for (int bi = 0; bi + 1 < box.width; ++bi) {
-          const cv::Vec2f at = sampled_at.at<cv::Vec2f>(bj, bi), right = sampled_at.at<cv::Vec2f>(bj, bi + 1),
-                          below = sampled_at.at<cv::Vec2f>(bj + 1, bi);
-          if (std::isnan(at[0]) || std::isnan(right[0]) || std::isnan(below[0])) continue;
-          const float area = std::abs((right[0] - at[0]) * (below[1] - at[1]) - (right[1] - at[1]) * (below[0] - at[0]));
+          cv::Vec2f dx, dy;
+          if (std::isnan(sampled_at.at<cv::Vec2f>(bj, bi)[0]) || !step(bj, bi, 0, 1, &dx) || !step(bj, bi, 1, 0, &dy)) continue;
+          const float area = std::abs(dx[0] * dy[1] - dx[1] * dy[0]);
           footprint_trust.at<float>(bj, bi) = std::clamp((area - kMinFootprint) / (kFullFootprint - kMinFootprint), 0.0f, 1.0f);
         }
       // Smooth, and reaching a pixel past the squeezed region (the differences look one pixel
@@ -708,6 +750,52 @@ struct FaceCompositor::Impl {
       weight = weight.mul(footprint_trust);
     }
     if (shown) weight.copyTo((*shown)(box));
+    // Each eye's white as this frame shows it: the mean of the brightest quarter of the frame's
+    // pixels inside the target's lid margins (one pixel in; at least kMinWhiteSamples). Eyeball
+    // surface the frame does not show (under the target's lid, bared by a gaze turned further than
+    // the target's) is mostly white, and there it replaces the albedo map's eyeball, the model's
+    // white: on the webcam clip (a dim camera, eye whites at about 0.3 in linear light) a gaze
+    // turned hard aside drew a bright blue-white wedge beside the iris (d14 onto it, output frames
+    // 19 and 53).
+    constexpr int kMinWhiteSamples = 6;
+    std::array<std::optional<Eigen::Vector3f>, 2> eye_white;  // LeftEye, RightEye
+    // Not from eyes the target holds mostly closed: inside their lid margins the frame shows the
+    // lids (on the webcam clip, blinking at output frame 19, the estimate was skin, and the eyes
+    // the output opens were drawn as skin).
+    constexpr float kMaxBlinkForWhite = 0.5f;
+    for (size_t k = 0; k < lid_contours.size(); ++k) {
+      if (expression_weight(target.delta, lid_blink_index[k]) > kMaxBlinkForWhite) continue;
+      std::vector<cv::Point> polygon;
+      for (int32_t v : lid_contours[k]) {
+        const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
+        if (!(x.z() > camera.near_plane)) break;
+        const Eigen::Vector2f uv = project(camera, x);
+        polygon.emplace_back(static_cast<int>(std::lround(uv.x())), static_cast<int>(std::lround(uv.y())));
+      }
+      if (polygon.size() != lid_contours[k].size()) continue;
+      const cv::Rect zone = cv::boundingRect(polygon) & cv::Rect(0, 0, w, h);
+      if (zone.width < 3 || zone.height < 3) continue;
+      cv::Mat inside = cv::Mat::zeros(zone.size(), CV_8UC1);
+      for (cv::Point& q : polygon) q -= zone.tl();
+      cv::fillPoly(inside, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255));
+      cv::erode(inside, inside, cv::Mat());
+      std::vector<std::pair<float, Eigen::Vector3f>> pixels;  // (luminance, colour)
+      for (int j = 0; j < zone.height; ++j)
+        for (int i = 0; i < zone.width; ++i)
+          if (inside.at<uchar>(j, i)) {
+            const Eigen::Vector3f c = sample_linear(target_bgr, static_cast<float>(zone.x + i), static_cast<float>(zone.y + j));
+            pixels.push_back({linear_luminance(c[0], c[1], c[2]), c});
+          }
+      const size_t top = pixels.size() / 4;
+      if (top < static_cast<size_t>(kMinWhiteSamples)) continue;
+      std::nth_element(pixels.begin(), pixels.begin() + static_cast<std::ptrdiff_t>(top), pixels.end(),
+                       [](const auto& a, const auto& b) { return a.first > b.first; });
+      Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+      for (size_t q = 0; q < top; ++q) sum += pixels[q].second;
+      // The model's +x is the person's left: the left eye's lids close with eyeBlinkLeft.
+      const bool left = lid_blink_index[k] == arkit_blendshape_index("eyeBlinkLeft");
+      eye_white[left ? 0 : 1] = sum / static_cast<float>(top);
+    }
     // The albedo map's colour balance against this frame's: per channel, the frame's texture over
     // the albedo map's rendering where the frame is fully trusted. The map was learned under the
     // lighting of earlier frames; when the tracked light's colour has drifted since (on the webcam
@@ -813,7 +901,8 @@ struct FaceCompositor::Impl {
         if (!(covered.at<float>(bj, bi) > 0.f)) continue;
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
         const FacePart part = part_of(g->vertices[3 * p]);
-        const float own = std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f), cw = skin.coverage.at<float>(bj, bi);
+        float own = std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f);
+        const float cw = skin.coverage.at<float>(bj, bi);
         float a = 0.f;
         cv::Vec3f t(0.f, 0.f, 0.f);  // (the texture holds nothing where no sample was taken)
         const bool eye = kEyeParts & part_bit(part);
@@ -823,8 +912,24 @@ struct FaceCompositor::Impl {
             f = &*eyes_wide;
           const float trusted = f->weights.at<float>(bj, bi), coverage = f->coverage.at<float>(bj, bi);
           if (!eye && lid_distance.at<float>(bj, bi) < lid_reach_px) {
-            a = own;
             t = texture.at<cv::Vec3f>(bj, bi);
+            // A sample darker than the map in every channel is the lash line (or an eyeliner, or
+            // the iris a lid margin missed by a pixel lands on): what a lid margin shows. Beside
+            // the lids the output lowers, the boundary and closing rules distrusted the frame's
+            // lash line, the map has none (its lid margins are not observed), and the margin was
+            // drawn as a pale band over the eye, or as a reddish line where the frame's iris and
+            // the map's lid mixed (d6 onto d10, output frames 100 and 120). Full trust when every
+            // channel is below half the map's; a squeezed sample stays distrusted (the shadowed
+            // band above a closed lid is darker too). A light sample (the eye white, a lid's rim)
+            // never gains from this.
+            if (own < 1.f && !std::isnan(sampled_at.at<cv::Vec2f>(bj, bi)[0])) {
+              const Eigen::Vector3f map = MapColour(fallback_texture, *g, p, &gain);
+              float lighter = 0.f;  // the largest channel ratio of sample to map
+              for (int c = 0; c < 3; ++c) lighter = std::max(lighter, t[c] / std::max(1e-4f, map[c]));
+              const float dark = std::clamp(2.0f * (1.0f - lighter), 0.0f, 1.0f);
+              own = std::max(own, dark * footprint_trust.at<float>(bj, bi));
+            }
+            a = own;
           } else if (trusted > 1e-4f && coverage > 1e-6f) {
             a = std::clamp(trusted / (kTrustedShareForFull * coverage), 0.0f, 1.0f);
             // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
@@ -838,20 +943,31 @@ struct FaceCompositor::Impl {
         // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
         // take the balance.
         const bool balance = !(kMouthParts & part_bit(part));
-        // The texture as far as a view saw the surface (its unseen texels are the per-vertex map
-        // blurred by the blend's coarse levels: the map itself is the better fallback there).
-        Eigen::Vector3f textured;
-        float seen = 0.f;
-        const bool from_texture =
-            a < 1.0f && fallback_texture.texture && fallback_texture.Colour(model, *g, p, &textured, &seen);
-        const float texture_share = from_texture ? std::clamp(seen / kTextureSeenForFull, 0.0f, 1.0f) : 0.0f;
-        for (int c = 0; c < 3; ++c) {
-          float& col = g->color[3 * p + static_cast<size_t>(c)];
-          const float below = texture_share * textured[c] + (1.0f - texture_share) * col;
-          const float map = balance ? std::min(1.0f, below * gain[c]) : below;
-          col = a * std::min(1.0f, t[c]) + (1.0f - a) * map;
-        }
+        const std::optional<Eigen::Vector3f>& white =
+            eye ? eye_white[part == FacePart::LeftEye ? 0 : 1] : std::optional<Eigen::Vector3f>();
+        const Eigen::Vector3f map = !(a < 1.0f) ? Eigen::Vector3f::Zero()
+                                    : white     ? *white
+                                                : MapColour(fallback_texture, *g, p, balance ? &gain : nullptr);
+        for (int c = 0; c < 3; ++c) g->color[3 * p + static_cast<size_t>(c)] = a * std::min(1.0f, t[c]) + (1.0f - a) * map[c];
       }
+  }
+
+  // The albedo map's colour at G-buffer pixel p of `g` (before the frame texture replaces it): the
+  // texture as far as a view saw the surface (its unseen texels are the per-vertex map blurred by
+  // the blend's coarse levels: the map itself is the better fallback there), g's per-vertex colour
+  // for the rest; times `gain` per channel, capped at 1, when one is given.
+  Eigen::Vector3f MapColour(const TextureShading& fallback_texture, const gpu::GBuffer& g, size_t p,
+                            const Eigen::Vector3f* gain) const {
+    Eigen::Vector3f textured;
+    float seen = 0.f;
+    const bool from_texture = fallback_texture.texture && fallback_texture.Colour(model, g, p, &textured, &seen);
+    const float texture_share = from_texture ? std::clamp(seen / kTextureSeenForFull, 0.0f, 1.0f) : 0.0f;
+    Eigen::Vector3f map;
+    for (int c = 0; c < 3; ++c) {
+      const float below = texture_share * (from_texture ? textured[c] : 0.f) + (1.0f - texture_share) * g.color[3 * p + static_cast<size_t>(c)];
+      map[c] = gain ? std::min(1.0f, below * (*gain)[c]) : below;
+    }
+    return map;
   }
 
   // The actor's learned skin against the model's skin (per channel, over the face vertices the
