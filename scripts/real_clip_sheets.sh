@@ -40,8 +40,10 @@ mkdir -p "$OUT/brows"
 mkdir -p "$OUT/lids"
 "$FR" reenact --source "$src" --target "$tgt" --frames 100 --out "$OUT/lids/webcam.mp4" --quiet --frames-dir "$OUT/lids/webcam" \
       --sheets "$OUT/lids" --sheet-frames 75,95
-ffmpeg -loglevel error -y -i "$tgt" -i "$OUT/lids/webcam/frame_000053.png" -filter_complex \
-       "[0]select='eq(n\,53)',crop=150:40:170:198,scale=600:160:flags=neighbor[a];[1]crop=150:40:170:198,scale=600:160:flags=neighbor[b];[a][b]vstack" \
+ffmpeg -loglevel error -y -i "$tgt" -i "$OUT/lids/webcam/frame_000019.png" -i "$OUT/lids/webcam/frame_000020.png" \
+       -i "$OUT/lids/webcam/frame_000053.png" -filter_complex \
+       "[0]select='eq(n\,19)+eq(n\,20)+eq(n\,53)',crop=150:40:170:198,scale=450:120:flags=neighbor,tile=3x1[a];$(for k in 1 2 3; do
+          printf '[%d]crop=150:40:170:198,scale=450:120:flags=neighbor[b%d];' $k $k; done)[b1][b2][b3]hstack=3[b];[a][b]vstack" \
        -frames:v 1 "$OUT/eyes_webcam.png"
 ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000075.png" -filter_complex \
        "[0]select='eq(n\,75)',crop=160:60:245:175,scale=640:240:flags=neighbor[a];[1]crop=160:60:245:175,scale=640:240:flags=neighbor[b];[a][b]vstack" \
@@ -66,8 +68,9 @@ mkdir -p "$OUT/bared_teeth"
       --frames-dir "$OUT/bared_teeth/d10"
 # The eyes (docs/reenactment.md, "Lids the output lowers part way, a gaze turned hard aside"): the same run's output
 # frames 30, 100 and 120 (d6 squinting and looking aside), the eyes 3x, target above output (eyes.png: no pale band or
-# reddish line along the lowered lids, no pink patch on the white); and the webcam clip's frame 53 from the lids run
-# below (d14 looking hard aside: the bared white in the camera's dim grey, not a bright wedge; eyes_webcam.png).
+# reddish line along the lowered lids, no pink patch on the white); and the webcam clip's frames 19, 20 (he blinks, d14's
+# eyes open: drawn from his open eyes) and 53 (d14 looking hard aside: the bared white in the camera's dim grey, not a
+# bright wedge) from the lids run, target above output (eyes_webcam.png).
 eyes=()
 for f in 30 100 120; do eyes+=(-i "$VIDEOS/liveportrait_d10.mp4" -i "$OUT/bared_teeth/d10/frame_$(printf %06d "$f").png"); done
 ffmpeg -loglevel error -y "${eyes[@]}" -filter_complex \

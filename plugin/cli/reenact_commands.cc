@@ -536,6 +536,9 @@ void run_reenact(const ReenactArgs& a) {
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
   std::printf("detail: %s (%d frames)\n", s.detail.c_str(), s.detail_frames);
+  if (s.eye_exemplar_frames > 0)
+    std::printf("eyes: the target's open eyes (last taken at frame %lld) drawn through its blinks on %d frames\n",
+                static_cast<long long>(s.eye_exemplar_frame), s.eye_exemplar_frames);
   std::printf("albedo texture: %s\n", albedo_texture_line(s).c_str());
   if (held_still) std::printf("target: a still, held for %d frames at %.3g fps (the source's length)\n", done, fps);
   if (source_rec && source_by_time.skipped() > 0)
@@ -595,6 +598,7 @@ void run_reenact(const ReenactArgs& a) {
                       {"detail", s.mean_times.detail_ms}, {"target_total", s.mean_times.total_ms}}},
         {"renderer", s.renderer},
         {"mouth_interior", s.mouth_interior},
+        {"eye_exemplar", {{"frames", s.eye_exemplar_frames}, {"last_taken_at", s.eye_exemplar_frame}}},
         {"detail", {{"mode", a.detail}, {"frames", s.detail_frames}, {"what", s.detail}}},
         {"albedo_texture", albedo_texture_json(s, a.albedo_texture)},
         {"solver", pipeline.tracking_solver()},

@@ -483,6 +483,58 @@ TEST(ReenactCompositorTest, EyeballTheFrameDoesNotShowTakesTheFramesWhite) {
   EXPECT_LE(bright, 5) << "eyeball pixels drawn the model's white beside the frame's dim eyes";
 }
 
+// The target blinks while the output's eyes stay open: the frame shows lids where the output
+// shows eyeballs. They took the fill and the map, the model's white and an orange-brown iris (the
+// webcam clip blinking under d14's open eyes, output frames 19 and 20: for two frames of every
+// blink). They are now drawn from the actor's open eyes (EyeExemplar): a frame whose eyes are
+// painted blue is taken while the target holds them open; the target then blinks (its frame's
+// eyes plain skin), the output's eyes stay open, and they must show the blue.
+TEST(ReenactCompositorTest, EyesTheTargetBlinksAreDrawnFromItsOpenEyes) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters open = test_face(0.4f);
+  gpu::FaceParameters blinking = open;
+  blinking.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.8f;
+  blinking.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.8f;
+  gpu::FaceParameters output = blinking;  // the source's eyes open, the mouth as the target's
+  output.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.f;
+  output.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
+  cv::Mat open_frame = render_target(open, cam);
+  open_frame.setTo(cv::Scalar(255, 0, 0), eye_openings(model, renderer.evaluate(open), cam));  // the eyes blue
+  EyeExemplar eyes;
+  ASSERT_TRUE(fc.CaptureEyes(open_frame, cam, open, 7, &eyes));
+  EXPECT_EQ(eyes.frame_index, 7);
+  EyeExemplar refused;
+  EXPECT_FALSE(fc.CaptureEyes(open_frame, cam, blinking, 8, &refused)) << "eyes held closed are no open eyes";
+  gpu::FaceParameters turned = open;
+  turned.euler.y() += 0.7f;  // 40 degrees aside
+  EXPECT_FALSE(fc.CaptureEyes(open_frame, cam, turned, 9, &refused)) << "a turned head shows one eye foreshortened";
+  EXPECT_TRUE(refused.empty());
+
+  const cv::Mat blink_frame = render_target(blinking, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(render_target(open, cam), cam, open, &albedo);
+  cv::Mat out_eyes = eye_openings(model, renderer.evaluate(output), cam);
+  cv::erode(out_eyes, out_eyes, cv::Mat());
+  const CompositeResult without = fc.Compose(blink_frame, cam, blinking, output, &albedo);
+  const CompositeResult with = fc.Compose(blink_frame, cam, blinking, output, &albedo, nullptr, nullptr, nullptr, &eyes);
+  ASSERT_TRUE(with.drawn);
+  EXPECT_FALSE(without.eyes_from_exemplar);
+  EXPECT_TRUE(with.eyes_from_exemplar);
+  const EyeColours before = count_eye_colours(without.rendered_bgr, out_eyes & without.face_mask);
+  const EyeColours after = count_eye_colours(with.rendered_bgr, out_eyes & with.face_mask);
+  RecordProperty("blue_eye_pixels", std::to_string(before.blue) + " -> " + std::to_string(after.blue) + " of " + std::to_string(after.all));
+  ASSERT_GT(after.all, 100);
+  EXPECT_EQ(before.blue, 0);
+  EXPECT_GT(after.blue, after.all * 8 / 10) << "the opened eyes should show the open eyes' frame";
+  // The output's eyes closed as the target's: the frame's lids, not the exemplar.
+  const CompositeResult closed = fc.Compose(blink_frame, cam, blinking, blinking, &albedo, nullptr, nullptr, nullptr, &eyes);
+  EXPECT_FALSE(closed.eyes_from_exemplar);
+}
+
 // A gaze turn moves every eyeball sample, and every one lies within a few pixels of the lids: the
 // eyeballs still take the frame's colour (its iris, moved by the gaze), not the per-vertex albedo
 // map, which holds no iris (on the webcam clip it drew the eyes reddish brown).

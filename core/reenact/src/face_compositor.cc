@@ -510,9 +510,11 @@ struct FaceCompositor::Impl {
                          const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                          const gpu::VertexState& out_state, const std::vector<Eigen::Vector3f>& e_out,
                          const Gamma& light, const gpu::RenderOptions& ropt, float mouth_redraw,
-                         const TextureShading& fallback_texture, gpu::GBuffer* g, cv::Mat* shown = nullptr) const {
+                         const TextureShading& fallback_texture, gpu::GBuffer* g, cv::Mat* shown = nullptr,
+                         const EyeExemplar* open_eyes = nullptr, bool* eyes_drawn = nullptr) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
     if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
+    if (eyes_drawn) *eyes_drawn = false;
 
     const cv::Rect box = CoveredRect(*g, 2);  // the drawn pixels to texture
     if (box.empty()) return;
@@ -598,6 +600,29 @@ struct FaceCompositor::Impl {
         const float width = (project(camera, b) - ua).norm();
         if (width > 1.f) inner_corners.push_back({ua, width});
       }
+    // An eye the target holds closed (a blink) and the output open: the frame shows its lids
+    // where the output shows the eyeball, and the eyeball took the fill and the map (on the webcam
+    // clip, blinking at output frames 19 and 20 under d14's open eyes: an orange-brown iris and the
+    // model's white, or skin, for two frames of every blink). That eyeball takes the actor's open
+    // eyes (`open_eyes`), sampled at its surface points in that frame's fit as the frame is here.
+    constexpr float kClosedForExemplar = 0.3f, kExemplarMargin = 0.1f;
+    std::array<bool, 2> from_exemplar{false, false};  // LeftEye, RightEye
+    gpu::VertexState exemplar_state;
+    gpu::GBuffer* exemplar_g = nullptr;
+    if (distrust && open_eyes && !open_eyes->empty() && open_eyes->camera.width == w && open_eyes->camera.height == h) {
+      for (size_t k = 0; k < lid_contours.size(); ++k) {
+        const int b = lid_blink_index[k];
+        const float closed = expression_weight(target.delta, b);
+        from_exemplar[b == arkit_blendshape_index("eyeBlinkLeft") ? 0 : 1] =
+            closed > kClosedForExemplar && expression_weight(output.delta, b) < closed - kExemplarMargin;
+      }
+      if (from_exemplar[0] || from_exemplar[1]) {
+        exemplar_state = renderer.evaluate(open_eyes->params, nullptr, threads());
+        exemplar_g = &scratch_gbuffer(3);
+        rasterize(exemplar_state, open_eyes->params, open_eyes->camera, ropt, exemplar_g);
+        if (eyes_drawn) *eyes_drawn = true;
+      }
+    }
     // A surface point counts as shown when the frame's visible surface at its projection is
     // within this depth of it: a few millimetres, more where one pixel spans more than that.
     constexpr float kShownToleranceM = 0.004f;
@@ -620,7 +645,29 @@ struct FaceCompositor::Impl {
           if (g->triangle[p] < 0) continue;
           const int bi = i - box.x, bj = j - box.y;
           covered.at<float>(bj, bi) = 1.0f;
-          const bool eyeball = kEyeParts & part_bit(part_of(g->vertices[3 * p]));
+          const FacePart pixel_part = part_of(g->vertices[3 * p]);
+          const bool eyeball = kEyeParts & part_bit(pixel_part);
+          if (eyeball && from_exemplar[pixel_part == FacePart::LeftEye ? 0 : 1]) {
+            // From the open eyes, or nothing (the eyes' fill): never this frame's closed lid.
+            Eigen::Vector3f xe = Eigen::Vector3f::Zero();
+            for (int k = 0; k < 3; ++k)
+              xe += g->barycentric[3 * p + static_cast<size_t>(k)] *
+                    exemplar_state.camera_positions.segment<3>(3 * g->vertices[3 * p + static_cast<size_t>(k)]);
+            if (!(xe.z() > open_eyes->camera.near_plane)) continue;
+            const Eigen::Vector2f ue = project(open_eyes->camera, xe);
+            if (!(ue.x() >= 0.f && ue.y() >= 0.f && ue.x() <= static_cast<float>(w - 1) && ue.y() <= static_cast<float>(h - 1))) continue;
+            const size_t qe = static_cast<size_t>(std::lround(ue.y())) * w + static_cast<size_t>(std::lround(ue.x()));
+            if (exemplar_g->triangle[qe] < 0 || part_of(exemplar_g->vertices[3 * qe]) != pixel_part ||
+                std::abs(exemplar_g->position[3 * qe + 2] - xe.z()) > std::max(kShownToleranceM, 1.5f * xe.z() / open_eyes->camera.fx))
+              continue;
+            const float cu = ue.x() - static_cast<float>(open_eyes->origin.x), cv_ = ue.y() - static_cast<float>(open_eyes->origin.y);
+            if (!(cu >= 0.f && cv_ >= 0.f && cu <= static_cast<float>(open_eyes->bgr.cols - 1) && cv_ <= static_cast<float>(open_eyes->bgr.rows - 1)))
+              continue;
+            const Eigen::Vector3f seen = sample_linear(open_eyes->bgr, cu, cv_);
+            texture.at<cv::Vec3f>(bj, bi) = cv::Vec3f(std::min(1.0f, seen[0]), std::min(1.0f, seen[1]), std::min(1.0f, seen[2]));
+            weight.at<float>(bj, bi) = 1.0f;
+            continue;
+          }
           Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
                           nt = Eigen::Vector3f::Zero();
           for (int k = 0; k < 3; ++k) {
@@ -759,21 +806,29 @@ struct FaceCompositor::Impl {
     // 19 and 53).
     constexpr int kMinWhiteSamples = 6;
     std::array<std::optional<Eigen::Vector3f>, 2> eye_white;  // LeftEye, RightEye
-    // Not from eyes the target holds mostly closed: inside their lid margins the frame shows the
-    // lids (on the webcam clip, blinking at output frame 19, the estimate was skin, and the eyes
-    // the output opens were drawn as skin).
-    constexpr float kMaxBlinkForWhite = 0.5f;
+    // Not from eyes the target holds partly closed: inside their lid margins the frame shows the
+    // lids (on the webcam clip, blinking at output frames 19 and 20, eyeBlink 0.65 and 0.50, the
+    // estimate was skin, and the eyes the output opens were drawn as skin). An eye drawn from the
+    // open eyes (EyeExemplar) takes their white.
+    constexpr float kMaxBlinkForWhite = 0.3f;
     for (size_t k = 0; k < lid_contours.size(); ++k) {
-      if (expression_weight(target.delta, lid_blink_index[k]) > kMaxBlinkForWhite) continue;
+      // The model's +x is the person's left: the left eye's lids close with eyeBlinkLeft.
+      const bool left = lid_blink_index[k] == arkit_blendshape_index("eyeBlinkLeft");
+      const bool exemplar = from_exemplar[left ? 0 : 1];
+      const cv::Mat& image = exemplar ? open_eyes->bgr : target_bgr;
+      const cv::Point origin = exemplar ? open_eyes->origin : cv::Point(0, 0);
+      const gpu::VertexState& state = exemplar ? exemplar_state : ts;
+      const gpu::PinholeCamera& frame_camera = exemplar ? open_eyes->camera : camera;
+      if (!exemplar && expression_weight(target.delta, lid_blink_index[k]) > kMaxBlinkForWhite) continue;
       std::vector<cv::Point> polygon;
       for (int32_t v : lid_contours[k]) {
-        const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
-        if (!(x.z() > camera.near_plane)) break;
-        const Eigen::Vector2f uv = project(camera, x);
-        polygon.emplace_back(static_cast<int>(std::lround(uv.x())), static_cast<int>(std::lround(uv.y())));
+        const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+        if (!(x.z() > frame_camera.near_plane)) break;
+        const Eigen::Vector2f uv = project(frame_camera, x);
+        polygon.emplace_back(static_cast<int>(std::lround(uv.x())) - origin.x, static_cast<int>(std::lround(uv.y())) - origin.y);
       }
       if (polygon.size() != lid_contours[k].size()) continue;
-      const cv::Rect zone = cv::boundingRect(polygon) & cv::Rect(0, 0, w, h);
+      const cv::Rect zone = cv::boundingRect(polygon) & cv::Rect(0, 0, image.cols, image.rows);
       if (zone.width < 3 || zone.height < 3) continue;
       cv::Mat inside = cv::Mat::zeros(zone.size(), CV_8UC1);
       for (cv::Point& q : polygon) q -= zone.tl();
@@ -783,7 +838,7 @@ struct FaceCompositor::Impl {
       for (int j = 0; j < zone.height; ++j)
         for (int i = 0; i < zone.width; ++i)
           if (inside.at<uchar>(j, i)) {
-            const Eigen::Vector3f c = sample_linear(target_bgr, static_cast<float>(zone.x + i), static_cast<float>(zone.y + j));
+            const Eigen::Vector3f c = sample_linear(image, static_cast<float>(zone.x + i), static_cast<float>(zone.y + j));
             pixels.push_back({linear_luminance(c[0], c[1], c[2]), c});
           }
       const size_t top = pixels.size() / 4;
@@ -792,8 +847,6 @@ struct FaceCompositor::Impl {
                        [](const auto& a, const auto& b) { return a.first > b.first; });
       Eigen::Vector3f sum = Eigen::Vector3f::Zero();
       for (size_t q = 0; q < top; ++q) sum += pixels[q].second;
-      // The model's +x is the person's left: the left eye's lids close with eyeBlinkLeft.
-      const bool left = lid_blink_index[k] == arkit_blendshape_index("eyeBlinkLeft");
       eye_white[left ? 0 : 1] = sum / static_cast<float>(top);
     }
     // The albedo map's colour balance against this frame's: per channel, the frame's texture over
@@ -1054,9 +1107,10 @@ struct FaceCompositor::Impl {
 
   // Per-thread G-buffers reused from frame to frame (16 values per pixel; allocating them anew
   // every frame cost more than rasterising at 640x480). 0: the output, 1: the tracked geometry,
-  // 2: the output's skin alone (DrawSkinOverStrayMouthParts; allocated on first use).
+  // 2: the output's skin alone (DrawSkinOverStrayMouthParts), 3: the actor's open eyes' frame
+  // (EyeExemplar); these two allocated on first use.
   static gpu::GBuffer& scratch_gbuffer(int which) {
-    thread_local std::array<gpu::GBuffer, 3> buffers;
+    thread_local std::array<gpu::GBuffer, 4> buffers;
     return buffers[static_cast<size_t>(which)];
   }
 
@@ -1098,6 +1152,40 @@ std::vector<Eigen::Vector2f> FaceCompositor::MouthOpening(const gpu::PinholeCame
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   return im.Opening(camera, im.renderer.evaluate(params, nullptr, im.threads()));
+}
+
+bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
+                                 const gpu::FaceParameters& params, int64_t frame_index, EyeExemplar* eyes) const {
+  const Impl& im = *impl_;
+  std::string why;
+  if (!camera.IsValid(&why)) throw Error("open eyes: invalid camera: " + why);
+  if (frame_bgr.type() != CV_8UC3 || frame_bgr.cols != camera.width || frame_bgr.rows != camera.height)
+    throw Error("open eyes: the frame must be 8-bit BGR of the camera's size");
+  // Open: lids at most this far closed (a tracked blink reads 0.5-0.65 on the webcam clip, an
+  // open eye 0-0.04); facing: a turned head shows one eye foreshortened.
+  constexpr float kMaxBlink = 0.15f, kMaxTurnDeg = 25.0f;
+  constexpr int kMarginPx = 6;  // around the lid margins (bilinear samples near the rim)
+  if (im.lid_contours.size() != 2) return false;
+  for (int b : im.lid_blink_index)
+    if (!(expression_weight(params.delta, b) <= kMaxBlink)) return false;
+  if (!(gpu::head_turn_from_camera_deg(params) <= kMaxTurnDeg)) return false;
+  const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
+  cv::Rect box;
+  for (const auto& contour : im.lid_contours)
+    for (int32_t v : contour) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+      if (!(x.z() > camera.near_plane) || !x.allFinite()) return false;
+      const Eigen::Vector2f uv = project(camera, x);
+      box |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
+    }
+  box = grown_within(box, kMarginPx, camera.width, camera.height);
+  if (box.width < 8 || box.height < 4) return false;
+  eyes->bgr = frame_bgr(box).clone();
+  eyes->origin = box.tl();
+  eyes->camera = camera;
+  eyes->params = params;
+  eyes->frame_index = frame_index;
+  return true;
 }
 
 FaceCompositor::MouthView FaceCompositor::ViewMouth(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
@@ -1151,7 +1239,8 @@ std::string FaceCompositor::renderer_description() const {
 CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                                         const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                                         const AlbedoMap* albedo, const cv::Mat* target_depth,
-                                        const MouthExemplar* mouth, const DetailTransfer* detail) const {
+                                        const MouthExemplar* mouth, const DetailTransfer* detail,
+                                        const EyeExemplar* eyes) const {
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   if (target_bgr.type() != CV_8UC3 || target_bgr.cols != camera.width || target_bgr.rows != camera.height)
@@ -1241,7 +1330,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   cv::Mat frame_shown;
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
-                         mouth_pass ? mouth_alpha : 0.0f, texture_shading, &g, mouth_pass ? &frame_shown : nullptr);
+                         mouth_pass ? mouth_alpha : 0.0f, texture_shading, &g, mouth_pass ? &frame_shown : nullptr, eyes,
+                         &result.eyes_from_exemplar);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);

@@ -140,6 +140,7 @@ struct ReenactmentPipeline::Impl {
   bool views_changed = false;
   int texture_built_at = 0;  // tracked_frames at the last build
   MouthExemplar mouth;
+  EyeExemplar eyes;  // the target's open eyes: the latest frame that showed them, refreshed now and then
   DetailTransfer detail;  // the source actor's frames: kept across target recalibrations
   int tracked_frames = 0;
   int frames_without_face = 0;
@@ -182,6 +183,7 @@ struct ReenactmentPipeline::Impl {
     views_changed = false;
     texture_built_at = 0;
     mouth = MouthExemplar{};
+    eyes = EyeExemplar{};
     tracked_frames = 0;
   }
 
@@ -604,6 +606,15 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     t0 = Clock::now();
     im.ConsiderMouthExemplar(out.bgr, out.frame_index, fit_camera, target_params);
     const double exemplar_ms = ms_since(t0);
+    t0 = Clock::now();
+    // The target's open eyes, for its blinks: refreshed every kEyeExemplarRefreshFrames (the light
+    // and the pose drift; a frame's capture is a crop of the eyes and an evaluation of the model).
+    constexpr int64_t kEyeExemplarRefreshFrames = 15;
+    if (transfer && (im.eyes.empty() || out.frame_index - im.eyes.frame_index >= kEyeExemplarRefreshFrames ||
+                     out.frame_index < im.eyes.frame_index) &&
+        im.compositor.CaptureEyes(out.bgr, fit_camera, target_params, out.frame_index, &im.eyes))
+      im.summary.eye_exemplar_frame = im.eyes.frame_index;
+    out.times.render_ms += ms_since(t0);
 
     // --- the source's frame for its folds and wrinkles (Sec. 7.3).
     t0 = Clock::now();
@@ -625,7 +636,8 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
     CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
                                               input_depth.empty() ? nullptr : &input_depth, mouth,
-                                              with_detail ? &im.detail : nullptr);
+                                              with_detail ? &im.detail : nullptr, &im.eyes);
+    if (c.eyes_from_exemplar) ++im.summary.eye_exemplar_frames;
     out.times.detail_ms += c.detail.ms;
     if (c.detail.pixels > 0) ++im.summary.detail_frames;
     out.times.render_ms += c.render_ms;

@@ -40,6 +40,19 @@ struct AlbedoMap {
   bool empty() const { return albedo.size() == 0; }
 };
 
+// The target actor's open eyes: a frame in which the target held both eyes open, facing the
+// camera, cropped around them, with its fit. Where the target's eyes close (a blink) and the
+// output's stay open, the frame shows lids where the output shows eyeballs; they are drawn from
+// this frame instead (FaceCompositor::CaptureEyes, Compose).
+struct EyeExemplar {
+  cv::Mat bgr;                  // CV_8UC3: the frame cropped around both eyes
+  cv::Point origin;             // the crop's top-left in that frame
+  gpu::PinholeCamera camera;    // the camera of that frame
+  gpu::FaceParameters params;   // the target's tracked P in that frame
+  int64_t frame_index = -1;     // the frame it was taken from
+  bool empty() const { return bgr.empty(); }
+};
+
 struct CompositeResult {
   cv::Mat bgr;            // CV_8UC3
   cv::Mat rendered_bgr;   // CV_8UC3: the rendered layers over the target (before blending)
@@ -51,6 +64,7 @@ struct CompositeResult {
   bool mouth_drawn = false;
   bool mouth_opened_wider = false;  // the output's jawOpen exceeds the target's (by the threshold)
   bool mouth_from_exemplar = false;  // the interior drawn was the actor's own open mouth (mouth_interior.h)
+  bool eyes_from_exemplar = false;   // an eyeball was drawn from the actor's open eyes (EyeExemplar)
   DetailStats detail;                // the source's wrinkle-level detail (detail_transfer.h); level -1: none
   double render_ms = 0, mouth_ms = 0, composite_ms = 0;
 };
@@ -79,10 +93,20 @@ class FaceCompositor {
   // (MouthInteriorBrightness).
   // `detail` (optional): the source actor's wrinkle-level detail (Sec. 7.3), added to the
   // re-rendered skin before the mouth interior and the blend.
+  // `eyes` (optional): the actor's open eyes; with the frame texture, an eye the target holds
+  // closed (eyeBlink above 0.3) and the output holds open takes its eyeball from there.
   CompositeResult Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                           const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                           const AlbedoMap* albedo = nullptr, const cv::Mat* target_depth = nullptr,
-                          const MouthExemplar* mouth = nullptr, const DetailTransfer* detail = nullptr) const;
+                          const MouthExemplar* mouth = nullptr, const DetailTransfer* detail = nullptr,
+                          const EyeExemplar* eyes = nullptr) const;
+
+  // Takes `frame_bgr` (CV_8UC3 of camera's size) as the actor's open eyes when `params` holds
+  // both eyes open (eyeBlink at most 0.15) and faces the camera (within 25 degrees): writes
+  // `eyes` and returns true; else leaves it and returns false. Throws face_reenact::Error on a bad
+  // camera or frame.
+  bool CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
+                   int64_t frame_index, EyeExemplar* eyes) const;
 
   // The inner-lip polygon (iBUG 60-67, the model's landmark vertices projected) of the face at
   // `params`, in pixels; empty when the model has no such landmarks or the mouth is behind the

@@ -265,6 +265,10 @@ struct PipelineSummary {
   // and on how many frames the source actor's mouth stood in (ReenactmentOptions::source_mouth).
   std::string mouth_interior;
   int source_mouth_frames = 0;
+  // On how many frames an eye the target held closed (a blink) and the output open was drawn
+  // from the target's open eyes (EyeExemplar), and the last frame those were taken from (-1: none yet).
+  int eye_exemplar_frames = 0;
+  int64_t eye_exemplar_frame = -1;
   // What wrinkle-level detail the output carries (DetailTransfer::Description), and on how many
   // frames it changed the face.
   std::string detail;
