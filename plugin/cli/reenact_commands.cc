@@ -63,6 +63,16 @@ namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
 
+// The closed loop's error per blendshape, by name (null where no loop frame was counted).
+nlohmann::json by_blendshape_json(const reenact::ClosedLoopScore::Summary& s) {
+  if (s.expression_error_by_blendshape.empty()) return nlohmann::json();
+  nlohmann::json j = nlohmann::json::object();
+  const auto& names = arkit_blendshape_names();
+  for (size_t i = 0; i < s.expression_error_by_blendshape.size() && i < names.size(); ++i)
+    j[names[i]] = json_number(s.expression_error_by_blendshape[i]);
+  return j;
+}
+
 tracker::LandmarkSourceChoice parse_landmarks(const std::string& s) {
   if (s == "detector") return tracker::LandmarkSourceChoice::kDetector;
   if (s == "recording") return tracker::LandmarkSourceChoice::kRecording;
@@ -561,6 +571,13 @@ void run_reenact(const ReenactArgs& a) {
                 cl->loop_frames, cl->expression_error,
                 mode == reenact::ReenactMode::kPassThrough ? "target's own" : "source's tracked", cl->jaw_open_error,
                 cl->expression_error_vs_rendered, cl->identity_error_mm);
+    std::string worst;
+    for (const auto& [name, error] : cl->WorstBlendshapes(5)) {
+      char part[64];
+      std::snprintf(part, sizeof(part), "%s%s %.3f", worst.empty() ? "" : ", ", name.c_str(), error);
+      worst += part;
+    }
+    if (!worst.empty()) std::printf("closed loop: largest per blendshape: %s\n", worst.c_str());
   }
   if (receiver) {
     const stream::ReceiverStatistics st = receiver->statistics();
@@ -623,7 +640,8 @@ void run_reenact(const ReenactArgs& a) {
                                            {"jaw_open_error_mean", json_number(cl->jaw_open_error)},
                                            {"expression_error_vs_rendered_mean", json_number(cl->expression_error_vs_rendered)},
                                            {"identity_error_mm_mean", json_number(cl->identity_error_mm)},
-                                           {"identity_vertex_error_mm_mean", json_number(cl->identity_vertex_error_mm)}}
+                                           {"identity_vertex_error_mm_mean", json_number(cl->identity_vertex_error_mm)},
+                                           {"expression_error_by_blendshape", by_blendshape_json(*cl)}}
                           : nlohmann::json();
     if (source_tracker) {
       r["source_calibration_warning"] = warning(source_tracker->tracker->calibration_warning());
@@ -1024,6 +1042,7 @@ void run_demo(const DemoArgs& a) {
       {"closed_loop_identity_error_mm_mean", json_number(loop_score.identity_error_mm)},
       {"closed_loop_identity_vertex_error_mm_mean", json_number(loop_score.identity_vertex_error_mm)},
       {"closed_loop_expression_error_vs_rendered_mean", json_number(loop_score.expression_error_vs_rendered)},
+      {"closed_loop_expression_error_by_blendshape", by_blendshape_json(loop_score)},
       {"source_tracking_expression_error_mean", json_number(loop_score.source_expression_error)},
       {"target_calibration_identity_error_mm_mean", json_number(loop_score.target_identity_error_mm)},
       {"target_calibration_identity_vertex_error_mm_mean", json_number(loop_score.target_identity_vertex_error_mm)},

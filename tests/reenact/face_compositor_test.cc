@@ -512,6 +512,10 @@ TEST(ReenactCompositorTest, EyesTheTargetBlinksAreDrawnFromItsOpenEyes) {
   gpu::FaceParameters turned = open;
   turned.euler.y() += 0.7f;  // 40 degrees aside
   EXPECT_FALSE(fc.CaptureEyes(open_frame, cam, turned, 9, &refused)) << "a turned head shows one eye foreshortened";
+  EXPECT_THROW(fc.CaptureEyes(cv::Mat(10, 10, CV_8UC3), cam, open, 10, &refused), Error) << "a frame of another size";
+  gpu::FaceParameters broken = open;
+  broken.translation.x() = std::nanf("");
+  EXPECT_THROW(fc.CaptureEyes(open_frame, cam, broken, 11, &refused), Error) << "non-finite parameters";
   EXPECT_TRUE(refused.empty());
 
   const cv::Mat blink_frame = render_target(blinking, cam);

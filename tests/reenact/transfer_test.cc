@@ -205,6 +205,16 @@ TEST(ClosedLoopScore, CountsTheFramesItShouldAndAveragesTheErrors) {
   EXPECT_NEAR(s.identity_error_mm, 0.0, 1e-3);
   EXPECT_NEAR(s.target_identity_error_mm, 0.0, 1e-3);
   EXPECT_NEAR(ExpressionError(truth, truth), 0.0, 1e-12);
+  // Per blendshape: all of the loop's error on jawOpen, and it leads the worst.
+  ASSERT_EQ(s.expression_error_by_blendshape.size(), static_cast<size_t>(kNumExpressionWeights));
+  EXPECT_NEAR(s.expression_error_by_blendshape[kJawOpenIndex], 0.52, 1e-6);
+  EXPECT_NEAR(s.expression_error_by_blendshape[0], 0.0, 1e-6);
+  const auto worst = s.WorstBlendshapes(3);
+  ASSERT_EQ(worst.size(), 3u);
+  EXPECT_EQ(worst[0].first, "jawOpen");
+  EXPECT_NEAR(worst[0].second, 0.52, 1e-6);
+  EXPECT_TRUE(empty.expression_error_by_blendshape.empty());
+  EXPECT_TRUE(empty.WorstBlendshapes(5).empty());
 }
 
 // The rendering's fidelity (closed_loop.h) against figures worked out by hand: 10 levels off

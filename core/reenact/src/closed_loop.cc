@@ -71,6 +71,10 @@ void ClosedLoopScore::AddLoop(const tracker::TrackedFrame& loop, bool loop_calib
                               const Eigen::VectorXf& target_true_alpha) {
   if (!loop_calibrated || !loop.has_parameters || !tracker::tracking_status_has_fit(loop.status)) return;
   expression_.add(ExpressionError(loop.params.delta, source_truth));
+  blendshape_error_sums_.resize(kNumExpressionWeights, 0.0);
+  for (int i = 0; i < kNumExpressionWeights; ++i)
+    blendshape_error_sums_[static_cast<size_t>(i)] +=
+        std::abs(expression_weight(loop.params.delta, i) - expression_weight(source_truth, i));
   rendered_.add(ExpressionError(loop.params.delta, rendered_expression));
   jaw_.add(std::abs(expression_weight(loop.params.delta, kJawOpenIndex) - expression_weight(source_truth, kJawOpenIndex)));
   const tracker::IdentityErrors& e = loop_identity_->Compare(loop_alpha, target_true_alpha);
@@ -89,7 +93,19 @@ ClosedLoopScore::Summary ClosedLoopScore::summary() const {
   s.source_expression_error = source_.value();
   s.target_identity_error_mm = target_identity_mm_.value();
   s.target_identity_vertex_error_mm = target_identity_vertex_.value();
+  if (expression_.n > 0)
+    for (const double sum : blendshape_error_sums_) s.expression_error_by_blendshape.push_back(sum / expression_.n);
   return s;
+}
+
+std::vector<std::pair<std::string, double>> ClosedLoopScore::Summary::WorstBlendshapes(int n) const {
+  std::vector<std::pair<std::string, double>> all;
+  const auto& names = arkit_blendshape_names();
+  for (size_t i = 0; i < expression_error_by_blendshape.size() && i < names.size(); ++i)
+    all.emplace_back(names[i], expression_error_by_blendshape[i]);
+  std::stable_sort(all.begin(), all.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  if (static_cast<int>(all.size()) > n) all.resize(static_cast<size_t>(std::max(0, n)));
+  return all;
 }
 
 FaceFidelity MeasureFaceFidelity(const cv::Mat& reference_bgr, const cv::Mat& output_bgr, const cv::Mat& mask) {

@@ -1161,6 +1161,9 @@ bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCam
   if (!camera.IsValid(&why)) throw Error("open eyes: invalid camera: " + why);
   if (frame_bgr.type() != CV_8UC3 || frame_bgr.cols != camera.width || frame_bgr.rows != camera.height)
     throw Error("open eyes: the frame must be 8-bit BGR of the camera's size");
+  if (!params.IsValid(&why, static_cast<int>(im.model.identity_basis.cols()), static_cast<int>(im.model.expression_basis.cols()),
+                      static_cast<int>(im.model.albedo_basis.cols())))
+    throw Error("open eyes: invalid face parameters: " + why);
   // Open: lids at most this far closed (a tracked blink reads 0.5-0.65 on the webcam clip, an
   // open eye 0-0.04); facing: a turned head shows one eye foreshortened.
   constexpr float kMaxBlink = 0.15f, kMaxTurnDeg = 25.0f;

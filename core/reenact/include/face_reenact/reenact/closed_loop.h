@@ -11,6 +11,9 @@
 // the library's.
 #include <Eigen/Core>
 #include <memory>
+#include <string>
+#include <utility>
+#include <vector>
 #include <opencv2/core.hpp>
 
 #include "face_reenact/gpu/image_formation.h"
@@ -49,6 +52,12 @@ class ClosedLoopScore {
     double identity_error_mm = 0, identity_vertex_error_mm = 0;
     double source_expression_error = 0;
     double target_identity_error_mm = 0, target_identity_vertex_error_mm = 0;
+    // The loop's expression error per blendshape (mean absolute difference from the source's, in
+    // arkit_blendshape_names() order; empty when no loop frame was counted): which expressions the
+    // output carries and which it loses.
+    std::vector<double> expression_error_by_blendshape;
+    // The `n` blendshapes of largest error, largest first, as (name, error).
+    std::vector<std::pair<std::string, double>> WorstBlendshapes(int n) const;
   };
   Summary summary() const;
 
@@ -65,6 +74,7 @@ class ClosedLoopScore {
   tracker::TrackerModel model_;  // before the meters, which hold a reference to it
   std::unique_ptr<IdentityMeter> target_identity_, loop_identity_;
   Mean expression_, jaw_, rendered_, identity_, identity_vertex_, source_, target_identity_mm_, target_identity_vertex_;
+  std::vector<double> blendshape_error_sums_;  // per blendshape, summed over expression_'s frames
 };
 
 // The face region of an output frame against the frame it re-renders. Both CV_8UC3 of one size,

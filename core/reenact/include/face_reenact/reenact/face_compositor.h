@@ -104,7 +104,7 @@ class FaceCompositor {
   // Takes `frame_bgr` (CV_8UC3 of camera's size) as the actor's open eyes when `params` holds
   // both eyes open (eyeBlink at most 0.15) and faces the camera (within 25 degrees): writes
   // `eyes` and returns true; else leaves it and returns false. Throws face_reenact::Error on a bad
-  // camera or frame.
+  // camera, frame or parameters.
   bool CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
                    int64_t frame_index, EyeExemplar* eyes) const;
 
