@@ -991,6 +991,12 @@ struct FaceCompositor::Impl {
           }
         } else if (own > 0.f) {
           a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
+          // Where the mouth pass leaves the pixel to the frame, the frame's sample alone: faded to
+          // the map, a mouth part took the model's teeth, lit and never darkened (the pass darkens
+          // what it draws): on a closed smile's lip line, whose gap of a pixel shows the teeth, a
+          // white dash, half the frame's lip and half the map's teeth (d14 onto the webcam clip,
+          // output frame 100: own trust 0.55, faded to 0.45).
+          if (shown && own >= internal::kShownByTheFrame) a = 1.0f;
           t = texture.at<cv::Vec3f>(bj, bi);
         }
         // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
@@ -1306,14 +1312,23 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   gpu::RenderOptions ropt;
   ropt.parts = im.drawn_parts();
   ropt.cull_back_faces = true;
+  const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
+  const float target_jaw = expression_weight(target.delta, kJawOpenIndex);
+  const bool mouth_pass = opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3;
+  // Without a mouth pass (the output's jaw closed) the output shows no teeth or tongue: the lips
+  // of some closed expressions keep a pixel's gap, and there the model's teeth, lit and never
+  // darkened by the pass, drew a white dash on the lip line (d14's closed smile onto the webcam
+  // clip, output frame 100: six pixels of the map's teeth, 0.8-1.0 in linear light). The skin
+  // behind them (the lips' inner faces) takes the gap. The tracked geometry keeps them (ropt):
+  // a frame's teeth must still hide the wall behind them.
+  gpu::RenderOptions output_ropt = ropt;
+  if (!mouth_pass) output_ropt.parts &= ~kMouthParts;
   gpu::GBuffer& g = Impl::scratch_gbuffer(0);
-  im.rasterize(state, output, camera, ropt, &g);
-  im.DrawSkinOverStrayMouthParts(state, output, camera, ropt, &g);
+  im.rasterize(state, output, camera, output_ropt, &g);
+  im.DrawSkinOverStrayMouthParts(state, output, camera, output_ropt, &g);
   const Impl::TextureShading texture_shading =
       im.MakeTextureShading(use_map ? albedo->texture.get() : nullptr, use_map ? albedo->albedo : Eigen::VectorXf(), shade);
   if (texture_shading.texture && opt.appearance == Appearance::kAlbedoMap) im.ApplyAlbedoTexture(texture_shading, &g);
-  const float out_jaw = expression_weight(output.delta, kJawOpenIndex);
-  const float target_jaw = expression_weight(target.delta, kJawOpenIndex);
   result.mouth_opened_wider = out_jaw > target_jaw + opt.mouth_open_threshold;
   // How much of the mouth interior replaces what the opening shows. With the albedo map, all of
   // it whenever the rendered mouth is open: the re-rendered face covers the target's own mouth.
@@ -1328,7 +1343,6 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       opt.appearance == Appearance::kFrameTexture
           ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
           : 1.0f;
-  const bool mouth_pass = opt.render_mouth && out_jaw > opt.mouth_open_threshold && im.inner_lip_vertices.size() >= 3;
   // Frame texture with a mouth pass: the frame's trust in its own sample of each drawn pixel.
   cv::Mat frame_shown;
   if (opt.appearance == Appearance::kFrameTexture)

@@ -89,7 +89,6 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // takes nothing past its polygon, and those faces keep the face's rendering, the lips' colour.
   constexpr int kBeyondOpeningPx = 6;
   constexpr int kFollowInsidePx = 8;  // below
-  constexpr float kShownByTheFrame = 0.5f;
   const int margin = static_cast<int>(std::ceil(3.0f * kInteriorSoftnessPx)) + kBeyondOpeningPx + kFollowInsidePx;
   cv::Rect zone = cv::boundingRect(polygon);
   zone = cv::Rect(zone.x >> kSubpixelBits, zone.y >> kSubpixelBits, (zone.width >> kSubpixelBits) + 2,

@@ -18,6 +18,11 @@
 
 namespace face_reenact::reenact::internal {
 
+// A pixel the frame's trust in its own sample reaches this is the frame's: the mouth pass leaves
+// it (the frame shows the mouth's own surface there), and the frame texture draws a mouth part
+// there from its sample alone.
+inline constexpr float kShownByTheFrame = 0.5f;
+
 // One output frame's mouth, as the compositor knows it.
 struct MouthPassInput {
   const gpu::GBuffer* gbuffer = nullptr;  // the output's rendering (colour as shaded)
