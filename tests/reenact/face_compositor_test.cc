@@ -382,6 +382,15 @@ EyeColours count_eye_colours(const cv::Mat& bgr, const cv::Mat& mask) {
   return n;
 }
 
+// How many pixels of `bgr` (CV_8UC3) within `mask` (CV_8UC1, non-zero) pass `test`.
+int count_pixels(const cv::Mat& bgr, const cv::Mat& mask, const std::function<bool(const cv::Vec3b&)>& test) {
+  int n = 0;
+  for (int j = 0; j < mask.rows; ++j)
+    for (int i = 0; i < mask.cols; ++i) n += mask.at<uchar>(j, i) && test(bgr.at<cv::Vec3b>(j, i));
+  return n;
+}
+bool is_white(const cv::Vec3b& px, int above) { return std::min({px[0], px[1], px[2]}) > above; }
+
 // The eye openings (iBUG 36-41, 42-47) of an evaluated face, filled.
 cv::Mat eye_openings(const FaceModel& model, const gpu::VertexState& state, const gpu::PinholeCamera& cam) {
   cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
@@ -473,12 +482,7 @@ TEST(ReenactCompositorTest, EyeballTheFrameDoesNotShowTakesTheFramesWhite) {
   const CompositeResult c = fc.Compose(frame, cam, target, turned, &albedo);
   ASSERT_TRUE(c.drawn);
   cv::Mat eyes = eye_openings(model, testing::test_renderer().evaluate(turned), cam) & c.face_mask;
-  int bright = 0;
-  for (int j = 0; j < cam.height; ++j)
-    for (int i = 0; i < cam.width; ++i) {
-      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
-      bright += eyes.at<uchar>(j, i) && std::min({px[0], px[1], px[2]}) > 150;
-    }
+  const int bright = count_pixels(c.rendered_bgr, eyes, [](const cv::Vec3b& px) { return is_white(px, 150); });
   RecordProperty("bright_eye_pixels", std::to_string(bright) + " of " + std::to_string(cv::countNonZero(eyes)));
   EXPECT_LE(bright, 5) << "eyeball pixels drawn the model's white beside the frame's dim eyes";
 }
@@ -567,13 +571,7 @@ TEST(ReenactCompositorTest, ABarelyOpenedMouthShowsNoWhiteDashOnTheLipLine) {
     output.delta[kJawOpenIndex] = target_jaw + 0.03f;
     const CompositeResult c = fc.Compose(frame, cam, target, output, &albedo);
     ASSERT_TRUE(c.drawn);
-    int white = 0;
-    for (int j = 0; j < cam.height; ++j)
-      for (int i = 0; i < cam.width; ++i) {
-        const cv::Vec3b px = c.bgr.at<cv::Vec3b>(j, i);
-        white += opening.at<uchar>(j, i) && std::min({px[0], px[1], px[2]}) > 160;
-      }
-    total += white;
+    total += count_pixels(c.bgr, opening, [](const cv::Vec3b& px) { return is_white(px, 160); });
   }
   RecordProperty("white_pixels_on_the_lip_line", total);
   // 103 before (54, 31 and 18 at the three openings), 68 now (38, 23, 7): what stays white is the
@@ -699,10 +697,7 @@ TEST(ReenactCompositorTest, LidsTheOutputLowersKeepTheFramesLashLine) {
     cv::Mat out_margins = margins(lowered) & c.face_mask;
     cv::erode(out_margins, out_margins, cv::Mat());
     *all = cv::countNonZero(out_margins);
-    int n = 0;
-    for (int j = 0; j < cam.height; ++j)
-      for (int i = 0; i < cam.width; ++i) n += out_margins.at<uchar>(j, i) && test(c.bgr.at<cv::Vec3b>(j, i));
-    return n;
+    return count_pixels(c.bgr, out_margins, test);
   };
   const auto is_dark = [](const cv::Vec3b& px) { return std::max({px[0], px[1], px[2]}) < 90; };
   int all = 0;
@@ -720,7 +715,7 @@ TEST(ReenactCompositorTest, LidsTheOutputLowersKeepTheFramesLashLine) {
     EXPECT_GT(d, n / 5) << left << ": the lash line should follow a lid lowered over a turned eye";
     lowered = level;
   }
-  const int white = on_margins(cv::Scalar(255, 255, 255), [](const cv::Vec3b& px) { return std::min({px[0], px[1], px[2]}) > 200; }, &all);
+  const int white = on_margins(cv::Scalar(255, 255, 255), [](const cv::Vec3b& px) { return is_white(px, 200); }, &all);
   RecordProperty("dark_margin_pixels", std::to_string(dark) + " of " + std::to_string(all));
   RecordProperty("white_margin_pixels", white);
   ASSERT_GT(all, 30);
@@ -762,12 +757,8 @@ TEST(ReenactCompositorTest, AGazeTurnDoesNotCarryTheInnerCornerOntoTheWhite) {
   }
   const CompositeResult c = fc.Compose(frame, cam, target, turned, &albedo);
   ASSERT_TRUE(c.drawn);
-  int carried = 0;
-  for (int j = 0; j < cam.height; ++j)
-    for (int i = 0; i < cam.width; ++i) {
-      const cv::Vec3b px = c.bgr.at<cv::Vec3b>(j, i);
-      carried += !corners.at<uchar>(j, i) && px[2] > 2 * std::max(px[0], px[1]) + 40;
-    }
+  const int carried =
+      count_pixels(c.bgr, ~corners, [](const cv::Vec3b& px) { return px[2] > 2 * std::max(px[0], px[1]) + 40; });
   RecordProperty("red_carried_pixels", carried);
   EXPECT_LE(carried, 3) << "the caruncle's red carried onto the eyes' white";
 }
@@ -800,13 +791,7 @@ TEST(ReenactCompositorTest, LidsTheOutputClosesDropTheOpenEyesRim) {
   cv::Mat frame = plain.clone();
   frame.setTo(cv::Scalar(255, 255, 255), rim);
   auto white_on_rim = [&](const CompositeResult& c) {
-    int n = 0;
-    for (int j = 0; j < cam.height; ++j)
-      for (int i = 0; i < cam.width; ++i) {
-        const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
-        n += rim.at<uchar>(j, i) && std::min({px[0], px[1], px[2]}) > 200;
-      }
-    return n;
+    return count_pixels(c.rendered_bgr, rim, [](const cv::Vec3b& px) { return is_white(px, 200); });
   };
   gpu::FaceParameters shut = target;
   shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.7f;  // nearly shut; the lower lids barely move
