@@ -70,11 +70,15 @@ void ClosedLoopScore::AddLoop(const tracker::TrackedFrame& loop, bool loop_calib
                               const Eigen::VectorXf& source_truth, const Eigen::VectorXf& rendered_expression,
                               const Eigen::VectorXf& target_true_alpha) {
   if (!loop_calibrated || !loop.has_parameters || !tracker::tracking_status_has_fit(loop.status)) return;
-  expression_.add(ExpressionError(loop.params.delta, source_truth));
+  // ExpressionError, one blendshape at a time (kept per blendshape too).
   blendshape_error_sums_.resize(kNumExpressionWeights, 0.0);
-  for (int i = 0; i < kNumExpressionWeights; ++i)
-    blendshape_error_sums_[static_cast<size_t>(i)] +=
-        std::abs(expression_weight(loop.params.delta, i) - expression_weight(source_truth, i));
+  double sum = 0;
+  for (int i = 0; i < kNumExpressionWeights; ++i) {
+    const double e = std::abs(expression_weight(loop.params.delta, i) - expression_weight(source_truth, i));
+    blendshape_error_sums_[static_cast<size_t>(i)] += e;
+    sum += e;
+  }
+  expression_.add(sum / kNumExpressionWeights);
   rendered_.add(ExpressionError(loop.params.delta, rendered_expression));
   jaw_.add(std::abs(expression_weight(loop.params.delta, kJawOpenIndex) - expression_weight(source_truth, kJawOpenIndex)));
   const tracker::IdentityErrors& e = loop_identity_->Compare(loop_alpha, target_true_alpha);

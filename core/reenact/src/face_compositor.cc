@@ -144,6 +144,7 @@ struct FaceCompositor::Impl {
   std::vector<std::vector<int32_t>> seam_contours;
   std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
   std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
+  std::vector<int> lid_eye_slot;                    // per lid contour: its eye's EyeSlot
   std::vector<std::array<int32_t, 2>> eye_corners;  // per eye: its inner and outer corner (iBUG 39/36, 42/45)
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
   // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
@@ -170,6 +171,7 @@ struct FaceCompositor::Impl {
         float x = 0.f;
         for (int32_t v : contour) x += model.mean_shape[3 * v];
         lid_blink_index.push_back(arkit_blendshape_index(x > 0.f ? "eyeBlinkLeft" : "eyeBlinkRight"));
+        lid_eye_slot.push_back(EyeSlot(x > 0.f ? FacePart::LeftEye : FacePart::RightEye));
         lid_contours.push_back(contour);
       }
       seam_contours.push_back(std::move(contour));
@@ -476,16 +478,25 @@ struct FaceCompositor::Impl {
   static void DrawContours(const std::vector<std::vector<int32_t>>& contours, const gpu::VertexState& state,
                            const gpu::PinholeCamera& camera, const cv::Point& origin, cv::Mat* open) {
     for (const auto& contour : contours) {
-      std::vector<cv::Point> line;
-      for (int32_t v : contour) {
-        const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
-        if (!(x.z() > camera.near_plane)) break;
-        const Eigen::Vector2f uv = project(camera, x);
-        line.emplace_back(static_cast<int>(std::lround(uv.x())) - origin.x, static_cast<int>(std::lround(uv.y())) - origin.y);
-      }
-      if (line.size() == contour.size()) cv::polylines(*open, line, true, cv::Scalar(0), 1, cv::LINE_8);
+      const std::vector<cv::Point> line = PixelContour(contour, state, camera, origin);
+      if (!line.empty()) cv::polylines(*open, line, true, cv::Scalar(0), 1, cv::LINE_8);
     }
   }
+  // `contour`'s vertices at `state` projected and rounded to pixels, relative to `origin`; empty
+  // when any of them is not in front of the camera.
+  static std::vector<cv::Point> PixelContour(const std::vector<int32_t>& contour, const gpu::VertexState& state,
+                                             const gpu::PinholeCamera& camera, const cv::Point& origin = cv::Point(0, 0)) {
+    std::vector<cv::Point> line;
+    for (int32_t v : contour) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
+      if (!(x.z() > camera.near_plane)) return {};
+      const Eigen::Vector2f uv = project(camera, x);
+      line.emplace_back(static_cast<int>(std::lround(uv.x())) - origin.x, static_cast<int>(std::lround(uv.y())) - origin.y);
+    }
+    return line;
+  }
+  // The per-eye arrays' slot of an eyeball part: 0 the left eye (LeftEye), 1 the right.
+  static int EyeSlot(FacePart part) { return part == FacePart::LeftEye ? 0 : 1; }
 
   // Appearance::kFrameTexture: every drawn pixel of `g` (the output's G-buffer)
   // whose surface point the target frame shows takes that frame's colour there, times the
@@ -613,7 +624,7 @@ struct FaceCompositor::Impl {
       for (size_t k = 0; k < lid_contours.size(); ++k) {
         const int b = lid_blink_index[k];
         const float closed = expression_weight(target.delta, b);
-        from_exemplar[b == arkit_blendshape_index("eyeBlinkLeft") ? 0 : 1] =
+        from_exemplar[static_cast<size_t>(lid_eye_slot[k])] =
             closed > kClosedForExemplar && expression_weight(output.delta, b) < closed - kExemplarMargin;
       }
       if (from_exemplar[0] || from_exemplar[1]) {
@@ -647,7 +658,7 @@ struct FaceCompositor::Impl {
           covered.at<float>(bj, bi) = 1.0f;
           const FacePart pixel_part = part_of(g->vertices[3 * p]);
           const bool eyeball = kEyeParts & part_bit(pixel_part);
-          if (eyeball && from_exemplar[pixel_part == FacePart::LeftEye ? 0 : 1]) {
+          if (eyeball && from_exemplar[static_cast<size_t>(EyeSlot(pixel_part))]) {
             // From the open eyes, or nothing (the eyes' fill): never this frame's closed lid.
             Eigen::Vector3f xe = Eigen::Vector3f::Zero();
             for (int k = 0; k < 3; ++k)
@@ -812,22 +823,15 @@ struct FaceCompositor::Impl {
     // open eyes (EyeExemplar) takes their white.
     constexpr float kMaxBlinkForWhite = 0.3f;
     for (size_t k = 0; k < lid_contours.size(); ++k) {
-      // The model's +x is the person's left: the left eye's lids close with eyeBlinkLeft.
-      const bool left = lid_blink_index[k] == arkit_blendshape_index("eyeBlinkLeft");
-      const bool exemplar = from_exemplar[left ? 0 : 1];
+      const size_t slot = static_cast<size_t>(lid_eye_slot[k]);
+      const bool exemplar = from_exemplar[slot];
       const cv::Mat& image = exemplar ? open_eyes->bgr : target_bgr;
       const cv::Point origin = exemplar ? open_eyes->origin : cv::Point(0, 0);
       const gpu::VertexState& state = exemplar ? exemplar_state : ts;
       const gpu::PinholeCamera& frame_camera = exemplar ? open_eyes->camera : camera;
       if (!exemplar && expression_weight(target.delta, lid_blink_index[k]) > kMaxBlinkForWhite) continue;
-      std::vector<cv::Point> polygon;
-      for (int32_t v : lid_contours[k]) {
-        const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
-        if (!(x.z() > frame_camera.near_plane)) break;
-        const Eigen::Vector2f uv = project(frame_camera, x);
-        polygon.emplace_back(static_cast<int>(std::lround(uv.x())) - origin.x, static_cast<int>(std::lround(uv.y())) - origin.y);
-      }
-      if (polygon.size() != lid_contours[k].size()) continue;
+      std::vector<cv::Point> polygon = PixelContour(lid_contours[k], state, frame_camera, origin);
+      if (polygon.empty()) continue;
       const cv::Rect zone = cv::boundingRect(polygon) & cv::Rect(0, 0, image.cols, image.rows);
       if (zone.width < 3 || zone.height < 3) continue;
       cv::Mat inside = cv::Mat::zeros(zone.size(), CV_8UC1);
@@ -847,7 +851,7 @@ struct FaceCompositor::Impl {
                        [](const auto& a, const auto& b) { return a.first > b.first; });
       Eigen::Vector3f sum = Eigen::Vector3f::Zero();
       for (size_t q = 0; q < top; ++q) sum += pixels[q].second;
-      eye_white[left ? 0 : 1] = sum / static_cast<float>(top);
+      eye_white[slot] = sum / static_cast<float>(top);
     }
     // The albedo map's colour balance against this frame's: per channel, the frame's texture over
     // the albedo map's rendering where the frame is fully trusted. The map was learned under the
@@ -1003,7 +1007,7 @@ struct FaceCompositor::Impl {
         // take the balance.
         const bool balance = !(kMouthParts & part_bit(part));
         const std::optional<Eigen::Vector3f>& white =
-            eye ? eye_white[part == FacePart::LeftEye ? 0 : 1] : std::optional<Eigen::Vector3f>();
+            eye ? eye_white[static_cast<size_t>(EyeSlot(part))] : std::optional<Eigen::Vector3f>();
         const Eigen::Vector3f map = !(a < 1.0f) ? Eigen::Vector3f::Zero()
                                     : white     ? *white
                                                 : MapColour(fallback_texture, *g, p, balance ? &gain : nullptr);
