@@ -221,6 +221,7 @@ struct TrackArgs {
   int calibration_window = TrackerOptions{}.calibration_window_frames;
   int relaxed_recalibration = TrackerOptions{}.relaxed_recalibration_frames;
   bool all_inner_landmarks = false;
+  bool no_eye_corners = false;
   bool brow_landmarks = false;
   bool no_gaze = false;
   bool no_lids = false;
@@ -255,6 +256,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.relaxed_recalibration_frames = a.relaxed_recalibration;
   for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) {
     s->energy.all_inner_landmarks = a.all_inner_landmarks;
+    s->energy.eye_corner_landmarks = !a.no_eye_corners;
     s->energy.use_brow_landmarks = a.brow_landmarks;
   }
   if (a.tracking_tolerance >= 0) o.tracking_solver.function_tolerance = a.tracking_tolerance;
@@ -600,6 +602,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
+  j["eye_corner_landmarks"] = tracker.options().tracking_solver.energy.eye_corner_landmarks;
   j["brow_landmarks"] = tracker.options().tracking_solver.energy.use_brow_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
   j["lids"] = tracker.options().gaze.enabled && tracker.options().gaze.read_lids;
@@ -776,6 +779,9 @@ void add_tracker_commands(CLI::App& app) {
               "Also fit the 12 eye points and the nose base (33): for exact landmarks such as a recording's, where they "
               "read blinks; off by default (dlib's eye points do not follow a closing eyelid, and its 33 is not the "
               "model's)");
+  tc->add_flag("--no-eye-corners", targs->no_eye_corners,
+               "Leave the four eye corners (iBUG 36, 39, 42, 45) out of the landmark term too (fitted by default on "
+               "frames without depth: they hold the model's eyes on the real ones)");
   tc->add_flag("--brow-landmarks", targs->brow_landmarks,
                "Also fit the brows (iBUG 17-26) in the solve's landmark term (off by default: the paper's 38 points "
                "have none; the brow blendshapes are read from the brow points after the solve, see --no-brows)");

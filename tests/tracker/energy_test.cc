@@ -647,7 +647,15 @@ TEST(TrackerEnergy, EveryInnerLandmarkOfAFrontalFaceCounts) {
   for (const auto& l : real->landmarks) inner += (l.flags & kLandmarkInner) != 0;
   EnergyOptions with_eyes;
   with_eyes.all_inner_landmarks = true;
-  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, truth).landmarks.size(), inner - 13);  // eyes and 33 off by default
+  // The eyes and 33 are off by default, but for the four eye corners on frames without depth.
+  ASSERT_TRUE(frame.has_depth());
+  EXPECT_EQ(solver.LinearizeAt(frame, layout, EnergyOptions{}, truth).landmarks.size(), inner - 13);
+  InputFrame colour_only = frame;
+  colour_only.depth.clear();
+  EXPECT_EQ(solver.LinearizeAt(colour_only, layout, EnergyOptions{}, truth).landmarks.size(), inner - 9);
+  EnergyOptions without_corners;
+  without_corners.eye_corner_landmarks = false;
+  EXPECT_EQ(solver.LinearizeAt(colour_only, layout, without_corners, truth).landmarks.size(), inner - 13);
   const Linearization lin = solver.LinearizeAt(frame, layout, with_eyes, truth);
   for (const auto& s : lin.landmarks)
     for (const auto& l : real->landmarks)

@@ -320,6 +320,7 @@ TEST(TrackCli, CalibrationWindowCalibratesAtItsEnd) {
   EXPECT_EQ(report["calibration_frame"], 3) << report.dump();
   EXPECT_EQ(report["calibration_window_frames"], 4);
   EXPECT_EQ(report["all_inner_landmarks"], false);
+  EXPECT_EQ(report["eye_corner_landmarks"], true);
   const std::vector<nlohmann::json> frames = read_lines(out / "p.jsonl");
   ASSERT_EQ(frames.size(), 5u);
   EXPECT_NE(frames[1]["message"].get<std::string>().find("watching 2 of 4: turn your head"), std::string::npos)

@@ -337,7 +337,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   if (options.use_landmarks) {
     std::unordered_map<int, const TrackerLandmark*> by_index;
     for (const auto& l : model.landmarks) {
-      if (!EnergyUsesLandmark(options, l.ibug_index, l.flags)) continue;
+      if (!EnergyUsesLandmark(options, l.ibug_index, l.flags, frame.has_depth())) continue;
       by_index[l.ibug_index] = &l;
     }
     for (const auto& in : frame.landmarks) {

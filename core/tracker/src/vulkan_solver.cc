@@ -656,7 +656,7 @@ struct VulkanSolver::Impl {
     // Landmark candidates exactly as Linearize filters them before visibility.
     std::unordered_map<int, int> vertex_of;
     for (const auto& l : model.landmarks) {
-      if (!EnergyUsesLandmark(energy, l.ibug_index, l.flags)) continue;
+      if (!EnergyUsesLandmark(energy, l.ibug_index, l.flags, has_depth)) continue;
       vertex_of[l.ibug_index] = l.vertex;
     }
     std::vector<LandmarkCandidate> cand;

@@ -119,6 +119,16 @@ struct EnergyOptions {
   // blinks (0.005 -> 0.5) and lower most errors (docs/tracker.md, "Landmark visibility"), so
   // `track --all-inner-landmarks` can switch them on.
   bool all_inner_landmarks = false;
+  // The four eye corners (iBUG 36, 39, 42, 45) even without all_inner_landmarks, on frames
+  // without depth: where the lids meet, a closing lid does not move them and dlib places them
+  // well on real faces. On video nothing else holds the eyes (the colour term barely sees an eye
+  // at the tracking levels), and the fitted eyes sat half an eye's height off the real ones (eye
+  // points' NME 0.038-0.057 of the eye distance on six clips, 0.015-0.020 with the corners; d10,
+  // filmed from below, had the model's lower lids on her cheek), so eyes the output moves sampled
+  // lids and lashes as eyeball. With depth the surface holds the face, and on the synthetic RGB-D
+  // actors dlib's corners (0.045 eye distances off the true ones on those renders) moved the eyes
+  // off: the demo's source read a blink its eyes never made. docs/tracker.md, "The eye corners".
+  bool eye_corner_landmarks = true;
   // The brows (iBUG 17-26) too, beside the inner points: the brow blendshapes (browDown,
   // browInnerUp, browOuterUp) are then read from where the detector puts the brows, which on RGB
   // video is the only evidence of them (the colour barely changes as a brow lifts). Off in the
@@ -139,6 +149,8 @@ struct EnergyOptions {
 
 // The inner points EnergyOptions::all_inner_landmarks adds: the eyes (iBUG 36-47) and 33.
 inline bool LeftOutUnlessAllInner(int ibug_index) { return ibug_index == 33 || (ibug_index >= 36 && ibug_index <= 47); }
+// The eye corners (iBUG 36, 39, 42, 45): EnergyOptions::eye_corner_landmarks.
+inline bool IsEyeCorner(int ibug_index) { return ibug_index == 36 || ibug_index == 39 || ibug_index == 42 || ibug_index == 45; }
 inline bool IsBrowLandmark(int ibug_index) { return ibug_index >= 17 && ibug_index <= 26; }
 
 // The model vertex E_lan matches an input landmark to: its own (InputLandmark::model_vertex) or
@@ -148,12 +160,14 @@ inline int LandmarkVertex(const InputLandmark& in, int bound_vertex, int num_ver
   return v >= 0 && v < num_vertices ? v : -1;
 }
 
-// Whether E_lan takes the model landmark `l` under `options` (before its visibility test): the
-// one rule for the CPU linearisation and the Vulkan solver.
-inline bool EnergyUsesLandmark(const EnergyOptions& options, int ibug_index, uint8_t flags) {
+// Whether E_lan takes the model landmark `l` under `options` on a frame with or without depth
+// (before its visibility test): the one rule for the CPU linearisation and the Vulkan solver.
+inline bool EnergyUsesLandmark(const EnergyOptions& options, int ibug_index, uint8_t flags, bool frame_has_depth) {
   const bool inner = (flags & kLandmarkInner) != 0;
   if (options.inner_landmarks_only && !inner && !(options.use_brow_landmarks && IsBrowLandmark(ibug_index))) return false;
-  if (!options.all_inner_landmarks && LeftOutUnlessAllInner(ibug_index)) return false;
+  if (!options.all_inner_landmarks && LeftOutUnlessAllInner(ibug_index) &&
+      !(options.eye_corner_landmarks && !frame_has_depth && IsEyeCorner(ibug_index)))
+    return false;
   return true;
 }
 
