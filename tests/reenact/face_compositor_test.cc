@@ -2,6 +2,8 @@
 // frames come from the CPU renderer, so the true P of every frame is known.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
@@ -457,6 +459,99 @@ TEST(ReenactCompositorTest, EyesOpenedWiderTakeTheFramesEyeNotTheModelsWhite) {
   EXPECT_LT(white, all / 20) << white << " of " << all << " eyeball pixels are the model's white";
 }
 
+// Each eyeball pixel's angle from its eye's axis (degrees; NaN off the eyeballs) as `p` draws the
+// face: the place on the eyeball whose pattern the model's albedo follows (within 14 degrees the
+// pupil, to 32 the iris, the white beyond: docs/face-model.md), from the rest shape's eyeball
+// centres.
+cv::Mat eyeball_angles(const FaceModel& model, const gpu::FaceParameters& p, const gpu::PinholeCamera& cam) {
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
+  gpu::RenderOptions ro;
+  ro.parts = gpu::kAllParts;
+  ro.cull_back_faces = true;
+  gpu::GBuffer g;
+  renderer.rasterize(renderer.evaluate(p), cam, ro, &g);
+  const int n = model.num_vertices();
+  std::array<Eigen::Vector3f, 2> centre{Eigen::Vector3f::Zero(), Eigen::Vector3f::Zero()};
+  std::array<int, 2> count{0, 0};
+  auto slot = [&](int v) {
+    const FacePart part = model.vertex_part[static_cast<size_t>(v)];
+    return part == FacePart::LeftEye ? 0 : part == FacePart::RightEye ? 1 : -1;
+  };
+  for (int v = 0; v < n; ++v)
+    if (slot(v) >= 0) centre[static_cast<size_t>(slot(v))] += model.mean_shape.segment<3>(3 * v), ++count[static_cast<size_t>(slot(v))];
+  for (int e = 0; e < 2; ++e) centre[static_cast<size_t>(e)] /= static_cast<float>(std::max(1, count[static_cast<size_t>(e)]));
+  cv::Mat angles(cam.height, cam.width, CV_32FC1, cv::Scalar(std::nanf("")));
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      const size_t q = static_cast<size_t>(j) * cam.width + i;
+      if (g.triangle[q] < 0 || slot(g.vertices[3 * q]) < 0) continue;
+      Eigen::Vector3f d = Eigen::Vector3f::Zero();
+      for (size_t k = 0; k < 3; ++k) {
+        const int v = g.vertices[3 * q + k];
+        d += g.barycentric[3 * q + k] * (model.mean_shape.segment<3>(3 * v) - centre[static_cast<size_t>(slot(v))]).normalized();
+      }
+      angles.at<float>(j, i) = std::acos(std::clamp(d.normalized().z(), -1.0f, 1.0f)) * 180.f / static_cast<float>(M_PI);
+    }
+  return angles;
+}
+
+// An eye the output opens wider than the target's bares the iris' top and the white above it,
+// which the frame hides under the target's upper lid. Filled from the eyeball pixels around in the
+// image, the iris' colour ran into the white and the white into the iris: hard-edged grey and white
+// bands across the eye (d6 wide-eyed onto d10, output frames 116-119). Filled by place on the
+// eyeball, the iris continues as the frame's iris and the white as its white. Here the frame's iris
+// is painted blue and its white grey; the output's eyeball pixels must show the one their place
+// holds.
+TEST(ReenactCompositorTest, AnEyeOpenedWiderContinuesTheFramesIrisAndWhite) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  gpu::FaceParameters target = test_face(0.4f);
+  for (const char* name : {"eyeBlinkLeft", "eyeBlinkRight"}) target.delta[arkit_blendshape_index(name)] = 0.25f;
+  gpu::FaceParameters wide = target;
+  for (const char* name : {"eyeBlinkLeft", "eyeBlinkRight"}) wide.delta[arkit_blendshape_index(name)] = 0.f;
+  for (const char* name : {"eyeWideLeft", "eyeWideRight"}) wide.delta[arkit_blendshape_index(name)] = 1.f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  // A small iris (the model's own reaches 32 degrees, nearly all of what this opening shows), so
+  // that the white shows on every side of it.
+  constexpr float kIrisDegrees = 20.f;
+  cv::Mat frame = plain.clone();
+  const cv::Mat target_angles = eyeball_angles(model, target, cam);
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      const float a = target_angles.at<float>(j, i);
+      if (!std::isnan(a)) frame.at<cv::Vec3b>(j, i) = a < kIrisDegrees ? cv::Vec3b(255, 0, 0) : cv::Vec3b(170, 170, 170);
+    }
+  const CompositeResult c = fc.Compose(frame, cam, target, wide, &albedo);
+  ASSERT_TRUE(c.drawn);
+  const cv::Mat out_angles = eyeball_angles(model, wide, cam);
+  // Each output eyeball pixel a pixel away from the lids, away from the iris' edge (its pixels mix).
+  cv::Mat eyes = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) eyes.at<uchar>(j, i) = std::isnan(out_angles.at<float>(j, i)) ? 0 : 255;
+  cv::erode(eyes, eyes, cv::Mat());
+  eyes &= c.face_mask;
+  int iris = 0, white = 0, wrong = 0;
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i) {
+      const float a = out_angles.at<float>(j, i);
+      if (!eyes.at<uchar>(j, i) || std::abs(a - kIrisDegrees) < 4.f) continue;
+      const cv::Vec3b px = c.rendered_bgr.at<cv::Vec3b>(j, i);
+      const bool blue = px[0] - std::max(px[1], px[2]) > 100;
+      const bool grey = std::abs(px[0] - px[1]) < 30 && std::abs(px[1] - px[2]) < 30 && std::min({px[0], px[1], px[2]}) > 120;
+      if (a < kIrisDegrees) ++iris, wrong += !blue;
+      else ++white, wrong += !grey;
+    }
+  RecordProperty("wrong_of_iris_and_white", std::to_string(wrong) + " of " + std::to_string(iris) + " + " + std::to_string(white));
+  std::printf("eyeball pixels: %d iris, %d white, %d wrong\n", iris, white, wrong);
+  ASSERT_GT(iris, 50);
+  ASSERT_GT(white, 50);
+  EXPECT_LE(wrong, (iris + white) / 20);
+}
+
 // A gaze turned hard aside bares eyeball surface the frame never shows, farther from its shown
 // eyeball than the fill reaches. It took the albedo map's eyeball, the model's white: on the
 // webcam clip (a dim camera, eye whites about 0.3 in linear light) a bright blue-white wedge beside
@@ -516,6 +611,10 @@ TEST(ReenactCompositorTest, EyesTheTargetBlinksAreDrawnFromItsOpenEyes) {
   gpu::FaceParameters turned = open;
   turned.euler.y() += 0.7f;  // 40 degrees aside
   EXPECT_FALSE(fc.CaptureEyes(open_frame, cam, turned, 9, &refused)) << "a turned head shows one eye foreshortened";
+  gpu::FaceParameters glancing = open;
+  glancing.delta[arkit_blendshape_index("eyeLookOutLeft")] = 0.8f;
+  glancing.delta[arkit_blendshape_index("eyeLookInRight")] = 0.8f;
+  EXPECT_FALSE(fc.CaptureEyes(open_frame, cam, glancing, 9, &refused)) << "a glance aside reads its turn short";
   EXPECT_THROW(fc.CaptureEyes(cv::Mat(10, 10, CV_8UC3), cam, open, 10, &refused), Error) << "a frame of another size";
   gpu::FaceParameters broken = open;
   broken.translation.x() = std::nanf("");

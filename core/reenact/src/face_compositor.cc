@@ -22,6 +22,7 @@
 #include "face_reenact/reenact/transfer.h"
 #include "face_parts.h"
 #include "image_sampling.h"
+#include "eyeball_fill.h"
 #include "mouth_pass.h"
 #include "shading.h"
 #include "face_reenact/common/timing.h"
@@ -118,6 +119,22 @@ bool plausible_albedo(const Eigen::Vector3f& prior, Eigen::Vector3f* observed) {
   return true;
 }
 
+// A surface point counts as shown in a frame when the frame's visible surface at its projection
+// is within this depth of it: a few millimetres, more where one pixel spans more than that.
+constexpr float kShownToleranceM = 0.004f;
+
+// An eyeball sample this close to the edge of the eyeball a frame's fit draws (its lids, in
+// pixels of BoundaryDistance) is trusted only kEyeballEdgeTrust where it moves, fully from
+// kEyeballEdgeFullPx: a fit off by a pixel or two puts the lid's rim and lashes there, and moved
+// into the output's eye they drew a red line inside it (the webcam clip's blink frames, drawn
+// from his open eyes). The fill by place (internal::EyeballFill) gives such pixels the eyeball's
+// colour next to them. Not nothing: an eye a few pixels tall is all edge.
+constexpr float kEyeballEdgePx = 1.0f, kEyeballEdgeFullPx = 2.5f, kEyeballEdgeTrust = 0.25f;
+float eyeball_edge_trust(float distance_px) {
+  const float away = std::clamp((distance_px - kEyeballEdgePx) / (kEyeballEdgeFullPx - kEyeballEdgePx), 0.0f, 1.0f);
+  return kEyeballEdgeTrust + (1.0f - kEyeballEdgeTrust) * away;
+}
+
 // The pixel position (u, v) of camera-space point x (in front of the camera).
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
   return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};
@@ -146,6 +163,12 @@ struct FaceCompositor::Impl {
   std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
   std::vector<int> lid_eye_slot;                    // per lid contour: its eye's EyeSlot
   std::vector<std::array<int32_t, 2>> eye_corners;  // per eye: its inner and outer corner (iBUG 39/36, 42/45)
+  // Per vertex of an eyeball, its place on it (internal::EyeballFill): the unit direction from
+  // the eyeball's centre in the rest shape; zero elsewhere. Per eye (EyeSlot): its vertices and
+  // its radius in the rest shape (metres).
+  std::vector<Eigen::Vector3f> eyeball_place;
+  std::array<std::vector<int32_t>, 2> eyeball_vertices;
+  std::array<float, 2> eyeball_radius{0.f, 0.f};
   std::vector<std::vector<int32_t>> neighbours;  // mesh adjacency, for filling the albedo map
   // Face vertices inside the mouth: the skin behind the inner lip line (the lips' inner faces
   // and the wall behind them). See irradiance_at.
@@ -179,6 +202,7 @@ struct FaceCompositor::Impl {
     for (const auto& [inner, outer] : {std::pair{39, 36}, std::pair{42, 45}})
       if (by_index[static_cast<size_t>(inner)] >= 0 && by_index[static_cast<size_t>(outer)] >= 0)
         eye_corners.push_back({by_index[static_cast<size_t>(inner)], by_index[static_cast<size_t>(outer)]});
+    FindEyeballPlaces();
     FindMouthInterior();
     teeth_uv = TeethTextureCoordinates(model);
     FindSkinAroundMouth();
@@ -204,6 +228,28 @@ struct FaceCompositor::Impl {
       polygon.push_back(project(camera, x));
     }
     return polygon;
+  }
+
+  // eyeball_place, eyeball_vertices and eyeball_radius from the mean shape (the builder's eyeball
+  // is an evenly spaced sphere looking along +z: docs/face-model.md).
+  void FindEyeballPlaces() {
+    const int n = model.num_vertices();
+    eyeball_place.assign(static_cast<size_t>(n), Eigen::Vector3f::Zero());
+    for (int v = 0; v < n; ++v)
+      if (kEyeParts & part_bit(part_of(v))) eyeball_vertices[static_cast<size_t>(EyeSlot(part_of(v)))].push_back(v);
+    for (size_t e = 0; e < 2; ++e) {
+      if (eyeball_vertices[e].empty()) continue;
+      Eigen::Vector3f centre = Eigen::Vector3f::Zero();
+      for (int32_t v : eyeball_vertices[e]) centre += model.mean_shape.segment<3>(3 * v);
+      centre /= static_cast<float>(eyeball_vertices[e].size());
+      float radius = 0.f;
+      for (int32_t v : eyeball_vertices[e]) {
+        const Eigen::Vector3f d = model.mean_shape.segment<3>(3 * v) - centre;
+        radius += d.norm();
+        if (d.norm() > 0.f) eyeball_place[static_cast<size_t>(v)] = d.normalized();
+      }
+      eyeball_radius[e] = radius / static_cast<float>(eyeball_vertices[e].size());
+    }
   }
 
   // in_mouth from the mean shape (model space: x to the person's left, y up, z towards the
@@ -495,6 +541,30 @@ struct FaceCompositor::Impl {
     }
     return line;
   }
+  // The colour of the open eyes (`eyes`, evaluated and rasterised as `eyes_state` and `eyes_g`,
+  // `eyes_edge` their BoundaryDistance over the crop) at the surface point of output pixel p of
+  // `g`, an eyeball pixel of `part`, into `colour`, with its `trust` (eyeball_edge_trust: every
+  // such sample moves); nothing where they do not show it.
+  void SampleOpenEyes(const EyeExemplar& eyes, const gpu::VertexState& eyes_state, const gpu::GBuffer& eyes_g,
+                      const cv::Mat& eyes_edge, const gpu::GBuffer& g, size_t p, FacePart part, cv::Vec3f* colour,
+                      float* trust) const {
+    Eigen::Vector3f x = Eigen::Vector3f::Zero();
+    for (int k = 0; k < 3; ++k)
+      x += g.barycentric[3 * p + static_cast<size_t>(k)] * eyes_state.camera_positions.segment<3>(3 * g.vertices[3 * p + static_cast<size_t>(k)]);
+    if (!(x.z() > eyes.camera.near_plane)) return;
+    const Eigen::Vector2f u = project(eyes.camera, x);
+    const float cu = u.x() - static_cast<float>(eyes.origin.x), cv_ = u.y() - static_cast<float>(eyes.origin.y);
+    if (!(cu >= 0.f && cv_ >= 0.f && cu <= static_cast<float>(eyes.bgr.cols - 1) && cv_ <= static_cast<float>(eyes.bgr.rows - 1))) return;
+    const size_t q = static_cast<size_t>(std::lround(u.y())) * eyes_g.width + static_cast<size_t>(std::lround(u.x()));
+    if (eyes_g.triangle[q] < 0 || part_of(eyes_g.vertices[3 * q]) != part ||
+        std::abs(eyes_g.position[3 * q + 2] - x.z()) > std::max(kShownToleranceM, 1.5f * x.z() / eyes.camera.fx))
+      return;
+    const float edge = eyeball_edge_trust(sample_float(eyes_edge, cu, cv_));
+    if (!(edge > 0.f)) return;
+    const Eigen::Vector3f seen = sample_linear(eyes.bgr, cu, cv_);
+    *colour = cv::Vec3f(std::min(1.0f, seen[0]), std::min(1.0f, seen[1]), std::min(1.0f, seen[2]));
+    *trust = edge;
+  }
   // The per-eye arrays' slot of an eyeball part: 0 the left eye (LeftEye), 1 the right.
   static int EyeSlot(FacePart part) { return part == FacePart::LeftEye ? 0 : 1; }
 
@@ -615,12 +685,17 @@ struct FaceCompositor::Impl {
     // where the output shows the eyeball, and the eyeball took the fill and the map (on the webcam
     // clip, blinking at output frames 19 and 20 under d14's open eyes: an orange-brown iris and the
     // model's white, or skin, for two frames of every blink). That eyeball takes the actor's open
-    // eyes (`open_eyes`), sampled at its surface points in that frame's fit as the frame is here.
+    // eyes (`open_eyes`), sampled at its surface points in that frame's fit as the frame is here,
+    // unless the frame shows most of it after all (below: an eye held a little narrower than the
+    // one the fit calls open).
     constexpr float kClosedForExemplar = 0.3f, kExemplarMargin = 0.1f;
     std::array<bool, 2> from_exemplar{false, false};  // LeftEye, RightEye
     gpu::VertexState exemplar_state;
     gpu::GBuffer* exemplar_g = nullptr;
-    if (distrust && open_eyes && !open_eyes->empty() && open_eyes->camera.width == w && open_eyes->camera.height == h) {
+    cv::Mat exemplar_edge;
+    const cv::Rect open_eyes_crop = open_eyes ? cv::Rect(open_eyes->origin, open_eyes->bgr.size()) & cv::Rect(0, 0, w, h) : cv::Rect();
+    if (distrust && open_eyes && !open_eyes->empty() && open_eyes->camera.width == w && open_eyes->camera.height == h &&
+        open_eyes_crop.size() == open_eyes->bgr.size()) {
       for (size_t k = 0; k < lid_contours.size(); ++k) {
         const int b = lid_blink_index[k];
         const float closed = expression_weight(target.delta, b);
@@ -631,12 +706,9 @@ struct FaceCompositor::Impl {
         exemplar_state = renderer.evaluate(open_eyes->params, nullptr, threads());
         exemplar_g = &scratch_gbuffer(3);
         rasterize(exemplar_state, open_eyes->params, open_eyes->camera, ropt, exemplar_g);
-        if (eyes_drawn) *eyes_drawn = true;
+        exemplar_edge = BoundaryDistance(*exemplar_g, exemplar_state, open_eyes->camera, open_eyes_crop);
       }
     }
-    // A surface point counts as shown when the frame's visible surface at its projection is
-    // within this depth of it: a few millimetres, more where one pixel spans more than that.
-    constexpr float kShownToleranceM = 0.004f;
     constexpr float kMinShadingRatio = 0.5f, kMaxShadingRatio = 2.0f;
     cv::Mat weight = cv::Mat::zeros(box.size(), CV_32FC1), covered = cv::Mat::zeros(box.size(), CV_32FC1);
     cv::Mat texture = cv::Mat::zeros(box.size(), CV_32FC3);  // (set where a sample is taken)
@@ -645,6 +717,8 @@ struct FaceCompositor::Impl {
     // geometry changes: the same geometry keeps a ratio of 1 and needs neither).
     cv::Mat seen_at, ratio_at;
     if (!same) seen_at = cv::Mat::zeros(box.size(), CV_32FC3), ratio_at = cv::Mat::zeros(box.size(), CV_32FC3);
+    cv::Mat exemplar_texture, exemplar_weight;  // the open eyes' samples (with exemplar_g)
+    if (exemplar_g) exemplar_texture = cv::Mat::zeros(box.size(), CV_32FC3), exemplar_weight = cv::Mat::zeros(box.size(), CV_32FC1);
     // Rows of the box on the pool's threads: each pixel writes only its own texture, weight and
     // coverage, so the result is the same for any thread count.
     constexpr int kRowsPerItem = 8;
@@ -658,27 +732,10 @@ struct FaceCompositor::Impl {
           covered.at<float>(bj, bi) = 1.0f;
           const FacePart pixel_part = part_of(g->vertices[3 * p]);
           const bool eyeball = kEyeParts & part_bit(pixel_part);
-          if (eyeball && from_exemplar[static_cast<size_t>(EyeSlot(pixel_part))]) {
-            // From the open eyes, or nothing (the eyes' fill): never this frame's closed lid.
-            Eigen::Vector3f xe = Eigen::Vector3f::Zero();
-            for (int k = 0; k < 3; ++k)
-              xe += g->barycentric[3 * p + static_cast<size_t>(k)] *
-                    exemplar_state.camera_positions.segment<3>(3 * g->vertices[3 * p + static_cast<size_t>(k)]);
-            if (!(xe.z() > open_eyes->camera.near_plane)) continue;
-            const Eigen::Vector2f ue = project(open_eyes->camera, xe);
-            if (!(ue.x() >= 0.f && ue.y() >= 0.f && ue.x() <= static_cast<float>(w - 1) && ue.y() <= static_cast<float>(h - 1))) continue;
-            const size_t qe = static_cast<size_t>(std::lround(ue.y())) * w + static_cast<size_t>(std::lround(ue.x()));
-            if (exemplar_g->triangle[qe] < 0 || part_of(exemplar_g->vertices[3 * qe]) != pixel_part ||
-                std::abs(exemplar_g->position[3 * qe + 2] - xe.z()) > std::max(kShownToleranceM, 1.5f * xe.z() / open_eyes->camera.fx))
-              continue;
-            const float cu = ue.x() - static_cast<float>(open_eyes->origin.x), cv_ = ue.y() - static_cast<float>(open_eyes->origin.y);
-            if (!(cu >= 0.f && cv_ >= 0.f && cu <= static_cast<float>(open_eyes->bgr.cols - 1) && cv_ <= static_cast<float>(open_eyes->bgr.rows - 1)))
-              continue;
-            const Eigen::Vector3f seen = sample_linear(open_eyes->bgr, cu, cv_);
-            texture.at<cv::Vec3f>(bj, bi) = cv::Vec3f(std::min(1.0f, seen[0]), std::min(1.0f, seen[1]), std::min(1.0f, seen[2]));
-            weight.at<float>(bj, bi) = 1.0f;
-            continue;
-          }
+          // The open eyes' sample too, for an eye the target holds closed (chosen per eye below).
+          if (eyeball && from_exemplar[static_cast<size_t>(EyeSlot(pixel_part))])
+            SampleOpenEyes(*open_eyes, exemplar_state, *exemplar_g, exemplar_edge, *g, p, pixel_part,
+                           &exemplar_texture.at<cv::Vec3f>(bj, bi), &exemplar_weight.at<float>(bj, bi));
           Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
                           nt = Eigen::Vector3f::Zero();
           for (int k = 0; k < 3; ++k) {
@@ -718,13 +775,19 @@ struct FaceCompositor::Impl {
           // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
           // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
           // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
-          // moved by the gaze is what the reenactment is to show. Only the caruncle is not.
-          if (eyeball && moved > 0.f)
+          // moved by the gaze is what the reenactment is to show. Not the caruncle, and not the
+          // eyeball's edge (eyeball_edge_trust), where the fill by place does better.
+          if (eyeball && moved > 0.f) {
             for (const auto& [corner, width] : inner_corners) {
               const float share = (Eigen::Vector2f(u, vv) - corner).norm() / width;
               const float away = std::clamp(share / kCaruncleShare - 1.0f, 0.0f, 1.0f);
               trust = std::min(trust, 1.0f - moved * (1.0f - away));
             }
+            if (!boundary_px.empty()) {
+              const float edge = eyeball_edge_trust(sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y)));
+              trust = std::min(trust, 1.0f - moved * (1.0f - edge));
+            }
+          }
           if (!boundary_px.empty() && !eyeball) {
             const cv::Point at(static_cast<int>(u), static_cast<int>(vv));
             float exposed = std::max(moved, mouth_zone.contains(at) ? mouth_redraw : 0.0f);
@@ -806,6 +869,34 @@ struct FaceCompositor::Impl {
       cv::erode(footprint_trust, footprint_trust, cv::Mat());
       cv::GaussianBlur(footprint_trust, footprint_trust, cv::Size(0, 0), 1.0);
       weight = weight.mul(footprint_trust);
+    }
+    // Per eye, the frame or the open eyes, never both: the two fits' gazes differ, and mixed in
+    // one eye the frame's iris and the open eyes' drew two irises (d10 narrowing her eyes to a
+    // blink reading of 0.32-0.42 under d6's wide-open ones, output frames 116-119). The open eyes
+    // where the frame shows less than half of the output's eyeball; the frame's own eye, filled by
+    // place, where it shows more.
+    constexpr float kShownForTheFramesEye = 0.5f;
+    if (exemplar_g) {
+      std::array<float, 2> shown_share{0.f, 0.f}, drawn{0.f, 0.f};
+      for (int bj = 0; bj < box.height; ++bj)
+        for (int bi = 0; bi < box.width; ++bi) {
+          const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+          if (!(covered.at<float>(bj, bi) > 0.f) || !(kEyeParts & part_bit(part_of(g->vertices[3 * p])))) continue;
+          const size_t slot = static_cast<size_t>(EyeSlot(part_of(g->vertices[3 * p])));
+          shown_share[slot] += std::clamp(weight.at<float>(bj, bi), 0.0f, 1.0f);
+          drawn[slot] += 1.f;
+        }
+      for (size_t e = 0; e < 2; ++e)
+        if (from_exemplar[e] && drawn[e] > 0.f && shown_share[e] >= kShownForTheFramesEye * drawn[e]) from_exemplar[e] = false;
+      for (int bj = 0; bj < box.height; ++bj)
+        for (int bi = 0; bi < box.width; ++bi) {
+          const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+          if (!(covered.at<float>(bj, bi) > 0.f) || !(kEyeParts & part_bit(part_of(g->vertices[3 * p])))) continue;
+          if (!from_exemplar[static_cast<size_t>(EyeSlot(part_of(g->vertices[3 * p])))]) continue;
+          texture.at<cv::Vec3f>(bj, bi) = exemplar_texture.at<cv::Vec3f>(bj, bi);
+          weight.at<float>(bj, bi) = exemplar_weight.at<float>(bj, bi);
+        }
+      if (eyes_drawn) *eyes_drawn = from_exemplar[0] || from_exemplar[1];
     }
     if (shown) weight.copyTo((*shown)(box));
     // Each eye's white as this frame shows it: the mean of the brightest quarter of the frame's
@@ -896,29 +987,40 @@ struct FaceCompositor::Impl {
     // colour on a lid or a lip would be a white rim). Teeth and tongue keep their own samples,
     // faded to the map next to distrusted ones.
     //
-    // The eyeballs fill the same way, from the frame's own eyeball samples, their share counted
-    // over the eyeball pixels drawn around (not the skin): eyeball surface the frame does not show
-    // (under the target's lid, bared by eyes opened wider or turned hard aside) took the map, the
-    // model's white eyeball. Only eyes fill eyes.
+    // The eyeballs fill by place on the eyeball (internal::EyeballFill), from the frame's own
+    // samples of that eye: the same place nearby, the mirror place across the meridian, the same
+    // angle from the axis; then the eye's white as the frame shows it, then the map. Only eyes
+    // fill eyes.
     constexpr float kFillSigmaPx = 2.0f, kTrustedShareForFull = 0.3f;
+    std::array<std::optional<internal::EyeballFill>, 2> eye_fill;  // LeftEye, RightEye
+    for (size_t e = 0; e < 2; ++e) {
+      if (eyeball_vertices[e].empty()) continue;
+      Eigen::Vector3f centre = Eigen::Vector3f::Zero();
+      for (int32_t v : eyeball_vertices[e]) centre += out_state.camera_positions.segment<3>(3 * v);
+      centre /= static_cast<float>(eyeball_vertices[e].size());
+      if (centre.z() > camera.near_plane) eye_fill[e].emplace(eyeball_radius[e] * camera.fx / centre.z());
+    }
+    auto eyeball_place_at = [&](size_t p) {
+      Eigen::Vector3f d = Eigen::Vector3f::Zero();
+      for (int k = 0; k < 3; ++k)
+        d += g->barycentric[3 * p + static_cast<size_t>(k)] * eyeball_place[static_cast<size_t>(g->vertices[3 * p + static_cast<size_t>(k)])];
+      return d.norm() > 0.f ? Eigen::Vector3f(d.normalized()) : d;
+    };
     cv::Mat skin_weight = cv::Mat::zeros(box.size(), CV_32FC1), weighted_texture = cv::Mat::zeros(box.size(), CV_32FC3);
-    cv::Mat eye_weight = cv::Mat::zeros(box.size(), CV_32FC1), eye_texture = cv::Mat::zeros(box.size(), CV_32FC3);
-    cv::Mat eye_covered = cv::Mat::zeros(box.size(), CV_32FC1);
     for (int bj = 0; bj < box.height; ++bj)
       for (int bi = 0; bi < box.width; ++bi) {
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
         if (!(covered.at<float>(bj, bi) > 0.f)) continue;
         const FacePart part = part_of(g->vertices[3 * p]);
-        const bool eye = kEyeParts & part_bit(part);
-        if (eye) eye_covered.at<float>(bj, bi) = 1.0f;
         const float wt = weight.at<float>(bj, bi);
         if (!(wt > 0.f)) continue;
         if (part == FacePart::Face) {
           skin_weight.at<float>(bj, bi) = wt;
           weighted_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
-        } else if (eye) {
-          eye_weight.at<float>(bj, bi) = wt;
-          eye_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
+        } else if (kEyeParts & part_bit(part)) {
+          auto& fill = eye_fill[static_cast<size_t>(EyeSlot(part))];
+          const cv::Vec3f t = texture.at<cv::Vec3f>(bj, bi);
+          if (fill) fill->Add(eyeball_place_at(p), Eigen::Vector3f(t[0], t[1], t[2]), wt);
         }
       }
     // A normalised convolution: the weighted samples, their weights and the drawn pixels they
@@ -932,13 +1034,6 @@ struct FaceCompositor::Impl {
       }
     };
     const Fill skin(weighted_texture, skin_weight, covered, kFillSigmaPx);
-    const Fill eyes(eye_texture, eye_weight, eye_covered, kFillSigmaPx);
-    // ... and a wider kernel where the near one finds too few (an eye opened much wider bares
-    // more than a couple of pixels at once).
-    constexpr float kEyeWideFillSigmaPx = 6.0f;
-    const std::optional<Fill> eyes_wide =
-        cv::countNonZero(eye_covered) > 0 ? std::optional<Fill>(std::in_place, eye_texture, eye_weight, eye_covered, kEyeWideFillSigmaPx)
-                                          : std::nullopt;
     // The output's lid margins: distrusted skin this close to one takes the map, not its
     // neighbours' samples. The fill is spatial, and across a lid the output closes the nearest
     // trusted skin is the lower lid's, the shadowed skin under the eye: it drew a grey-blue band
@@ -962,13 +1057,22 @@ struct FaceCompositor::Impl {
         const float cw = skin.coverage.at<float>(bj, bi);
         float a = 0.f;
         cv::Vec3f t(0.f, 0.f, 0.f);  // (the texture holds nothing where no sample was taken)
-        const bool eye = kEyeParts & part_bit(part);
-        if (part == FacePart::Face || eye) {
-          const Fill* f = eye ? &eyes : &skin;
-          if (eye && eyes_wide && !(f->weights.at<float>(bj, bi) >= kTrustedShareForFull * f->coverage.at<float>(bj, bi)))
-            f = &*eyes_wide;
-          const float trusted = f->weights.at<float>(bj, bi), coverage = f->coverage.at<float>(bj, bi);
-          if (!eye && lid_distance.at<float>(bj, bi) < lid_reach_px) {
+        if (kEyeParts & part_bit(part)) {
+          // The pixel's own sample as far as it is trusted, the fill by place for the rest.
+          const size_t slot = static_cast<size_t>(EyeSlot(part));
+          const auto& fill = eye_fill[slot];
+          const cv::Vec3f own_t = texture.at<cv::Vec3f>(bj, bi);
+          if (own < 1.f) {
+            const Eigen::Vector3f fallback = eye_white[slot] ? *eye_white[slot] : MapColour(fallback_texture, *g, p, &gain);
+            const Eigen::Vector3f around = fill ? fill->At(eyeball_place_at(p), fallback) : fallback;
+            for (int c = 0; c < 3; ++c) t[c] = own * own_t[c] + (1.0f - own) * around[c];
+          } else {
+            t = own_t;
+          }
+          a = 1.0f;
+        } else if (part == FacePart::Face) {
+          const float trusted = skin.weights.at<float>(bj, bi), coverage = skin.coverage.at<float>(bj, bi);
+          if (lid_distance.at<float>(bj, bi) < lid_reach_px) {
             t = texture.at<cv::Vec3f>(bj, bi);
             // A sample darker than the map in every channel is the lash line (or an eyeliner, or
             // the iris a lid margin missed by a pixel lands on): what a lid margin shows. Beside
@@ -990,7 +1094,7 @@ struct FaceCompositor::Impl {
           } else if (trusted > 1e-4f && coverage > 1e-6f) {
             a = std::clamp(trusted / (kTrustedShareForFull * coverage), 0.0f, 1.0f);
             // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
-            const cv::Vec3f around = f->sums.at<cv::Vec3f>(bj, bi) / trusted;
+            const cv::Vec3f around = skin.sums.at<cv::Vec3f>(bj, bi) / trusted;
             t = own > 0.f ? own * texture.at<cv::Vec3f>(bj, bi) + (1.0f - own) * around : around;
           }
         } else if (own > 0.f) {
@@ -1003,14 +1107,11 @@ struct FaceCompositor::Impl {
           if (shown && own >= internal::kShownByTheFrame) a = 1.0f;
           t = texture.at<cv::Vec3f>(bj, bi);
         }
-        // Teeth and tongue keep the plain map (the mouth pass darkens them), the eyes and the skin
-        // take the balance.
+        // Teeth and tongue keep the plain map (the mouth pass darkens them), the skin takes the
+        // balance.
         const bool balance = !(kMouthParts & part_bit(part));
-        const std::optional<Eigen::Vector3f>& white =
-            eye ? eye_white[static_cast<size_t>(EyeSlot(part))] : std::optional<Eigen::Vector3f>();
-        const Eigen::Vector3f map = !(a < 1.0f) ? Eigen::Vector3f::Zero()
-                                    : white     ? *white
-                                                : MapColour(fallback_texture, *g, p, balance ? &gain : nullptr);
+        const Eigen::Vector3f map =
+            !(a < 1.0f) ? Eigen::Vector3f::Zero() : MapColour(fallback_texture, *g, p, balance ? &gain : nullptr);
         for (int c = 0; c < 3; ++c) g->color[3 * p + static_cast<size_t>(c)] = a * std::min(1.0f, t[c]) + (1.0f - a) * map[c];
       }
   }
@@ -1175,12 +1276,18 @@ bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCam
                       static_cast<int>(im.model.albedo_basis.cols())))
     throw Error("open eyes: invalid face parameters: " + why);
   // Open: lids at most this far closed (a tracked blink reads 0.5-0.65 on the webcam clip, an
-  // open eye 0-0.04); facing: a turned head shows one eye foreshortened.
-  constexpr float kMaxBlink = 0.15f, kMaxTurnDeg = 25.0f;
+  // open eye 0-0.04); facing: a turned head shows one eye foreshortened; looking ahead: the gaze
+  // reading saturates at a hard glance aside (eyeLook 1.0 while the iris is turned further), and
+  // eyes taken so drew their iris beside the frame's, two irises in one eye (d10 glancing aside at
+  // frames 105-112, drawn through her narrower eyes at 116-119 under d6's wide ones).
+  constexpr float kMaxBlink = 0.15f, kMaxTurnDeg = 25.0f, kMaxLook = 0.3f;
   constexpr int kMarginPx = 6;  // around the lid margins (bilinear samples near the rim)
   if (im.lid_contours.size() != 2) return false;
   for (int b : im.lid_blink_index)
     if (!(expression_weight(params.delta, b) <= kMaxBlink)) return false;
+  for (const char* look : {"eyeLookOutLeft", "eyeLookInLeft", "eyeLookUpLeft", "eyeLookDownLeft", "eyeLookOutRight",
+                           "eyeLookInRight", "eyeLookUpRight", "eyeLookDownRight"})
+    if (!(expression_weight(params.delta, arkit_blendshape_index(look)) <= kMaxLook)) return false;
   if (!(gpu::head_turn_from_camera_deg(params) <= kMaxTurnDeg)) return false;
   const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
   cv::Rect box;
