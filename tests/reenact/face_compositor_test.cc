@@ -498,7 +498,7 @@ cv::Mat eyeball_angles(const FaceModel& model, const gpu::FaceParameters& p, con
 // An eye the output opens wider than the target's bares the iris' top and the white above it,
 // which the frame hides under the target's upper lid. Filled from the eyeball pixels around in the
 // image, the iris' colour ran into the white and the white into the iris: hard-edged grey and white
-// bands across the eye (d6 wide-eyed onto d10, output frames 116-119). Filled by place on the
+// bands across the eye (d6 squinting and looking aside onto d10, output frame 120). Filled by place on the
 // eyeball, the iris continues as the frame's iris and the white as its white. Here the frame's iris
 // is painted blue and its white grey; the output's eyeball pixels must show the one their place
 // holds.
