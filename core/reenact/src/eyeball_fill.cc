@@ -27,7 +27,7 @@ EyeballFill::EyeballFill(float radius_px) : radius_px_(std::max(radius_px, 1.0f)
 
 void EyeballFill::Add(const Eigen::Vector3f& direction, const Eigen::Vector3f& colour, float weight) {
   if (!(weight > 0.f) || !direction.allFinite() || !colour.allFinite()) return;
-  samples_.push_back({direction, colour, std::min(weight, 1.0f)});
+  samples_.push_back({direction, colour, std::min(weight, 1.0f), std::acos(std::clamp(direction.z(), -1.0f, 1.0f))});
   trusted_ += weight >= kTrusted;
 }
 
@@ -44,7 +44,7 @@ float EyeballFill::Mean(const Eigen::Vector3f& direction, bool ring, Eigen::Vect
     if (s.weight < least) continue;
     float d2;
     if (ring) {
-      const float d = radius_px_ * (std::acos(std::clamp(s.direction.z(), -1.0f, 1.0f)) - angle);
+      const float d = radius_px_ * (s.angle - angle);
       d2 = d * d;
     } else {
       d2 = radius_px_ * radius_px_ * (s.direction - direction).squaredNorm();

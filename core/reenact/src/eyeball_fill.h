@@ -37,6 +37,7 @@ class EyeballFill {
   struct Sample {
     Eigen::Vector3f direction, colour;
     float weight;
+    float angle;  // from the axis (radians), for the ring
   };
   // The samples' weighted mean within the kernel around `direction` (or, with `ring`, at its angle
   // from the axis), and how sure it is (0..1: the share of a full neighbourhood's weight).

@@ -559,11 +559,9 @@ struct FaceCompositor::Impl {
     if (eyes_g.triangle[q] < 0 || part_of(eyes_g.vertices[3 * q]) != part ||
         std::abs(eyes_g.position[3 * q + 2] - x.z()) > std::max(kShownToleranceM, 1.5f * x.z() / eyes.camera.fx))
       return;
-    const float edge = eyeball_edge_trust(sample_float(eyes_edge, cu, cv_));
-    if (!(edge > 0.f)) return;
     const Eigen::Vector3f seen = sample_linear(eyes.bgr, cu, cv_);
     *colour = cv::Vec3f(std::min(1.0f, seen[0]), std::min(1.0f, seen[1]), std::min(1.0f, seen[2]));
-    *trust = edge;
+    *trust = eyeball_edge_trust(sample_float(eyes_edge, cu, cv_));
   }
   // The per-eye arrays' slot of an eyeball part: 0 the left eye (LeftEye), 1 the right.
   static int EyeSlot(FacePart part) { return part == FacePart::LeftEye ? 0 : 1; }
@@ -888,7 +886,7 @@ struct FaceCompositor::Impl {
         }
       for (size_t e = 0; e < 2; ++e)
         if (from_exemplar[e] && drawn[e] > 0.f && shown_share[e] >= kShownForTheFramesEye * drawn[e]) from_exemplar[e] = false;
-      for (int bj = 0; bj < box.height; ++bj)
+      for (int bj = 0; (from_exemplar[0] || from_exemplar[1]) && bj < box.height; ++bj)
         for (int bi = 0; bi < box.width; ++bi) {
           const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
           if (!(covered.at<float>(bj, bi) > 0.f) || !(kEyeParts & part_bit(part_of(g->vertices[3 * p])))) continue;
