@@ -279,12 +279,7 @@ void run_receive(const ReceiveArgs& a) {
       std::fwrite(line.data(), 1, line.size(), stdout);
       std::fputc('\n', stdout);
     } else {
-      std::printf("received %llu, applied %llu, rejected %llu, lost %llu, reordered %llu, late %llu, "
-                  "kernel drops %llu, latency %.2f ms\n",
-                  static_cast<unsigned long long>(s.received), static_cast<unsigned long long>(s.applied),
-                  static_cast<unsigned long long>(s.rejected_total()), static_cast<unsigned long long>(s.lost),
-                  static_cast<unsigned long long>(s.reordered), static_cast<unsigned long long>(s.late),
-                  static_cast<unsigned long long>(s.kernel_drops), s.latency_ms);
+      std::printf("%s, latency %.2f ms\n", s.Counts().c_str(), s.latency_ms);
       for (int i = 1; i < fs::kNumDatagramErrors; ++i)
         if (s.rejected_by_reason[i] > 0)
           std::printf("  rejected %s: %llu\n", fs::datagram_error_name(static_cast<fs::DatagramError>(i)),

@@ -190,12 +190,18 @@ void run_webcam(const WebcamArgs& args, const WebcamRunHooks& hooks = {}) {
   options.rate = *rate;
   options.reconnect_interval = std::chrono::nanoseconds(static_cast<int64_t>(args.reconnect_s * 1e9));
   options.hold_last_frame = hold;
+  // An expression stream's counters go on the status line: what the network lost, reordered or
+  // duplicated is what a user checks when the target's face falls back to its own.
+  const bool udp_source =
+      session && live::parse_source_spec(args.source, "--source").kind == live::InputKind::kUdp;
   if (args.status || hooks.on_status)
-    options.on_status = [session, status = args.status, hook = hooks.on_status](const StreamStatistics& s) {
-      const std::string headline = session ? session->status().Headline() : "";
+    options.on_status = [session, udp_source, status = args.status, hook = hooks.on_status](const StreamStatistics& s) {
+      const live::LiveStatus st = session ? session->status() : live::LiveStatus{};
+      const std::string headline = session ? st.Headline() : "";
       if (status)
-        std::fprintf(stderr, "webcam: status: source frames %lld, %s%s\n", static_cast<long long>(s.source_frames),
-                     s.BriefReport().c_str(), session ? (" | live: " + headline).c_str() : "");
+        std::fprintf(stderr, "webcam: status: source frames %lld, %s%s%s\n", static_cast<long long>(s.source_frames),
+                     s.BriefReport().c_str(), session ? (" | live: " + headline).c_str() : "",
+                     udp_source ? (" | stream: " + st.stream_statistics.Counts()).c_str() : "");
       if (hook) hook(s, headline);
     };
 
@@ -547,6 +553,8 @@ void add_webcam_command(CLI::App& app) {
     std::printf("bench live: %s\n", session.describe().c_str());
     std::printf("  target: %s\n", status.target.c_str());
     std::printf("  %s\n", status.Headline().c_str());
+    if (live::parse_source_spec(o.source, "--source").kind == live::InputKind::kUdp)
+      std::printf("  stream: %s\n", status.stream_statistics.Counts().c_str());
     std::printf("  tracker solver: %s; renderer: %s; %s\n",
                 status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(), o.use_vulkan ? "vulkan" : "cpu",
                 status.frames_overlapped ? "render on its own thread" : "track and render on the worker");

@@ -4,18 +4,16 @@
 #include <arpa/inet.h>
 #include <dirent.h>
 #include <gtest/gtest.h>
-#include <poll.h>
 #include <unistd.h>
 
 #include <atomic>
 #include <fstream>
-#include <random>
-#include <set>
 #include <thread>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/stream/sender.h"
 #include "stream_test_util.h"
+#include "support/impairing_relay.h"
 
 namespace face_reenact::stream {
 namespace {
@@ -181,77 +179,10 @@ TEST(ExpressionReceiver, EveryKindOfBadDatagramIsRejectedAndCounted) {
   EXPECT_EQ(rx.sample().expression, last.relative_expression());
 }
 
-// Forwards datagrams from its own port to `to`, dropping, duplicating and holding back
-// (reordering) some, with a seeded generator; records exactly what it forwarded.
-class ImpairingRelay {
- public:
-  ImpairingRelay(uint16_t to, uint32_t seed) : rng_(seed) {
-    ListenSpec in;
-    in.address = "127.0.0.1";
-    in_ = UdpSocket::open_receiver(in, "", 1 << 20);
-    out_ = UdpSocket::open_sender(loopback(to), {});
-    thread_ = std::thread([this] { run(); });
-  }
-  ~ImpairingRelay() {
-    stop_ = true;
-    thread_.join();
-  }
-  uint16_t port() const { return in_.local_port(); }
-  // Sequence numbers in the order they were forwarded (duplicates included).
-  std::vector<uint64_t> forwarded() {
-    std::lock_guard<std::mutex> l(mu_);
-    return forwarded_;
-  }
-  void flush() { flush_ = true; }
-
- private:
-  void forward(const std::vector<uint8_t>& d) {
-    out_.send(d);
-    uint64_t seq = 0;
-    for (int i = 0; i < 8; ++i) seq |= uint64_t(d[12 + i]) << (8 * i);
-    std::lock_guard<std::mutex> l(mu_);
-    forwarded_.push_back(seq);
-  }
-  void run() {
-    std::vector<std::vector<uint8_t>> held;
-    pollfd p{in_.fd(), POLLIN, 0};
-    while (!stop_) {
-      if (flush_) {
-        for (auto& h : held) forward(h);
-        held.clear();
-        flush_ = false;
-      }
-      if (::poll(&p, 1, 10) <= 0) continue;
-      std::vector<uint8_t> d(2048);
-      const ssize_t n = ::recv(in_.fd(), d.data(), d.size(), 0);
-      if (n < 20) continue;
-      d.resize(static_cast<size_t>(n));
-      const int roll = static_cast<int>(rng_() % 100);
-      if (roll < 10) continue;  // drop
-      if (roll < 20) {          // hold back; released after 1-3 later datagrams
-        held.push_back(d);
-        continue;
-      }
-      forward(d);
-      if (roll < 30) forward(d);  // duplicate
-      if (!held.empty() && rng_() % 2 == 0) {
-        forward(held.front());
-        held.erase(held.begin());
-      }
-    }
-  }
-  std::mt19937 rng_;
-  UdpSocket in_, out_;
-  std::atomic<bool> stop_{false}, flush_{false};
-  std::mutex mu_;
-  std::vector<uint64_t> forwarded_;
-  std::thread thread_;
-};
-
 TEST(ExpressionReceiver, LossReorderingAndDuplicationThroughAnImpairingRelay) {
   const StreamKey key = test_key();
   ExpressionReceiver rx(key, loopback_options());
-  ImpairingRelay relay(rx.port(), 2024);
+  face_reenact::testing::ImpairingRelay relay(rx.port(), 2024);
   ExpressionSender::Options so;
   so.first_sequence = 1000;
   ExpressionSender tx(key, loopback(relay.port()), so);
@@ -271,32 +202,18 @@ TEST(ExpressionReceiver, LossReorderingAndDuplicationThroughAnImpairingRelay) {
   })) << rx.statistics().received << " of " << fwd.size();
 
   // What the receiver must report, from the relay's own record.
-  std::set<uint64_t> seen;
-  uint64_t highest = 0, duplicates = 0, reordered = 0, applied = 0;
-  for (uint64_t s : fwd) {
-    if (!seen.insert(s).second) {
-      ++duplicates;
-      continue;
-    }
-    if (s > highest) {
-      ++applied;
-      highest = s;
-    } else {
-      ++reordered;
-    }
-  }
-  uint64_t lost = 0;
-  for (uint64_t s = 1000; s <= highest; ++s) lost += !seen.count(s);
+  const auto want = face_reenact::testing::ExpectedReceiverCounts::From(fwd);
   const ReceiverStatistics st = rx.statistics();
-  EXPECT_GT(duplicates, 0u);
-  EXPECT_GT(reordered, 0u);
-  EXPECT_GT(lost, 0u);
-  EXPECT_EQ(st.rejected(DatagramError::kReplay), duplicates);
-  EXPECT_EQ(st.reordered, reordered);
-  EXPECT_EQ(st.applied, applied);
-  EXPECT_EQ(st.lost, lost);
+  EXPECT_GT(want.duplicates, 0u);
+  EXPECT_GT(want.reordered, 0u);
+  EXPECT_GT(want.lost, 0u);
+  EXPECT_EQ(st.received, want.received);
+  EXPECT_EQ(st.rejected(DatagramError::kReplay), want.duplicates);
+  EXPECT_EQ(st.reordered, want.reordered);
+  EXPECT_EQ(st.applied, want.applied);
+  EXPECT_EQ(st.lost, want.lost);
   EXPECT_EQ(st.kernel_drops, 0u);
-  EXPECT_EQ(rx.sample().sequence, highest);
+  EXPECT_EQ(rx.sample().sequence, want.highest);
   expect_balanced(st);
 }
 

@@ -202,6 +202,8 @@ bool LiveSession::Options::IsValid(std::string* why) const {
     } catch (const Error& e) {
       return fail(e.what());
     }
+    std::string stream_why;
+    if (!stream.IsValid(&stream_why)) return fail("source " + s.text + ": " + stream_why);
   }
   if (camera_width <= 0 || camera_height <= 0 || camera_width > 8192 || camera_height > 8192)
     return fail("camera size must be within 1..8192");
@@ -354,6 +356,7 @@ struct RenderJob {
   cv::Mat input_bgr;                          // the target frame's colour: the output when nothing else is
   int source_index = 0;
   int64_t input_sequence = 0;                 // the target input's count when it delivered this frame
+  float source_weight = 0;                    // the streamed expression's cross-fade weight (LiveFrame)
   Clock::time_point captured, started;        // the capture thread had it / the worker took it
 };
 
@@ -515,6 +518,7 @@ void LiveSession::run() {
       stream::ExpressionReceiver::Options ro;
       ro.listen = stream::parse_listen_spec(source_spec_.listen, "source");
       ro.thread_name = "fr-live-udp";
+      ro.stream = options_.stream;
       receiver = std::make_unique<stream::ExpressionReceiver>(key, ro);
       receiver_error.clear();
     } catch (const std::exception& e) {
@@ -547,6 +551,7 @@ void LiveSession::run() {
     LiveFrame published;
     published.bgr = out.bgr;
     published.source_index = job.source_index;
+    published.source_weight = job.source_weight;
     published.captured = job.captured;
     LiveStageTimes rows = out.times;
     {
@@ -624,6 +629,7 @@ void LiveSession::run() {
       job.input_bgr = frame.color;
       job.source_index = frame.index;
       job.input_sequence = static_cast<int64_t>(target_seq);
+      job.source_weight = receiver ? remote.weight : 0.0f;
       job.captured = captured;
       {
         // Seen before the frame can be counted, so that no measurement has more frames than inputs.
@@ -712,6 +718,7 @@ void LiveSession::run() {
         stream::ReceiverStatistics rs = receiver->statistics();
         std::string thread_error = receiver->thread_error();
         s.packets_per_second = rs.rate_hz;
+        s.stream_statistics = rs;
         s.source_weight = remote.weight;
         s.source_error = thread_error;
         s.source = !thread_error.empty() ? SourceState::kError

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <ctime>
 
 #include "face_reenact/common/error.h"
@@ -28,6 +29,17 @@ uint64_t ReceiverStatistics::rejected_total() const {
   uint64_t n = 0;
   for (uint64_t r : rejected_by_reason) n += r;
   return n;
+}
+
+std::string ReceiverStatistics::Counts() const {
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "received %llu, applied %llu, rejected %llu, lost %llu, reordered %llu, late %llu, kernel drops %llu",
+                static_cast<unsigned long long>(received), static_cast<unsigned long long>(applied),
+                static_cast<unsigned long long>(rejected_total()), static_cast<unsigned long long>(lost),
+                static_cast<unsigned long long>(reordered), static_cast<unsigned long long>(late),
+                static_cast<unsigned long long>(kernel_drops));
+  return line;
 }
 
 bool StreamStateOptions::IsValid(std::string* why) const {

@@ -30,6 +30,7 @@
 
 #include "face_reenact/live/input_spec.h"
 #include "face_reenact/output/frame_source.h"
+#include "face_reenact/stream/stream_state.h"
 
 namespace face_reenact::live {
 
@@ -105,6 +106,9 @@ struct LiveStatus {
   std::string source_detail;
   double packets_per_second = 0;   // UDP: applied datagrams per second; actor: tracked frames per second
   double source_weight = 0;        // cross-fade weight of the remote expression in [0, 1]
+  // UDP: the receiver's counters since the session opened it (received, lost, reordered, the
+  // duplicates among the rejected): what the network did to the stream.
+  stream::ReceiverStatistics stream_statistics;
   // Output.
   int64_t frames_out = 0;
   double output_fps = 0;
@@ -174,6 +178,9 @@ struct LiveFrame {
   cv::Mat bgr;                    // CV_8UC3, the target's size
   uint64_t sequence = 0;          // 1, 2, ... in output order
   int source_index = 0;           // the target frame's index in its input
+  // UDP source: the cross-fade weight of the streamed expression this frame was made with (1 while
+  // the stream is live, ramping to 0 when it stops: the target's own expression); 0 otherwise.
+  float source_weight = 0;
   std::chrono::steady_clock::time_point captured;  // when the capture thread had the target frame
   std::chrono::steady_clock::time_point produced;  // when the pipeline finished it
 };
@@ -184,6 +191,9 @@ class LiveSession : public output::FrameSource {
     std::string target;              // camera / openni / recording (input_spec.h)
     std::string source = "none";     // none / udp://PORT / camera / openni / recording
     std::string key_file;            // the stream key (required for udp://)
+    // udp://: how long a silent stream counts as live, and the cross-fade between the streamed
+    // expression and the target's own when it stops and resumes (stream_state.h).
+    stream::StreamStateOptions stream;
     std::string model_path;          // empty: resolve_model_path("") (FACE_REENACT_MODEL, next to the program, installed)
     OutputMode mode = OutputMode::kReenact;
     int camera_width = 640;          // requested from cameras
