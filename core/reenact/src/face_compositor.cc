@@ -510,12 +510,18 @@ struct FaceCompositor::Impl {
   // The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
   // inside the image; empty when nothing is covered.
   static cv::Rect CoveredRect(const gpu::GBuffer& g, int margin) {
-    cv::Rect rect;
-    for (int j = 0; j < g.height; ++j)
-      for (int i = 0; i < g.width; ++i)
-        if (g.covered(i, j)) rect |= cv::Rect(i, j, 1, 1);
-    if (rect.empty()) return rect;
-    return grown_within(rect, margin, g.width, g.height);
+    int i0 = g.width, i1 = -1, j0 = g.height, j1 = -1;
+    for (int j = 0; j < g.height; ++j) {
+      const int32_t* row = g.triangle.data() + static_cast<size_t>(j) * g.width;
+      int first = 0;
+      while (first < g.width && row[first] < 0) ++first;
+      if (first == g.width) continue;
+      int last = g.width - 1;
+      while (row[last] < 0) --last;
+      i0 = std::min(i0, first), i1 = std::max(i1, last), j0 = std::min(j0, j), j1 = j;
+    }
+    if (i1 < 0) return cv::Rect();
+    return grown_within(cv::Rect(i0, j0, i1 - i0 + 1, j1 - j0 + 1), margin, g.width, g.height);
   }
 
   // Each closed contour (vertex indices) as `state` projects it, a 1 px line of 0 in `open` (whose
@@ -820,7 +826,7 @@ struct FaceCompositor::Impl {
       cv::Mat ratio_sum, mask_sum;
       cv::GaussianBlur(ratio_at, ratio_sum, cv::Size(0, 0), kShadingSmoothSigmaPx);
       cv::GaussianBlur(shown_mask, mask_sum, cv::Size(0, 0), kShadingSmoothSigmaPx);
-      for (int bj = 0; bj < box.height; ++bj)
+      ForRowsOf(box, [&](int bj) {
         for (int bi = 0; bi < box.width; ++bi) {
           if (!(shown_mask.at<float>(bj, bi) > 0.f)) continue;
           const cv::Vec3f ratio = ratio_sum.at<cv::Vec3f>(bj, bi) / std::max(1e-6f, mask_sum.at<float>(bj, bi));
@@ -828,6 +834,7 @@ struct FaceCompositor::Impl {
           cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
           for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
         }
+      });
     }
     // A sample is not trusted where the frame shows the surface squeezed: the output spreads
     // over each pixel less than about half a pixel of the frame (the determinant of the
@@ -855,13 +862,15 @@ struct FaceCompositor::Impl {
         if (std::isnan(behind[0]) || eyeball_at(bj - dj, bi - di) != eyeball_at(bj, bi)) return false;
         return *d = at - behind, true;
       };
-      for (int bj = 0; bj + 1 < box.height; ++bj)
+      ForRowsOf(box, [&](int bj) {
+        if (bj + 1 >= box.height) return;
         for (int bi = 0; bi + 1 < box.width; ++bi) {
           cv::Vec2f dx, dy;
           if (std::isnan(sampled_at.at<cv::Vec2f>(bj, bi)[0]) || !step(bj, bi, 0, 1, &dx) || !step(bj, bi, 1, 0, &dy)) continue;
           const float area = std::abs(dx[0] * dy[1] - dx[1] * dy[0]);
           footprint_trust.at<float>(bj, bi) = std::clamp((area - kMinFootprint) / (kFullFootprint - kMinFootprint), 0.0f, 1.0f);
         }
+      });
       // Smooth, and reaching a pixel past the squeezed region (the differences look one pixel
       // ahead), so the change draws no edge of its own.
       cv::erode(footprint_trust, footprint_trust, cv::Mat());
@@ -1046,7 +1055,8 @@ struct FaceCompositor::Impl {
     // Every drawn pixel's own trust, for the other parts (teeth, tongue).
     cv::Mat ws;
     cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
-    for (int bj = 0; bj < box.height; ++bj)
+    // Each pixel writes only its own colour: rows on the pool's threads.
+    ForRowsOf(box, [&](int bj) {
       for (int bi = 0; bi < box.width; ++bi) {
         if (!(covered.at<float>(bj, bi) > 0.f)) continue;
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
@@ -1112,6 +1122,19 @@ struct FaceCompositor::Impl {
             !(a < 1.0f) ? Eigen::Vector3f::Zero() : MapColour(fallback_texture, *g, p, balance ? &gain : nullptr);
         for (int c = 0; c < 3; ++c) g->color[3 * p + static_cast<size_t>(c)] = a * std::min(1.0f, t[c]) + (1.0f - a) * map[c];
       }
+    });
+  }
+
+  // body(row) for each row 0..box.height-1 of `box`, in bands of rows on the pool's threads. For
+  // per-pixel passes whose pixels write only their own outputs: the same result for any thread
+  // count.
+  template <typename Body>
+  void ForRowsOf(const cv::Rect& box, const Body& body) const {
+    constexpr int kRowsPerItem = 8;
+    ParallelFor((box.height + kRowsPerItem - 1) / kRowsPerItem, threads(), [&](int item) {
+      const int end = std::min(box.height, (item + 1) * kRowsPerItem);
+      for (int bj = item * kRowsPerItem; bj < end; ++bj) body(bj);
+    });
   }
 
   // The albedo map's colour at G-buffer pixel p of `g` (before the frame texture replaces it): the
@@ -1466,8 +1489,11 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   result.face_depth = cv::Mat::zeros(h, w, CV_32FC1);
   const bool check_depth = target_depth && target_depth->type() == CV_32FC1 && target_depth->size() == target_bgr.size() &&
                            (opt.depth_background_m > 0.f || opt.depth_occluder_m > 0.f);
-  for (int j = 0; j < h; ++j) {
-    for (int i = 0; i < w; ++i) {
+  // Rows of the drawn rectangle on the pool's threads (each pixel writes only its own).
+  const cv::Rect drawn_rect = Impl::CoveredRect(g, 0);  // (empty: nothing drawn)
+  im.ForRowsOf(drawn_rect, [&](int row) {
+    const int j = drawn_rect.y + row;
+    for (int i = drawn_rect.x; i < drawn_rect.x + drawn_rect.width; ++i) {
       const size_t p = static_cast<size_t>(j) * w + i;
       if (g.triangle[p] < 0) continue;
       if (check_depth) {
@@ -1481,7 +1507,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
       result.face_mask.at<uchar>(j, i) = 255;
       result.face_depth.at<float>(j, i) = g.position[3 * p + 2];
     }
-  }
+  });
   result.render_ms = ms_since(start);
   if (cv::countNonZero(result.face_mask) == 0) {
     result.bgr = target_bgr.clone();
@@ -1528,13 +1554,17 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // --- composite (Sec. 7.4.2): the coverage mask, eroded so the rendered silhouette's
   // anti-aliasing-free edge never shows, feathered, then the Laplacian blend.
   start = Clock::now();
-  cv::Mat mask;
-  result.face_mask.convertTo(mask, CV_32FC1, 1.0 / 255.0);
-  if (opt.mask_erosion_px > 0.f) {
-    const int k = 2 * static_cast<int>(std::ceil(opt.mask_erosion_px)) + 1;
-    cv::erode(mask, mask, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k)));
-  }
-  if (opt.mask_feather_px > 0.f) cv::GaussianBlur(mask, mask, cv::Size(0, 0), opt.mask_feather_px);
+  // Eroded and feathered within the face's box grown by the kernels' reach: the mask is 0 beyond
+  // it either way, and the filters read the whole image's pixels around the box (a view into it),
+  // so the result is the whole frame's; at 640x480 a face covers a fifth of the frame.
+  const int erosion_k = opt.mask_erosion_px > 0.f ? 2 * static_cast<int>(std::ceil(opt.mask_erosion_px)) + 1 : 0;
+  const int mask_reach = erosion_k + 4 * static_cast<int>(std::ceil(opt.mask_feather_px)) + 2;
+  const cv::Rect mask_box = grown_within(cv::boundingRect(result.face_mask), mask_reach, w, h);
+  cv::Mat mask = cv::Mat::zeros(h, w, CV_32FC1);
+  cv::Mat mask_in_box = mask(mask_box);
+  result.face_mask(mask_box).convertTo(mask_in_box, CV_32FC1, 1.0 / 255.0);
+  if (erosion_k > 0) cv::erode(mask_in_box, mask_in_box, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(erosion_k, erosion_k)));
+  if (opt.mask_feather_px > 0.f) cv::GaussianBlur(mask_in_box, mask_in_box, cv::Size(0, 0), opt.mask_feather_px);
   // Pixels outside the rendered coverage carry the target in `rendered`, so the feathered
   // mask may extend there without effect.
   LaplacianBlendOptions bopt;

@@ -65,9 +65,9 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   if (!summary) summary = &local;
   *summary = LaplacianBlendSummary{};
 
-  const cv::Mat mask_f = to_float_mask(mask);
-  cv::Mat nonzero = mask_f > 0.0f;
-  const cv::Rect box = cv::boundingRect(nonzero);
+  // The mask's nonzero pixels (after to_float_mask: NaN and negative weights are 0) and the
+  // float mask only around them: the rest of the frame is the target.
+  const cv::Rect box = cv::boundingRect(mask > 0);
   if (box.empty()) return target.clone();
 
   const int radius = blend_support_radius(options.levels);
@@ -78,7 +78,8 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   const cv::Mat t = to_float3(target(roi));
   const cv::Mat r = to_float3(rendered(roi));
   cv::Mat diff = r - t;
-  cv::Mat m = mask_f(roi).clone();
+  cv::Mat m = to_float_mask(mask(roi));
+  const cv::Mat nonzero = m > 0.0f;
 
   int levels = 1;
   while (levels < options.levels && std::min(roi.width, roi.height) >> levels >= 2) ++levels;
@@ -91,33 +92,41 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
     cv::pyrDown(gd[static_cast<size_t>(l - 1)], gd[static_cast<size_t>(l)]);
     cv::pyrDown(gm[static_cast<size_t>(l - 1)], gm[static_cast<size_t>(l)]);
   }
-  // Band-pass levels of the difference, each weighted by the mask at its scale, summed back.
-  cv::Mat blended;
-  for (int l = levels - 1; l >= 0; --l) {
-    const cv::Mat& g = gd[static_cast<size_t>(l)];
-    cv::Mat band;
-    if (l == levels - 1) {
-      band = g.clone();
-    } else {
-      cv::Mat up;
-      cv::pyrUp(gd[static_cast<size_t>(l + 1)], up, g.size());
-      band = g - up;
+  // Band-pass levels of the difference, each weighted by the mask at its scale, summed back:
+  // blended_l = up(blended_l+1) + m_l * (d_l - up(d_l+1)), the coarsest level d's own. One pass
+  // per level over the three images (the per-level temporaries, the band, the mask in three
+  // channels and their product, took as long as the pyramids), the same arithmetic in the same
+  // order, so the same bits.
+  cv::Mat blended = gd[static_cast<size_t>(levels - 1)].clone();
+  {
+    const cv::Mat& top_mask = gm[static_cast<size_t>(levels - 1)];
+    for (int y = 0; y < blended.rows; ++y) {
+      cv::Vec3f* row = blended.ptr<cv::Vec3f>(y);
+      const float* mrow = top_mask.ptr<float>(y);
+      for (int x = 0; x < blended.cols; ++x) row[x] *= mrow[x];
     }
-    cv::Mat m3;
-    cv::cvtColor(gm[static_cast<size_t>(l)], m3, cv::COLOR_GRAY2BGR);
-    cv::Mat weighted = band.mul(m3);
-    if (blended.empty()) {
-      blended = weighted;
-    } else {
-      cv::Mat up;
-      cv::pyrUp(blended, up, g.size());
-      blended = up + weighted;
+  }
+  cv::Mat up_d, up_blended;
+  for (int l = levels - 2; l >= 0; --l) {
+    const cv::Mat& g = gd[static_cast<size_t>(l)];
+    const cv::Mat& gmask = gm[static_cast<size_t>(l)];
+    cv::pyrUp(gd[static_cast<size_t>(l + 1)], up_d, g.size());
+    cv::pyrUp(blended, up_blended, g.size());
+    blended.create(g.size(), CV_32FC3);
+    for (int y = 0; y < g.rows; ++y) {
+      const cv::Vec3f* drow = g.ptr<cv::Vec3f>(y);
+      const cv::Vec3f* urow = up_d.ptr<cv::Vec3f>(y);
+      const cv::Vec3f* brow = up_blended.ptr<cv::Vec3f>(y);
+      const float* mrow = gmask.ptr<float>(y);
+      cv::Vec3f* out = blended.ptr<cv::Vec3f>(y);
+      for (int x = 0; x < g.cols; ++x)
+        for (int c = 0; c < 3; ++c) out[x][c] = brow[x][c] + (drow[x][c] - urow[x][c]) * mrow[x];
     }
   }
 
   // The blend region: within `radius` of the mask, faded out over its outer half (weight 1 up
   // to radius / 2, 0 beyond radius + 1).
-  cv::Mat outside = nonzero(roi) == 0;
+  cv::Mat outside = nonzero == 0;
   cv::Mat dist;
   cv::distanceTransform(outside, dist, cv::DIST_L2, cv::DIST_MASK_PRECISE);
   const float inner = 0.5f * static_cast<float>(radius);
@@ -127,27 +136,26 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   cv::max(window, 0.0, window);
 
   cv::Mat out = target.clone();
-  cv::Rect region_box;
-  bool any = false;
+  int x0 = roi.width, x1 = -1, y0 = roi.height, y1 = -1;  // the region written, in the roi
+  const bool bytes = out.type() == CV_8UC3;
   for (int y = 0; y < roi.height; ++y) {
     const float* wrow = window.ptr<float>(y);
     const cv::Vec3f* trow = t.ptr<cv::Vec3f>(y);
     const cv::Vec3f* brow = blended.ptr<cv::Vec3f>(y);
+    cv::Vec3b* orow8 = bytes ? out.ptr<cv::Vec3b>(roi.y + y) + roi.x : nullptr;
+    cv::Vec3f* orowf = bytes ? nullptr : out.ptr<cv::Vec3f>(roi.y + y) + roi.x;
     for (int x = 0; x < roi.width; ++x) {
       const float w = wrow[x];
       if (w <= 0.0f) continue;
       const cv::Vec3f v = trow[x] + w * brow[x];
-      if (out.type() == CV_8UC3) {
-        out.at<cv::Vec3b>(roi.y + y, roi.x + x) =
-            cv::Vec3b(cv::saturate_cast<uchar>(v[0]), cv::saturate_cast<uchar>(v[1]), cv::saturate_cast<uchar>(v[2]));
-      } else {
-        out.at<cv::Vec3f>(roi.y + y, roi.x + x) = v;
-      }
-      const cv::Rect px(roi.x + x, roi.y + y, 1, 1);
-      region_box = any ? (region_box | px) : px;
-      any = true;
+      if (bytes)
+        orow8[x] = cv::Vec3b(cv::saturate_cast<uchar>(v[0]), cv::saturate_cast<uchar>(v[1]), cv::saturate_cast<uchar>(v[2]));
+      else
+        orowf[x] = v;
+      x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
     }
   }
+  const cv::Rect region_box = x1 < 0 ? cv::Rect() : cv::Rect(roi.x + x0, roi.y + y0, x1 - x0 + 1, y1 - y0 + 1);
   summary->blend_region = region_box;
   return out;
 }
