@@ -192,16 +192,14 @@ void run_webcam(const WebcamArgs& args, const WebcamRunHooks& hooks = {}) {
   options.hold_last_frame = hold;
   // An expression stream's counters go on the status line: what the network lost, reordered or
   // duplicated is what a user checks when the target's face falls back to its own.
-  const bool udp_source =
-      session && live::parse_source_spec(args.source, "--source").kind == live::InputKind::kUdp;
   if (args.status || hooks.on_status)
-    options.on_status = [session, udp_source, status = args.status, hook = hooks.on_status](const StreamStatistics& s) {
+    options.on_status = [session, status = args.status, hook = hooks.on_status](const StreamStatistics& s) {
       const live::LiveStatus st = session ? session->status() : live::LiveStatus{};
       const std::string headline = session ? st.Headline() : "";
       if (status)
         std::fprintf(stderr, "webcam: status: source frames %lld, %s%s%s\n", static_cast<long long>(s.source_frames),
                      s.BriefReport().c_str(), session ? (" | live: " + headline).c_str() : "",
-                     udp_source ? (" | stream: " + st.stream_statistics.Counts()).c_str() : "");
+                     st.stream_source ? (" | stream: " + st.stream_statistics.Counts()).c_str() : "");
       if (hook) hook(s, headline);
     };
 
@@ -553,7 +551,7 @@ void add_webcam_command(CLI::App& app) {
     std::printf("bench live: %s\n", session.describe().c_str());
     std::printf("  target: %s\n", status.target.c_str());
     std::printf("  %s\n", status.Headline().c_str());
-    if (live::parse_source_spec(o.source, "--source").kind == live::InputKind::kUdp)
+    if (status.stream_source)
       std::printf("  stream: %s\n", status.stream_statistics.Counts().c_str());
     std::printf("  tracker solver: %s; renderer: %s; %s\n",
                 status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(), o.use_vulkan ? "vulkan" : "cpu",

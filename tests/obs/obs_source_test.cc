@@ -7,6 +7,10 @@
 #include <obs-module.h>
 #include <obs.h>
 #include <util/platform.h>
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
@@ -619,6 +623,70 @@ TEST_F(WebSocketVendorTest, GetStatusAndListSourcesSayWhatTheSourceDoes) {
   }
   obs_data_array_release(sources);
   EXPECT_NE(std::find(names.begin(), names.end(), "ws-raw"), names.end());
+}
+
+// A source fed by an expression stream answers GetStatus with its receiver's counts (a remote
+// operator watching the puppeteer's link): datagrams that are not the protocol's are received and
+// rejected, nothing applied. A source without a stream has no counts.
+TEST_F(WebSocketVendorTest, GetStatusOfAStreamFedSourceCountsWhatItReceived) {
+  REQUIRE_RECORDING(dir);
+  const face_reenact::testing::TempDir tmp("fr-ws-stream");
+  const std::string key = tmp.path() + "/stream.key";
+  std::string log;
+  const char* cli = std::getenv("FR_CLI");
+  if (!cli || run_command(quote(cli) + " keygen --out " + quote(key), &log) != 0)
+    GTEST_SKIP() << "cannot make a key with face-reenact keygen: " << log;
+  // A port the kernel picks, released again (as the stream tests take one).
+  int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in at{};
+  at.sin_family = AF_INET;
+  at.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&at), sizeof at), 0);
+  socklen_t len = sizeof at;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&at), &len);
+  ::close(fd);
+  const int port = ntohs(at.sin_port);
+  obs_data_t* settings = recording_settings(dir);
+  obs_data_set_string(settings, "source_kind", "udp");
+  obs_data_set_int(settings, "udp_port", port);
+  obs_data_set_string(settings, "key_file", key.c_str());
+  obs_source_t* source = create(settings, "ws-stream");
+  obs_data_release(settings);
+  ASSERT_NE(source, nullptr);
+  wait_status(source, 5s, [](const Status& st) { return st.line.find("waiting for stream") != std::string::npos; });
+  // Three datagrams that are not the protocol's.
+  fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  for (int k = 0; k < 3; ++k) {
+    const char junk[] = "not an expression frame, not even close to one";
+    ::sendto(fd, junk, sizeof junk, 0, reinterpret_cast<sockaddr*>(&at), sizeof at);
+  }
+  ::close(fd);
+  long long received = -1, rejected = -1, applied = -1;
+  for (auto end = std::chrono::steady_clock::now() + 5s; std::chrono::steady_clock::now() < end && received < 3;) {
+    std::this_thread::sleep_for(50ms);
+    auto a = call("GetStatus", R"({"sourceName": "ws-stream"})");
+    ASSERT_TRUE(a->ok) << a->error;
+    obs_data_t* counts = obs_data_get_obj(a->data, "stream");
+    ASSERT_NE(counts, nullptr) << "a stream-fed source reports its receiver's counts";
+    received = obs_data_get_int(counts, "received");
+    rejected = obs_data_get_int(counts, "rejected");
+    applied = obs_data_get_int(counts, "applied");
+    obs_data_release(counts);
+  }
+  EXPECT_EQ(received, 3);
+  EXPECT_EQ(rejected, 3);
+  EXPECT_EQ(applied, 0);
+
+  settings = recording_settings(dir);
+  obs_source_t* plain = create(settings, "ws-plain");
+  obs_data_release(settings);
+  ASSERT_NE(plain, nullptr);
+  wait_status(plain, 5s, [](const Status& st) { return st.frames_out > 0; });
+  auto b = call("GetStatus", R"({"sourceName": "ws-plain"})");
+  ASSERT_TRUE(b->ok) << b->error;
+  obs_data_t* none = obs_data_get_obj(b->data, "stream");
+  EXPECT_EQ(none, nullptr) << "no stream, no counts";
+  obs_data_release(none);
 }
 
 TEST_F(WebSocketVendorTest, BadRequestsAnswerAClearErrorAndChangeNothing) {

@@ -154,7 +154,7 @@ std::string status_line(const LiveStatus& s, bool numbers) {
     else if (s.tracking == TrackingState::kTracking && s.wants_head_turn)
       line += ": turn your head slowly to each side once (for the skin's texture)";
   }
-  bool stream = s.source_description.rfind("udp", 0) == 0;
+  const bool stream = s.stream_source;
   std::string what = stream ? "stream" : "source actor";
   switch (s.source) {
     case SourceState::kNone: break;
@@ -255,6 +255,7 @@ LiveSession::LiveSession(Options options) : options_(std::move(options)) {
   status_.target_error = "opening";
   status_.source = source_spec_.kind == InputKind::kNone ? SourceState::kNone : SourceState::kWaiting;
   status_.source_description = source_spec_.describe();
+  status_.stream_source = source_spec_.kind == InputKind::kUdp;
   start_time_ = Clock::now();
   timings_start_ = start_time_;
   worker_ = std::thread([this] {

@@ -161,7 +161,24 @@ void vendor_get_status(obs_data_t* request, obs_data_t* response, void*) {
     obs_data_set_double(response, "outputFps", s.output_fps);
     obs_data_set_double(response, "targetFps", s.target_fps);
     obs_data_set_double(response, "packetsPerSecond", s.packets_per_second);
+    obs_data_set_double(response, "sourceWeight", s.source_weight);
     obs_data_set_double(response, "processMs", s.process_ms);
+    if (s.stream_source) {
+      // The expression stream's receiver counts (docs/stream-protocol.md, "Statistics"): what the
+      // network lost, reordered or duplicated, for a remote operator watching a puppeteer's link.
+      const stream::ReceiverStatistics& r = s.stream_statistics;
+      obs_data_t* counts = obs_data_create();
+      obs_data_set_int(counts, "received", static_cast<long long>(r.received));
+      obs_data_set_int(counts, "applied", static_cast<long long>(r.applied));
+      obs_data_set_int(counts, "rejected", static_cast<long long>(r.rejected_total()));
+      obs_data_set_int(counts, "lost", static_cast<long long>(r.lost));
+      obs_data_set_int(counts, "reordered", static_cast<long long>(r.reordered));
+      obs_data_set_int(counts, "late", static_cast<long long>(r.late));
+      obs_data_set_int(counts, "kernelDrops", static_cast<long long>(r.kernel_drops));
+      obs_data_set_double(counts, "latencyMs", r.latency_ms);
+      obs_data_set_obj(response, "stream", counts);
+      obs_data_release(counts);
+    }
   });
 }
 

@@ -100,6 +100,7 @@ struct LiveStatus {
   // Expression source.
   SourceState source = SourceState::kNone;
   std::string source_description;  // "udp port 9000", "recording 'actor'"
+  bool stream_source = false;      // the source is a UDP expression stream (stream_statistics apply)
   std::string source_error;
   // A source actor not live yet: what it waits for ("loading the face model", "no face found
   // yet") or, while kCalibrating, the actor's calibration progress.
