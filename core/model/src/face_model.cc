@@ -46,6 +46,13 @@ int arkit_blendshape_index(const std::string& name) {
   return -1;
 }
 
+const std::array<std::array<const char*, 4>, 2>& arkit_eye_look_names() {
+  static const std::array<std::array<const char*, 4>, 2> names{
+      {{"eyeLookOutLeft", "eyeLookInLeft", "eyeLookUpLeft", "eyeLookDownLeft"},
+       {"eyeLookOutRight", "eyeLookInRight", "eyeLookUpRight", "eyeLookDownRight"}}};
+  return names;
+}
+
 Eigen::VectorXf FaceModel::shape(const Eigen::VectorXf& alpha, const Eigen::VectorXf& delta) const {
   Eigen::VectorXf s = mean_shape;
   const Eigen::Index ka = std::min<Eigen::Index>(alpha.size(), identity_basis.cols());

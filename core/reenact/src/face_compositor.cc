@@ -1306,9 +1306,9 @@ bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCam
   if (im.lid_contours.size() != 2) return false;
   for (int b : im.lid_blink_index)
     if (!(expression_weight(params.delta, b) <= kMaxBlink)) return false;
-  for (const char* look : {"eyeLookOutLeft", "eyeLookInLeft", "eyeLookUpLeft", "eyeLookDownLeft", "eyeLookOutRight",
-                           "eyeLookInRight", "eyeLookUpRight", "eyeLookDownRight"})
-    if (!(expression_weight(params.delta, arkit_blendshape_index(look)) <= kMaxLook)) return false;
+  for (const auto& eye : arkit_eye_look_names())
+    for (const char* look : eye)
+      if (!(expression_weight(params.delta, arkit_blendshape_index(look)) <= kMaxLook)) return false;
   if (!(gpu::head_turn_from_camera_deg(params) <= kMaxTurnDeg)) return false;
   const gpu::VertexState state = im.renderer.evaluate(params, nullptr, im.threads());
   cv::Rect box;

@@ -130,11 +130,10 @@ bool GazeOptions::IsValid(std::string* why) const {
 
 GazeEstimator::GazeEstimator(const TrackerModel& model) : model_(&model) {
   const auto& rm = model.render;
-  const char* names[2][4] = {{"eyeLookOutLeft", "eyeLookInLeft", "eyeLookUpLeft", "eyeLookDownLeft"},
-                             {"eyeLookOutRight", "eyeLookInRight", "eyeLookUpRight", "eyeLookDownRight"}};
+  const auto& names = arkit_eye_look_names();
   for (int e = 0; e < 2; ++e) {
     for (int k = 0; k < 4; ++k) {
-      look_[e][k] = arkit_blendshape_index(names[e][k]);
+      look_[e][k] = arkit_blendshape_index(names[static_cast<size_t>(e)][static_cast<size_t>(k)]);
       if (look_[e][k] < 0 || look_[e][k] >= model.num_expression()) return;
     }
     Eye& eye = eyes_[e];

@@ -107,5 +107,8 @@ struct FaceModel {
 const std::array<const char*, 52>& arkit_blendshape_names();
 // Index of an ARKit name, or -1.
 int arkit_blendshape_index(const std::string& name);
+// The gaze blendshapes of each eye, [eye][direction]: eye 0 the person's left, 1 the right;
+// directions out (away from the nose), in, up, down.
+const std::array<std::array<const char*, 4>, 2>& arkit_eye_look_names();
 
 }  // namespace face_reenact
