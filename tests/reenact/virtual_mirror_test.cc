@@ -206,6 +206,69 @@ TEST(VirtualMirrorTest, ReLightingChangesOnlyTheCoarsestLevel) {
   EXPECT_LT(fine_change / total_change, 0.06) << "the change should be smooth: the fine detail stays the frame's";
 }
 
+// Something in front of the face (a hand over the cheek) keeps its own look on a frame with
+// depth: neither the texture nor the new light lands on the pixels whose depth lies in front of
+// the fitted face; without the depth (or with the test off) the texture covers them as well.
+TEST(VirtualMirrorTest, WhatStandsInFrontOfTheFaceKeepsItsLookOnFramesWithDepth) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const gpu::FaceParameters p = test_face(0.5f);
+  const cv::Mat frame = render_target(p, cam);
+  gpu::RenderOptions ro;
+  ro.parts = gpu::PartMask{1} << static_cast<int>(FacePart::Face);
+  const gpu::GBuffer g = testing::test_renderer().render(p, cam, ro);
+  // The face's own depth, and a "hand" 8 cm in front of it over the person's left cheek.
+  cv::Mat depth = cv::Mat::zeros(cam.height, cam.width, CV_32FC1);
+  for (int j = 0; j < cam.height; ++j)
+    for (int i = 0; i < cam.width; ++i)
+      if (g.covered(i, j)) depth.at<float>(j, i) = g.depth(i, j);
+  const Eigen::Vector2f nose = landmark_pixel(p, cam, 30), left_eye = landmark_pixel(p, cam, 45);
+  const float eyes = (left_eye - landmark_pixel(p, cam, 36)).norm();
+  const cv::Rect hand(static_cast<int>(nose.x() + 0.25f * eyes), static_cast<int>(nose.y() - 0.2f * eyes),
+                      static_cast<int>(0.5f * eyes), static_cast<int>(0.5f * eyes));
+  int hand_on_face = 0;
+  for (int j = hand.y; j < hand.y + hand.height; ++j)
+    for (int i = hand.x; i < hand.x + hand.width; ++i)
+      if (g.covered(i, j)) depth.at<float>(j, i) -= 0.08f, ++hand_on_face;
+  ASSERT_GT(hand_on_face, 100) << "the hand should lie on the face";
+  // The hand's inside, away from the fade around its edge.
+  const cv::Rect inside(hand.x + 4, hand.y + 4, hand.width - 8, hand.height - 8);
+  auto changed_inside = [&](const cv::Mat& out) {
+    int n = 0;
+    for (int j = inside.y; j < inside.y + inside.height; ++j)
+      for (int i = inside.x; i < inside.x + inside.width; ++i) n += out.at<cv::Vec3b>(j, i) != frame.at<cv::Vec3b>(j, i);
+    return n;
+  };
+
+  MirrorOptions o;
+  o.texture = green_texture();
+  const VirtualMirror mirror(*test_model(), o);
+  const MirrorResult with_depth = mirror.Apply(frame, cam, p, &depth);
+  EXPECT_GE(with_depth.occluded_pixels, hand_on_face - 5);
+  EXPECT_GT(green_paint(frame, with_depth.bgr).count, 1000) << "the rest of the face is painted";
+  EXPECT_EQ(changed_inside(with_depth.bgr), 0) << "the texture landed on the hand";
+  const MirrorResult without = mirror.Apply(frame, cam, p);
+  EXPECT_EQ(without.occluded_pixels, 0);
+  EXPECT_GT(changed_inside(without.bgr), inside.area() / 2) << "without depth the cheek under the hand is painted";
+  MirrorOptions off = o;
+  off.depth_occluder_m = 0.f;
+  EXPECT_GT(changed_inside(VirtualMirror(*test_model(), off).Apply(frame, cam, p, &depth).bgr), inside.area() / 2);
+
+  MirrorOptions relit;
+  relit.light = ParseLightPreset("left");
+  const VirtualMirror relight(*test_model(), relit);
+  EXPECT_EQ(changed_inside(relight.Apply(frame, cam, p, &depth).bgr), 0) << "the new light landed on the hand";
+  EXPECT_GT(changed_inside(relight.Apply(frame, cam, p).bgr), 0);
+
+  // Depth of another size or type is refused.
+  const cv::Mat small = cv::Mat::zeros(10, 10, CV_32FC1), wrong = cv::Mat::zeros(cam.height, cam.width, CV_16UC1);
+  EXPECT_THROW(mirror.Apply(frame, cam, p, &small), Error);
+  EXPECT_THROW(mirror.Apply(frame, cam, p, &wrong), Error);
+  MirrorOptions bad = o;
+  bad.depth_occluder_m = -1.f;
+  EXPECT_FALSE(bad.IsValid(nullptr));
+}
+
 TEST(VirtualMirrorTest, BadOptionsLightsAndFramesAreClearErrors) {
   FR_REQUIRE_MODEL();
   const FaceModel& model = *test_model();

@@ -572,7 +572,7 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     // The virtual mirror: the target's own expression, its face re-textured and re-lit.
     try {
       out.output_params = target_params;
-      const MirrorResult m = im.mirror->Apply(out.bgr, fit_camera, target_params);
+      const MirrorResult m = im.mirror->Apply(out.bgr, fit_camera, target_params, out.depth.empty() ? nullptr : &out.depth);
       out.times.render_ms = m.render_ms;
       out.times.composite_ms = m.composite_ms;
       if (!m.drawn) return pass_through(TrackingStatus::kTracking, "the tracked face is outside the frame");

@@ -274,6 +274,7 @@ bool MirrorOptions::IsValid(std::string* why) const {
   if (!(opacity >= 0.f && opacity <= 1.f)) return fail("the opacity must be within [0, 1]");
   if (!light.IsValid(why)) return false;
   if (relight_levels < 1 || relight_levels > 8) return fail("relight_levels must be within 1-8");
+  if (!(depth_occluder_m >= 0.f && depth_occluder_m <= 1.f)) return fail("depth_occluder_m must be within [0, 1] metres");
   return true;
 }
 
@@ -380,7 +381,7 @@ Eigen::Vector2f VirtualMirror::TexturePixelToUv(float x, float y) const {
 }
 
 MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
-                                  const gpu::FaceParameters& tracked) const {
+                                  const gpu::FaceParameters& tracked, const cv::Mat* depth) const {
   const Impl& im = *impl_;
   const MirrorOptions& opt = im.options;
   std::string why;
@@ -390,6 +391,9 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
                 std::to_string(camera.height) + ")");
   if (!tracked.IsValid(&why, im.model.num_identity(), im.model.num_expression(), im.model.num_albedo()))
     throw Error("virtual mirror: invalid face parameters: " + why);
+  if (depth && !depth->empty() && (depth->type() != CV_32FC1 || depth->size() != frame_bgr.size()))
+    throw Error("virtual mirror: the depth must be CV_32FC1 metres of the frame's size");
+  const bool check_depth = depth && !depth->empty() && opt.depth_occluder_m > 0.f;
   MirrorResult result;
   result.bgr = frame_bgr.clone();
   const bool retexture = !im.texture_bgra.empty() && opt.opacity > 0.f;
@@ -423,12 +427,23 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
   const int pad = 2 << opt.relight_levels;
   const cv::Rect roi = (face + cv::Size(2 * pad, 2 * pad) - cv::Point(pad, pad)) & cv::Rect(0, 0, w, h);
   const auto& decode = srgb_decode_table();
-  cv::Mat linear(roi.size(), CV_32FC3), covered = cv::Mat::zeros(roi.size(), CV_32FC1);
+  cv::Mat linear(roi.size(), CV_32FC3), covered = cv::Mat::zeros(roi.size(), CV_32FC1),
+                                         occluded = cv::Mat::zeros(roi.size(), CV_32FC1);
   for (int j = 0; j < roi.height; ++j)
     for (int i = 0; i < roi.width; ++i) {
       const cv::Vec3b px = frame_bgr.at<cv::Vec3b>(j + roi.y, i + roi.x);
       linear.at<cv::Vec3f>(j, i) = cv::Vec3f(decode[px[2]], decode[px[1]], decode[px[0]]);  // RGB
-      if (g.triangle[static_cast<size_t>(j + roi.y) * w + (i + roi.x)] >= 0) covered.at<float>(j, i) = 1.f;
+      const size_t p = static_cast<size_t>(j + roi.y) * w + (i + roi.x);
+      if (g.triangle[p] < 0) continue;
+      if (check_depth) {
+        const float d = depth->at<float>(j + roi.y, i + roi.x);
+        if (std::isfinite(d) && d > 0.f && g.position[3 * p + 2] - d > opt.depth_occluder_m) {
+          ++result.occluded_pixels;
+          occluded.at<float>(j, i) = 1.f;
+          continue;
+        }
+      }
+      covered.at<float>(j, i) = 1.f;
     }
   // The rendered silhouette has no anti-aliasing: the changes fade in over its border, as the
   // compositor's mask does.
@@ -460,7 +475,8 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
       for (int i = 0; i < roi.width; ++i) {
         const size_t p = static_cast<size_t>(j + roi.y) * w + (i + roi.x);
         const int32_t tri = g.triangle[p];
-        if (tri < 0 || im.model.vertex_part[static_cast<size_t>(g.vertices[3 * p])] != FacePart::Face) continue;
+        if (!(covered.at<float>(j, i) > 0.f) || im.model.vertex_part[static_cast<size_t>(g.vertices[3 * p])] != FacePart::Face)
+          continue;
         Eigen::Vector2f uv = Eigen::Vector2f::Zero();
         for (size_t k = 0; k < 3; ++k) {
           const auto& c = im.model.corner_uvs[3 * static_cast<size_t>(tri) + k];
@@ -546,7 +562,16 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
       }
       return level;
     };
-    const cv::Mat low_change = coarsest(change);
+    cv::Mat low_change = coarsest(change);
+    // Not onto what stands in front of the face: the coarse change reaches across it as across
+    // the face's border, and a hand over the cheek would take the new light.
+    if (result.occluded_pixels > 0) {
+      cv::Mat in_front;
+      cv::dilate(occluded, in_front, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+      cv::GaussianBlur(in_front, in_front, cv::Size(0, 0), 2.0);
+      for (int j = 0; j < roi.height; ++j)
+        for (int i = 0; i < roi.width; ++i) low_change.at<cv::Vec3f>(j, i) *= 1.f - std::min(1.f, in_front.at<float>(j, i));
+    }
     // A brightened pixel stops where its brightest channel reaches white, all channels alike: a
     // channel clipped alone turns skin grey (its red saturates first).
     for (int j = 0; j < roi.height; ++j)

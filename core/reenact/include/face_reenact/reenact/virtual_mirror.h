@@ -80,6 +80,10 @@ struct MirrorOptions {
   // The Laplacian pyramid level whose foreground is re-lit (the coarsest of that many levels):
   // the light changes only at the scale of 2^levels pixels, so the frame's own fine shading stays.
   int relight_levels = 4;
+  // On frames with depth: a pixel whose depth lies this much nearer the camera than the fitted
+  // face shows something in front of it (a hand, a cup, hair): it is neither painted nor re-lit,
+  // and the change fades out around it as around the face's border. 0 turns the test off.
+  float depth_occluder_m = 0.04f;
   bool IsValid(std::string* why) const;
 };
 
@@ -96,6 +100,7 @@ struct MirrorResult {
   cv::Mat bgr;               // CV_8UC3, the frame with the face re-textured and re-lit
   bool drawn = false;        // false: no face surface in view, the frame unchanged
   int textured_pixels = 0;   // pixels the texture covers with any opacity
+  int occluded_pixels = 0;   // face pixels the frame's depth shows something in front of
   double render_ms = 0.0;    // model evaluation and rasterisation
   double composite_ms = 0.0; // texture, light and blend
 };
@@ -109,10 +114,12 @@ class VirtualMirror {
   VirtualMirror(const VirtualMirror&) = delete;
   VirtualMirror& operator=(const VirtualMirror&) = delete;
 
-  // `frame_bgr`: CV_8UC3 of the camera's size; `tracked`: the frame's fit. Throws
-  // face_reenact::Error on a frame of another size or type, or invalid parameters.
+  // `frame_bgr`: CV_8UC3 of the camera's size; `tracked`: the frame's fit; `depth` (optional):
+  // the frame's depth in metres, CV_32FC1 of the camera's size, registered to the colour (0 or
+  // NaN where unknown). Throws face_reenact::Error on a frame or depth of another size or type, or
+  // invalid parameters.
   MirrorResult Apply(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
-                     const gpu::FaceParameters& tracked) const;
+                     const gpu::FaceParameters& tracked, const cv::Mat* depth = nullptr) const;
 
   // The texture layout coordinates (u, v) the placement maps to the texture's pixel (x, y):
   // for tests and for a person checking where a region lands.
