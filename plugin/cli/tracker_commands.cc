@@ -329,7 +329,10 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   // The gaze reading (null when none was made: gaze off, eyes closed, no fit).
   j["gaze"] = t.gaze.ok ? nlohmann::json{{"horizontal", t.gaze.horizontal}, {"vertical", t.gaze.vertical},
                                          {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels},
-                                         {"energy", t.gaze.energy}, {"straight_energy", t.gaze.straight_energy}}
+                                         {"energy", t.gaze.energy}, {"straight_energy", t.gaze.straight_energy},
+                                         // each eye's own turn where they turned apart (crossed), else null
+                                         {"per_eye", t.gaze.vergence_read ? nlohmann::json{t.gaze.per_eye[0], t.gaze.per_eye[1]}
+                                                                          : nlohmann::json()}}
                         : nlohmann::json();
   // The lids read from the colour (null when they were not: open eyes, or gaze off).
   j["lids"] = t.gaze.lids_read ? nlohmann::json{{"blink", {t.gaze.blink[0], t.gaze.blink[1]}},

@@ -77,6 +77,15 @@ TEST(GazeOptions, DefaultsValidAndBadValuesRejected) {
   bad = o;
   bad.lid_steps = 1;
   expect_invalid(bad, "lid_steps");
+  bad = o;
+  bad.min_vergence = 0;
+  expect_invalid(bad, "min_vergence");
+  bad = o;
+  bad.vergence_improvement = 1;
+  expect_invalid(bad, "vergence_improvement");
+  bad = o;
+  bad.max_blink_for_vergence = std::numeric_limits<double>::quiet_NaN();
+  expect_invalid(bad, "max_blink_for_vergence");
 }
 
 TEST(Gaze, WeightsForAConjugateGaze) {
@@ -139,6 +148,58 @@ TEST(Gaze, ReadsTheGazeOfARenderedFace) {
       for (const char* name : kLook) look = look || k == arkit_blendshape_index(name);
       if (!look) EXPECT_EQ(fit.delta[k], truth.delta[k]) << k;
     }
+  }
+}
+
+// Crossed eyes (each turned towards the nose) and eyes turned apart are read eye by eye and
+// written so; a conjugate gaze keeps one reading for both eyes (its eyes' own searches agree).
+TEST(Gaze, ReadsEyesTurnedTowardsEachOtherEyeByEye) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  // Each eye's weights: the left eye in and the right eye in (crossed) is a turn towards the
+  // person's right for the left eye (< 0) and towards the left for the right eye (> 0).
+  gpu::FaceParameters crossed = face_looking(*model, gaze, 0.f, 0.f);
+  for (const auto& w : gaze.WeightsForEyes(-0.5f, 0.7f, 0.f)) crossed.delta[w.index] = w.value;
+  EXPECT_FLOAT_EQ(weight(crossed, "eyeLookInLeft"), 0.5f);
+  EXPECT_FLOAT_EQ(weight(crossed, "eyeLookInRight"), 0.7f);
+  EXPECT_FLOAT_EQ(weight(crossed, "eyeLookOutLeft"), 0.f);
+  EXPECT_FLOAT_EQ(weight(crossed, "eyeLookOutRight"), 0.f);
+  // Eyes turned out read 0.2-0.25 too far on the eye whose iris goes into its outer corner
+  // (measured -0.73 for -0.5; as one reading for both eyes that eye would read +0.47).
+  struct Case {
+    float left, right;
+    bool apart;
+    float tolerance;
+  };
+  for (const Case c : {Case{-0.6f, 0.6f, true, 0.1f}, Case{-0.8f, 0.4f, true, 0.1f}, Case{0.5f, -0.5f, true, 0.25f},
+                       Case{0.4f, 0.4f, false, 0.1f}, Case{-0.5f, -0.5f, false, 0.1f}}) {
+    SCOPED_TRACE(::testing::Message() << "left " << c.left << " right " << c.right);
+    gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f);
+    for (const auto& w : gaze.WeightsForEyes(c.left, c.right, 0.f)) truth.delta[w.index] = w.value;
+    const InputFrame frame = RenderSyntheticFrame(solver.renderer(), *model, truth, testing::test_camera());
+    gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f);
+    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
+    ASSERT_TRUE(r.ok) << r.message;
+    std::printf("left %.2f right %.2f: conjugate %.3f, per eye %.3f %.3f (%s)\n", c.left, c.right, r.horizontal, r.per_eye[0],
+                r.per_eye[1], r.vergence_read ? "apart" : "together");
+    EXPECT_EQ(r.vergence_read, c.apart);
+    if (c.apart) {
+      EXPECT_NEAR(r.per_eye[0], c.left, c.tolerance);
+      EXPECT_NEAR(r.per_eye[1], c.right, c.tolerance);
+    } else {
+      EXPECT_NEAR(r.horizontal, c.left, 0.06);
+    }
+    for (const auto& eye : arkit_eye_look_names())
+      for (const char* name : eye) EXPECT_NEAR(weight(fit, name), weight(truth, name), c.tolerance) << name;
+    // Without the per-eye search, one reading for both.
+    GazeOptions conjugate_only;
+    conjugate_only.read_vergence = false;
+    gpu::FaceParameters fit2 = face_looking(*model, gaze, 0.f, 0.f);
+    const GazeReading r2 = gaze.Read(solver.renderer(), frame, &fit2, conjugate_only);
+    EXPECT_FALSE(r2.vergence_read);
+    if (r2.ok) EXPECT_EQ(weight(fit2, "eyeLookOutLeft") > 0.f, weight(fit2, "eyeLookInRight") > 0.f);
   }
 }
 

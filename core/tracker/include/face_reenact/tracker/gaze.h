@@ -69,6 +69,18 @@ struct GazeOptions {
   // actor pulling faces, squinting and widening the eyes at 320x240) read false gazes of 0.3-0.6
   // at 0.02-0.44. Without a reading the solve's weights stay (it reads no gaze: about 0).
   double min_improvement = 0.3;
+  // Eyes that do not turn together (crossed, or turned out): after the conjugate reading each
+  // eye's sideways turn is searched on its own, and the two are kept when they lie on opposite
+  // sides, differ by at least min_vergence, lower the colour difference of the conjugate reading
+  // by at least vergence_improvement of it, and neither eye is closed by more than
+  // max_blink_for_vergence. An actor crossing her eyes (liveportrait_d6, frames 102-116) read a
+  // full turn to one side for both eyes, since one eye matched it; her own turns lower the
+  // difference by 0.46-0.77 of it. A conjugate gaze's two eyes agree within the readings'
+  // scatter (0.1-0.2).
+  bool read_vergence = true;
+  double min_vergence = 0.3;
+  double vergence_improvement = 0.3;
+  double max_blink_for_vergence = 0.3;
 
   // The lids (eyeBlinkLeft/Right), read before the gaze. The solve does not read a blink either:
   // without the eye landmarks (EnergyOptions::all_inner_landmarks, off for dlib, whose eye points
@@ -97,6 +109,11 @@ struct GazeReading {
   std::string message;    // why there is no reading (ok false)
   float horizontal = 0;   // > 0: towards the person's left (eyeLookOutLeft + eyeLookInRight)
   float vertical = 0;     // > 0: up (eyeLookUp*); 0 when not read
+  // GazeOptions::read_vergence: the eyes turned apart (crossed or diverging). Then `per_eye` is
+  // each eye's sideways reading (the person's left eye first; > 0 towards the person's left, as
+  // `horizontal`) and those are the weights written; `horizontal` stays the conjugate reading.
+  bool vergence_read = false;
+  std::array<float, 2> per_eye{};
   bool vertical_read = false;  // read_vertical, and the opening was tall enough (min_vertical_rows)
   int pixels = 0;         // eyeball pixels compared
   int eyeball_pixels = 0; // eyeball pixels of the fit's render (pixels: those that look like one)
@@ -135,6 +152,8 @@ class GazeEstimator {
     float value = 0;
   };
   std::array<Weight, 8> WeightsFor(float horizontal, float vertical) const;
+  // The same with each eye's own sideways turn (left eye, right eye; same sign convention).
+  std::array<Weight, 8> WeightsForEyes(float left, float right, float vertical) const;
 
  private:
   struct Eye {
@@ -151,6 +170,8 @@ class GazeEstimator {
     bool ok = false;
     std::string message;
     double h = 0, v = 0, energy = 0, straight_energy = 0;
+    bool vergent = false;            // the eyes read apart (GazeOptions::read_vergence)
+    std::array<double, 2> per_eye{};  // then each eye's sideways reading
     int pixels = 0, rendered_pixels = 0;
     int opening_rows = 0;  // the taller eye's rendered opening, pixel rows
     bool vertical_read = false;
