@@ -69,17 +69,7 @@ LiveSession::Options pipeline_options(const std::string& target, OutputMode mode
   return o;
 }
 
-uint16_t free_udp_port() {
-  int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
-  socklen_t len = sizeof a;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
-  ::close(fd);
-  return ntohs(a.sin_port);
-}
+using test::free_udp_port;
 
 TEST(InputSpecTest, TargetsAreCamerasOpenNiOrRecordings) {
   EXPECT_EQ(parse_target_spec("/dev/video2", "t").device_path, "/dev/video2");

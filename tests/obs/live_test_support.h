@@ -2,7 +2,10 @@
 // Shared by the live-session and OBS tests: a tiny synthetic RGB-D recording made once with
 // `face-reenact synth` (160x120, 12 frames: ~2 s) and shared by the test processes, and helpers.
 #include <gtest/gtest.h>
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <sys/file.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -26,6 +29,19 @@ namespace face_reenact::test {
 inline constexpr int kRecordingWidth = 160;
 inline constexpr int kRecordingHeight = 120;
 inline constexpr int kRecordingFrames = 12;
+
+// A UDP port on 127.0.0.1 that nothing listens on: the kernel's pick, released again.
+inline uint16_t free_udp_port() {
+  int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  ::close(fd);
+  return ntohs(a.sin_port);
+}
 
 // Runs a shell command, returns its exit status and (stdout+stderr) in *output.
 inline int run_command(const std::string& command, std::string* output) {

@@ -636,16 +636,11 @@ TEST_F(WebSocketVendorTest, GetStatusOfAStreamFedSourceCountsWhatItReceived) {
   const char* cli = std::getenv("FR_CLI");
   if (!cli || run_command(quote(cli) + " keygen --out " + quote(key), &log) != 0)
     GTEST_SKIP() << "cannot make a key with face-reenact keygen: " << log;
-  // A port the kernel picks, released again (as the stream tests take one).
-  int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  const int port = face_reenact::test::free_udp_port();
   sockaddr_in at{};
   at.sin_family = AF_INET;
   at.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&at), sizeof at), 0);
-  socklen_t len = sizeof at;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&at), &len);
-  ::close(fd);
-  const int port = ntohs(at.sin_port);
+  at.sin_port = htons(static_cast<uint16_t>(port));
   obs_data_t* settings = recording_settings(dir);
   obs_data_set_string(settings, "source_kind", "udp");
   obs_data_set_int(settings, "udp_port", port);
@@ -655,7 +650,7 @@ TEST_F(WebSocketVendorTest, GetStatusOfAStreamFedSourceCountsWhatItReceived) {
   ASSERT_NE(source, nullptr);
   wait_status(source, 5s, [](const Status& st) { return st.line.find("waiting for stream") != std::string::npos; });
   // Three datagrams that are not the protocol's.
-  fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
   for (int k = 0; k < 3; ++k) {
     const char junk[] = "not an expression frame, not even close to one";
     ::sendto(fd, junk, sizeof junk, 0, reinterpret_cast<sockaddr*>(&at), sizeof at);
