@@ -39,6 +39,7 @@ using internal::lit_normal;
 using internal::rendering_lighting;
 
 using internal::display_bgr;
+using internal::covered_rect;
 using internal::grown_within;
 using internal::kEyeParts;
 using internal::kMouthParts;
@@ -507,23 +508,6 @@ struct FaceCompositor::Impl {
     return dist;
   }
 
-  // The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
-  // inside the image; empty when nothing is covered.
-  static cv::Rect CoveredRect(const gpu::GBuffer& g, int margin) {
-    int i0 = g.width, i1 = -1, j0 = g.height, j1 = -1;
-    for (int j = 0; j < g.height; ++j) {
-      const int32_t* row = g.triangle.data() + static_cast<size_t>(j) * g.width;
-      int first = 0;
-      while (first < g.width && row[first] < 0) ++first;
-      if (first == g.width) continue;
-      int last = g.width - 1;
-      while (row[last] < 0) --last;
-      i0 = std::min(i0, first), i1 = std::max(i1, last), j0 = std::min(j0, j), j1 = j;
-    }
-    if (i1 < 0) return cv::Rect();
-    return grown_within(cv::Rect(i0, j0, i1 - i0 + 1, j1 - j0 + 1), margin, g.width, g.height);
-  }
-
   // Each closed contour (vertex indices) as `state` projects it, a 1 px line of 0 in `open` (whose
   // pixel (0, 0) is the image's `origin`). A contour with a point at or behind the near plane is
   // left out.
@@ -601,7 +585,7 @@ struct FaceCompositor::Impl {
     if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
     if (eyes_drawn) *eyes_drawn = false;
 
-    const cv::Rect box = CoveredRect(*g, 2);  // the drawn pixels to texture
+    const cv::Rect box = covered_rect(*g, 2);  // the drawn pixels to texture
     if (box.empty()) return;
     // The tracked geometry (the output's own when only the lighting or albedo differ).
     const bool same = same_geometry(target, output);
@@ -633,7 +617,7 @@ struct FaceCompositor::Impl {
     cv::Mat boundary_px;
     if (distrust) {
       const int margin = static_cast<int>(std::ceil(ramp_px)) + 2;
-      roi = CoveredRect(tg, margin);
+      roi = covered_rect(tg, margin);
       if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi);
       // Samples landing here are next to the opening the mouth pass redraws.
       if (mouth_redraw > 0.f) {
@@ -1490,7 +1474,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   const bool check_depth = target_depth && target_depth->type() == CV_32FC1 && target_depth->size() == target_bgr.size() &&
                            (opt.depth_background_m > 0.f || opt.depth_occluder_m > 0.f);
   // Rows of the drawn rectangle on the pool's threads (each pixel writes only its own).
-  const cv::Rect drawn_rect = Impl::CoveredRect(g, 0);  // (empty: nothing drawn)
+  const cv::Rect drawn_rect = covered_rect(g, 0);  // (empty: nothing drawn)
   im.ForRowsOf(drawn_rect, [&](int row) {
     const int j = drawn_rect.y + row;
     for (int i = drawn_rect.x; i < drawn_rect.x + drawn_rect.width; ++i) {
@@ -1597,7 +1581,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   const Eigen::VectorXf model_albedo = state.albedo;
   const Gamma light = rendering_lighting(params.gamma);
   if (!light_usable_for_albedo(light)) return;
-  const cv::Rect roi = Impl::CoveredRect(g, 2);
+  const cv::Rect roi = covered_rect(g, 2);
   const cv::Mat boundary_px = roi.empty() ? cv::Mat() : im.BoundaryDistance(g, state, camera, roi);
   Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
   for (int v = 0; v < n; ++v) {
@@ -1694,7 +1678,7 @@ AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const g
   // rendering (AlbedoTextureOptions::background), and the Vulkan renderer is not shared.
   gpu::GBuffer& g = Impl::scratch_gbuffer(1);
   im.renderer.rasterize(state, camera, ropt, &g, im.threads());
-  const cv::Rect roi = Impl::CoveredRect(g, 2);
+  const cv::Rect roi = covered_rect(g, 2);
   if (roi.empty()) return view;
   const cv::Mat boundary_px = im.BoundaryDistance(g, state, camera, roi);
   // Per vertex, the irradiance the re-rendering shades it with (Compose), so the texel's albedo

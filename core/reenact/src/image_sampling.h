@@ -7,6 +7,7 @@
 #include <opencv2/core.hpp>
 
 #include "face_reenact/common/srgb.h"
+#include "face_reenact/gpu/image_formation.h"
 
 namespace face_reenact::reenact::internal {
 
@@ -57,6 +58,24 @@ inline cv::Vec3f display_bgr(const Eigen::Vector3f& rgb) { return display_bgr(rg
 // `rect` grown by `margin` on every side and kept inside a w x h image.
 inline cv::Rect grown_within(const cv::Rect& rect, int margin, int w, int h) {
   return (rect + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);
+}
+
+// The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
+// inside the image; empty when nothing is covered. Each row is scanned from both ends to its
+// first covered pixel (uniting a rectangle per pixel cost a tenth of a millisecond at 640x480).
+inline cv::Rect covered_rect(const gpu::GBuffer& g, int margin) {
+  int i0 = g.width, i1 = -1, j0 = g.height, j1 = -1;
+  for (int j = 0; j < g.height; ++j) {
+    const int32_t* row = g.triangle.data() + static_cast<size_t>(j) * g.width;
+    int first = 0;
+    while (first < g.width && row[first] < 0) ++first;
+    if (first == g.width) continue;
+    int last = g.width - 1;
+    while (row[last] < 0) --last;
+    i0 = std::min(i0, first), i1 = std::max(i1, last), j0 = std::min(j0, j), j1 = j;
+  }
+  if (i1 < 0) return cv::Rect();
+  return grown_within(cv::Rect(i0, j0, i1 - i0 + 1, j1 - j0 + 1), margin, g.width, g.height);
 }
 
 }  // namespace face_reenact::reenact::internal

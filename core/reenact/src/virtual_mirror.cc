@@ -414,10 +414,7 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
   result.render_ms = ms_since(start);
   start = Clock::now();
   const int w = camera.width, h = camera.height;
-  cv::Rect face;
-  for (int j = 0; j < h; ++j)
-    for (int i = 0; i < w; ++i)
-      if (g.triangle[static_cast<size_t>(j) * w + i] >= 0) face |= cv::Rect(i, j, 1, 1);
+  const cv::Rect face = internal::covered_rect(g, 0);
   if (face.empty()) {
     result.composite_ms = ms_since(start);
     return result;
@@ -425,7 +422,7 @@ MirrorResult VirtualMirror::Apply(const cv::Mat& frame_bgr, const gpu::PinholeCa
   result.drawn = true;
   // Work in a box around the face, wide enough for the coarsest level's reach.
   const int pad = 2 << opt.relight_levels;
-  const cv::Rect roi = (face + cv::Size(2 * pad, 2 * pad) - cv::Point(pad, pad)) & cv::Rect(0, 0, w, h);
+  const cv::Rect roi = internal::grown_within(face, pad, w, h);
   const auto& decode = srgb_decode_table();
   cv::Mat linear(roi.size(), CV_32FC3), covered = cv::Mat::zeros(roi.size(), CV_32FC1),
                                          occluded = cv::Mat::zeros(roi.size(), CV_32FC1);

@@ -405,33 +405,31 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   // Eye e's summed squared colour difference (added to *sum) with its sideways turn hz.
   auto eye_energy = [&](int e, double hz, double vt, bool fit_gains, double* sum) {
     const auto weights = WeightsFor(static_cast<float>(hz), static_cast<float>(vt));
-    {
-      const EyeState& s = eyes[e];
-      Eigen::Vector3d centre = s.centre, front = s.front;
-      for (int k = 0; k < 4; ++k) {
-        const double dw = static_cast<double>(weights[4 * e + k].value) - rendered[4 * e + k].value;
-        centre += dw * eyes_[e].centre_per_weight[k];
-        front += dw * eyes_[e].front_per_weight[k];
-      }
-      const Eigen::Vector3d axis = (front - centre).normalized();
-      // The least-squares gain (sum |g p - i|^2 is least at g = pi / pp), then each pixel's
-      // squared difference capped at kMaxPixelCost: a few pixels the model cannot explain (lashes
-      // and a lid margin that a blink starting or a squint brings into the opening) cannot drag
-      // the iris across the eye, while a misplaced iris still costs every pixel it misses.
-      double pp = 0, pi = 0;
-      predicted.resize(s.pixels.size());
-      for (size_t q = 0; q < s.pixels.size(); ++q) {
-        const EyePixel& px = s.pixels[q];
-        const Eigen::Vector3d direction = (px.position - centre).normalized();
-        const double deg = std::acos(std::clamp(direction.dot(axis), -1.0, 1.0)) * 180.0 / M_PI;
-        predicted[q] = s.profile.at(deg).cwiseProduct(px.irradiance);
-        pp += predicted[q].squaredNorm();
-        pi += predicted[q].dot(px.input);
-      }
-      const double g = fit_gains && pp > 0 && pi > 0 ? std::clamp(pi / pp, kMinGain, kMaxGain) : 1.0;
-      for (size_t q = 0; q < s.pixels.size(); ++q)
-        *sum += std::min((g * predicted[q] - s.pixels[q].input).squaredNorm(), kMaxPixelCost);
+    const EyeState& s = eyes[e];
+    Eigen::Vector3d centre = s.centre, front = s.front;
+    for (int k = 0; k < 4; ++k) {
+      const double dw = static_cast<double>(weights[4 * e + k].value) - rendered[4 * e + k].value;
+      centre += dw * eyes_[e].centre_per_weight[k];
+      front += dw * eyes_[e].front_per_weight[k];
     }
+    const Eigen::Vector3d axis = (front - centre).normalized();
+    // The least-squares gain (sum |g p - i|^2 is least at g = pi / pp), then each pixel's
+    // squared difference capped at kMaxPixelCost: a few pixels the model cannot explain (lashes
+    // and a lid margin that a blink starting or a squint brings into the opening) cannot drag
+    // the iris across the eye, while a misplaced iris still costs every pixel it misses.
+    double pp = 0, pi = 0;
+    predicted.resize(s.pixels.size());
+    for (size_t q = 0; q < s.pixels.size(); ++q) {
+      const EyePixel& px = s.pixels[q];
+      const Eigen::Vector3d direction = (px.position - centre).normalized();
+      const double deg = std::acos(std::clamp(direction.dot(axis), -1.0, 1.0)) * 180.0 / M_PI;
+      predicted[q] = s.profile.at(deg).cwiseProduct(px.irradiance);
+      pp += predicted[q].squaredNorm();
+      pi += predicted[q].dot(px.input);
+    }
+    const double g = fit_gains && pp > 0 && pi > 0 ? std::clamp(pi / pp, kMinGain, kMaxGain) : 1.0;
+    for (size_t q = 0; q < s.pixels.size(); ++q)
+      *sum += std::min((g * predicted[q] - s.pixels[q].input).squaredNorm(), kMaxPixelCost);
   };
   auto energy = [&](double hz, double vt, bool fit_gains) {
     double sum = 0;
