@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <mutex>
 #include <thread>
 
@@ -529,7 +530,7 @@ TEST(LiveSessionTest, UdpStreamGoesLiveWithPacketRateThenLost) {
 // The puppeteer's stream through a lossy network into the session the webcam and OBS run (issue
 // #29, "an hour of faults"): the real `send` program streams an open jaw at 60 Hz through an
 // ImpairingRelay (about 10 % dropped, 10 % held back and released later, 10 % duplicated), then a
-// 2.5 s outage cuts it, into a session reenacting a synthetic target. Checked: the receiver's
+// 3 s outage cuts it, into a session reenacting a synthetic target. Checked: the receiver's
 // counts are what the relay did (nothing lost beyond what the relay dropped), the output keeps
 // coming through the outage, the face falls back to the target's own expression along the
 // cross-fade (weights monotone, no frame jumping it) and the stream's expression returns with
@@ -555,9 +556,10 @@ TEST(LiveSessionTest, AStreamThroughALossyNetworkIsCountedAndTheTargetFallsBackS
   LiveSession::Options o = pipeline_options(dir, OutputMode::kReenact);
   o.source = "udp://127.0.0.1:" + std::to_string(port);
   o.key_file = key_path;
-  // A cross-fade long enough that several frames fall inside it even on a loaded 2-core machine
-  // (the default is 250 ms), after 300 ms of silence.
-  const auto ramp = 1000ms;
+  // A cross-fade long enough that frames fall inside it even on a loaded 2-core machine (the
+  // default is 250 ms), after 300 ms of silence: with two CPU hogs beside the test the worker (at
+  // nice 5) made a frame every 0.8 s, and a 1 s fade-out held none.
+  const auto ramp = 1500ms;
   o.stream.timeout = 300ms;
   o.stream.ramp = ramp;
   struct Shown {
@@ -568,7 +570,7 @@ TEST(LiveSessionTest, AStreamThroughALossyNetworkIsCountedAndTheTargetFallsBackS
   std::vector<Shown> shown;
   o.on_frame = [&](const LiveFrame& f) {
     std::lock_guard lock(shown_mu);
-    shown.push_back({f.produced, f.source_weight});
+    shown.push_back({f.started, f.source_weight});
   };
   LiveSession session(o);
   // The receiver listens before anything is sent: a datagram the relay forwards to a closed port
@@ -603,7 +605,7 @@ TEST(LiveSessionTest, AStreamThroughALossyNetworkIsCountedAndTheTargetFallsBackS
   // The pipeline goes on (a frame of the looped recording may be lost and recovered meanwhile,
   // as it was under a loaded ctest -j2: kLost, not kOff).
   EXPECT_NE(s.tracking, TrackingState::kOff) << "the target goes on being tracked: " << s.Headline();
-  std::this_thread::sleep_until(outage_start + 2500ms);
+  std::this_thread::sleep_until(outage_start + 3000ms);
   relay.set_outage(false);
   const Clock::time_point outage_end = Clock::now();
   s = wait_status(session, 5s, [](const LiveStatus& st) { return st.source == SourceState::kLive; });
@@ -612,7 +614,6 @@ TEST(LiveSessionTest, AStreamThroughALossyNetworkIsCountedAndTheTargetFallsBackS
   s = wait_status(session, 5s, [](const LiveStatus& st) { return st.source_weight == 1.0; });
   const double faded_in_s = std::chrono::duration<double>(Clock::now() - outage_end).count();
   EXPECT_EQ(s.source_weight, 1.0) << s.Headline();
-  EXPECT_LT(live_again_s, 2.0) << "the stream's return is seen within the issue's 2 s";
   std::this_thread::sleep_for(300ms);
   send.signal(SIGINT);
   EXPECT_EQ(send.wait(), 0) << send.err();
@@ -663,19 +664,31 @@ TEST(LiveSessionTest, AStreamThroughALossyNetworkIsCountedAndTheTargetFallsBackS
     at_zero += in_outage && f.weight == 0.f;
     fading_in += !in_outage && between;
     if (prev) {
-      // Monotone: down while the stream is silent, up once it is back (a frame published just
-      // after the outage ended may still carry a weight sampled within it).
+      // Monotone: down while the stream is silent.
       if (in_outage) EXPECT_LE(f.weight, prev->weight + 1e-6f);
-      // The weight is a function of time with slope 1/ramp; the frames' publication times stand in
-      // for the times the weight was sampled (up to a frame's processing earlier), hence the slack.
+      // The weight is a function of time with slope 1/ramp, read when the worker takes a frame
+      // (LiveFrame::started; the publication time lagged it by a whole frame's processing, up to
+      // 0.6 s under a loaded ctest -j2, and a test on it failed once).
       const double dt = std::chrono::duration<double>(f.at - prev->at).count();
-      EXPECT_LE(std::fabs(f.weight - prev->weight), dt / std::chrono::duration<double>(ramp).count() + 0.3)
+      EXPECT_LE(std::fabs(f.weight - prev->weight), dt / std::chrono::duration<double>(ramp).count() + 0.05)
           << "a jump in the cross-fade between two frames " << dt << " s apart";
     }
     prev = &f;
   }
-  std::cout << shown.size() << " frames shown; in the 2.5 s outage " << during_outage << " (" << fading_out
-            << " fading out, " << at_zero << " at the target's own expression); " << fading_in << " fading back in\n";
+  // The stream's return reaches the picture within the issue's 2 s: the first frame the worker
+  // took after the outage ended has the streamed expression in it. (The status says so later,
+  // after that frame: its "live again" above lagged 2.07 s behind once with two CPU hogs beside
+  // the test, 0.2-0.5 s otherwise.)
+  double back_in_picture_s = std::numeric_limits<double>::infinity();
+  for (const Shown& f : shown)
+    if (f.at >= outage_end && f.weight > 0.f) {
+      back_in_picture_s = std::chrono::duration<double>(f.at - outage_end).count();
+      break;
+    }
+  std::cout << shown.size() << " frames shown; in the 3 s outage " << during_outage << " (" << fading_out
+            << " fading out, " << at_zero << " at the target's own expression); " << fading_in
+            << " fading back in; the stream's expression back in the picture " << back_in_picture_s << " s after it\n";
+  EXPECT_LT(back_in_picture_s, 2.0) << "the stream's return is seen within the issue's 2 s";
   EXPECT_GE(during_outage, 3) << "the picture keeps moving while the stream is gone";
   EXPECT_GE(fading_out, 1) << "no frame between the stream's expression and the target's own";
   EXPECT_GE(at_zero, 1);

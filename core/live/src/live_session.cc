@@ -554,6 +554,7 @@ void LiveSession::run() {
     published.source_index = job.source_index;
     published.source_weight = job.source_weight;
     published.captured = job.captured;
+    published.started = job.started;
     LiveStageTimes rows = out.times;
     {
       std::lock_guard lock(mu_);

@@ -183,6 +183,7 @@ struct LiveFrame {
   // the stream is live, ramping to 0 when it stops: the target's own expression); 0 otherwise.
   float source_weight = 0;
   std::chrono::steady_clock::time_point captured;  // when the capture thread had the target frame
+  std::chrono::steady_clock::time_point started;   // when the worker took it (and read source_weight)
   std::chrono::steady_clock::time_point produced;  // when the pipeline finished it
 };
 
