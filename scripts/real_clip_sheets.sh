@@ -66,17 +66,20 @@ mkdir -p "$OUT/bared_teeth"
 "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$VIDEOS/liveportrait_d10.mp4" --frames 125 \
       --out "$OUT/bared_teeth/d10.mp4" --quiet --sheets "$OUT/bared_teeth" --sheet-frames 109,120 \
       --frames-dir "$OUT/bared_teeth/d10"
-# The eyes (docs/reenactment.md, "Lids the output lowers part way, a gaze turned hard aside"): the same run's output
-# frames 30, 100 and 120 (d6 squinting and looking aside), the eyes 3x, target above output (eyes.png: no pale band or
-# reddish line along the lowered lids, no pink patch on the white); and the webcam clip's frames 19, 20 (he blinks, d14's
-# eyes open: drawn from his open eyes) and 53 (d14 looking hard aside: the bared white in the camera's dim grey, not a
-# bright wedge) from the lids run, target above output (eyes_webcam.png).
+# The eyes (docs/reenactment.md, "Lids the output lowers part way, a gaze turned hard aside", "The eye's real
+# opening"): the same run's output frames 30, 100 and 120 (d6 squinting and looking aside) and 114, 116 (d6 crossing her
+# eyes while d10 narrows hers: one iris per eye, turned, no rings), the eyes 3x, target above output (eyes.png: no pale
+# band or reddish line along the lowered lids, no pink patch on the white); and the webcam clip's frames 19, 20 (he
+# blinks, d14's eyes open: drawn from his open eyes) and 53 (d14 looking hard aside: the bared white in the camera's dim
+# grey, not a bright wedge) from the lids run, target above output (eyes_webcam.png).
 eyes=()
-for f in 30 100 120; do eyes+=(-i "$VIDEOS/liveportrait_d10.mp4" -i "$OUT/bared_teeth/d10/frame_$(printf %06d "$f").png"); done
+eye_frames=(30 100 114 116 120)
+for f in "${eye_frames[@]}"; do eyes+=(-i "$VIDEOS/liveportrait_d10.mp4" -i "$OUT/bared_teeth/d10/frame_$(printf %06d "$f").png"); done
 ffmpeg -loglevel error -y "${eyes[@]}" -filter_complex \
-       "[0]select='eq(n\,30)'[t0];[2]select='eq(n\,100)'[t1];[4]select='eq(n\,120)'[t2];$(for k in 0 1 2; do
-          printf '[t%d]crop=200:56:160:205,scale=600:168:flags=neighbor[a%d];[%d]crop=200:56:160:205,scale=600:168:flags=neighbor[b%d];' $k $k $((2 * k + 1)) $k
-        done)[a0][b0][a1][b1][a2][b2]vstack=6" -frames:v 1 "$OUT/eyes.png"
+       "$(for k in 0 1 2 3 4; do
+          printf "[%d]select='eq(n\\,%d)',crop=200:56:160:205,scale=600:168:flags=neighbor[a%d];[%d]crop=200:56:160:205,scale=600:168:flags=neighbor[b%d];" \
+                 $((2 * k)) "${eye_frames[$k]}" $k $((2 * k + 1)) $k
+        done)[a0][b0][a1][b1][a2][b2][a3][b3][a4][b4]vstack=10" -frames:v 1 "$OUT/eyes.png"
 # The closed loop on real video (docs/reenactment.md, "Measured", "On real video"): each driving clip onto the webcam
 # clip, the output tracked again; and the albedo map's pass-through fidelity. Figures in closed_loop_*.json.
 for s in d14 d6 d0; do
@@ -106,6 +109,16 @@ done
 ffmpeg -loglevel error -y "${crops[@]}" -filter_complex \
        "$(for k in 0 1 2 3 4 5 6 7; do printf '[%d]crop=140:90:180:250,scale=420:270:flags=neighbor[c%d];' $k $k; done)[c0][c1][c2][c3][c4][c5][c6][c7]xstack=inputs=8:layout=0_0|w0_0|w0+w1_0|w0+w1+w2_0|0_h0|w0_h0|w0+w1_h0|w0+w1+w2_h0" \
        "$OUT/mouth_source.png"
+# Eyes turned where the target's are not (docs/reenactment.md, "The eye's real opening"): the same run (the default),
+# output frames 44, 51, 53 and 55, d6 crossing her eyes and glancing aside onto his eyes looking ahead, the eyes 3x, target
+# above output (eyes_turned.png: the eye within his own lids, no white over them, no dark crescent under the lower lid).
+turned=()
+for f in 44 51 53 55; do turned+=(-i "$tgt" -i "$OUT/mouth_source_auto/frame_0000$f.png"); done
+ffmpeg -loglevel error -y "${turned[@]}" -filter_complex \
+       "$(k=0; for f in 44 51 53 55; do
+          printf "[%d]select='eq(n\\,%d)',crop=150:40:170:198,scale=450:120:flags=neighbor[a%d];[%d]crop=150:40:170:198,scale=450:120:flags=neighbor[b%d];" \
+                 $((2 * k)) $f $k $((2 * k + 1)) $k; k=$((k + 1))
+        done)[a0][b0][a1][b1][a2][b2][a3][b3]vstack=8" -frames:v 1 "$OUT/eyes_turned.png"
 # The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"): d6's grimace (source frame ~252) onto the
 # webcam clip's output frame 126, without and with the transfer, and their difference x4 around mid-grey
 # (detail.png: the face; detail_zoom.png: the chin, 3x).

@@ -642,6 +642,78 @@ TEST(ReenactCompositorTest, EyesTheTargetBlinksAreDrawnFromItsOpenEyes) {
   EXPECT_FALSE(closed.eyes_from_exemplar);
 }
 
+// The fit's lid points of `p`'s eyes, projected (iBUG 36-41 and 42-47), each eye stretched
+// vertically about its middle by `stretch`: a real opening taller or lower than the fit's.
+EyeOpenings fit_openings(const FaceModel& model, const gpu::FaceParameters& p, const gpu::PinholeCamera& cam, float stretch) {
+  const gpu::VertexState state = testing::test_renderer().evaluate(p);
+  EyeOpenings o;
+  for (size_t e = 0; e < 2; ++e) {
+    const std::vector<int32_t> lid = landmark_vertices(model, 36 + 6 * static_cast<int>(e), 41 + 6 * static_cast<int>(e));
+    if (lid.size() != 6u) continue;
+    float middle = 0.f;
+    for (size_t k = 0; k < 6; ++k) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * lid[k]);
+      o.points[e][k] = Eigen::Vector2f(cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy);
+      middle += o.points[e][k].y() / 6.f;
+    }
+    for (auto& q : o.points[e]) q.y() = middle + stretch * (q.y() - middle);
+    o.known[e] = true;
+  }
+  return o;
+}
+
+// The actor's open eyes are sampled within the real openings their frame shows
+// (EyeExemplar::openings). d10 widens her eyes at frame 93, the frame taken as her open eyes, far
+// past the fit's lids; within the fit's opening alone, the eyeball a gaze turn brings into view
+// went unsampled and the fill drew it in rings, a swirl in each eye (d6 crossing her eyes onto
+// d10, output frames 114-119). Here the open frame's real eyes are the fit's stretched to 1.6
+// times their height: the fit's opening blue, the rest of the real one green (eyeball the fit's
+// lids cover). The target narrows its eyes, the output opens them and looks down, turning the
+// eyeball's top into view: it must show green, which the fit's opening alone never samples.
+TEST(ReenactCompositorTest, AWideEyedFrameOfOpenEyesIsSampledWithinItsRealOpenings) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters open = test_face(0.25f);
+  gpu::FaceParameters narrowed = open;
+  narrowed.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.5f;
+  narrowed.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.5f;
+  gpu::FaceParameters output = open;
+  output.delta[arkit_blendshape_index("eyeLookDownLeft")] = 1.0f;
+  output.delta[arkit_blendshape_index("eyeLookDownRight")] = 1.0f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
+  const EyeOpenings wide = fit_openings(model, open, cam, 1.6f);
+  cv::Mat open_frame = render_target(open, cam);
+  for (size_t e = 0; e < 2; ++e) {
+    const std::vector<Eigen::Vector2f> outline(wide.points[e].begin(), wide.points[e].end());
+    cv::fillPoly(open_frame, std::vector<std::vector<cv::Point>>{testing::pixel_polygon(outline)}, cv::Scalar(0, 200, 0));
+  }
+  open_frame.setTo(cv::Scalar(255, 0, 0), eye_openings(model, renderer.evaluate(open), cam));
+  EyeExemplar fit_only, real;
+  ASSERT_TRUE(fc.CaptureEyes(open_frame, cam, open, 7, &fit_only));
+  ASSERT_TRUE(fc.CaptureEyes(open_frame, cam, open, 7, &real, &wide));
+  EXPECT_TRUE(real.openings.known[0] && real.openings.known[1]);
+  EXPECT_GE(real.bgr.rows, fit_only.bgr.rows) << "the crop holds the real openings";
+
+  const cv::Mat frame = render_target(narrowed, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(render_target(open, cam), cam, open, &albedo);
+  const EyeOpenings narrowed_openings = fit_openings(model, narrowed, cam, 1.0f);
+  cv::Mat out_eyes = eye_openings(model, renderer.evaluate(output), cam);
+  cv::erode(out_eyes, out_eyes, cv::Mat());
+  auto green = [&](const CompositeResult& c) {
+    return count_pixels(c.rendered_bgr, out_eyes & c.face_mask, [](const cv::Vec3b& px) { return px[1] > 150 && px[0] < 100 && px[2] < 100; });
+  };
+  const CompositeResult with = fc.Compose(frame, cam, narrowed, output, &albedo, nullptr, nullptr, nullptr, &real, &narrowed_openings);
+  const CompositeResult without = fc.Compose(frame, cam, narrowed, output, &albedo, nullptr, nullptr, nullptr, &fit_only, &narrowed_openings);
+  ASSERT_TRUE(with.eyes_from_exemplar && without.eyes_from_exemplar);
+  const int all = cv::countNonZero(out_eyes), seen = green(with), fit_seen = green(without);
+  RecordProperty("green_eye_pixels_with_without_of", std::to_string(seen) + " " + std::to_string(fit_seen) + " " + std::to_string(all));
+  EXPECT_GT(seen, all / 10) << seen << " of " << all << " eye pixels show the eyeball the fit's lids cover in the open frame";
+  EXPECT_LT(fit_seen, seen / 4) << "the fit's opening alone never samples it (the test's premise)";
+}
+
 // A mouth the tracker reads as barely parted whose frame shows closed lips, opened a little more
 // by the output: the frame shows the lips where the output shows the teeth, trusted but not
 // fully, and the teeth's share that was not the frame's took the model's teeth, lit and never
@@ -709,6 +781,77 @@ TEST(ReenactCompositorTest, FrameTextureKeepsTheFramesEyesThroughAGazeTurn) {
   RecordProperty("blue_eye_pixels", std::to_string(blue) + " of " + std::to_string(all));
   ASSERT_GT(all, 10);
   EXPECT_GT(blue, all / 2) << blue << " of " << all << " eye pixels show the frame's eyes";
+}
+
+// The fit's lids miss the real ones by a pixel or two, and once the output turns the gaze every
+// eyeball pixel is drawn anew: what was drawn anew was the fit's opening, taller than the real one
+// on the webcam clip, so a drawn white covered his lids and his eyes looked wider, with hard grey
+// edges (d6 crossing her eyes onto it, output frames 44-57). Given the detector's lid points
+// (EyeOpenings), the eyeball is drawn within the real opening and the frame's lids keep their place
+// around it. Here the real opening is the fit's squeezed to half its height: the frame shows
+// the eyeball (blue) inside it and lid (green) in the rest of the fit's opening. With the gaze
+// turned, that band of the output must stay green; without the openings it was drawn as eyeball.
+TEST(ReenactCompositorTest, AGazeTurnDrawsTheEyeballWithinTheOpeningTheFrameShows) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.25f);
+  gpu::FaceParameters turned = target;
+  turned.delta[arkit_blendshape_index("eyeLookOutLeft")] = 0.8f;
+  turned.delta[arkit_blendshape_index("eyeLookInRight")] = 0.8f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::VertexState state = testing::test_renderer().evaluate(target);
+  EyeOpenings openings;
+  cv::Mat real_eyes = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  for (int e = 0; e < 2; ++e) {
+    const std::vector<int32_t> lid = landmark_vertices(model, 36 + 6 * e, 41 + 6 * e);
+    ASSERT_EQ(lid.size(), 6u);
+    Eigen::Vector2f centre = Eigen::Vector2f::Zero();
+    std::array<Eigen::Vector2f, 6> fit;
+    for (size_t k = 0; k < 6; ++k) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * lid[k]);
+      fit[k] = Eigen::Vector2f(cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy);
+      centre += fit[k] / 6.f;
+    }
+    std::vector<Eigen::Vector2f> squeezed;
+    for (size_t k = 0; k < 6; ++k) {
+      openings.points[static_cast<size_t>(e)][k] = Eigen::Vector2f(fit[k].x(), centre.y() + 0.5f * (fit[k].y() - centre.y()));
+      squeezed.push_back(openings.points[static_cast<size_t>(e)][k]);
+    }
+    openings.known[static_cast<size_t>(e)] = true;
+    cv::fillPoly(real_eyes, std::vector<std::vector<cv::Point>>{testing::pixel_polygon(squeezed)}, cv::Scalar(255));
+  }
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  const cv::Mat fit_eyes = eye_openings(model, state, cam);
+  cv::Mat frame = plain.clone();
+  frame.setTo(cv::Scalar(0, 200, 0), fit_eyes);  // the real lids, where the fit opens the eye
+  cv::Mat real_inside;
+  cv::dilate(real_eyes, real_inside, cv::Mat());
+  frame.setTo(cv::Scalar(255, 0, 0), real_inside & fit_eyes);  // the real eyeball
+  // The band: the fit's opening (a pixel in from its edge), more than 2 px outside the real one.
+  cv::Mat near_real, fit_inside;
+  cv::dilate(real_eyes, near_real, cv::Mat(), cv::Point(-1, -1), 2);
+  cv::erode(fit_eyes, fit_inside, cv::Mat());
+  const cv::Mat band = fit_inside & ~near_real;
+  ASSERT_GT(cv::countNonZero(band), 40);
+  auto green = [&](const CompositeResult& c) {
+    return count_pixels(c.rendered_bgr, band, [](const cv::Vec3b& px) { return px[1] > 150 && px[0] < 100 && px[2] < 100; });
+  };
+  const CompositeResult with = fc.Compose(frame, cam, target, turned, &albedo, nullptr, nullptr, nullptr, nullptr, &openings);
+  const CompositeResult without = fc.Compose(frame, cam, target, turned, &albedo);
+  ASSERT_TRUE(with.drawn && without.drawn);
+  const int all = cv::countNonZero(band), kept = green(with), fit_drawn = green(without);
+  RecordProperty("band_lid_pixels_with_without_of", std::to_string(kept) + " " + std::to_string(fit_drawn) + " " + std::to_string(all));
+  EXPECT_GT(kept, all * 9 / 10) << kept << " of " << all << " pixels of the band keep the frame's lid";
+  EXPECT_LT(fit_drawn, all / 2) << "without the openings the band is drawn as eyeball (the test's premise)";
+  // Inside the real opening the eyeball is the frame's (blue), turned.
+  cv::Mat inner;
+  cv::erode(real_eyes, inner, cv::Mat(), cv::Point(-1, -1), 2);
+  const EyeColours in = count_eye_colours(with.rendered_bgr, inner & with.face_mask);
+  ASSERT_GT(in.all, 40);
+  EXPECT_GT(in.blue, in.all * 8 / 10) << in.blue << " of " << in.all << " pixels inside the real opening show the frame's eye";
 }
 
 // Lids the output closes over eyes the target holds open. The frame shows that lid skin only as

@@ -22,6 +22,7 @@
 #include "face_reenact/reenact/transfer.h"
 #include "face_parts.h"
 #include "image_sampling.h"
+#include "eye_aperture.h"
 #include "eyeball_fill.h"
 #include "mouth_pass.h"
 #include "shading.h"
@@ -39,6 +40,7 @@ using internal::lit_normal;
 using internal::rendering_lighting;
 
 using internal::display_bgr;
+using internal::copy_pixel;
 using internal::covered_rect;
 using internal::grown_within;
 using internal::kEyeParts;
@@ -136,6 +138,53 @@ float eyeball_edge_trust(float distance_px) {
   return kEyeballEdgeTrust + (1.0f - kEyeballEdgeTrust) * away;
 }
 
+// An eye the target holds closed further than this is not the frame's to show open: where the
+// output opens it, its eyeball comes from the actor's open eyes (EyeExemplar).
+constexpr float kClosedForExemplar = 0.3f;
+// The detector's lid points give an eye's real opening (eye_aperture.h) up to this eyeBlink: an
+// eye narrowed that far still shows its iris between points a few pixels apart; beyond, its
+// lids nearly meet and the six points no longer outline an opening.
+constexpr float kMaxBlinkForOpening = 0.6f;
+
+// The detector's lid points are the eye's real opening (eye_aperture.h) only while each lies
+// within this share of the eye's width of the fit's own (a detector that lost the eye, a fit
+// that did, are not drawn from).
+constexpr float kMaxOpeningOffset = 0.25f;
+
+// A frame's eye opening as a signed distance map around it (pixels, positive inside), for the
+// frame texture's per-pixel tests; empty where the opening is not known.
+struct FrameOpening {
+  cv::Rect box;
+  cv::Mat distance;  // CV_32FC1 over box
+  FrameOpening() = default;
+  FrameOpening(const internal::EyeAperture& a, int w, int h) {
+    constexpr int kMargin = 3;
+    box = a.Bounds(internal::EyeAperture::Which::kFrame, kMargin, w, h);
+    distance = cv::Mat(box.size(), CV_32FC1);
+    for (int j = 0; j < box.height; ++j)
+      for (int i = 0; i < box.width; ++i)
+        distance.at<float>(j, i) = a.SignedDistance(Eigen::Vector2f(static_cast<float>(box.x + i), static_cast<float>(box.y + j)),
+                                                    internal::EyeAperture::Which::kFrame);
+  }
+  bool empty() const { return distance.empty(); }
+  // How far inside the opening (u, v) lies, in pixels (negative outside; -1 where not known or
+  // beyond the map).
+  float Inside(float u, float v) const {
+    if (empty()) return -1.f;
+    const float x = u - static_cast<float>(box.x), y = v - static_cast<float>(box.y);
+    if (!(x >= 0.f && y >= 0.f && x <= static_cast<float>(box.width - 1) && y <= static_cast<float>(box.height - 1))) return -1.f;
+    return sample_float(distance, x, y);
+  }
+};
+
+// An output pixel the fit's opening draws as eyeball outside the output's real opening: it shows
+// the frame's lid at p - motion, by alpha (the share of the pixel outside the opening).
+struct LidPixel {
+  size_t p;
+  Eigen::Vector2f motion;
+  float alpha;
+};
+
 // The pixel position (u, v) of camera-space point x (in front of the camera).
 Eigen::Vector2f project(const gpu::PinholeCamera& camera, const Eigen::Vector3f& x) {
   return {camera.fx * x.x() / x.z() + camera.cx, camera.fy * x.y() / x.z() + camera.cy};
@@ -163,6 +212,7 @@ struct FaceCompositor::Impl {
   std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
   std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
   std::vector<int> lid_eye_slot;                    // per lid contour: its eye's EyeSlot
+  std::vector<int> lid_opening;                     // per lid contour: its EyeOpenings index (0: 36-41)
   std::vector<std::array<int32_t, 2>> eye_corners;  // per eye: its inner and outer corner (iBUG 39/36, 42/45)
   // Per vertex of an eyeball, its place on it (internal::EyeballFill): the unit direction from
   // the eyeball's centre in the rest shape; zero elsewhere. Per eye (EyeSlot): its vertices and
@@ -196,6 +246,7 @@ struct FaceCompositor::Impl {
         for (int32_t v : contour) x += model.mean_shape[3 * v];
         lid_blink_index.push_back(arkit_blendshape_index(x > 0.f ? "eyeBlinkLeft" : "eyeBlinkRight"));
         lid_eye_slot.push_back(EyeSlot(x > 0.f ? FacePart::LeftEye : FacePart::RightEye));
+        lid_opening.push_back(first == 36 ? 0 : 1);
         lid_contours.push_back(contour);
       }
       seam_contours.push_back(std::move(contour));
@@ -216,6 +267,101 @@ struct FaceCompositor::Impl {
           if (std::find(list.begin(), list.end(), nb) == list.end()) list.push_back(nb);
         }
       }
+  }
+
+  // The real openings of the eyes `target` holds at most kMaxBlinkForOpening closed (the frame's
+  // detected lid points, each within kMaxOpeningOffset of the fit's), each moved by the output's
+  // lid motion (ts: the tracked geometry, os: the output's).
+  std::array<std::optional<internal::EyeAperture>, 2> EyeApertures(const EyeOpenings& openings,
+                                                                   const gpu::FaceParameters& target,
+                                                                   const gpu::VertexState& ts, const gpu::VertexState& os,
+                                                                   const gpu::PinholeCamera& camera,
+                                                                   bool unmoved_too = false) const {
+    std::array<std::optional<internal::EyeAperture>, 2> out;
+    constexpr float kUnmovedPx = 0.25f;
+    for (size_t k = 0; k < lid_contours.size(); ++k) {
+      const size_t o = static_cast<size_t>(lid_opening[k]), slot = static_cast<size_t>(lid_eye_slot[k]);
+      if (!openings.known[o] || lid_contours[k].size() != 6) continue;
+      if (expression_weight(target.delta, lid_blink_index[k]) > kMaxBlinkForOpening) continue;
+      std::array<Eigen::Vector2f, 6> fit, motion;
+      bool in_front = true;
+      for (size_t i = 0; i < 6 && in_front; ++i) {
+        const int32_t v = lid_contours[k][i];
+        const Eigen::Vector3f a = ts.camera_positions.segment<3>(3 * v), b = os.camera_positions.segment<3>(3 * v);
+        in_front = a.z() > camera.near_plane && b.z() > camera.near_plane;
+        if (!in_front) break;
+        fit[i] = project(camera, a);
+        motion[i] = project(camera, b) - fit[i];
+      }
+      if (!in_front) continue;
+      // An eye whose lids and eyeball the output leaves where the target's are keeps the frame's
+      // own pixels (each samples itself): nothing to redraw (unless `unmoved_too`: the openings of
+      // a frame sampled elsewhere, the open eyes').
+      float moved = 0.f;
+      for (const Eigen::Vector2f& m : motion) moved = std::max(moved, m.norm());
+      for (int32_t v : eyeball_vertices[slot]) {
+        if (moved >= kUnmovedPx) break;
+        const Eigen::Vector3f a = ts.camera_positions.segment<3>(3 * v), b = os.camera_positions.segment<3>(3 * v);
+        if (a.z() > camera.near_plane && b.z() > camera.near_plane) moved = std::max(moved, (project(camera, b) - project(camera, a)).norm());
+      }
+      if (!unmoved_too && !(moved >= kUnmovedPx)) continue;
+      const float width = (fit[3] - fit[0]).norm();
+      float offset = 0.f;
+      for (size_t i = 0; i < 6; ++i) offset = std::max(offset, (openings.points[o][i] - fit[i]).norm());
+      constexpr float kMinEyeWidthPx = 6.f;  // an eye this small is a few pixels of lashes
+      if (!(width >= kMinEyeWidthPx) || !(offset <= kMaxOpeningOffset * width) || !motion[0].allFinite()) continue;
+      out[slot].emplace(openings.points[o], motion);
+    }
+    return out;
+  }
+
+  // The output G-buffer `g` (of `os`, evaluated at `output`) opened to the output's real openings:
+  // a lid pixel within one shows the eyeball behind it (the eyes drawn alone), an eyeball pixel
+  // outside one is returned, to show the frame's lid.
+  std::vector<LidPixel> OpenEyesToApertures(const std::array<std::optional<internal::EyeAperture>, 2>& apertures,
+                                            const gpu::FaceParameters& output, const gpu::VertexState& os,
+                                            const gpu::PinholeCamera& camera, const gpu::RenderOptions& ropt,
+                                            gpu::GBuffer* g) const {
+    const int w = camera.width, h = camera.height;
+    gpu::GBuffer& eyes = scratch_gbuffer(4);
+    gpu::RenderOptions eyes_ropt = ropt;
+    eyes_ropt.parts = kEyeParts;
+    rasterize(os, output, camera, eyes_ropt, &eyes);
+    std::vector<LidPixel> lids;
+    constexpr float kLidInFrontM = 0.0005f;  // the eyeball lies behind the lid over it
+    for (size_t e = 0; e < 2; ++e) {
+      if (!apertures[e]) continue;
+      const internal::EyeAperture& a = *apertures[e];
+      // Around the opening as far as the fit's may reach (kMaxOpeningOffset of the eye's width).
+      const cv::Rect opening = a.Bounds(internal::EyeAperture::Which::kOutput, 0, w, h);
+      const cv::Rect box = a.Bounds(internal::EyeAperture::Which::kOutput,
+                                    2 + static_cast<int>(std::ceil(kMaxOpeningOffset * static_cast<float>(opening.width))), w, h);
+      for (int j = box.y; j < box.y + box.height; ++j)
+        for (int i = box.x; i < box.x + box.width; ++i) {
+          const size_t p = static_cast<size_t>(j) * w + i;
+          if (g->triangle[p] < 0) continue;
+          const FacePart part = part_of(g->vertices[3 * p]);
+          const bool this_eye = (kEyeParts & part_bit(part)) && static_cast<size_t>(EyeSlot(part)) == e;
+          if (part != FacePart::Face && !this_eye) continue;
+          if (!this_eye && !opening.contains(cv::Point(i, j))) continue;  // skin outside the opening stays
+          Eigen::Vector2f motion;
+          const float inside = a.SignedDistance(Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)),
+                                                internal::EyeAperture::Which::kOutput, &motion);
+          if (this_eye) {
+            if (inside < 0.5f) lids.push_back({p, motion, std::clamp(0.5f - inside, 0.0f, 1.0f)});
+            continue;
+          }
+          // A lid pixel inside: the eyeball of this eye behind it, when the eyes alone draw one.
+          if (!(inside > 0.f) || eyes.triangle[p] < 0) continue;
+          const FacePart behind = part_of(eyes.vertices[3 * p]);
+          if (!(kEyeParts & part_bit(behind)) || static_cast<size_t>(EyeSlot(behind)) != e) continue;
+          if (eyes.position[3 * p + 2] < g->position[3 * p + 2] - kLidInFrontM) continue;
+          copy_pixel(eyes, p, g);
+          // Its share outside the opening is the lid's (the lids' edge drawn without steps).
+          if (inside < 0.5f) lids.push_back({p, motion, 0.5f - inside});
+        }
+    }
+    return lids;
   }
 
   // The inner-lip polygon of a evaluated face in pixels (empty: no such landmarks, or a lip
@@ -536,8 +682,8 @@ struct FaceCompositor::Impl {
   // `g`, an eyeball pixel of `part`, into `colour`, with its `trust` (eyeball_edge_trust: every
   // such sample moves); nothing where they do not show it.
   void SampleOpenEyes(const EyeExemplar& eyes, const gpu::VertexState& eyes_state, const gpu::GBuffer& eyes_g,
-                      const cv::Mat& eyes_edge, const gpu::GBuffer& g, size_t p, FacePart part, cv::Vec3f* colour,
-                      float* trust) const {
+                      const cv::Mat& eyes_edge, const FrameOpening& opening, const gpu::GBuffer& g, size_t p,
+                      FacePart part, cv::Vec3f* colour, float* trust) const {
     Eigen::Vector3f x = Eigen::Vector3f::Zero();
     for (int k = 0; k < 3; ++k)
       x += g.barycentric[3 * p + static_cast<size_t>(k)] * eyes_state.camera_positions.segment<3>(3 * g.vertices[3 * p + static_cast<size_t>(k)]);
@@ -545,13 +691,20 @@ struct FaceCompositor::Impl {
     const Eigen::Vector2f u = project(eyes.camera, x);
     const float cu = u.x() - static_cast<float>(eyes.origin.x), cv_ = u.y() - static_cast<float>(eyes.origin.y);
     if (!(cu >= 0.f && cv_ >= 0.f && cu <= static_cast<float>(eyes.bgr.cols - 1) && cv_ <= static_cast<float>(eyes.bgr.rows - 1))) return;
-    const size_t q = static_cast<size_t>(std::lround(u.y())) * eyes_g.width + static_cast<size_t>(std::lround(u.x()));
-    if (eyes_g.triangle[q] < 0 || part_of(eyes_g.vertices[3 * q]) != part ||
-        std::abs(eyes_g.position[3 * q + 2] - x.z()) > std::max(kShownToleranceM, 1.5f * x.z() / eyes.camera.fx))
-      return;
+    // Within the frame's real opening where it is known (eye_aperture.h), else where its fit
+    // draws this eyeball.
+    const float inside = opening.Inside(u.x(), u.y());
+    if (!opening.empty()) {
+      if (!(inside > 0.f)) return;
+    } else {
+      const size_t q = static_cast<size_t>(std::lround(u.y())) * eyes_g.width + static_cast<size_t>(std::lround(u.x()));
+      if (eyes_g.triangle[q] < 0 || part_of(eyes_g.vertices[3 * q]) != part ||
+          std::abs(eyes_g.position[3 * q + 2] - x.z()) > std::max(kShownToleranceM, 1.5f * x.z() / eyes.camera.fx))
+        return;
+    }
     const Eigen::Vector3f seen = sample_linear(eyes.bgr, cu, cv_);
     *colour = cv::Vec3f(std::min(1.0f, seen[0]), std::min(1.0f, seen[1]), std::min(1.0f, seen[2]));
-    *trust = eyeball_edge_trust(sample_float(eyes_edge, cu, cv_));
+    *trust = eyeball_edge_trust(opening.empty() ? sample_float(eyes_edge, cu, cv_) : inside);
   }
   // The per-eye arrays' slot of an eyeball part: 0 the left eye (LeftEye), 1 the right.
   static int EyeSlot(FacePart part) { return part == FacePart::LeftEye ? 0 : 1; }
@@ -580,7 +733,8 @@ struct FaceCompositor::Impl {
                          const gpu::VertexState& out_state, const std::vector<Eigen::Vector3f>& e_out,
                          const Gamma& light, const gpu::RenderOptions& ropt, float mouth_redraw,
                          const TextureShading& fallback_texture, gpu::GBuffer* g, cv::Mat* shown = nullptr,
-                         const EyeExemplar* open_eyes = nullptr, bool* eyes_drawn = nullptr) const {
+                         const EyeExemplar* open_eyes = nullptr, bool* eyes_drawn = nullptr,
+                         const EyeOpenings* openings = nullptr) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
     if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
     if (eyes_drawn) *eyes_drawn = false;
@@ -676,11 +830,12 @@ struct FaceCompositor::Impl {
     // eyes (`open_eyes`), sampled at its surface points in that frame's fit as the frame is here,
     // unless the frame shows most of it after all (below: an eye held a little narrower than the
     // one the fit calls open).
-    constexpr float kClosedForExemplar = 0.3f, kExemplarMargin = 0.1f;
+    constexpr float kExemplarMargin = 0.1f;
     std::array<bool, 2> from_exemplar{false, false};  // LeftEye, RightEye
     gpu::VertexState exemplar_state;
     gpu::GBuffer* exemplar_g = nullptr;
     cv::Mat exemplar_edge;
+    std::array<FrameOpening, 2> exemplar_openings;  // its real openings, where known
     const cv::Rect open_eyes_crop = open_eyes ? cv::Rect(open_eyes->origin, open_eyes->bgr.size()) & cv::Rect(0, 0, w, h) : cv::Rect();
     if (distrust && open_eyes && !open_eyes->empty() && open_eyes->camera.width == w && open_eyes->camera.height == h &&
         open_eyes_crop.size() == open_eyes->bgr.size()) {
@@ -695,6 +850,23 @@ struct FaceCompositor::Impl {
         exemplar_g = &scratch_gbuffer(3);
         rasterize(exemplar_state, open_eyes->params, open_eyes->camera, ropt, exemplar_g);
         exemplar_edge = BoundaryDistance(*exemplar_g, exemplar_state, open_eyes->camera, open_eyes_crop);
+        const auto real =
+            EyeApertures(open_eyes->openings, open_eyes->params, exemplar_state, exemplar_state, open_eyes->camera, true);
+        for (size_t e = 0; e < 2; ++e)
+          if (real[e]) exemplar_openings[e] = FrameOpening(*real[e], w, h);
+      }
+    }
+    // The eyes' real openings (eye_aperture.h): the output's eyeball drawn within the output's,
+    // its lids kept where the frame shows them, the frame's eyeball samples taken within the frame's.
+    std::array<std::optional<internal::EyeAperture>, 2> apertures;  // LeftEye, RightEye
+    std::array<FrameOpening, 2> frame_openings;
+    std::vector<LidPixel> lid_pixels;
+    if (distrust && openings) {
+      apertures = EyeApertures(*openings, target, ts, out_state, camera);
+      if (apertures[0] || apertures[1]) {
+        lid_pixels = OpenEyesToApertures(apertures, output, out_state, camera, ropt, g);
+        for (size_t e = 0; e < 2; ++e)
+          if (apertures[e]) frame_openings[e] = FrameOpening(*apertures[e], w, h);
       }
     }
     constexpr float kMinShadingRatio = 0.5f, kMaxShadingRatio = 2.0f;
@@ -722,7 +894,8 @@ struct FaceCompositor::Impl {
           const bool eyeball = kEyeParts & part_bit(pixel_part);
           // The open eyes' sample too, for an eye the target holds closed (chosen per eye below).
           if (eyeball && from_exemplar[static_cast<size_t>(EyeSlot(pixel_part))])
-            SampleOpenEyes(*open_eyes, exemplar_state, *exemplar_g, exemplar_edge, *g, p, pixel_part,
+            SampleOpenEyes(*open_eyes, exemplar_state, *exemplar_g, exemplar_edge,
+                           exemplar_openings[static_cast<size_t>(EyeSlot(pixel_part))], *g, p, pixel_part,
                            &exemplar_texture.at<cv::Vec3f>(bj, bi), &exemplar_weight.at<float>(bj, bi));
           Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
                           nt = Eigen::Vector3f::Zero();
@@ -739,15 +912,26 @@ struct FaceCompositor::Impl {
           const float u = uv.x(), vv = uv.y();
           if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
           const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
-          // Not shown: nothing of the model there, or a surface at another depth (the point is
-          // hidden in the frame).
-          if (tg.triangle[q] < 0) continue;
-          const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
-          if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
-          // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
-          // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
-          // wider than the target's with skin-coloured bands.
-          if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
+          // An eye whose real opening is known: its eyeball is shown wherever that opening holds
+          // the sample, and no skin from more than a pixel inside it (the frame's eyeball there:
+          // the fit's lid over it took the iris, a dark crescent under the output's lower lid).
+          const FrameOpening* opening = eyeball ? &frame_openings[static_cast<size_t>(EyeSlot(pixel_part))] : nullptr;
+          const float inside_px = opening && !opening->empty() ? opening->Inside(u, vv) : 0.f;
+          if (opening && !opening->empty()) {
+            if (!(inside_px > 0.f)) continue;
+          } else {
+            if (!eyeball && (frame_openings[0].Inside(u, vv) > kEyeballEdgePx || frame_openings[1].Inside(u, vv) > kEyeballEdgePx))
+              continue;
+            // Not shown: nothing of the model there, or a surface at another depth (the point is
+            // hidden in the frame).
+            if (tg.triangle[q] < 0) continue;
+            const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
+            if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
+            // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
+            // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
+            // wider than the target's with skin-coloured bands.
+            if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
+          }
           sampled_at.at<cv::Vec2f>(bj, bi) = cv::Vec2f(u, vv);
           const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
           const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
@@ -771,7 +955,9 @@ struct FaceCompositor::Impl {
               const float away = std::clamp(share / kCaruncleShare - 1.0f, 0.0f, 1.0f);
               trust = std::min(trust, 1.0f - moved * (1.0f - away));
             }
-            if (!boundary_px.empty()) {
+            if (opening && !opening->empty()) {
+              trust = std::min(trust, 1.0f - moved * (1.0f - eyeball_edge_trust(inside_px)));
+            } else if (!boundary_px.empty()) {
               const float edge = eyeball_edge_trust(sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y)));
               trust = std::min(trust, 1.0f - moved * (1.0f - edge));
             }
@@ -912,7 +1098,9 @@ struct FaceCompositor::Impl {
       const gpu::VertexState& state = exemplar ? exemplar_state : ts;
       const gpu::PinholeCamera& frame_camera = exemplar ? open_eyes->camera : camera;
       if (!exemplar && expression_weight(target.delta, lid_blink_index[k]) > kMaxBlinkForWhite) continue;
-      std::vector<cv::Point> polygon = PixelContour(lid_contours[k], state, frame_camera, origin);
+      std::vector<cv::Point> polygon = !exemplar && apertures[slot]
+                                           ? apertures[slot]->PixelOutline(internal::EyeAperture::Which::kFrame)
+                                           : PixelContour(lid_contours[k], state, frame_camera, origin);
       if (polygon.empty()) continue;
       const cv::Rect zone = cv::boundingRect(polygon) & cv::Rect(0, 0, image.cols, image.rows);
       if (zone.width < 3 || zone.height < 3) continue;
@@ -1036,6 +1224,12 @@ struct FaceCompositor::Impl {
       DrawContours(lid_contours, out_state, camera, box.tl(), &open);
       cv::distanceTransform(open, lid_distance, cv::DIST_L2, cv::DIST_MASK_3);
     }
+    // The lids' shadow on the filled eyeball: this much darker at the opening's edge, fading out
+    // over this share of the eye's width (a real eye's white darkens over its outer fifth).
+    constexpr float kLidShadow = 0.35f, kLidShadowReach = 0.15f;
+    std::array<float, 2> aperture_width{1.f, 1.f};
+    for (size_t e = 0; e < 2; ++e)
+      if (apertures[e]) aperture_width[e] = std::max(1.0f, static_cast<float>(apertures[e]->Bounds(internal::EyeAperture::Which::kOutput, 0, w, h).width));
     // Every drawn pixel's own trust, for the other parts (teeth, tongue).
     cv::Mat ws;
     cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
@@ -1056,7 +1250,15 @@ struct FaceCompositor::Impl {
           const cv::Vec3f own_t = texture.at<cv::Vec3f>(bj, bi);
           if (own < 1.f) {
             const Eigen::Vector3f fallback = eye_white[slot] ? *eye_white[slot] : MapColour(fallback_texture, *g, p, &gain);
-            const Eigen::Vector3f around = fill ? fill->At(eyeball_place_at(p), fallback) : fallback;
+            Eigen::Vector3f around = fill ? fill->At(eyeball_place_at(p), fallback) : fallback;
+            // Within a real opening, the filled eyeball darkens towards the lids as an eye does
+            // (the lids' shadow, the ball turning away): filled flat, the white bared in the
+            // corners of eyes turned hard aside was a flat pale patch against the frame's lids.
+            if (apertures[slot]) {
+              const float inside = apertures[slot]->SignedDistance(
+                  Eigen::Vector2f(static_cast<float>(bi + box.x), static_cast<float>(bj + box.y)), internal::EyeAperture::Which::kOutput);
+              around *= 1.0f - kLidShadow * (1.0f - std::clamp(inside / (kLidShadowReach * aperture_width[slot]), 0.0f, 1.0f));
+            }
             for (int c = 0; c < 3; ++c) t[c] = own * own_t[c] + (1.0f - own) * around[c];
           } else {
             t = own_t;
@@ -1107,6 +1309,18 @@ struct FaceCompositor::Impl {
         for (int c = 0; c < 3; ++c) g->color[3 * p + static_cast<size_t>(c)] = a * std::min(1.0f, t[c]) + (1.0f - a) * map[c];
       }
     });
+    // The lids around the output's opening, where the fit's opening shows eyeball: the frame's
+    // own lid, moved as the output moves the lid.
+    for (const LidPixel& l : lid_pixels) {
+      const float x = static_cast<float>(l.p % static_cast<size_t>(w)) - l.motion.x();
+      const float y = static_cast<float>(l.p / static_cast<size_t>(w)) - l.motion.y();
+      if (!(x >= 0.f && y >= 0.f && x <= static_cast<float>(w - 1) && y <= static_cast<float>(h - 1))) continue;
+      const Eigen::Vector3f lid = sample_linear(target_bgr, x, y);
+      for (int c = 0; c < 3; ++c) {
+        float& col = g->color[3 * l.p + static_cast<size_t>(c)];
+        col = l.alpha * lid[c] + (1.0f - l.alpha) * col;
+      }
+    }
   }
 
   // body(row) for each row 0..box.height-1 of `box`, in bands of rows on the pool's threads. For
@@ -1209,24 +1423,16 @@ struct FaceCompositor::Impl {
     gpu::GBuffer& skin = scratch_gbuffer(2);
     rasterize(state, params, camera, skin_only, &skin);
     // In place, within the rectangle the output's draw covered (its trace stays valid).
-    for (const size_t p : stray) {
-      g->triangle[p] = skin.triangle[p];
-      for (size_t k = 0; k < 3; ++k) {
-        g->vertices[3 * p + k] = skin.vertices[3 * p + k];
-        g->color[3 * p + k] = skin.color[3 * p + k];
-        g->position[3 * p + k] = skin.position[3 * p + k];
-        g->normal[3 * p + k] = skin.normal[3 * p + k];
-        g->barycentric[3 * p + k] = skin.barycentric[3 * p + k];
-      }
-    }
+    for (const size_t p : stray) copy_pixel(skin, p, g);
   }
 
   // Per-thread G-buffers reused from frame to frame (16 values per pixel; allocating them anew
   // every frame cost more than rasterising at 640x480). 0: the output, 1: the tracked geometry,
   // 2: the output's skin alone (DrawSkinOverStrayMouthParts), 3: the actor's open eyes' frame
-  // (EyeExemplar); these two allocated on first use.
+  // (EyeExemplar), 4: the output's eyeballs alone (OpenEyesToApertures); these three allocated on
+  // first use.
   static gpu::GBuffer& scratch_gbuffer(int which) {
-    thread_local std::array<gpu::GBuffer, 4> buffers;
+    thread_local std::array<gpu::GBuffer, 5> buffers;
     return buffers[static_cast<size_t>(which)];
   }
 
@@ -1271,7 +1477,8 @@ std::vector<Eigen::Vector2f> FaceCompositor::MouthOpening(const gpu::PinholeCame
 }
 
 bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
-                                 const gpu::FaceParameters& params, int64_t frame_index, EyeExemplar* eyes) const {
+                                 const gpu::FaceParameters& params, int64_t frame_index, EyeExemplar* eyes,
+                                 const EyeOpenings* openings) const {
   const Impl& im = *impl_;
   std::string why;
   if (!camera.IsValid(&why)) throw Error("open eyes: invalid camera: " + why);
@@ -1303,12 +1510,19 @@ bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCam
       const Eigen::Vector2f uv = project(camera, x);
       box |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
     }
+  // The real openings too (a wide eye reaches past the fit's lids).
+  if (openings)
+    for (size_t e = 0; e < 2; ++e)
+      if (openings->known[e])
+        for (const Eigen::Vector2f& q : openings->points[e])
+          box |= cv::Rect(static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), 2, 2);
   box = grown_within(box, kMarginPx, camera.width, camera.height);
   if (box.width < 8 || box.height < 4) return false;
   eyes->bgr = frame_bgr(box).clone();
   eyes->origin = box.tl();
   eyes->camera = camera;
   eyes->params = params;
+  eyes->openings = openings ? *openings : EyeOpenings{};
   eyes->frame_index = frame_index;
   return true;
 }
@@ -1365,7 +1579,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
                                         const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                                         const AlbedoMap* albedo, const cv::Mat* target_depth,
                                         const MouthExemplar* mouth, const DetailTransfer* detail,
-                                        const EyeExemplar* eyes) const {
+                                        const EyeExemplar* eyes, const EyeOpenings* openings) const {
   std::string why;
   if (!camera.IsValid(&why)) throw Error("reenactment: invalid camera: " + why);
   if (target_bgr.type() != CV_8UC3 || target_bgr.cols != camera.width || target_bgr.rows != camera.height)
@@ -1464,7 +1678,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
                          mouth_pass ? mouth_alpha : 0.0f, texture_shading, &g, mouth_pass ? &frame_shown : nullptr, eyes,
-                         &result.eyes_from_exemplar);
+                         &result.eyes_from_exemplar, openings);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);

@@ -55,6 +55,19 @@ inline cv::Vec3f display_bgr(float r, float g, float b) {
 }
 inline cv::Vec3f display_bgr(const Eigen::Vector3f& rgb) { return display_bgr(rgb[0], rgb[1], rgb[2]); }
 
+// Pixel p of `from` written into `to` (a G-buffer of the same size): a surface another draw put
+// there replaces the one `to` had (skin over a stray tooth, an eyeball behind a lid).
+inline void copy_pixel(const gpu::GBuffer& from, size_t p, gpu::GBuffer* to) {
+  to->triangle[p] = from.triangle[p];
+  for (size_t k = 0; k < 3; ++k) {
+    to->vertices[3 * p + k] = from.vertices[3 * p + k];
+    to->color[3 * p + k] = from.color[3 * p + k];
+    to->position[3 * p + k] = from.position[3 * p + k];
+    to->normal[3 * p + k] = from.normal[3 * p + k];
+    to->barycentric[3 * p + k] = from.barycentric[3 * p + k];
+  }
+}
+
 // `rect` grown by `margin` on every side and kept inside a w x h image.
 inline cv::Rect grown_within(const cv::Rect& rect, int margin, int w, int h) {
   return (rect + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) & cv::Rect(0, 0, w, h);

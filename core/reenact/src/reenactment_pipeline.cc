@@ -493,6 +493,7 @@ TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
       return pass_through(TrackingStatus::kLost, std::string("bad input: ") + e.what());
     }
     if (im.options.mode == ReenactMode::kOverlay) detected = frame.landmarks;
+    tt.eye_openings = EyeOpeningsFromLandmarks(frame.landmarks);
     out.tracked = im.tracker->Track(frame, info.landmarks_ms);
     if (out.tracked.new_face) tt.forget_actor = true;  // the learned appearance was the other face's
     const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
@@ -540,6 +541,19 @@ TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
   tt.camera = fit_camera;
   tt.neutral = im.neutral;  // Eq. 15's, as of this frame (the next Track may change it meanwhile)
   return tt;
+}
+
+EyeOpenings EyeOpeningsFromLandmarks(const std::vector<tracker::InputLandmark>& landmarks) {
+  EyeOpenings openings;
+  std::array<int, 2> found{0, 0};
+  for (const tracker::InputLandmark& l : landmarks) {
+    if (l.ibug_index < 36 || l.ibug_index > 47 || !(l.confidence > 0.f) || !l.position.allFinite()) continue;
+    const int eye = l.ibug_index < 42 ? 0 : 1;
+    openings.points[static_cast<size_t>(eye)][static_cast<size_t>(l.ibug_index - 36 - 6 * eye)] = l.position;
+    ++found[static_cast<size_t>(eye)];
+  }
+  for (size_t e = 0; e < 2; ++e) openings.known[e] = found[e] == 6;
+  return openings;
 }
 
 ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceExpression* source) {
@@ -612,7 +626,7 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     constexpr int64_t kEyeExemplarRefreshFrames = 15;
     if (transfer && (im.eyes.empty() || out.frame_index - im.eyes.frame_index >= kEyeExemplarRefreshFrames ||
                      out.frame_index < im.eyes.frame_index) &&
-        im.compositor.CaptureEyes(out.bgr, fit_camera, target_params, out.frame_index, &im.eyes))
+        im.compositor.CaptureEyes(out.bgr, fit_camera, target_params, out.frame_index, &im.eyes, &tracked.eye_openings))
       im.summary.eye_exemplar_frame = im.eyes.frame_index;
     out.times.render_ms += ms_since(t0);
 
@@ -636,7 +650,7 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
     const cv::Mat input_depth = out.depth.empty() ? cv::Mat() : out.depth.clone();
     CompositeResult c = im.compositor.Compose(out.bgr, fit_camera, target_params, out.output_params, &im.albedo,
                                               input_depth.empty() ? nullptr : &input_depth, mouth,
-                                              with_detail ? &im.detail : nullptr, &im.eyes);
+                                              with_detail ? &im.detail : nullptr, &im.eyes, &tracked.eye_openings);
     if (c.eyes_from_exemplar) ++im.summary.eye_exemplar_frames;
     out.times.detail_ms += c.detail.ms;
     if (c.detail.pixels > 0) ++im.summary.detail_frames;

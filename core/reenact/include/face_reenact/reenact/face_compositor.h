@@ -49,6 +49,7 @@ struct EyeExemplar {
   cv::Point origin;             // the crop's top-left in that frame
   gpu::PinholeCamera camera;    // the camera of that frame
   gpu::FaceParameters params;   // the target's tracked P in that frame
+  EyeOpenings openings;         // the detector's lid points in that frame (its real eye openings)
   int64_t frame_index = -1;     // the frame it was taken from
   bool empty() const { return bgr.empty(); }
 };
@@ -95,18 +96,23 @@ class FaceCompositor {
   // re-rendered skin before the mouth interior and the blend.
   // `eyes` (optional): the actor's open eyes; with the frame texture, an eye the target holds
   // closed (eyeBlink above 0.3) and the output holds open takes its eyeball from there.
+  // `openings` (optional): the target's eye openings as the frame shows them; with the frame
+  // texture, an open eye whose six points lie near the fit's draws its eyeball within that
+  // opening and keeps the frame's lids around it.
   CompositeResult Compose(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
                           const gpu::FaceParameters& target, const gpu::FaceParameters& output,
                           const AlbedoMap* albedo = nullptr, const cv::Mat* target_depth = nullptr,
                           const MouthExemplar* mouth = nullptr, const DetailTransfer* detail = nullptr,
-                          const EyeExemplar* eyes = nullptr) const;
+                          const EyeExemplar* eyes = nullptr, const EyeOpenings* openings = nullptr) const;
 
   // Takes `frame_bgr` (CV_8UC3 of camera's size) as the actor's open eyes when `params` holds
   // both eyes open (eyeBlink at most 0.15) and faces the camera (within 25 degrees): writes
-  // `eyes` and returns true; else leaves it and returns false. Throws face_reenact::Error on a bad
-  // camera, frame or parameters.
+  // `eyes` and returns true; else leaves it and returns false. `openings` (optional): the frame's
+  // detected lid points, kept with the eyes (their eyeballs are then sampled within the real
+  // openings, which a wide-eyed frame shows larger than the fit's). Throws face_reenact::Error on
+  // a bad camera, frame or parameters.
   bool CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
-                   int64_t frame_index, EyeExemplar* eyes) const;
+                   int64_t frame_index, EyeExemplar* eyes, const EyeOpenings* openings = nullptr) const;
 
   // The inner-lip polygon (iBUG 60-67, the model's landmark vertices projected) of the face at
   // `params`, in pixels; empty when the model has no such landmarks or the mouth is behind the

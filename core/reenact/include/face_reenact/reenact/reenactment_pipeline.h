@@ -282,6 +282,20 @@ struct PipelineSummary {
   std::string BriefReport() const;
 };
 
+// The target's eye openings as its frame shows them: the landmark detector's six points on each
+// eye's lid margins (iBUG 36-41 and 42-47, in order around the eye), in the frame's pixels. The
+// fit's lids miss the real margins by a pixel or two; where the output turns the gaze or moves the
+// lids, the eyeball is drawn within the real opening (moved as the output moves the lids), and the
+// frame's lids keep their place around it (Compose).
+struct EyeOpenings {
+  std::array<std::array<Eigen::Vector2f, 6>, 2> points{};  // [0]: iBUG 36-41, [1]: 42-47
+  std::array<bool, 2> known{false, false};                // the detector found all six points of that eye
+  bool empty() const { return !known[0] && !known[1]; }
+};
+// The openings of a frame's detected landmarks (an eye with any of its six points missing or of
+// confidence 0 is not known).
+EyeOpenings EyeOpeningsFromLandmarks(const std::vector<tracker::InputLandmark>& landmarks);
+
 // A target frame after ReenactmentPipeline::Track: what Render needs to finish it. Plain data,
 // moved from one thread to the other.
 struct TrackedTarget {
@@ -290,6 +304,7 @@ struct TrackedTarget {
   gpu::PinholeCamera camera;   // the camera the fit is in
   gpu::FaceParameters neutral; // the target's neutral at this frame (Eq. 15)
   bool forget_actor = false;   // a recalibration was requested: the learned appearance starts again
+  EyeOpenings eye_openings;    // the detector's lid points of this frame (Compose)
   std::chrono::steady_clock::time_point start;  // Track's start (ReenactedFrame::times.total_ms)
 };
 
