@@ -695,6 +695,12 @@ TEST(ReenactCompositorTest, AWideEyedFrameOfOpenEyesIsSampledWithinItsRealOpenin
   ASSERT_TRUE(fc.CaptureEyes(open_frame, cam, open, 7, &real, &wide));
   EXPECT_TRUE(real.openings.known[0] && real.openings.known[1]);
   EXPECT_GE(real.bgr.rows, fit_only.bgr.rows) << "the crop holds the real openings";
+  EyeOpenings broken = wide;  // points no detector gives: the crop stays the frame's
+  broken.points[0][1] = Eigen::Vector2f(std::nanf(""), 1e9f);
+  broken.points[1][4] = Eigen::Vector2f(-1e9f, 3e9f);
+  EyeExemplar odd;
+  ASSERT_TRUE(fc.CaptureEyes(open_frame, cam, open, 7, &odd, &broken));
+  EXPECT_TRUE((cv::Rect(odd.origin, odd.bgr.size()) & cv::Rect(0, 0, cam.width, cam.height)) == cv::Rect(odd.origin, odd.bgr.size()));
 
   const cv::Mat frame = render_target(narrowed, cam);
   AlbedoMap albedo;
@@ -852,6 +858,13 @@ TEST(ReenactCompositorTest, AGazeTurnDrawsTheEyeballWithinTheOpeningTheFrameShow
   const EyeColours in = count_eye_colours(with.rendered_bgr, inner & with.face_mask);
   ASSERT_GT(in.all, 40);
   EXPECT_GT(in.blue, in.all * 8 / 10) << in.blue << " of " << in.all << " pixels inside the real opening show the frame's eye";
+  // Openings that are not the eyes (non-finite, or far from the fit's lids: a detector that lost
+  // the eye) are not drawn from: the composite is the one without them.
+  EyeOpenings broken = openings;
+  broken.points[0][2].x() = std::nanf("");
+  for (auto& q : broken.points[1]) q += Eigen::Vector2f(0.f, 40.f);
+  const CompositeResult ignored = fc.Compose(frame, cam, target, turned, &albedo, nullptr, nullptr, nullptr, nullptr, &broken);
+  EXPECT_EQ(cv::norm(ignored.bgr, without.bgr, cv::NORM_INF), 0.0);
 }
 
 // Lids the output closes over eyes the target holds open. The frame shows that lid skin only as

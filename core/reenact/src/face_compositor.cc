@@ -5,6 +5,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -307,7 +308,10 @@ struct FaceCompositor::Impl {
       if (!unmoved_too && !(moved >= kUnmovedPx)) continue;
       const float width = (fit[3] - fit[0]).norm();
       float offset = 0.f;
-      for (size_t i = 0; i < 6; ++i) offset = std::max(offset, (openings.points[o][i] - fit[i]).norm());
+      for (size_t i = 0; i < 6; ++i) {
+        const float d = (openings.points[o][i] - fit[i]).norm();
+        offset = std::isfinite(d) ? std::max(offset, d) : std::numeric_limits<float>::infinity();
+      }
       constexpr float kMinEyeWidthPx = 6.f;  // an eye this small is a few pixels of lashes
       if (!(width >= kMinEyeWidthPx) || !(offset <= kMaxOpeningOffset * width) || !motion[0].allFinite()) continue;
       out[slot].emplace(openings.points[o], motion);
@@ -1515,7 +1519,8 @@ bool FaceCompositor::CaptureEyes(const cv::Mat& frame_bgr, const gpu::PinholeCam
     for (size_t e = 0; e < 2; ++e)
       if (openings->known[e])
         for (const Eigen::Vector2f& q : openings->points[e])
-          box |= cv::Rect(static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), 2, 2);
+          if (q.allFinite() && q.cwiseAbs().maxCoeff() < 1e6f)
+            box |= cv::Rect(static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), 2, 2);
   box = grown_within(box, kMarginPx, camera.width, camera.height);
   if (box.width < 8 || box.height < 4) return false;
   eyes->bgr = frame_bgr(box).clone();
