@@ -71,6 +71,16 @@ float EyeAperture::SignedDistance(const Eigen::Vector2f& p, Which which, Eigen::
   return inside ? d : -d;
 }
 
+Eigen::Vector2f EyeAperture::FrameLidPoint(const Eigen::Vector2f& p, const Eigen::Vector2f& motion) const {
+  const Eigen::Vector2f q = p - motion;
+  if (SignedDistance(q, Which::kFrame) < 0.f) return q;
+  Eigen::Vector2f nearest = frame_[0];
+  for (const Eigen::Vector2f& c : frame_)
+    if ((c - q).squaredNorm() < (nearest - q).squaredNorm()) nearest = c;
+  const Eigen::Vector2f out = nearest - q;
+  return out.norm() > 1e-3f ? Eigen::Vector2f(nearest + out.normalized()) : nearest;
+}
+
 cv::Rect EyeAperture::Bounds(Which which, int margin, int w, int h) const {
   return grown_within(cv::boundingRect(PixelOutline(which)), margin, w, h);
 }

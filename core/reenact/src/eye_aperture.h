@@ -32,6 +32,12 @@ class EyeAperture {
   // Signed distance in pixels of `p` from the frame's or the output's outline, positive inside;
   // `motion_at` (optional): the output's motion at the outline's nearest point.
   float SignedDistance(const Eigen::Vector2f& p, Which which, Eigen::Vector2f* motion_at = nullptr) const;
+  // Where the frame shows the lid that covers output pixel `p` (outside the output's opening),
+  // moved by `motion`: p - motion, or, where that lies inside the frame's opening (lids the
+  // output shuts leave a pixel's seam of eyeball, which sampled his open eye: a light dotted line
+  // along the shut lids; d14 with her eyes shut onto the webcam clip, output frame 95), the
+  // frame's lid margin nearest it, a pixel outside the opening.
+  Eigen::Vector2f FrameLidPoint(const Eigen::Vector2f& p, const Eigen::Vector2f& motion) const;
   // The pixels within `margin` of the outline's box, within a w x h image.
   cv::Rect Bounds(Which which, int margin, int w, int h) const;
   // The outline in whole pixels (for a polygon fill).

@@ -179,10 +179,10 @@ struct FrameOpening {
 };
 
 // An output pixel the fit's opening draws as eyeball outside the output's real opening: it shows
-// the frame's lid at p - motion, by alpha (the share of the pixel outside the opening).
+// the frame's lid at `at`, by alpha (the share of the pixel outside the opening).
 struct LidPixel {
   size_t p;
-  Eigen::Vector2f motion;
+  Eigen::Vector2f at;  // where the frame shows that lid (EyeAperture::FrameLidPoint)
   float alpha;
 };
 
@@ -314,6 +314,20 @@ struct FaceCompositor::Impl {
       }
       constexpr float kMinEyeWidthPx = 6.f;  // an eye this small is a few pixels of lashes
       if (!(width >= kMinEyeWidthPx) || !(offset <= kMaxOpeningOffset * width) || !motion[0].allFinite()) continue;
+      // Where the output closes the eye further, the upper lid moves so that the real opening
+      // keeps its share of the fit's: a fit whose lids part by 9 px and meet in the output shuts
+      // a real eye 12 px tall, where the fit's 9 px of motion left a 3 px slit of his open eye
+      // along the shut lids (a light dotted line; d14 with her eyes shut onto the webcam clip,
+      // output frame 95). Where it opens the eye, the fit's motion as it is (the share overshot
+      // on d10's narrowed eyes, output frame 116: the output's wider than her open ones).
+      for (const auto& [upper, lower] : {std::pair<size_t, size_t>{1, 5}, std::pair<size_t, size_t>{2, 4}}) {
+        const float fit_gap = fit[lower].y() - fit[upper].y();
+        const float out_gap = fit_gap + motion[lower].y() - motion[upper].y();
+        const float real_gap = openings.points[o][lower].y() - openings.points[o][upper].y();
+        if (!(fit_gap > 0.5f) || !(real_gap > 0.f) || !(out_gap < fit_gap)) continue;
+        const float share = std::max(0.0f, out_gap / fit_gap);
+        motion[upper].y() = motion[lower].y() + real_gap - share * real_gap;
+      }
       out[slot].emplace(openings.points[o], motion);
     }
     return out;
@@ -349,10 +363,10 @@ struct FaceCompositor::Impl {
           if (part != FacePart::Face && !this_eye) continue;
           if (!this_eye && !opening.contains(cv::Point(i, j))) continue;  // skin outside the opening stays
           Eigen::Vector2f motion;
-          const float inside = a.SignedDistance(Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)),
-                                                internal::EyeAperture::Which::kOutput, &motion);
+          const Eigen::Vector2f here(static_cast<float>(i), static_cast<float>(j));
+          const float inside = a.SignedDistance(here, internal::EyeAperture::Which::kOutput, &motion);
           if (this_eye) {
-            if (inside < 0.5f) lids.push_back({p, motion, std::clamp(0.5f - inside, 0.0f, 1.0f)});
+            if (inside < 0.5f) lids.push_back({p, a.FrameLidPoint(here, motion), std::clamp(0.5f - inside, 0.0f, 1.0f)});
             continue;
           }
           // A lid pixel inside: the eyeball of this eye behind it, when the eyes alone draw one.
@@ -362,7 +376,7 @@ struct FaceCompositor::Impl {
           if (eyes.position[3 * p + 2] < g->position[3 * p + 2] - kLidInFrontM) continue;
           copy_pixel(eyes, p, g);
           // Its share outside the opening is the lid's (the lids' edge drawn without steps).
-          if (inside < 0.5f) lids.push_back({p, motion, 0.5f - inside});
+          if (inside < 0.5f) lids.push_back({p, a.FrameLidPoint(here, motion), 0.5f - inside});
         }
     }
     return lids;
@@ -1316,8 +1330,7 @@ struct FaceCompositor::Impl {
     // The lids around the output's opening, where the fit's opening shows eyeball: the frame's
     // own lid, moved as the output moves the lid.
     for (const LidPixel& l : lid_pixels) {
-      const float x = static_cast<float>(l.p % static_cast<size_t>(w)) - l.motion.x();
-      const float y = static_cast<float>(l.p / static_cast<size_t>(w)) - l.motion.y();
+      const float x = l.at.x(), y = l.at.y();
       if (!(x >= 0.f && y >= 0.f && x <= static_cast<float>(w - 1) && y <= static_cast<float>(h - 1))) continue;
       const Eigen::Vector3f lid = sample_linear(target_bgr, x, y);
       for (int c = 0; c < 3; ++c) {
