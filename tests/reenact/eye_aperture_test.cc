@@ -49,6 +49,21 @@ TEST(EyeAperture, TheOutputsOpeningMovesWithTheLidsAndSaysHowFar) {
   EXPECT_EQ(a.Bounds(Which::kFrame, 100, 150, 120), cv::Rect(0, 0, 150, 120)) << "kept within the image";
 }
 
+TEST(EyeAperture, ALidIsNeverSampledInsideTheFramesOpening) {
+  std::array<Eigen::Vector2f, 6> motion = no_motion();
+  motion[1] = motion[2] = Eigen::Vector2f(0.f, 20.f);  // the upper lid shut past the lower one
+  const EyeAperture a(eye_points(), motion);
+  // A pixel above the frame's opening whose lid motion maps it further up: that pixel as it is.
+  const Eigen::Vector2f above = a.FrameLidPoint(Eigen::Vector2f(100.f, 35.f), Eigen::Vector2f(0.f, 2.f));
+  EXPECT_NEAR((above - Eigen::Vector2f(100.f, 33.f)).norm(), 0.f, 1e-4f);
+  // The seam of shut lids inside the frame's open eye, with the unmoved lower lid's motion: not
+  // the eye there, the lid margin nearest it, a pixel outside the opening.
+  const Eigen::Vector2f seam = a.FrameLidPoint(Eigen::Vector2f(100.f, 55.f), Eigen::Vector2f::Zero());
+  EXPECT_LT(a.SignedDistance(seam, Which::kFrame), -0.5f);
+  EXPECT_GT(seam.y(), 57.5f) << "the lower lid's margin, the nearest";
+  EXPECT_LT(std::abs(seam.x() - 100.f), 3.f);
+}
+
 TEST(EyeAperture, OpeningsAreReadOnlyFromEyesWithAllSixPoints) {
   std::vector<tracker::InputLandmark> landmarks;
   for (int i = 0; i < 68; ++i) {
