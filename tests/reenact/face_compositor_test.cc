@@ -807,24 +807,11 @@ TEST(ReenactCompositorTest, AGazeTurnDrawsTheEyeballWithinTheOpeningTheFrameShow
   turned.delta[arkit_blendshape_index("eyeLookInRight")] = 0.8f;
   const FaceCompositor fc(model, ReenactmentOptions{});
   const gpu::VertexState state = testing::test_renderer().evaluate(target);
-  EyeOpenings openings;
+  const EyeOpenings openings = fit_openings(model, target, cam, 0.5f);
+  ASSERT_TRUE(openings.known[0] && openings.known[1]);
   cv::Mat real_eyes = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
-  for (int e = 0; e < 2; ++e) {
-    const std::vector<int32_t> lid = landmark_vertices(model, 36 + 6 * e, 41 + 6 * e);
-    ASSERT_EQ(lid.size(), 6u);
-    Eigen::Vector2f centre = Eigen::Vector2f::Zero();
-    std::array<Eigen::Vector2f, 6> fit;
-    for (size_t k = 0; k < 6; ++k) {
-      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * lid[k]);
-      fit[k] = Eigen::Vector2f(cam.fx * x.x() / x.z() + cam.cx, cam.fy * x.y() / x.z() + cam.cy);
-      centre += fit[k] / 6.f;
-    }
-    std::vector<Eigen::Vector2f> squeezed;
-    for (size_t k = 0; k < 6; ++k) {
-      openings.points[static_cast<size_t>(e)][k] = Eigen::Vector2f(fit[k].x(), centre.y() + 0.5f * (fit[k].y() - centre.y()));
-      squeezed.push_back(openings.points[static_cast<size_t>(e)][k]);
-    }
-    openings.known[static_cast<size_t>(e)] = true;
+  for (const auto& eye : openings.points) {
+    const std::vector<Eigen::Vector2f> squeezed(eye.begin(), eye.end());
     cv::fillPoly(real_eyes, std::vector<std::vector<cv::Point>>{testing::pixel_polygon(squeezed)}, cv::Scalar(255));
   }
   const cv::Mat plain = render_target(target, cam);

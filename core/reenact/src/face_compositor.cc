@@ -313,7 +313,9 @@ struct FaceCompositor::Impl {
         offset = std::isfinite(d) ? std::max(offset, d) : std::numeric_limits<float>::infinity();
       }
       constexpr float kMinEyeWidthPx = 6.f;  // an eye this small is a few pixels of lashes
-      if (!(width >= kMinEyeWidthPx) || !(offset <= kMaxOpeningOffset * width) || !motion[0].allFinite()) continue;
+      bool finite_motion = true;
+      for (const Eigen::Vector2f& m : motion) finite_motion = finite_motion && m.allFinite();
+      if (!(width >= kMinEyeWidthPx) || !(offset <= kMaxOpeningOffset * width) || !finite_motion) continue;
       // Where the output closes the eye further, the upper lid moves so that the real opening
       // keeps its share of the fit's: a fit whose lids part by 9 px and meet in the output shuts
       // a real eye 12 px tall, where the fit's 9 px of motion left a 3 px slit of his open eye
