@@ -1,10 +1,10 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 // Linearisation, per pixel of the pyramid level (energy.cc: Linearize): a pixel counts when the
-// render covers it and the input has depth there (or the frame has none); it carries the
-// geometric terms when |X_S - X_I| <= max_point_distance and the plane terms also when N_I
-// exists and N_S . N_I >= min_normal_dot; the colour term when its triangle is in the colour
-// parts, with its robust weight. Carrying pixels are compacted into items with an atomic counter
+// render covers it, EnergyOptions::pixel_sampling takes it and the input has depth there (or the
+// frame has none); it carries the geometric terms when |X_S - X_I| <= max_point_distance and the
+// plane terms also when N_I exists and N_S . N_I >= min_normal_dot; the colour term when its
+// triangle is in the colour parts, with its robust weight. Carrying pixels are compacted into items with an atomic counter
 // (order is arbitrary; every later pass is order-independent up to rounding).
 layout(local_size_x = 64) in;
 #include "tracker_common.glsl"
@@ -32,11 +32,13 @@ layout(push_constant) uniform Push {
   float max_point_distance, min_normal_dot;
   float color_robust_threshold;  // EnergyOptions::color_robust_threshold (0 = off)
   uint color_parts;              // EnergyOptions::color_parts (bit per FacePart)
+  uint pixel_sampling;           // EnergyOptions::pixel_sampling: 2 = the checkerboard (i + j) even
 } pc;
 
 void main() {
   const uint p = gl_GlobalInvocationID.x;
   if (p >= pc.width * pc.height) return;
+  if (pc.pixel_sampling == 2u && (((p % pc.width) + (p / pc.width)) & 1u) != 0u) return;  // energy.h: SampledPixel
   const uvec4 ids = g_ids[p];
   if (ids.x == 0u) return;
   const vec4 input_point = input_data[kInputVec4sPerPixel * p];

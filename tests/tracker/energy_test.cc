@@ -4,8 +4,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <iostream>
 #include <limits>
 #include <random>
+#include <set>
+#include <utility>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/gpu/cpu_renderer.h"
@@ -271,6 +274,12 @@ TEST(TrackerEnergy, OptionsValidation) {
   o.expression_sparsity_epsilon = 0;
   EXPECT_FALSE(o.IsValid(&why));
   EXPECT_NE(why.find("epsilon"), std::string::npos);
+  for (int sampling : {0, 3}) {
+    o = EnergyOptions{};
+    o.pixel_sampling = sampling;
+    EXPECT_FALSE(o.IsValid(&why)) << sampling;
+    EXPECT_NE(why.find("pixel_sampling"), std::string::npos);
+  }
   o = EnergyOptions{};
   o.use_point = o.use_plane = o.use_color = o.use_landmarks = o.use_regularizer = false;
   EXPECT_FALSE(o.IsValid(&why));
@@ -410,6 +419,49 @@ TEST(TrackerEnergy, DataTermsVanishAtTheTruthAndGrowAwayFromIt) {
   double reg = 0;
   for (int k = 0; k < s.truth.delta.size(); ++k) reg += s.truth.delta[k] * s.truth.delta[k];
   EXPECT_NEAR(at_truth[Term::kRegularizer], eo.w_reg_expression * reg, 1e-6);
+}
+
+// EnergyOptions::pixel_sampling 2: the dense terms on the checkerboard ((i + j) even) of the
+// pixels every pixel's linearisation takes, about half of them, each term normalised by its own
+// count, so its energy off the truth stays that of every pixel within 10 % (the face's
+// residuals change smoothly from pixel to pixel); the landmarks and the prior are untouched.
+TEST(TrackerEnergy, EveryOtherPixelIsTheCheckerboardOfEveryPixelAtTheSameEnergy) {
+  const SphereScene s;
+  const EnergyOptions every;
+  EnergyOptions half;
+  half.pixel_sampling = 2;
+  gpu::FaceParameters off = s.truth;
+  off.translation += Eigen::Vector3f(0.004f, -0.002f, 0.003f);
+  off.gamma[0] += 0.2f;
+  const Linearization all = s.solver.LinearizeAt(s.frame, s.layout, every, off);
+  const Linearization some = s.solver.LinearizeAt(s.frame, s.layout, half, off);
+  std::set<std::pair<int, int>> taken;
+  size_t even = 0;
+  for (const PixelSample& p : all.pixels) {
+    taken.insert({p.i, p.j});
+    even += (p.i + p.j) % 2 == 0;
+  }
+  for (const PixelSample& p : some.pixels) {
+    EXPECT_EQ((p.i + p.j) % 2, 0) << p.i << ", " << p.j;
+    EXPECT_TRUE(taken.count({p.i, p.j})) << p.i << ", " << p.j;
+  }
+  EXPECT_EQ(some.pixels.size(), even);
+  ASSERT_GT(all.num_color, 1000);
+  for (const auto& [n_all, n_some] : {std::pair{all.num_point, some.num_point}, {all.num_plane, some.num_plane},
+                                      {all.num_color, some.num_color}}) {
+    EXPECT_NEAR(n_some, 0.5 * n_all, 0.02 * n_all);
+  }
+  EXPECT_EQ(some.landmarks.size(), all.landmarks.size());
+  EXPECT_EQ(some.num_regularizer, all.num_regularizer);
+  const TermEnergies e_all = s.solver.Energy(s.frame, s.layout, every, off);
+  const TermEnergies e_some = s.solver.Energy(s.frame, s.layout, half, off);
+  for (Term t : {Term::kPoint, Term::kPlane, Term::kColor}) {
+    std::cout << term_name(t) << ": every pixel " << e_all[t] << ", every other " << e_some[t] << "\n";
+    ASSERT_GT(e_all[t], 0) << term_name(t);
+    EXPECT_NEAR(e_some[t], e_all[t], 0.1 * e_all[t]) << term_name(t);  // 0.5 if a count were left whole
+  }
+  EXPECT_EQ(e_some[Term::kLandmark], e_all[Term::kLandmark]);
+  EXPECT_EQ(e_some[Term::kRegularizer], e_all[Term::kRegularizer]);
 }
 
 // The expression rows of E_reg: Eq. 11 with w_reg_expression, plus the reweighted L1 prior whose

@@ -282,6 +282,33 @@ TEST(TrackCli, EarlyTerminationRunsFewerIterationsAndFitsAsWell) {
   EXPECT_NE(bad.exit_code, 0);
 }
 
+// The per-frame solves' dense terms on every other pixel (EnergyOptions::pixel_sampling 2, the
+// default) fit the same frames as well as every pixel (--every-pixel, the paper's), within the
+// margins of early termination above; the report says which ran.
+TEST(TrackCli, EveryOtherPixelFitsAsWellAsEveryPixel) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "sampling";
+  fs::create_directories(out);
+  auto run = [&](const std::string& name, const std::vector<std::string>& extra) {
+    std::vector<std::string> args = {cli(), "track", "--input", fx.recording.string(), "--out",
+                                     (out / (name + ".jsonl")).string(), "--report", (out / (name + ".json")).string(),
+                                     "--landmarks", "recording", "--calibration-frames", "2", "--quiet", "--model", model()};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const SubprocessResult r = run_subprocess(args);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return read_json(out / (name + ".json"));
+  };
+  const nlohmann::json half = run("half", {});
+  const nlohmann::json every = run("every", {"--every-pixel"});
+  ASSERT_TRUE(half.contains("pixel_sampling"));
+  EXPECT_EQ(half["pixel_sampling"], 2);
+  EXPECT_EQ(every["pixel_sampling"], 1);
+  EXPECT_LT(half["rotation_error_deg_mean"].get<double>(), every["rotation_error_deg_mean"].get<double>() + 0.1);
+  EXPECT_LT(half["translation_error_mm_mean"].get<double>(), every["translation_error_mm_mean"].get<double>() + 0.2);
+  EXPECT_LT(half["expression_error_mean"].get<double>(), every["expression_error_mean"].get<double>() + 0.01);
+  EXPECT_LT(half["geometric_error_mm_mean"].get<double>(), every["geometric_error_mm_mean"].get<double>() + 0.05);
+}
+
 // --calibration-frame-stride: the calibration frames are taken that many frames apart, so two of
 // them with stride 3 are frames 0 and 3, and the calibration happens on frame 3 (1 when consecutive).
 TEST(TrackCli, CalibrationFramesAreTakenStrideApart) {

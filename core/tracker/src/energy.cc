@@ -226,6 +226,9 @@ bool EnergyOptions::IsValid(std::string* why) const {
   if (!(landmark_occlusion_m > 0) || !std::isfinite(landmark_occlusion_m)) {
     return fail(why, "energy: landmark_occlusion_m must be positive");
   }
+  if (pixel_sampling != 1 && pixel_sampling != 2) {
+    return fail(why, "energy: pixel_sampling must be 1 (every pixel) or 2 (every other pixel)");
+  }
   if (!use_point && !use_plane && !use_color && !use_landmarks && !use_regularizer) {
     return fail(why, "energy: every term is switched off");
   }
@@ -298,6 +301,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
     lin.pixels.reserve(static_cast<size_t>(drawn.i1 - drawn.i0 + 1) * static_cast<size_t>(drawn.j1 - drawn.j0 + 1));
   for (int j = 0; j < frame.height(); ++j) {
     for (int i = 0; i < w; ++i) {
+      if (!SampledPixel(options.pixel_sampling, i, j)) continue;
       const size_t p = static_cast<size_t>(j) * w + i;
       if (gbuffer.triangle[p] < 0) continue;
       if (frame.has_depth() && !frame.depth_valid(i, j)) continue;  // input invalid

@@ -122,6 +122,7 @@ struct ClassifyPush {
   float max_point_distance, min_normal_dot;
   float color_robust_threshold;  // EnergyOptions::color_robust_threshold (0 = off)
   glm::uint color_parts;         // EnergyOptions::color_parts (bit per FacePart)
+  glm::uint pixel_sampling;      // EnergyOptions::pixel_sampling
 };
 static_assert(offsetof(ClassifyPush, width) == 0);
 static_assert(offsetof(ClassifyPush, height) == 4);
@@ -133,7 +134,8 @@ static_assert(offsetof(ClassifyPush, max_point_distance) == 24);
 static_assert(offsetof(ClassifyPush, min_normal_dot) == 28);
 static_assert(offsetof(ClassifyPush, color_robust_threshold) == 32);
 static_assert(offsetof(ClassifyPush, color_parts) == 36);
-static_assert(sizeof(ClassifyPush) == 40);
+static_assert(offsetof(ClassifyPush, pixel_sampling) == 40);
+static_assert(sizeof(ClassifyPush) == 44);
 
 // tracker_landmarks.comp, push constant block Push.
 struct LandmarkPush {
@@ -767,7 +769,7 @@ struct VulkanSolver::Impl {
                                     geometry && e.use_plane ? 1u : 0u, e.use_color ? 1u : 0u,
                                     static_cast<float>(e.max_point_distance_m), static_cast<float>(e.min_normal_dot),
                                     li.gradient ? static_cast<float>(e.color_robust_threshold) : 0.f,
-                                    e.color_parts});
+                                    e.color_parts, static_cast<glm::uint>(e.pixel_sampling)});
     dispatch(rec, device ? kArgClassify : kDirect, (w * h + 63) / 64, 1);
     rec.memory_barrier(VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
