@@ -4,8 +4,9 @@
 // render covers it, EnergyOptions::pixel_sampling takes it and the input has depth there (or the
 // frame has none); it carries the geometric terms when |X_S - X_I| <= max_point_distance and the
 // plane terms also when N_I exists and N_S . N_I >= min_normal_dot; the colour term when its
-// triangle is in the colour parts, with its robust weight. Carrying pixels are compacted into items with an atomic counter
-// (order is arbitrary; every later pass is order-independent up to rounding).
+// triangle is in the colour parts, with its robust weight. Carrying pixels are compacted into
+// items with an atomic counter (order is arbitrary; every later pass is order-independent up to
+// rounding).
 layout(local_size_x = 64) in;
 #include "tracker_common.glsl"
 

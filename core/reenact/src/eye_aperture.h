@@ -3,8 +3,8 @@
 //
 // The fit's lids are held on the eye's landmarks through a face prior, and on real faces their
 // margins miss the real ones by a pixel or two (on the webcam clip, output frame 53, the fit's
-// opening reaches about 2.5 px above his upper lid and stops short of his lower one). While the eyes do what the target's do, that never shows: every
-// pixel samples its own. Once the output turns the gaze, every eyeball pixel is drawn anew, and
+// opening reaches about 2.5 px above his upper lid and stops short of his lower one). While the
+// eyes do what the target's do, that never shows: every pixel samples its own. Once the output turns the gaze, every eyeball pixel is drawn anew, and
 // what was drawn anew was the fit's opening: where it exceeds the real one, a drawn white covered
 // his lids (the eyes looked wider than his, with hard grey edges), and where the real one exceeds
 // it, the fit's lid sampled his iris where it had been (a dark crescent under the output's lower
