@@ -380,16 +380,29 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       // functions and their steps are exact in double and stepping changes no pixel).
       double step[3];
       for (int e = 0; e < 3; ++e) step[e] = oy[(e + 2) % 3] - oy[(e + 1) % 3];
+      // Indexed by the corner whose weight the edge gives (order[e]), so each pixel writes its
+      // weights straight into registers: stored through order[], they were reloaded as a pair,
+      // and the store-to-load forwarding stall was the pass's hottest instruction.
       double plane_dx[3], plane_dy[3], plane_x[3], plane_y[3];
       for (int e = 0; e < 3; ++e) {
         const int a = order[(e + 1) % 3], b = order[(e + 2) % 3];
-        plane_dx[e] = ts.ux[b] - ts.ux[a];
-        plane_dy[e] = ts.uy[b] - ts.uy[a];
-        plane_x[e] = ts.ux[a];
-        plane_y[e] = ts.uy[a];
+        const int k = order[e];
+        plane_dx[k] = ts.ux[b] - ts.ux[a];
+        plane_dy[k] = ts.uy[b] - ts.uy[a];
+        plane_x[k] = ts.ux[a];
+        plane_y[k] = ts.uy[a];
+      }
+      // The corners' attributes, as the interpolation reads them (in double).
+      Eigen::Vector3d corner_x[3], corner_n[3], corner_c[3];
+      for (int k = 0; k < 3; ++k) {
+        corner_x[k] = state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
+        corner_n[k] = state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
+        corner_c[k] = state.colors.segment<3>(3 * tri[k]).cast<double>();
       }
       for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
         const double py = j + 0.5;
+        double row_term[3];  // the weights' part that is the same along the row
+        for (int k = 0; k < 3; ++k) row_term[k] = plane_dx[k] * (py - plane_y[k]);
         double w[3];
         {
           const double px = ts.i0 + 0.5;
@@ -412,9 +425,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
           // Screen-space weights back in the triangle's own corner order, from the unsnapped
           // positions: the snap decides coverage, attribute interpolation uses the exact plane.
           double lambda[3];
-          for (int e = 0; e < 3; ++e) {
-            lambda[order[e]] = (plane_dx[e] * (py - plane_y[e]) - plane_dy[e] * (px - plane_x[e])) / ts.exact_area2;
-          }
+          for (int k = 0; k < 3; ++k) lambda[k] = (row_term[k] - plane_dy[k] * (px - plane_x[k])) / ts.exact_area2;
           const double dz = lambda[0] * ts.d[0] + lambda[1] * ts.d[1] + lambda[2] * ts.d[2];
           const float depth_value = static_cast<float>(dz);
           const size_t pix = static_cast<size_t>(j) * camera.width + i;
@@ -428,9 +439,9 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
           for (int k = 0; k < 3; ++k) b[k] /= sum;
           Eigen::Vector3d x = Eigen::Vector3d::Zero(), nrm = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
           for (int k = 0; k < 3; ++k) {
-            x += b[k] * state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
-            nrm += b[k] * state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
-            col += b[k] * state.colors.segment<3>(3 * tri[k]).cast<double>();
+            x += b[k] * corner_x[k];
+            nrm += b[k] * corner_n[k];
+            col += b[k] * corner_c[k];
           }
           const double len = nrm.norm();
           if (len > 0.0) nrm /= len;

@@ -75,15 +75,22 @@ inline cv::Rect grown_within(const cv::Rect& rect, int margin, int w, int h) {
 
 // The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
 // inside the image; empty when nothing is covered. Each row is scanned from both ends to its
-// first covered pixel (uniting a rectangle per pixel cost a tenth of a millisecond at 640x480).
+// first covered pixel (uniting a rectangle per pixel cost a tenth of a millisecond at 640x480),
+// and only within the rectangle the CPU rasteriser last drew when the buffer says it (outside it
+// nothing is covered: GBuffer::cpu_raster).
 inline cv::Rect covered_rect(const gpu::GBuffer& g, int margin) {
+  int scan_i0 = 0, scan_i1 = g.width - 1, scan_j0 = 0, scan_j1 = g.height - 1;
+  if (g.cpu_raster.triangle_data != nullptr && g.cpu_raster.triangle_data == g.triangle.data()) {
+    scan_i0 = std::max(scan_i0, g.cpu_raster.i0), scan_i1 = std::min(scan_i1, g.cpu_raster.i1);
+    scan_j0 = std::max(scan_j0, g.cpu_raster.j0), scan_j1 = std::min(scan_j1, g.cpu_raster.j1);
+  }
   int i0 = g.width, i1 = -1, j0 = g.height, j1 = -1;
-  for (int j = 0; j < g.height; ++j) {
+  for (int j = scan_j0; j <= scan_j1 && scan_i0 <= scan_i1; ++j) {
     const int32_t* row = g.triangle.data() + static_cast<size_t>(j) * g.width;
-    int first = 0;
-    while (first < g.width && row[first] < 0) ++first;
-    if (first == g.width) continue;
-    int last = g.width - 1;
+    int first = scan_i0;
+    while (first <= scan_i1 && row[first] < 0) ++first;
+    if (first > scan_i1) continue;
+    int last = scan_i1;
     while (row[last] < 0) --last;
     i0 = std::min(i0, first), i1 = std::max(i1, last), j0 = std::min(j0, j), j1 = j;
   }
