@@ -86,6 +86,9 @@ TEST(GazeOptions, DefaultsValidAndBadValuesRejected) {
   bad = o;
   bad.max_blink_for_vergence = std::numeric_limits<double>::quiet_NaN();
   expect_invalid(bad, "max_blink_for_vergence");
+  bad = o;
+  bad.threads = -1;
+  expect_invalid(bad, "threads");
 }
 
 TEST(Gaze, WeightsForAConjugateGaze) {
@@ -193,6 +196,15 @@ TEST(Gaze, ReadsEyesTurnedTowardsEachOtherEyeByEye) {
     }
     for (const auto& eye : arkit_eye_look_names())
       for (const char* name : eye) EXPECT_NEAR(weight(fit, name), weight(truth, name), c.tolerance) << name;
+    // The candidates are costed on the pool's threads: one thread reads the same, to the bit.
+    GazeOptions one_thread;
+    one_thread.threads = 1;
+    gpu::FaceParameters fit1 = face_looking(*model, gaze, 0.f, 0.f);
+    const GazeReading r1 = gaze.Read(solver.renderer(), frame, &fit1, one_thread);
+    EXPECT_EQ(r1.horizontal, r.horizontal);
+    EXPECT_EQ(r1.per_eye, r.per_eye);
+    EXPECT_EQ(r1.vergence_read, r.vergence_read);
+    EXPECT_TRUE(fit1.delta == fit.delta);
     // Without the per-eye search, one reading for both.
     GazeOptions conjugate_only;
     conjugate_only.read_vergence = false;

@@ -5,8 +5,12 @@
 #include <cmath>
 #include <exception>
 #include <limits>
+#include <tuple>
+#include <utility>
+#include <vector>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/energy.h"
 #include "tracker_internal.h"
@@ -128,6 +132,7 @@ bool GazeOptions::IsValid(std::string* why) const {
   }
   if (!(lids_from_weight >= 0 && lids_from_weight <= 1)) return fail("gaze: lids_from_weight must be in [0, 1]");
   if (lid_steps < 2 || lid_steps > 101) return fail("gaze: lid_steps must be in [2, 101]");
+  if (threads < 0) return fail("gaze: threads must be >= 0 (0: one per hardware thread)");
   return true;
 }
 
@@ -199,11 +204,11 @@ struct GazeEstimator::EyeRegion {
 };
 
 GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& renderer, const InputFrame& frame,
-                                                        const gpu::FaceParameters& at) const {
+                                                        const gpu::FaceParameters& at, int threads) const {
   EyeRegion out;
   const int w = frame.width(), h = frame.height();
   try {
-    out.state = renderer.evaluate(at);
+    out.state = renderer.evaluate(at, nullptr, threads);
   } catch (const std::exception& e) {
     out.message = std::string("the fit cannot be rendered: ") + e.what();
     return out;
@@ -240,7 +245,7 @@ GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& 
   crop.height = y1 - y0 + 1;
   crop.cx -= static_cast<float>(x0);
   crop.cy -= static_cast<float>(y0);
-  renderer.rasterize(out.state, crop, kTrackedParts, &out.g);
+  renderer.rasterize(out.state, crop, kTrackedParts, &out.g, threads);
   out.x0 = x0;
   out.y0 = y0;
   return out;
@@ -353,7 +358,7 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   gpu::FaceParameters at = fit;
   const auto rendered = WeightsFor(h0, v0);
   for (const Weight& wt : rendered) at.delta[wt.index] = wt.value;
-  const EyeRegion region = RenderEyeRegion(renderer, frame, at);
+  const EyeRegion region = RenderEyeRegion(renderer, frame, at, ResolvedThreadCount(options.threads));
   if (!region.message.empty()) {
     out.message = region.message;
     return out;
@@ -401,8 +406,8 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   // The vertical search takes the fitted lighting as it is: a turn up or down changes how much
   // dark iris the opening shows, which a gain absorbs (free gains read 0.13-0.21 up on renders
   // looking straight ahead, the sideways reading's gains 0.10-0.12, none -0.02-0).
-  std::vector<Eigen::Vector3d> predicted;
-  // Eye e's summed squared colour difference (added to *sum) with its sideways turn hz.
+  // Eye e's summed squared colour difference (added to *sum) with its sideways turn hz. Each
+  // candidate's on its own (the grids below cost them on the pool's threads).
   auto eye_energy = [&](int e, double hz, double vt, bool fit_gains, double* sum) {
     const auto weights = WeightsFor(static_cast<float>(hz), static_cast<float>(vt));
     const EyeState& s = eyes[e];
@@ -418,7 +423,7 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
     // and a lid margin that a blink starting or a squint brings into the opening) cannot drag
     // the iris across the eye, while a misplaced iris still costs every pixel it misses.
     double pp = 0, pi = 0;
-    predicted.resize(s.pixels.size());
+    std::vector<Eigen::Vector3d> predicted(s.pixels.size());
     for (size_t q = 0; q < s.pixels.size(); ++q) {
       const EyePixel& px = s.pixels[q];
       const Eigen::Vector3d direction = (px.position - centre).normalized();
@@ -436,17 +441,32 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
     for (int e = 0; e < 2; ++e) eye_energy(e, hz, vt, fit_gains, &sum);
     return sum / out.pixels + options.prior * (hz * hz + vt * vt);
   };
+  // The costs of candidates 0..count-1, computed on the pool's threads; the grids take the
+  // first best in their own order, so the reading does not depend on the thread count.
+  const int threads = ResolvedThreadCount(options.threads);
+  auto costs_of = [&](int count, const auto& cost) {
+    std::vector<double> costs(static_cast<size_t>(count));
+    ParallelFor(count, threads, [&](int k) { costs[static_cast<size_t>(k)] = cost(k); });
+    return costs;
+  };
   // grid(centre h, centre v, half width, steps, vertical too, fit gains): the best candidate
   // into out; returns the grid's step.
   auto grid = [&](double gh, double gv, double gh_half, int steps, bool with_vertical, bool fit_gains) {
     const double step = steps > 1 ? 2 * gh_half / (steps - 1) : 0;
-    for (int a = 0; a < steps; ++a) {
-      for (int b = 0; b < (with_vertical ? steps : 1); ++b) {
-        const double hz = std::clamp(gh - gh_half + a * step, -1.0, 1.0);
-        const double vt = with_vertical ? std::clamp(gv - gh_half + b * step, -1.0, 1.0) : gv;
-        const double en = energy(hz, vt, fit_gains);
-        if (en < out.energy) out.energy = en, out.h = hz, out.v = vt;
-      }
+    const int rows = with_vertical ? steps : 1;
+    auto candidate = [&](int k) {  // (a, b) = (k / rows, k % rows)
+      const int a = k / rows, b = k % rows;
+      const double hz = std::clamp(gh - gh_half + a * step, -1.0, 1.0);
+      const double vt = with_vertical ? std::clamp(gv - gh_half + b * step, -1.0, 1.0) : gv;
+      return std::pair{hz, vt};
+    };
+    const std::vector<double> costs = costs_of(steps * rows, [&](int k) {
+      const auto [hz, vt] = candidate(k);
+      return energy(hz, vt, fit_gains);
+    });
+    for (int k = 0; k < steps * rows; ++k) {
+      const double en = costs[static_cast<size_t>(k)];
+      if (en < out.energy) std::tie(out.h, out.v) = candidate(k), out.energy = en;
     }
     return step;
   };
@@ -482,11 +502,10 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
       out.per_eye[e] = out.h;
       auto eye_grid = [&](double centre, double reach, int steps) {
         const double s = steps > 1 ? 2 * reach / (steps - 1) : 0;
-        for (int a = 0; a < steps; ++a) {
-          const double hz = std::clamp(centre - reach + a * s, -1.0, 1.0);
-          const double en = eye_cost(e, hz);
-          if (en < best[e]) best[e] = en, out.per_eye[e] = hz;
-        }
+        auto candidate = [&](int a) { return std::clamp(centre - reach + a * s, -1.0, 1.0); };
+        const std::vector<double> costs = costs_of(steps, [&](int a) { return eye_cost(e, candidate(a)); });
+        for (int a = 0; a < steps; ++a)
+          if (costs[static_cast<size_t>(a)] < best[e]) best[e] = costs[static_cast<size_t>(a)], out.per_eye[e] = candidate(a);
         return s;
       };
       const double eye_step = eye_grid(0.0, 1.0, options.grid_steps);
@@ -518,7 +537,7 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
   gpu::FaceParameters open_at = fit;
   open_at.delta[blink_[0]] = 0.f;
   open_at.delta[blink_[1]] = 0.f;
-  const EyeRegion open = RenderEyeRegion(renderer, frame, open_at);
+  const EyeRegion open = RenderEyeRegion(renderer, frame, open_at, ResolvedThreadCount(options.threads));
   if (!open.message.empty()) {
     reading->lids_message = open.message;
     return false;
@@ -579,7 +598,7 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
         const Eigen::Vector3f x = open.state.model_positions.segment<3>(3 * lv.vertex) + b * lv.offset;
         shut.camera_positions.segment<3>(3 * lv.vertex) = R * x + open_at.translation;
       }
-      renderer.rasterize(shut, open.crop, kTrackedParts, &shut_g);
+      renderer.rasterize(shut, open.crop, kTrackedParts, &shut_g, ResolvedThreadCount(options.threads));
     }
     const gpu::GBuffer& g = k > 0 ? shut_g : open.g;
     for (int e = 0; e < 2; ++e) {

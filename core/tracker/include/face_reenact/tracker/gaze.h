@@ -101,6 +101,10 @@ struct GazeOptions {
   double lids_from_weight = 0.1;
   int lid_steps = 6;
 
+  // Threads for rendering the eye region (the model's evaluation and the set-up of its
+  // triangles; 0 = one per hardware thread, at most 8). The reading does not depend on it.
+  int threads = 0;
+
   bool IsValid(std::string* why) const;
 };
 
@@ -180,7 +184,7 @@ class GazeEstimator {
   struct EyeRegion;
   struct EyeState;
   EyeRegion RenderEyeRegion(const gpu::CpuRenderer& renderer, const InputFrame& frame,
-                            const gpu::FaceParameters& at) const;
+                            const gpu::FaceParameters& at, int threads) const;
   std::string ReadEye(const EyeRegion& region, const InputFrame& frame, const gpu::FaceParameters& at, int e,
                       EyeState* out, int* opening_rows) const;
   Pass Search(const gpu::CpuRenderer& renderer, const InputFrame& frame, const gpu::FaceParameters& fit, float h0,
