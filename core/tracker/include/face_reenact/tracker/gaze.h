@@ -101,8 +101,9 @@ struct GazeOptions {
   double lids_from_weight = 0.1;
   int lid_steps = 6;
 
-  // Threads for rendering the eye region (the model's evaluation and the set-up of its
-  // triangles; 0 = one per hardware thread, at most 8). The reading does not depend on it.
+  // Threads for rendering the eye region (the model's evaluation, the set-up of its triangles)
+  // and for costing the searches' candidates (0 = one per hardware thread, at most 8). The
+  // reading does not depend on it.
   int threads = 0;
 
   bool IsValid(std::string* why) const;
