@@ -4,13 +4,14 @@
 // The fit's lids are held on the eye's landmarks through a face prior, and on real faces their
 // margins miss the real ones by a pixel or two (on the webcam clip, output frame 53, the fit's
 // opening reaches about 2.5 px above his upper lid and stops short of his lower one). While the
-// eyes do what the target's do, that never shows: every pixel samples its own. Once the output turns the gaze, every eyeball pixel is drawn anew, and
-// what was drawn anew was the fit's opening: where it exceeds the real one, a drawn white covered
-// his lids (the eyes looked wider than his, with hard grey edges), and where the real one exceeds
-// it, the fit's lid sampled his iris where it had been (a dark crescent under the output's lower
-// lid; d6 crossing her eyes onto the webcam clip, output frames 44-57). The landmark detector's
-// six points on each lid margin say where the real opening is; the output's is that one, moved as
-// the output moves the fit's own lid points (a blink or a widening the output adds).
+// eyes do what the target's do, that never shows: every pixel samples its own. Once the output
+// turns the gaze, every eyeball pixel is drawn anew, and what was drawn anew was the fit's opening:
+// where it exceeds the real one, a drawn white covered his lids (the eyes looked wider than his,
+// with hard grey edges), and where the real one exceeds it, the fit's lid sampled his iris where it
+// had been (a dark crescent under the output's lower lid; d6 crossing her eyes onto the webcam
+// clip, output frames 44-57). The landmark detector's six points on each lid margin say where the
+// real opening is; the output's is that one, moved as the output moves the fit's own lid points (a
+// blink or a widening the output adds).
 #include <array>
 #include <vector>
 

@@ -905,104 +905,102 @@ struct FaceCompositor::Impl {
     if (exemplar_g) exemplar_texture = cv::Mat::zeros(box.size(), CV_32FC3), exemplar_weight = cv::Mat::zeros(box.size(), CV_32FC1);
     // Rows of the box on the pool's threads: each pixel writes only its own texture, weight and
     // coverage, so the result is the same for any thread count.
-    constexpr int kRowsPerItem = 8;
-    ParallelFor((box.height + kRowsPerItem - 1) / kRowsPerItem, threads(), [&](int item) {
-      const int j_end = std::min(box.y + box.height, box.y + (item + 1) * kRowsPerItem);
-      for (int j = box.y + item * kRowsPerItem; j < j_end; ++j)
-        for (int i = box.x; i < box.x + box.width; ++i) {
-          const size_t p = static_cast<size_t>(j) * w + i;
-          if (g->triangle[p] < 0) continue;
-          const int bi = i - box.x, bj = j - box.y;
-          covered.at<float>(bj, bi) = 1.0f;
-          const FacePart pixel_part = part_of(g->vertices[3 * p]);
-          const bool eyeball = kEyeParts & part_bit(pixel_part);
-          // The open eyes' sample too, for an eye the target holds closed (chosen per eye below).
-          if (eyeball && from_exemplar[static_cast<size_t>(EyeSlot(pixel_part))])
-            SampleOpenEyes(*open_eyes, exemplar_state, *exemplar_g, exemplar_edge,
-                           exemplar_openings[static_cast<size_t>(EyeSlot(pixel_part))], *g, p, pixel_part,
-                           &exemplar_texture.at<cv::Vec3f>(bj, bi), &exemplar_weight.at<float>(bj, bi));
-          Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
-                          nt = Eigen::Vector3f::Zero();
-          for (int k = 0; k < 3; ++k) {
-            const int32_t v = g->vertices[3 * p + static_cast<size_t>(k)];
-            const float b = g->barycentric[3 * p + static_cast<size_t>(k)];
-            x += b * ts.camera_positions.segment<3>(3 * v);
-            nt += b * ts.camera_normals.segment<3>(3 * v);
-            eo += b * e_out[static_cast<size_t>(v)];
-            et += b * e_target[static_cast<size_t>(v)];
-          }
-          if (!(x.z() > camera.near_plane)) continue;
-          const Eigen::Vector2f uv = project(camera, x);
-          const float u = uv.x(), vv = uv.y();
-          if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
-          const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
-          // An eye whose real opening is known: its eyeball is shown wherever that opening holds
-          // the sample, and no skin from more than a pixel inside it (the frame's eyeball there:
-          // the fit's lid over it took the iris, a dark crescent under the output's lower lid).
-          const FrameOpening* opening = eyeball ? &frame_openings[static_cast<size_t>(EyeSlot(pixel_part))] : nullptr;
-          const float inside_px = opening && !opening->empty() ? opening->Inside(u, vv) : 0.f;
-          if (opening && !opening->empty()) {
-            if (!(inside_px > 0.f)) continue;
-          } else {
-            if (!eyeball && (frame_openings[0].Inside(u, vv) > kEyeballEdgePx || frame_openings[1].Inside(u, vv) > kEyeballEdgePx))
-              continue;
-            // Not shown: nothing of the model there, or a surface at another depth (the point is
-            // hidden in the frame).
-            if (tg.triangle[q] < 0) continue;
-            const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
-            if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
-            // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
-            // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
-            // wider than the target's with skin-coloured bands.
-            if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
-          }
-          sampled_at.at<cv::Vec2f>(bj, bi) = cv::Vec2f(u, vv);
-          const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
-          const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
-          cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
-          for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
-          if (!same) {
-            seen_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(seen[0], seen[1], seen[2]);
-            ratio_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(ratio[0], ratio[1], ratio[2]);
-          }
-          float trust = 1.0f;
-          // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
-          const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
-          // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
-          // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
-          // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
-          // moved by the gaze is what the reenactment is to show. Not the caruncle, and not the
-          // eyeball's edge (eyeball_edge_trust), where the fill by place does better.
-          if (eyeball && moved > 0.f) {
-            for (const auto& [corner, width] : inner_corners) {
-              const float share = (Eigen::Vector2f(u, vv) - corner).norm() / width;
-              const float away = std::clamp(share / kCaruncleShare - 1.0f, 0.0f, 1.0f);
-              trust = std::min(trust, 1.0f - moved * (1.0f - away));
-            }
-            if (opening && !opening->empty()) {
-              trust = std::min(trust, 1.0f - moved * (1.0f - eyeball_edge_trust(inside_px)));
-            } else if (!boundary_px.empty()) {
-              const float edge = eyeball_edge_trust(sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y)));
-              trust = std::min(trust, 1.0f - moved * (1.0f - edge));
-            }
-          }
-          if (!boundary_px.empty() && !eyeball) {
-            const cv::Point at(static_cast<int>(u), static_cast<int>(vv));
-            float exposed = std::max(moved, mouth_zone.contains(at) ? mouth_redraw : 0.0f);
-            for (const auto& [zone, closing] : closing_lids)
-              if (zone.contains(at)) exposed = std::max(exposed, closing);
-            if (exposed > 0.f) {
-              const float d = sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y));
-              const float away = std::clamp(2.0f * d / ramp_px - 1.0f, 0.0f, 1.0f);
-              // Grazing views (the tracked normal within ~80 degrees of the view ray) are smeared
-              // and sit at silhouettes.
-              const float cos_view = -nt.normalized().dot(x.normalized());
-              const float facing = std::clamp((cos_view - 0.1f) / 0.2f, 0.0f, 1.0f);
-              trust = 1.0f - exposed * (1.0f - away * facing);
-            }
-          }
-          weight.at<float>(bj, bi) = trust;
+    ForRowsOf(box, [&](int bj) {
+      const int j = box.y + bj;
+      for (int i = box.x; i < box.x + box.width; ++i) {
+        const size_t p = static_cast<size_t>(j) * w + i;
+        if (g->triangle[p] < 0) continue;
+        const int bi = i - box.x;
+        covered.at<float>(bj, bi) = 1.0f;
+        const FacePart pixel_part = part_of(g->vertices[3 * p]);
+        const bool eyeball = kEyeParts & part_bit(pixel_part);
+        // The open eyes' sample too, for an eye the target holds closed (chosen per eye below).
+        if (eyeball && from_exemplar[static_cast<size_t>(EyeSlot(pixel_part))])
+          SampleOpenEyes(*open_eyes, exemplar_state, *exemplar_g, exemplar_edge,
+                         exemplar_openings[static_cast<size_t>(EyeSlot(pixel_part))], *g, p, pixel_part,
+                         &exemplar_texture.at<cv::Vec3f>(bj, bi), &exemplar_weight.at<float>(bj, bi));
+        Eigen::Vector3f x = Eigen::Vector3f::Zero(), eo = Eigen::Vector3f::Zero(), et = Eigen::Vector3f::Zero(),
+                        nt = Eigen::Vector3f::Zero();
+        for (int k = 0; k < 3; ++k) {
+          const int32_t v = g->vertices[3 * p + static_cast<size_t>(k)];
+          const float b = g->barycentric[3 * p + static_cast<size_t>(k)];
+          x += b * ts.camera_positions.segment<3>(3 * v);
+          nt += b * ts.camera_normals.segment<3>(3 * v);
+          eo += b * e_out[static_cast<size_t>(v)];
+          et += b * e_target[static_cast<size_t>(v)];
         }
+        if (!(x.z() > camera.near_plane)) continue;
+        const Eigen::Vector2f uv = project(camera, x);
+        const float u = uv.x(), vv = uv.y();
+        if (!(u >= 0.f && vv >= 0.f && u <= static_cast<float>(w - 1) && vv <= static_cast<float>(h - 1))) continue;
+        const size_t q = static_cast<size_t>(std::lround(vv)) * w + static_cast<size_t>(std::lround(u));
+        // An eye whose real opening is known: its eyeball is shown wherever that opening holds
+        // the sample, and no skin from more than a pixel inside it (the frame's eyeball there:
+        // the fit's lid over it took the iris, a dark crescent under the output's lower lid).
+        const FrameOpening* opening = eyeball ? &frame_openings[static_cast<size_t>(EyeSlot(pixel_part))] : nullptr;
+        const float inside_px = opening && !opening->empty() ? opening->Inside(u, vv) : 0.f;
+        if (opening && !opening->empty()) {
+          if (!(inside_px > 0.f)) continue;
+        } else {
+          if (!eyeball && (frame_openings[0].Inside(u, vv) > kEyeballEdgePx || frame_openings[1].Inside(u, vv) > kEyeballEdgePx))
+            continue;
+          // Not shown: nothing of the model there, or a surface at another depth (the point is
+          // hidden in the frame).
+          if (tg.triangle[q] < 0) continue;
+          const float tolerance = std::max(kShownToleranceM, 1.5f * x.z() / camera.fx);
+          if (std::abs(tg.position[3 * q + 2] - x.z()) > tolerance) continue;
+          // An eyeball point is shown only where the frame shows an eyeball: a lid lies a few
+          // millimetres in front of it, within the tolerance, and its skin drew the eyes opened
+          // wider than the target's with skin-coloured bands.
+          if (eyeball && !(kEyeParts & part_bit(part_of(tg.vertices[3 * q])))) continue;
+        }
+        sampled_at.at<cv::Vec2f>(bj, bi) = cv::Vec2f(u, vv);
+        const Eigen::Vector3f seen = sample_linear(target_bgr, u, vv);
+        const Eigen::Vector3f ratio = internal::shading_change(eo, et).cwiseMax(kMinShadingRatio).cwiseMin(kMaxShadingRatio);
+        cv::Vec3f& t = texture.at<cv::Vec3f>(bj, bi);
+        for (int c = 0; c < 3; ++c) t[c] = std::min(1.0f, seen[c] * ratio[c]);
+        if (!same) {
+          seen_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(seen[0], seen[1], seen[2]);
+          ratio_at.at<cv::Vec3f>(bj, bi) = cv::Vec3f(ratio[0], ratio[1], ratio[2]);
+        }
+        float trust = 1.0f;
+        // 0 while the sample stays within half a pixel of its own pixel, 1 from 1.5 px on.
+        const float moved = std::clamp(std::hypot(static_cast<float>(i) - u, static_cast<float>(j) - vv) - 0.5f, 0.0f, 1.0f);
+        // The eyeballs keep the frame wherever it shows them: a gaze turn moves every eyeball
+        // sample, all of them lie within a few pixels of the lids, and the per-vertex albedo map
+        // holds no iris (it drew the eyes reddish brown on the webcam clip); the frame's iris
+        // moved by the gaze is what the reenactment is to show. Not the caruncle, and not the
+        // eyeball's edge (eyeball_edge_trust), where the fill by place does better.
+        if (eyeball && moved > 0.f) {
+          for (const auto& [corner, width] : inner_corners) {
+            const float share = (Eigen::Vector2f(u, vv) - corner).norm() / width;
+            const float away = std::clamp(share / kCaruncleShare - 1.0f, 0.0f, 1.0f);
+            trust = std::min(trust, 1.0f - moved * (1.0f - away));
+          }
+          if (opening && !opening->empty()) {
+            trust = std::min(trust, 1.0f - moved * (1.0f - eyeball_edge_trust(inside_px)));
+          } else if (!boundary_px.empty()) {
+            const float edge = eyeball_edge_trust(sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y)));
+            trust = std::min(trust, 1.0f - moved * (1.0f - edge));
+          }
+        }
+        if (!boundary_px.empty() && !eyeball) {
+          const cv::Point at(static_cast<int>(u), static_cast<int>(vv));
+          float exposed = std::max(moved, mouth_zone.contains(at) ? mouth_redraw : 0.0f);
+          for (const auto& [zone, closing] : closing_lids)
+            if (zone.contains(at)) exposed = std::max(exposed, closing);
+          if (exposed > 0.f) {
+            const float d = sample_float(boundary_px, u - static_cast<float>(roi.x), vv - static_cast<float>(roi.y));
+            const float away = std::clamp(2.0f * d / ramp_px - 1.0f, 0.0f, 1.0f);
+            // Grazing views (the tracked normal within ~80 degrees of the view ray) are smeared
+            // and sit at silhouettes.
+            const float cos_view = -nt.normalized().dot(x.normalized());
+            const float facing = std::clamp((cos_view - 0.1f) / 0.2f, 0.0f, 1.0f);
+            trust = 1.0f - exposed * (1.0f - away * facing);
+          }
+        }
+        weight.at<float>(bj, bi) = trust;
+      }
     });
     // The change of shading, smoothed over about a pixel. It comes from per-vertex irradiance, and
     // where the output's expression folds the mesh (a lower lip rolled out by the source's grimace)
@@ -1356,26 +1354,25 @@ struct FaceCompositor::Impl {
     }
   }
 
-  // body(row) for each row 0..box.height-1 of `box`, in bands of rows on the pool's threads. For
-  // per-pixel passes whose pixels write only their own outputs: the same result for any thread
-  // count.
-  // body(v) for each vertex 0..n-1, in fixed blocks on the pool's threads; for per-vertex passes
-  // whose vertices write only their own outputs.
+  // body(k) for each k in 0..count-1, in fixed blocks of `per_item` on the pool's threads. For
+  // passes whose elements write only their own outputs: the blocks are fixed by the data, so the
+  // result is the same for any thread count.
   template <typename Body>
-  void ForVerticesOf(int n, const Body& body) const {
-    constexpr int kVerticesPerItem = 1024;
-    ParallelFor((n + kVerticesPerItem - 1) / kVerticesPerItem, threads(), [&](int item) {
-      const int end = std::min(n, (item + 1) * kVerticesPerItem);
-      for (int v = item * kVerticesPerItem; v < end; ++v) body(v);
+  void ForBlocksOf(int count, int per_item, const Body& body) const {
+    ParallelFor((count + per_item - 1) / per_item, threads(), [&](int item) {
+      const int end = std::min(count, (item + 1) * per_item);
+      for (int k = item * per_item; k < end; ++k) body(k);
     });
   }
+  // body(row) for each row 0..box.height-1 of `box`, in bands of 8 rows (per-pixel passes).
   template <typename Body>
   void ForRowsOf(const cv::Rect& box, const Body& body) const {
-    constexpr int kRowsPerItem = 8;
-    ParallelFor((box.height + kRowsPerItem - 1) / kRowsPerItem, threads(), [&](int item) {
-      const int end = std::min(box.height, (item + 1) * kRowsPerItem);
-      for (int bj = item * kRowsPerItem; bj < end; ++bj) body(bj);
-    });
+    ForBlocksOf(box.height, 8, body);
+  }
+  // body(v) for each vertex 0..n-1, in blocks of 1024 (per-vertex passes).
+  template <typename Body>
+  void ForVerticesOf(int n, const Body& body) const {
+    ForBlocksOf(n, 1024, body);
   }
 
   // The albedo map's colour at G-buffer pixel p of `g` (before the frame texture replaces it): the

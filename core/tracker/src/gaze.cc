@@ -355,10 +355,11 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
                                           const gpu::FaceParameters& fit, float h0, float v0, double ch, double cv,
                                           double half, const GazeOptions& options) const {
   Pass out;
+  const int threads = ResolvedThreadCount(options.threads);
   gpu::FaceParameters at = fit;
   const auto rendered = WeightsFor(h0, v0);
   for (const Weight& wt : rendered) at.delta[wt.index] = wt.value;
-  const EyeRegion region = RenderEyeRegion(renderer, frame, at, ResolvedThreadCount(options.threads));
+  const EyeRegion region = RenderEyeRegion(renderer, frame, at, threads);
   if (!region.message.empty()) {
     out.message = region.message;
     return out;
@@ -443,7 +444,6 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   };
   // The costs of candidates 0..count-1, computed on the pool's threads; the grids take the
   // first best in their own order, so the reading does not depend on the thread count.
-  const int threads = ResolvedThreadCount(options.threads);
   auto costs_of = [&](int count, const auto& cost) {
     std::vector<double> costs(static_cast<size_t>(count));
     ParallelFor(count, threads, [&](int k) { costs[static_cast<size_t>(k)] = cost(k); });
@@ -537,7 +537,8 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
   gpu::FaceParameters open_at = fit;
   open_at.delta[blink_[0]] = 0.f;
   open_at.delta[blink_[1]] = 0.f;
-  const EyeRegion open = RenderEyeRegion(renderer, frame, open_at, ResolvedThreadCount(options.threads));
+  const int threads = ResolvedThreadCount(options.threads);
+  const EyeRegion open = RenderEyeRegion(renderer, frame, open_at, threads);
   if (!open.message.empty()) {
     reading->lids_message = open.message;
     return false;
@@ -598,7 +599,7 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
         const Eigen::Vector3f x = open.state.model_positions.segment<3>(3 * lv.vertex) + b * lv.offset;
         shut.camera_positions.segment<3>(3 * lv.vertex) = R * x + open_at.translation;
       }
-      renderer.rasterize(shut, open.crop, kTrackedParts, &shut_g, ResolvedThreadCount(options.threads));
+      renderer.rasterize(shut, open.crop, kTrackedParts, &shut_g, threads);
     }
     const gpu::GBuffer& g = k > 0 ? shut_g : open.g;
     for (int e = 0; e < 2; ++e) {
