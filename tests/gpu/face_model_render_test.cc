@@ -3,7 +3,9 @@
 #include <cstdlib>
 #include <filesystem>
 #include <random>
+#include <string>
 
+#include "face_reenact/common/error.h"
 #include "face_reenact/gpu/cpu_renderer.h"
 #include "face_reenact/gpu/renderer.h"
 #include "face_reenact/model/model_file.h"
@@ -77,6 +79,57 @@ TEST(CpuRendererThreads, GBufferIsBitIdenticalOnAnyThreadCount) {
       }
     }
   }
+}
+
+// The CPU renderer sums each vertex's expression over the blendshapes that move it
+// (RenderModel::expression_columns): the same positions as the dense product, and the index is
+// the real model's sparsity (a vertex moved by most of the 52 would make it no faster).
+TEST(CpuRendererExpression, TheVertexSumsOverTheirOwnBlendshapesGiveTheDenseProduct) {
+  if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
+  const RenderModel model = RenderModel::FromFaceModel(face_model());
+  const VertexColumns& ec = model.expression_columns;
+  const int n = model.num_vertices();
+  ASSERT_EQ(ec.begin.size(), static_cast<size_t>(n) + 1);
+  size_t still = 0;
+  for (int v = 0; v < n; ++v) still += ec.begin[static_cast<size_t>(v)] == ec.begin[static_cast<size_t>(v) + 1];
+  EXPECT_LT(ec.column.size(), static_cast<size_t>(n) * model.expression_basis.cols() / 3)
+      << "the blendshapes are expected to be local";
+  EXPECT_GT(still, static_cast<size_t>(n) / 10) << "the back of the head moves with no expression";
+
+  const CpuRenderer cpu(model);
+  std::mt19937 rng(5150);
+  for (int trial = 0; trial < 3; ++trial) {
+    const FaceParameters p = random_face_parameters(face_model(), rng);
+    const VertexState state = cpu.evaluate(p, nullptr, trial + 1);
+    const Eigen::VectorXf dense = model.mean_shape + model.identity_basis * p.alpha + model.expression_basis * p.delta;
+    ASSERT_EQ(state.model_positions.size(), dense.size());
+    for (Eigen::Index i = 0; i < dense.size(); ++i)
+      ASSERT_NEAR(state.model_positions[i], dense[i], 2e-6f) << "trial " << trial << " row " << i;
+  }
+}
+
+// An index made before the basis changed no longer describes it: the model is refused with the
+// reason rather than rendered with the old blendshapes.
+TEST(CpuRendererExpression, AModelWhoseIndexIsStaleIsRefused) {
+  if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
+  RenderModel model = RenderModel::FromFaceModel(face_model());
+  std::string why;
+  ASSERT_TRUE(model.IsValid(&why)) << why;
+  const int still = [&] {
+    for (int v = 0; v < model.num_vertices(); ++v)
+      if (model.expression_columns.begin[static_cast<size_t>(v)] == model.expression_columns.begin[static_cast<size_t>(v) + 1])
+        return v;
+    return -1;
+  }();
+  ASSERT_GE(still, 0);
+  model.expression_basis(3 * still + 1, 7) = 0.001f;  // a blendshape now moves a vertex the index says it does not
+  EXPECT_FALSE(model.IsValid(&why));
+  EXPECT_NE(why.find("IndexExpression"), std::string::npos) << why;
+  EXPECT_THROW(CpuRenderer{model}, Error);
+  model.IndexExpression();
+  EXPECT_TRUE(model.IsValid(&why)) << why;
+  model.expression_columns.xyz[0] *= 2.f;  // a listed value that is not the basis's
+  EXPECT_FALSE(model.IsValid(&why));
 }
 
 class FaceModelRenderTest : public ValidatedGpuTest {

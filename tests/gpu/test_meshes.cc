@@ -53,6 +53,7 @@ RenderModel make_icosphere(float radius, int subdivisions, float albedo) {
   m.identity_basis.resize(3 * n, 0);
   m.expression_basis.resize(3 * n, 0);
   m.albedo_basis.resize(3 * n, 0);
+  m.IndexExpression();
   return m;
 }
 
@@ -85,6 +86,7 @@ RenderModel make_deformable_sphere(float radius, int subdivisions, int k_id, int
   for (Eigen::Index i = 0; i < n; ++i) {
     if (m.mean_shape[3 * i + 1] > 0.5f * radius) m.vertex_part[i] = 6;
   }
+  m.IndexExpression();
   return m;
 }
 
@@ -103,6 +105,7 @@ RenderModel concatenate(const RenderModel& a, const RenderModel& b, const Eigen:
   m.identity_basis.resize(3 * (na + nb), 0);
   m.expression_basis.resize(3 * (na + nb), 0);
   m.albedo_basis.resize(3 * (na + nb), 0);
+  m.IndexExpression();
   return m;
 }
 

@@ -234,6 +234,7 @@ BodyModel build_body_model(const FaceModel& model, const std::string& hm08_obj, 
       r.mean_albedo.segment<3>(row) = Eigen::Vector3f(a.x() * 0.95f, a.y() * 0.6f, a.z() * 0.65f);
     }
   }
+  r.IndexExpression();
   if (!r.IsValid(&why)) throw Error("body model: " + why);
   return out;
 }

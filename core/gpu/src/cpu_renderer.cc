@@ -106,11 +106,23 @@ VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* 
   s.albedo = identity->albedo;
   const Eigen::Index k_exp = model_.expression_basis.cols();
   if (k_exp > 0) {
+    // Each vertex over the blendshapes that move it (RenderModel::expression_columns), in column
+    // order; the dense product read the whole 3N x K basis.
     const Eigen::VectorXf delta = padded(params.delta, k_exp);
+    const VertexColumns& ec = model_.expression_columns;
     ParallelFor(items_for(n, kVerticesPerItem), threads, [&](int item) {
-      const Eigen::Index first = 3 * static_cast<Eigen::Index>(item) * kVerticesPerItem;
-      const Eigen::Index rows = std::min<Eigen::Index>(3 * kVerticesPerItem, 3 * static_cast<Eigen::Index>(n) - first);
-      s.model_positions.segment(first, rows).noalias() += model_.expression_basis.middleRows(first, rows) * delta;
+      const int end = std::min(n, (item + 1) * kVerticesPerItem);
+      for (int v = item * kVerticesPerItem; v < end; ++v) {
+        const int32_t e0 = ec.begin[static_cast<size_t>(v)], e1 = ec.begin[static_cast<size_t>(v) + 1];
+        if (e0 == e1) continue;
+        float x = 0.f, y = 0.f, z = 0.f;
+        for (int32_t e = e0; e < e1; ++e) {
+          const float w = delta[ec.column[static_cast<size_t>(e)]];
+          const float* b = &ec.xyz[3 * static_cast<size_t>(e)];
+          x += b[0] * w, y += b[1] * w, z += b[2] * w;
+        }
+        s.model_positions[3 * v] += x, s.model_positions[3 * v + 1] += y, s.model_positions[3 * v + 2] += z;
+      }
     });
   }
   if (times) times->model_ms = ms_since(start);

@@ -125,6 +125,48 @@ bool RenderOptions::IsValid(std::string* why) const {
   return true;
 }
 
+VertexColumns VertexColumns::Of(const BasisMatrix& basis, int num_vertices) {
+  VertexColumns out;
+  const Eigen::Index n = std::max(num_vertices, 0);
+  const Eigen::Index cols = basis.rows() == 3 * n ? basis.cols() : 0;
+  out.begin.reserve(static_cast<size_t>(n) + 1);
+  out.begin.push_back(0);
+  for (Eigen::Index v = 0; v < n; ++v) {
+    for (Eigen::Index k = 0; k < cols; ++k) {
+      const float x = basis(3 * v, k), y = basis(3 * v + 1, k), z = basis(3 * v + 2, k);
+      if (x == 0.f && y == 0.f && z == 0.f) continue;
+      out.column.push_back(static_cast<int32_t>(k));
+      out.xyz.insert(out.xyz.end(), {x, y, z});
+    }
+    out.begin.push_back(static_cast<int32_t>(out.column.size()));
+  }
+  return out;
+}
+
+bool VertexColumns::Describes(const BasisMatrix& basis, int num_vertices) const {
+  const Eigen::Index n = std::max(num_vertices, 0);
+  if ((basis.cols() > 0 && basis.rows() != 3 * n) || begin.size() != static_cast<size_t>(n) + 1 || begin.front() != 0 ||
+      static_cast<size_t>(begin.back()) != column.size() || xyz.size() != 3 * column.size()) {
+    return false;
+  }
+  if (basis.cols() == 0) return column.empty();
+  for (Eigen::Index v = 0; v < n; ++v) {
+    int32_t e = begin[static_cast<size_t>(v)];
+    const int32_t end = begin[static_cast<size_t>(v) + 1];
+    if (e > end) return false;
+    for (Eigen::Index k = 0; k < basis.cols(); ++k) {
+      const bool listed = e < end && column[static_cast<size_t>(e)] == k;
+      for (int c = 0; c < 3; ++c) {
+        const float want = listed ? xyz[3 * static_cast<size_t>(e) + static_cast<size_t>(c)] : 0.f;
+        if (basis(3 * v + c, k) != want) return false;
+      }
+      e += listed ? 1 : 0;
+    }
+    if (e != end) return false;
+  }
+  return true;
+}
+
 bool RenderModel::IsValid(std::string* why) const {
   const int n = num_vertices();
   if (n == 0) return fail(why, "render model has no vertices");
@@ -139,6 +181,8 @@ bool RenderModel::IsValid(std::string* why) const {
       !expression_basis.allFinite() || !albedo_basis.allFinite()) {
     return fail(why, "render model contains NaN or infinity");
   }
+  if (!expression_columns.Describes(expression_basis, n))
+    return fail(why, "render model: expression_columns do not describe expression_basis (IndexExpression)");
   for (const auto& t : triangles) {
     for (int k = 0; k < 3; ++k) {
       if (t[k] < 0 || t[k] >= n) return fail(why, "render model: triangle vertex index out of range");
@@ -164,6 +208,7 @@ RenderModel RenderModel::FromFaceModel(const FaceModel& model) {
   if (r.identity_basis.cols() == 0) r.identity_basis.resize(rows, 0);
   if (r.expression_basis.cols() == 0) r.expression_basis.resize(rows, 0);
   if (r.albedo_basis.cols() == 0) r.albedo_basis.resize(rows, 0);
+  r.IndexExpression();
   std::string why;
   if (!r.IsValid(&why)) throw Error("face model cannot be rendered: " + why);
   return r;

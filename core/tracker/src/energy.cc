@@ -51,10 +51,11 @@ Coefficients coefficients(const TrackerModel& model, const Linearization& lin, c
   return c;
 }
 
-// out += (3 x K block of vertex v) * coefficients; `block` is scratch. The vertex's block of the
-// (vertex-major) basis is converted to double in one vectorised pass and then multiplied; a
-// product of the float block cast on the fly is evaluated coefficient by coefficient, which took
-// a sixth of a tracking solve.
+// out += (3 x K block of vertex v) * coefficients, for the identity and albedo bases (dense; the
+// expression goes over each vertex's own blendshapes, VertexCache::position); `block` is scratch.
+// The vertex's block of the (vertex-major) basis is converted to double in one vectorised pass
+// and then multiplied; a product of the float block cast on the fly is evaluated coefficient by
+// coefficient, which took a sixth of a tracking solve.
 void add_product(const gpu::BasisMatrix& basis, int v, const Eigen::VectorXd& coefficients,
                  Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>* block, Eigen::Vector3d* out) {
   if (basis.cols() == 0) return;
@@ -95,7 +96,15 @@ class VertexCache {
     if (!have_position_[v]) {
       const auto& m = model_.render;
       Eigen::Vector3d p = fixed_shape_ ? (*fixed_shape_)[v] : identity_shape(m, v, c_.alpha, &block_);
-      add_product(m.expression_basis, v, c_.delta, &block_, &p);
+      // Over the blendshapes that move v only (RenderModel::expression_columns), in column order.
+      const gpu::VertexColumns& ec = m.expression_columns;
+      Eigen::Vector3d e = Eigen::Vector3d::Zero();
+      for (int32_t q = ec.begin[static_cast<size_t>(v)]; q < ec.begin[static_cast<size_t>(v) + 1]; ++q) {
+        const double w = c_.delta[ec.column[static_cast<size_t>(q)]];
+        const float* b = &ec.xyz[3 * static_cast<size_t>(q)];
+        e.x() += static_cast<double>(b[0]) * w, e.y() += static_cast<double>(b[1]) * w, e.z() += static_cast<double>(b[2]) * w;
+      }
+      p += e;
       position_[v] = p;
       have_position_[v] = 1;
     }
@@ -437,8 +446,17 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
           dx.middleCols(o_id, k_id) = R * e_id;
         }
         if (k_exp > 0) {
+          // The corners' nonzero blocks only (the zeros added nothing): the same sums, fewer terms.
           e_exp.setZero();
-          for (int k = 0; k < 3; ++k) e_exp += s.bary[k] * rm.expression_basis.block(3 * s.vertex[k], 0, 3, k_exp).cast<double>();
+          const gpu::VertexColumns& ec = rm.expression_columns;
+          for (int k = 0; k < 3; ++k) {
+            const size_t v = static_cast<size_t>(s.vertex[k]);
+            for (int32_t q = ec.begin[v]; q < ec.begin[v + 1] && ec.column[static_cast<size_t>(q)] < k_exp; ++q) {
+              const float* b = &ec.xyz[3 * static_cast<size_t>(q)];
+              auto col = e_exp.col(ec.column[static_cast<size_t>(q)]);
+              for (int a = 0; a < 3; ++a) col[a] += s.bary[k] * static_cast<double>(b[a]);
+            }
+          }
           dx.middleCols(o_exp, k_exp) = R * e_exp;
         }
         for (int a = 0; a < 3; ++a) dx.col(o_rot + a) = rot.d[a] * v_bar;
