@@ -643,6 +643,11 @@ TEST(TrackerEnergy, LinearizeRejectsMismatchedInputs) {
   const Linearization lin = solver.LinearizeAt(frame, layout, EnergyOptions{}, p);
   Eigen::VectorXd r;
   EXPECT_THROW(EvaluateResiduals(model, lin, EnergyOptions{}, Eigen::VectorXd::Zero(3), &r, nullptr), Error);
+  // A model whose expression was never indexed (RenderModel::IndexExpression) is refused, not read
+  // past its index.
+  TrackerModel unindexed = model;
+  unindexed.render.expression_columns = {};
+  EXPECT_THROW(EvaluateResiduals(unindexed, lin, EnergyOptions{}, layout.Pack(p), &r, nullptr), Error);
 }
 
 TEST(TrackerEnergy, InvisibleLandmarksArePruned) {

@@ -149,11 +149,11 @@ bool VertexColumns::Describes(const BasisMatrix& basis, int num_vertices) const 
       static_cast<size_t>(begin.back()) != column.size() || xyz.size() != 3 * column.size()) {
     return false;
   }
+  if (!std::is_sorted(begin.begin(), begin.end())) return false;
   if (basis.cols() == 0) return column.empty();
   for (Eigen::Index v = 0; v < n; ++v) {
     int32_t e = begin[static_cast<size_t>(v)];
     const int32_t end = begin[static_cast<size_t>(v) + 1];
-    if (e > end) return false;
     for (Eigen::Index k = 0; k < basis.cols(); ++k) {
       const bool listed = e < end && column[static_cast<size_t>(e)] == k;
       for (int c = 0; c < 3; ++c) {

@@ -386,6 +386,8 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
                        TermEnergies* energies, int threads) {
   const ParameterLayout& layout = lin.layout;
   if (x.size() != layout.num_parameters()) throw Error("evaluate residuals: parameter vector has the wrong size");
+  if (model.render.expression_columns.begin.size() != static_cast<size_t>(model.num_vertices()) + 1)
+    throw Error("evaluate residuals: the model's expression is not indexed (RenderModel::IndexExpression)");
   const Eigen::Index m = lin.num_residuals();
   const int np = layout.num_parameters();
   Eigen::VectorXd local_r;
