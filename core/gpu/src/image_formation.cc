@@ -144,27 +144,10 @@ VertexColumns VertexColumns::Of(const BasisMatrix& basis, int num_vertices) {
 }
 
 bool VertexColumns::Describes(const BasisMatrix& basis, int num_vertices) const {
-  const Eigen::Index n = std::max(num_vertices, 0);
-  if ((basis.cols() > 0 && basis.rows() != 3 * n) || begin.size() != static_cast<size_t>(n) + 1 || begin.front() != 0 ||
-      static_cast<size_t>(begin.back()) != column.size() || xyz.size() != 3 * column.size()) {
-    return false;
-  }
-  if (!std::is_sorted(begin.begin(), begin.end())) return false;
-  if (basis.cols() == 0) return column.empty();
-  for (Eigen::Index v = 0; v < n; ++v) {
-    int32_t e = begin[static_cast<size_t>(v)];
-    const int32_t end = begin[static_cast<size_t>(v) + 1];
-    for (Eigen::Index k = 0; k < basis.cols(); ++k) {
-      const bool listed = e < end && column[static_cast<size_t>(e)] == k;
-      for (int c = 0; c < 3; ++c) {
-        const float want = listed ? xyz[3 * static_cast<size_t>(e) + static_cast<size_t>(c)] : 0.f;
-        if (basis(3 * v + c, k) != want) return false;
-      }
-      e += listed ? 1 : 0;
-    }
-    if (e != end) return false;
-  }
-  return true;
+  // The index Of would make, entry for entry: one rule for what is listed, not a second reading.
+  if (basis.cols() > 0 && basis.rows() != 3 * static_cast<Eigen::Index>(std::max(num_vertices, 0))) return false;
+  const VertexColumns made = Of(basis, num_vertices);
+  return begin == made.begin && column == made.column && xyz == made.xyz;
 }
 
 bool RenderModel::IsValid(std::string* why) const {
