@@ -113,15 +113,9 @@ VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* 
     ParallelFor(items_for(n, kVerticesPerItem), threads, [&](int item) {
       const int end = std::min(n, (item + 1) * kVerticesPerItem);
       for (int v = item * kVerticesPerItem; v < end; ++v) {
-        const int32_t e0 = ec.begin[static_cast<size_t>(v)], e1 = ec.begin[static_cast<size_t>(v) + 1];
-        if (e0 == e1) continue;
-        float x = 0.f, y = 0.f, z = 0.f;
-        for (int32_t e = e0; e < e1; ++e) {
-          const float w = delta[ec.column[static_cast<size_t>(e)]];
-          const float* b = &ec.xyz[3 * static_cast<size_t>(e)];
-          x += b[0] * w, y += b[1] * w, z += b[2] * w;
-        }
-        s.model_positions[3 * v] += x, s.model_positions[3 * v + 1] += y, s.model_positions[3 * v + 2] += z;
+        if (ec.begin[static_cast<size_t>(v)] == ec.begin[static_cast<size_t>(v) + 1]) continue;
+        const std::array<float, 3> d = ec.Sum<float>(v, delta);
+        for (int c = 0; c < 3; ++c) s.model_positions[3 * v + c] += d[static_cast<size_t>(c)];
       }
     });
   }

@@ -97,14 +97,8 @@ class VertexCache {
       const auto& m = model_.render;
       Eigen::Vector3d p = fixed_shape_ ? (*fixed_shape_)[v] : identity_shape(m, v, c_.alpha, &block_);
       // Over the blendshapes that move v only (RenderModel::expression_columns), in column order.
-      const gpu::VertexColumns& ec = m.expression_columns;
-      Eigen::Vector3d e = Eigen::Vector3d::Zero();
-      for (int32_t q = ec.begin[static_cast<size_t>(v)]; q < ec.begin[static_cast<size_t>(v) + 1]; ++q) {
-        const double w = c_.delta[ec.column[static_cast<size_t>(q)]];
-        const float* b = &ec.xyz[3 * static_cast<size_t>(q)];
-        e.x() += static_cast<double>(b[0]) * w, e.y() += static_cast<double>(b[1]) * w, e.z() += static_cast<double>(b[2]) * w;
-      }
-      p += e;
+      const std::array<double, 3> e = m.expression_columns.Sum<double>(v, c_.delta);
+      p += Eigen::Vector3d(e[0], e[1], e[2]);
       position_[v] = p;
       have_position_[v] = 1;
     }

@@ -126,6 +126,19 @@ struct VertexColumns {
   static VertexColumns Of(const BasisMatrix& basis, int num_vertices);
   // Exactly `basis`'s nonzero blocks, every other entry of it zero, for N vertices.
   bool Describes(const BasisMatrix& basis, int num_vertices) const;
+
+  // Vertex v's sum of weights[column] * (x, y, z) over its listed columns, in column order, in T
+  // (the CPU renderer's float, the tracker's double).
+  template <typename T, typename Weights>
+  std::array<T, 3> Sum(int v, const Weights& weights) const {
+    std::array<T, 3> s{T(0), T(0), T(0)};
+    for (int32_t e = begin[static_cast<size_t>(v)]; e < begin[static_cast<size_t>(v) + 1]; ++e) {
+      const T w = static_cast<T>(weights[column[static_cast<size_t>(e)]]);
+      const float* b = &xyz[3 * static_cast<size_t>(e)];
+      for (int c = 0; c < 3; ++c) s[static_cast<size_t>(c)] += static_cast<T>(b[c]) * w;
+    }
+    return s;
+  }
 };
 
 // The linear model the renderer evaluates: a FaceModel's geometry and albedo, or any other
