@@ -97,7 +97,8 @@ for mouth in auto model; do
 done
 # The source actor's mouth standing in (docs/reenactment.md, "The source actor's mouth"): d6 onto the webcam clip, whose
 # speaker keeps his mouth shut until frame 256; output frames 30, 45, 60 and 85, the mouth 3x: `--mouth target` (the
-# model's teeth, textured) on top, the default (d6's own mouth in his light) below (mouth_source.png).
+# model's teeth, textured) on top, the default (d6's own mouth in his light) below (mouth_source.png). The top row is
+# also "Light through the opening": at frame 60 the model's tongue lit by the opening's size and depth, not a flat gash.
 for mouth in target auto; do
   "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --frames 90 --out "$OUT/mouth_source_$mouth.mp4" \
         --quiet --mouth "$mouth" --frames-dir "$OUT/mouth_source_$mouth"

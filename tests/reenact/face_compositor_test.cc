@@ -1218,9 +1218,10 @@ TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
   const int mouth = cv::countNonZero(c.mouth_mask);
   RecordProperty("mouth_pixels", mouth);
   ASSERT_GT(mouth, 150);
-  // In the mouth region the output is the mouth interior: dark cavity or bright, low-saturation
-  // teeth, or the tongue; not the target's closed lips and skin.
-  int dark = 0, teeth = 0;
+  // In the mouth region the output is the mouth interior: dark cavity, bright low-saturation
+  // teeth, or the tongue lit through the opening (a red below the teeth's brightness); and not
+  // the target's closed lips and skin (below).
+  int dark = 0, teeth = 0, tongue = 0;
   cv::Mat hsv;
   cv::cvtColor(c.bgr, hsv, cv::COLOR_BGR2HSV);
   for (int j = 0; j < cam.height; ++j)
@@ -1229,10 +1230,13 @@ TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
       const cv::Vec3b h = hsv.at<cv::Vec3b>(j, i);
       if (h[2] < 90) ++dark;
       else if (h[1] < 90 && h[2] > 110) ++teeth;
+      else if ((h[0] <= 12 || h[0] >= 170) && h[1] > 100 && h[2] < 170) ++tongue;
     }
   RecordProperty("dark_pixels", dark);
   RecordProperty("teeth_pixels", teeth);
-  EXPECT_GT(dark + teeth, mouth / 3);
+  RecordProperty("tongue_pixels", tongue);
+  EXPECT_GT(dark + teeth + tongue, 2 * mouth / 3);
+  EXPECT_GT(dark, 0) << "the cavity behind the tongue";
   EXPECT_GT(teeth, 0) << "the lower teeth should show in a wide-open mouth";
   EXPECT_GT(mean_abs_diff(c.bgr, t.target, c.mouth_mask), 40.0);
   const cv::Scalar target_in_mouth = cv::mean(t.target, c.mouth_mask);
@@ -1276,7 +1280,9 @@ TEST(ReenactCompositorTest, TeethAreLitAtHalfTheSaturationOfTheLightEnteringTheM
     for (int i = 0; i < cam.width; ++i) {
       if (!c.mouth_mask.at<uchar>(j, i)) continue;
       const cv::Vec3b h = hsv.at<cv::Vec3b>(j, i);
-      if (h[2] >= 110) saturation.push_back(h[1]);  // not the cavity or shadowed teeth
+      // The teeth: the brightest of the interior. Not the cavity or shadowed teeth, nor the
+      // tongue, lit through the opening up to V 158 here, a saturated red of its own.
+      if (h[2] >= 170) saturation.push_back(h[1]);
     }
   ASSERT_GT(saturation.size(), 10u) << "the lit teeth should show";
   std::sort(saturation.begin(), saturation.end());

@@ -2,11 +2,15 @@
 // surface lies where around the opening is known pixel by pixel.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
 
+#include "face_reenact/common/srgb.h"
+#include "face_reenact/reenact/mouth_interior.h"
 #include "mouth_pass.h"
 
 namespace face_reenact::reenact::internal {
@@ -17,9 +21,11 @@ namespace {
 struct Scene {
   static constexpr int kW = 120, kH = 80;
   static constexpr float kLipZ = 0.5f;
-  // Vertices: 0 skin or lip, 1 lower teeth, 2 a face surface 9 cm behind the lip line.
-  std::vector<FacePart> parts{FacePart::Face, FacePart::LowerTeeth, FacePart::Face};
-  std::vector<char> in_mouth{0, 0, 0};
+  // Vertices: 0 skin or lip, 1 lower teeth, 2 a face surface 9 cm behind the lip line, 3 the
+  // tongue, tongue_depth_m behind it.
+  std::vector<FacePart> parts{FacePart::Face, FacePart::LowerTeeth, FacePart::Face, FacePart::Tongue};
+  std::vector<char> in_mouth{0, 0, 0, 0};
+  float tongue_depth_m = 0.03f;
   gpu::GBuffer g;
   std::vector<Eigen::Vector2f> opening{{35.f, 34.f}, {45.f, 26.f}, {60.f, 22.f}, {75.f, 26.f},
                                        {85.f, 34.f}, {75.f, 42.f}, {60.f, 46.f}, {45.f, 42.f}};
@@ -38,8 +44,10 @@ struct Scene {
     const size_t p = static_cast<size_t>(j) * kW + i;
     g.triangle[p] = 0;
     for (int k = 0; k < 3; ++k) g.vertices[3 * p + k] = vertex;
-    const float z = vertex == 1 ? kLipZ + 0.01f : vertex == 2 ? kLipZ + 0.09f : kLipZ;
+    const float z = vertex == 1 ? kLipZ + 0.01f : vertex == 2 ? kLipZ + 0.09f : vertex == 3 ? kLipZ + tongue_depth_m : kLipZ;
     g.position[3 * p + 2] = z;
+    g.barycentric[3 * p] = 1.f;
+    g.barycentric[3 * p + 1] = g.barycentric[3 * p + 2] = 0.f;
     const Eigen::Vector3f c = vertex == 1 ? Eigen::Vector3f(0.8f, 0.8f, 0.75f) : Eigen::Vector3f(0.5f, 0.2f, 0.2f);
     for (int k = 0; k < 3; ++k) g.color[3 * p + k] = c[k];
   }
@@ -53,8 +61,9 @@ struct Scene {
   struct Drawn {
     cv::Mat face_mask, rendered;
   };
-  Drawn Draw(const cv::Mat* frame_shown = nullptr) const {
+  Drawn Draw(const cv::Mat* frame_shown = nullptr, const MouthPassInput* lighting = nullptr) const {
     MouthPassInput in;
+    if (lighting) in = *lighting;
     in.gbuffer = &g;
     in.opening = opening;
     in.lip_z = kLipZ;
@@ -115,6 +124,66 @@ TEST(MouthPassTest, TakesTheInsideOfTheMouthAsFarAsItContinuesPastThePolygon) {
   const Scene::Drawn partly = s.Draw(&shown);
   EXPECT_EQ(cv::countNonZero(partly.face_mask & s.within(12) & ~s.within(8)), 0);
   EXPECT_GT(cv::countNonZero(partly.face_mask & s.within(4)), 100);
+}
+
+
+// The light reaching a surface inside the mouth is the share of the light from in front that the
+// opening subtends: sin^2 of its half-angle seen from the surface, r^2 / (r^2 + d^2).
+TEST(MouthPassTest, ApertureLightIsTheShareOfTheHemisphereTheOpeningSubtends) {
+  EXPECT_FLOAT_EQ(MouthApertureLight(0.02f, 0.f), 1.f);
+  EXPECT_FLOAT_EQ(MouthApertureLight(0.02f, -0.01f), 1.f) << "in front of the lip line";
+  EXPECT_NEAR(MouthApertureLight(0.02f, 0.02f), 0.5f, 1e-6f) << "half-angle 45 degrees";
+  const float angle = std::atan2(0.018f, 0.035f);
+  EXPECT_NEAR(MouthApertureLight(0.018f, 0.035f), std::sin(angle) * std::sin(angle), 1e-6f);
+  EXPECT_LT(MouthApertureLight(0.018f, 0.04f), MouthApertureLight(0.018f, 0.02f)) << "deeper is darker";
+  EXPECT_LT(MouthApertureLight(0.005f, 0.02f), MouthApertureLight(0.018f, 0.02f)) << "a narrower opening is darker";
+  EXPECT_EQ(MouthApertureLight(0.f, 0.01f), 0.f);
+  EXPECT_EQ(MouthApertureLight(std::nanf(""), 0.01f), 0.f);
+  EXPECT_EQ(MouthApertureLight(0.02f, std::numeric_limits<float>::infinity()), 0.f);
+}
+
+// Issue #28: without an open-mouth image, the model's tongue was shaded at its own normal and
+// darkened linearly to 0.15 beyond 2 cm: in a wide-open mouth, 2 % of the cheek's luminance, the
+// cavity's own colour, so the opening was one flat dark gash (d6 onto the webcam clip, --mouth
+// model, output frame 60). Now it takes its albedo lit from in front, times the share of that
+// light its depth and the opening's size let in: a tongue 3 cm in, in an opening of 50 x 24 px at
+// 1 mm per pixel, shows at that share of its albedo; at half the opening's size, or 5 cm in, darker.
+TEST(MouthPassTest, TheTongueIsLitThroughTheOpeningByItsSizeAndDepth) {
+  const Eigen::Vector3f tongue_albedo(0.55f, 0.2f, 0.19f);
+  Eigen::VectorXf albedo = Eigen::VectorXf::Zero(12);
+  albedo.segment<3>(9) = tongue_albedo;
+  MouthPassInput lighting;
+  lighting.vertex_albedo = &albedo;
+  lighting.front_light = Eigen::Vector3f(2.f, 2.f, 2.f);
+  lighting.entering_light = Eigen::Vector3f(0.2f, 0.2f, 0.2f);  // the cavity: 0.2 x its albedo, red 0.018
+  lighting.focal_px = 500.f;  // at the lip line's 0.5 m: 1 mm per pixel
+  // The drawn red at the opening's centre, in linear light, for an opening scaled by `scale`.
+  auto red_at_centre = [&](float scale, float depth_m, double* expected) {
+    Scene s;
+    s.tongue_depth_m = depth_m;
+    const Eigen::Vector2f centre(60.f, 34.f);
+    for (Eigen::Vector2f& p : s.opening) p = centre + scale * (p - centre);
+    for (int j = 0; j < Scene::kH; ++j)
+      for (int i = 0; i < Scene::kW; ++i)
+        if ((Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j)) - centre).cwiseAbs().maxCoeff() < 30.f &&
+            std::abs(j - 34) < 14)
+          s.paint(i, j, 3);
+    const double radius_m = std::sqrt(PolygonArea(s.opening) / M_PI) * Scene::kLipZ / lighting.focal_px;
+    const double r2 = radius_m * radius_m;
+    *expected = std::max(r2 / (r2 + depth_m * depth_m) * tongue_albedo[0] * 2.0, 0.018);  // the cavity's floor
+    const Scene::Drawn d = s.Draw(nullptr, &lighting);
+    return srgb_decode(d.rendered.at<cv::Vec3f>(34, 60)[2] / 255.f);
+  };
+  double wide_expected = 0, narrow_expected = 0, deep_expected = 0;
+  const double wide = red_at_centre(1.f, 0.03f, &wide_expected);
+  const double narrow = red_at_centre(0.5f, 0.03f, &narrow_expected);
+  const double deep = red_at_centre(1.f, 0.05f, &deep_expected);
+  EXPECT_NEAR(wide, wide_expected, 0.01 * wide_expected + 0.002);
+  EXPECT_NEAR(narrow, narrow_expected, 0.01 * narrow_expected + 0.002);
+  EXPECT_NEAR(deep, deep_expected, 0.01 * deep_expected + 0.002);
+  EXPECT_GT(wide, 1.5 * narrow) << "less light enters a narrower opening";
+  EXPECT_GT(wide, 1.5 * deep) << "less reaches deeper in";
+  EXPECT_GT(wide, 0.1) << "a tongue in a wide-open mouth is not the cavity's dark";
 }
 
 }  // namespace

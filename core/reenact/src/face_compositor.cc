@@ -1779,8 +1779,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   if (detail) result.detail = detail->Apply(g, camera, result.face_mask, &rendered);
 
   // --- mouth (Sec. 7.3): inside the lip opening, teeth and tongue (already placed by the
-  // jawOpen / tongueOut blendshapes) darkened with depth, and a dark cavity wherever the
-  // opening shows the inside of the head or nothing at all.
+  // jawOpen / tongueOut blendshapes) lit through the opening (darker the deeper and the narrower
+  // the opening), and a dark cavity wherever the opening shows the inside of the head or nothing.
   start = Clock::now();
   // With the frame texture, the interior is also drawn wherever the frame does not show the
   // mouth's own surfaces (teeth, tongue, the cavity's wall) that the output's opening shows, even
@@ -1798,6 +1798,11 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
     in.in_mouth = &im.in_mouth;
     in.teeth_pattern = [&](size_t p) { return im.TeethPatternAt(g, p); };
     for (int c = 0; c < 3; ++c) in.entering_light[c] = Impl::entering_light(light, c);
+    in.vertex_albedo = &state.albedo;
+    Eigen::Vector3f front;
+    for (int c = 0; c < 3; ++c) front[c] = internal::camera_facing_irradiance(light, c);
+    in.front_light = luminance(front) * entering_colour;
+    in.focal_px = camera.fx;
     in.skin_cast = cast;
     in.exemplar = mouth;
     in.mouth_alpha = mouth_alpha;

@@ -15,14 +15,6 @@ namespace {
 // Linear-RGB albedo of the mouth cavity's back wall: dark red-brown, and it receives little of
 // the scene's light (most of the hemisphere above it is the inside of the mouth).
 const Eigen::Vector3f kCavityAlbedo(0.09f, 0.025f, 0.025f);
-// Teeth and tongue are shaded by the lips and cheeks the deeper they sit behind the lip line:
-// the light reaching them falls linearly with depth over this distance, down to a floor. The
-// tongue sits lower and deeper in the cavity than the front teeth and gets less light overall.
-constexpr float kTeethOcclusionDepthM = 0.03f;
-constexpr float kMinTeethOcclusion = 0.5f;
-constexpr float kTongueOcclusionDepthM = 0.02f;
-constexpr float kMinTongueOcclusion = 0.15f;
-constexpr float kMaxTongueOcclusion = 0.55f;
 // A face-part surface this far behind the lip line (inside the lip opening) is the cavity wall.
 constexpr float kCavityDepthM = 0.003f;
 // Any face surface this far behind the lip line that shows beside the opening is the inside of
@@ -30,6 +22,13 @@ constexpr float kCavityDepthM = 0.003f;
 constexpr float kInsideTheMouthM = 0.03f;
 
 }  // namespace
+
+float MouthApertureLight(float opening_radius_m, float depth_m) {
+  if (!(depth_m > 0.f)) return 1.f;
+  if (!(opening_radius_m > 0.f) || !std::isfinite(opening_radius_m) || !std::isfinite(depth_m)) return 0.f;
+  const float r2 = opening_radius_m * opening_radius_m;
+  return r2 / (r2 + depth_m * depth_m);
+}
 
 MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::Mat* face_mask_out, cv::Mat* mouth_mask_out,
                           cv::Mat* face_depth_out) {
@@ -59,7 +58,20 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // cavity: darker as the opening narrows, since less light enters it.
   const MouthExemplar* mouth = in.exemplar;
   const bool use_exemplar = mouth && !mouth->empty() && mouth->opening.size() == opening_px.size();
-  const float exemplar_light = use_exemplar ? MouthInteriorBrightness(PolygonArea(opening_px), mouth->area_px) : 1.f;
+  const double opening_area_px = PolygonArea(opening_px);
+  const float exemplar_light = use_exemplar ? MouthInteriorBrightness(opening_area_px, mouth->area_px) : 1.f;
+  // The opening as a disc of its area, in metres at the lip line's depth (MouthApertureLight).
+  const float opening_radius_m =
+      in.focal_px > 0.f ? static_cast<float>(std::sqrt(opening_area_px / M_PI)) * lip_z / in.focal_px : 0.f;
+  // A teeth or tongue pixel's colour lit from in front (MouthPassInput::vertex_albedo): its
+  // albedo interpolated over its triangle; without the albedo, the rendering's own colour.
+  auto front_lit = [&](size_t p) -> Eigen::Vector3f {
+    if (!in.vertex_albedo) return Eigen::Vector3f(g.color[3 * p], g.color[3 * p + 1], g.color[3 * p + 2]);
+    Eigen::Vector3f albedo = Eigen::Vector3f::Zero();
+    for (int k = 0; k < 3; ++k)
+      albedo += g.barycentric[3 * p + k] * in.vertex_albedo->segment<3>(3 * static_cast<Eigen::Index>(g.vertices[3 * p + k]));
+    return albedo.cwiseProduct(in.front_light);
+  };
   // The interior is drawn as a layer of its own (premultiplied colour and coverage) and
   // softened by about a camera's blur before it goes over the face: drawn sharp, one sample per
   // pixel, a barely opened mouth's cavity was a row of hard, nearly black dashes along the lip
@@ -305,17 +317,26 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
         strips.push_back({i, j, alpha});
         continue;
       } else if (mouth_part) {
-        const float occlusion =
-            part == FacePart::Tongue
-                ? std::clamp(kMaxTongueOcclusion * (1.0f - depth_behind / kTongueOcclusionDepthM), kMinTongueOcclusion,
-                             kMaxTongueOcclusion)
-                : std::clamp(1.0f - depth_behind / kTeethOcclusionDepthM, kMinTeethOcclusion, 1.0f);
+        // Lit through the opening: the light from in front of the face, of which a point inside
+        // gets the share the opening subtends. Shaded at their own normals instead (up, down,
+        // inwards: where the fit's light is an extrapolation) and darkened linearly with depth,
+        // the tongue of a wide-open mouth drew at 2 % of the cheek's luminance, the cavity's own
+        // colour: one flat dark gash with a band of teeth above it (d6 onto the webcam clip,
+        // --mouth model, output frame 60), where a real open mouth's tongue shows at about a
+        // third of the cheek (d12's frame 125) and only its rim and the throat are that dark.
+        const float light = MouthApertureLight(opening_radius_m, depth_behind);
         // The teeth's texture (teeth_texture.h): gaps, edges and darker corners on the band.
         const Eigen::Vector3f pattern = part == FacePart::Tongue ? Eigen::Vector3f::Ones() : in.teeth_pattern(p);
-        // No darker than the cavity wall behind them: the fit's floor left edge-on teeth and
-        // the tongue near black (see irradiance_at).
-        for (int c = 0; c < 3; ++c)
-          interior[c] = std::max(occlusion * pattern[c] * g.color[3 * p + static_cast<size_t>(c)], cavity_rgb[c]);
+        // The teeth's biting edges face up or down, away from the opening, so they keep the fit's
+        // light at their own normals where that is less: lit from in front, the lower teeth in a
+        // parted mouth drew a row of white dashes along the lower lip (d14 on the webcam clip,
+        // output frames 11-37). The model's tongue faces up where a real one in an open mouth
+        // bulges toward the opening, so it is lit from in front.
+        Eigen::Vector3f lit = front_lit(p);
+        if (part != FacePart::Tongue)
+          lit = lit.cwiseMin(Eigen::Vector3f(g.color[3 * p], g.color[3 * p + 1], g.color[3 * p + 2]));
+        // No darker than the cavity wall behind them.
+        for (int c = 0; c < 3; ++c) interior[c] = std::max(light * pattern[c] * lit[c], cavity_rgb[c]);
       } else {
         interior = cavity_rgb;
       }

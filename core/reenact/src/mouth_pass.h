@@ -3,8 +3,8 @@
 // inside its lip opening. The compositor (face_compositor.cc) renders the output face, teeth and
 // tongue included, and hands the pass its G-buffer; the pass draws the interior over it: the
 // actor's own open mouth warped into the opening (mouth_interior.h), or the model's teeth and
-// tongue darkened with depth and a dark cavity behind them, and mends what the rasterised lips
-// leave around a barely opened mouth. docs/reenactment.md ("Mouth") says why each rule is there.
+// tongue lit through the opening (darker the deeper and the narrower) and a dark cavity behind
+// them, and mends what the rasterised lips leave around a barely opened mouth. docs/reenactment.md ("Mouth") says why each rule is there.
 #include <array>
 #include <functional>
 #include <vector>
@@ -33,6 +33,14 @@ struct MouthPassInput {
   // The teeth texture's pattern at a teeth pixel of the G-buffer (1 without a texture).
   std::function<Eigen::Vector3f(size_t pixel)> teeth_pattern;
   Eigen::Vector3f entering_light = Eigen::Vector3f::Ones();  // linear irradiance entering the opening
+  // The model's teeth and tongue without an open-mouth image: each vertex's albedo (3 per model
+  // vertex, linear RGB, as the output is rendered) lit by `front_light`, the light arriving from
+  // in front of the face (the camera-facing irradiance, in the colour teeth are lit with), of
+  // which a point inside the mouth gets the share its opening lets through (MouthApertureLight).
+  // The opening's size in metres comes from its pixels at the lip line's depth: focal_px.
+  const Eigen::VectorXf* vertex_albedo = nullptr;
+  Eigen::Vector3f front_light = Eigen::Vector3f::Ones();
+  float focal_px = 0.f;
   Eigen::Vector3f skin_cast = Eigen::Vector3f::Ones();       // the actor's skin against the model's
   const MouthExemplar* exemplar = nullptr;  // the actor's own open mouth, or null
   // How much of the interior replaces what the opening shows (0..1), and with the frame texture
@@ -40,6 +48,14 @@ struct MouthPassInput {
   float mouth_alpha = 1.f;
   const cv::Mat* frame_shown = nullptr;
 };
+
+// The share of the light from in front of the face that reaches a surface `depth_m` behind the lip
+// line, facing out of a mouth whose opening is a disc of radius `opening_radius_m`: the
+// cosine-weighted part of its hemisphere the opening subtends, sin^2 of the opening's half-angle,
+// r^2 / (r^2 + d^2). 1 at the lip line; a wide-open mouth (r 1.8 cm) lets 0.2 of it reach a tongue
+// 3.5 cm in, a barely parted one (r 0.5 cm) 0.28 reach teeth 8 mm in. Non-finite or non-positive
+// radius: 0 behind the lip line.
+float MouthApertureLight(float opening_radius_m, float depth_m);
 
 struct MouthPassResult {
   bool drawn = false;          // some interior pixel was drawn
