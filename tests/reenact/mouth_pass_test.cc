@@ -186,5 +186,29 @@ TEST(MouthPassTest, TheTongueIsLitThroughTheOpeningByItsSizeAndDepth) {
   EXPECT_GT(wide, 0.1) << "a tongue in a wide-open mouth is not the cavity's dark";
 }
 
+// The teeth's biting edges face away from the opening: they take the light from in front only as
+// far as the fit's light at their own normals reaches (lit from in front in full, the lower teeth of
+// d14's parted smile on the webcam clip drew white dashes along the lip).
+TEST(MouthPassTest, TeethTakeTheLightFromInFrontOnlyUpToTheirOwnShading) {
+  Eigen::VectorXf albedo = Eigen::VectorXf::Zero(12);
+  albedo.segment<3>(3) = Eigen::Vector3f(0.7f, 0.7f, 0.7f);  // the lower teeth (vertex 1)
+  MouthPassInput lighting;
+  lighting.vertex_albedo = &albedo;
+  lighting.entering_light = Eigen::Vector3f(0.2f, 0.2f, 0.2f);
+  lighting.focal_px = 500.f;
+  auto green_at_centre = [&](float front) {
+    Scene s;
+    for (int j = 24; j < 45; ++j)
+      for (int i = 40; i < 81; ++i) s.paint(i, j, 1);  // teeth 1 cm in, shaded (0.8, 0.8, 0.75)
+    lighting.front_light = Eigen::Vector3f(front, front, front);
+    const double radius_m = std::sqrt(PolygonArea(s.opening) / M_PI) * Scene::kLipZ / lighting.focal_px;
+    const double share = radius_m * radius_m / (radius_m * radius_m + 0.01 * 0.01);
+    const double drawn = srgb_decode(s.Draw(nullptr, &lighting).rendered.at<cv::Vec3f>(34, 60)[1] / 255.f);
+    return drawn / share;  // the light the teeth took, before the opening's share
+  };
+  EXPECT_NEAR(green_at_centre(0.5f), 0.35, 0.01) << "dimmer from in front than at their normals: the front";
+  EXPECT_NEAR(green_at_centre(2.0f), 0.8, 0.02) << "brighter from in front: their own shading";
+}
+
 }  // namespace
 }  // namespace face_reenact::reenact::internal
