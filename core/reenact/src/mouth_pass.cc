@@ -65,8 +65,9 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
       in.focal_px > 0.f ? static_cast<float>(std::sqrt(opening_area_px / M_PI)) * lip_z / in.focal_px : 0.f;
   // A teeth or tongue pixel's colour lit from in front (MouthPassInput::vertex_albedo): its
   // albedo interpolated over its triangle; without the albedo, the rendering's own colour.
+  auto shaded = [&](size_t p) { return Eigen::Vector3f(g.color[3 * p], g.color[3 * p + 1], g.color[3 * p + 2]); };
   auto front_lit = [&](size_t p) -> Eigen::Vector3f {
-    if (!in.vertex_albedo) return Eigen::Vector3f(g.color[3 * p], g.color[3 * p + 1], g.color[3 * p + 2]);
+    if (!in.vertex_albedo) return shaded(p);
     Eigen::Vector3f albedo = Eigen::Vector3f::Zero();
     for (int k = 0; k < 3; ++k)
       albedo += g.barycentric[3 * p + k] * in.vertex_albedo->segment<3>(3 * static_cast<Eigen::Index>(g.vertices[3 * p + k]));
@@ -334,7 +335,7 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
         // bulges toward the opening, so it is lit from in front.
         Eigen::Vector3f lit = front_lit(p);
         if (part != FacePart::Tongue)
-          lit = lit.cwiseMin(Eigen::Vector3f(g.color[3 * p], g.color[3 * p + 1], g.color[3 * p + 2]));
+          lit = lit.cwiseMin(shaded(p));
         // No darker than the cavity wall behind them.
         for (int c = 0; c < 3; ++c) interior[c] = std::max(light * pattern[c] * lit[c], cavity_rgb[c]);
       } else {

@@ -4,7 +4,8 @@
 // tongue included, and hands the pass its G-buffer; the pass draws the interior over it: the
 // actor's own open mouth warped into the opening (mouth_interior.h), or the model's teeth and
 // tongue lit through the opening (darker the deeper and the narrower) and a dark cavity behind
-// them, and mends what the rasterised lips leave around a barely opened mouth. docs/reenactment.md ("Mouth") says why each rule is there.
+// them, and mends what the rasterised lips leave around a barely opened mouth.
+// docs/reenactment.md ("Mouth") says why each rule is there.
 #include <array>
 #include <functional>
 #include <vector>
