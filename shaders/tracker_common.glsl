@@ -33,8 +33,8 @@ const uint kPixelItemWords = 9;  // pixel, flags, v0, v1, v2, b0, b1, b2, colour
 const uint kFlagPoint = 1u, kFlagPlane = 2u, kFlagColor = 4u;
 const uint kRowsPerPixel = 8u;
 
-// The largest number of unknowns the GPU passes support (one PCG element per invocation, and
-// tracker_jtj.comp needs n + 1 invocations).
+// The largest number of unknowns the GPU passes support (one PCG element per invocation of a
+// 256-invocation workgroup).
 const uint kMaxUnknowns = 255u;
 
 // A push constant size of kSizeFromParams: the pass takes it from the TrackParams of its level,
@@ -46,6 +46,15 @@ uint system_rows(uint pixels, uint landmarks, uint regularizer) { return kRowsPe
 // Rows per workgroup of tracker_jt.comp and tracker_jtj.comp (vulkan_solver.cc: kJtChunk, kJtjRowsPerChunk).
 const uint kJtChunkRows = 256u;
 const uint kJtjChunkRows = 1024u;
+// tracker_jtj.comp: [J | r]'s n + 1 columns in tiles of kJtjTile, one invocation per pair of tiles
+// (the upper triangle), kJtjPairsPerGroup pairs per workgroup (vulkan_solver.cc: the same names).
+const uint kJtjTile = 8u;
+const uint kJtjPairsPerGroup = 64u;
+uint jtj_tiles(uint n) { return (n + kJtjTile) / kJtjTile; }
+uint jtj_pair_groups(uint n) {
+  const uint t = jtj_tiles(n);
+  return (t * (t + 1u) / 2u + kJtjPairsPerGroup - 1u) / kJtjPairsPerGroup;
+}
 
 mat3 rows3(vec3 a, vec3 b, vec3 c) { return transpose(mat3(a, b, c)); }
 

@@ -207,7 +207,7 @@ void counts() {
   set_args(kArgPcg, on, 1u, 1u);
   set_args(kArgTrialVertices, on * pc.tracker_vertex_groups, pc.num_trials, 1u);
   set_args(kArgTrialEvaluate, on * groups, pc.num_trials, 1u);
-  set_args(kArgJtj, assembled * ((rows + kJtjChunkRows - 1u) / kJtjChunkRows), (params.n + 7u) / 8u, 1u);
+  set_args(kArgJtj, assembled * ((rows + kJtjChunkRows - 1u) / kJtjChunkRows), jtj_pair_groups(params.n), 1u);
   set_args(kArgReduce, assembled * ((params.n * (params.n + 1u) + 63u) / 64u), 1u, 1u);
 }
 

@@ -414,6 +414,9 @@ TEST_F(VulkanSolverTest, CalibrationReachesTheCpuResult) {
     EXPECT_LT((fit[f].translation - cpu_fit[f].translation).norm(), 1e-4) << "frame " << f;
     EXPECT_LT((fit[f].delta - cpu_fit[f].delta).cwiseAbs().maxCoeff(), 5e-3) << "frame " << f;
   }
+  for (size_t i = 0; i < std::min(s.iterations.size(), cpu_summary.iterations.size()); ++i) {
+    EXPECT_EQ(s.iterations[i].step_halvings, cpu_summary.iterations[i].step_halvings) << "step " << i;
+  }
   // What the CPU's joint solve refuses, this one refuses too.
   std::vector<gpu::FaceParameters> too_few(2, starts[0]);
   EXPECT_THROW(solver().SolveFrames(frames, layout, options, &too_few), Error);

@@ -350,7 +350,13 @@ constexpr uint32_t kPixelItemWords = 9;
 constexpr uint32_t kEvaluateGroup = 64;   // tracker_evaluate.comp local size
 constexpr uint32_t kJtChunk = 256;        // tracker_jt.comp rows per workgroup
 constexpr uint32_t kJtjRowsPerChunk = 1024;
-constexpr uint32_t kJtjColumnsPerGroup = 8;  // tracker_jtj.comp
+// tracker_jtj.comp's tiles of [J | r]'s columns and pairs of tiles per workgroup (tracker_common.glsl).
+constexpr uint32_t kJtjTile = 8;
+constexpr uint32_t kJtjPairsPerGroup = 64;
+constexpr uint32_t jtj_pair_groups(uint32_t n) {
+  const uint32_t tiles = (n + kJtjTile) / kJtjTile;
+  return (tiles * (tiles + 1) / 2 + kJtjPairsPerGroup - 1) / kJtjPairsPerGroup;
+}
 constexpr uint32_t kMaxUnknowns = 255;    // tracker_common.glsl kMaxUnknowns
 constexpr uint32_t kStateX = 16;          // tracker_pcg.comp: first vector of the state
 constexpr uint32_t kStateFloats = kStateX + 6 * (kMaxUnknowns + 1);
@@ -1012,7 +1018,7 @@ struct VulkanSolver::Impl {
     const bool device = arg != kDirect;
     rec.push_constants(JtjPush{device ? kSizeFromParams : static_cast<uint32_t>(counts.rows()), n, kJtjRowsPerChunk,
                                device ? kSizeFromParams : column_stride()});
-    dispatch(rec, arg, jtj_chunks(), (n + kJtjColumnsPerGroup - 1) / kJtjColumnsPerGroup);
+    dispatch(rec, arg, jtj_chunks(), jtj_pair_groups(n));
   }
 
   // `groups`: jt partials to sum in stages 0 and 2 (kSizeFromParams: the chunks of the level's rows).
@@ -1672,6 +1678,7 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
                                  double* synthesis_ms, double* analysis_ms) override {
     level_ = level.level;
     x_ = x;
+    held_frame_ = -1;
     systems_.clear();
     trial_points_.clear();
     trial_energies_.clear();
@@ -1680,6 +1687,7 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
     for (int f = 0; f < unknowns_.frames(); ++f) {
       const Eigen::VectorXd xf = unknowns_.FrameX(x, f);
       const Counts counts = linearize_frame(f, xf, synthesis_ms, analysis_ms);
+      held_frame_ = f;
       out.has_data = out.has_data && counts.has_data();
       out.residuals += counts.residuals();
       TermEnergies e;
@@ -1726,8 +1734,11 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
     rec->pcg_relative_residual = ps.initial_residual_norm > 0 ? ps.final_residual_norm / ps.initial_residual_norm : 0;
   }
 
-  // Every halving's trial point is formed as the loop forms it (x + 2^-h dx, expression clamped),
-  // and all are evaluated the first time one is asked for.
+  // Every halving's trial point is formed as the loop forms it (x + 2^-h dx, expression clamped).
+  // The full step is evaluated alone and, only if the loop goes on to halve it, all halvings in
+  // one more pass: most steps are taken whole, and each trial point is a render and an evaluation
+  // of every frame (on lavapipe evaluating all of them with the first made the trials 60 % of a
+  // calibration step). Each pass re-linearises every frame but the one the device still holds.
   double TrialEnergy(int halving, const Eigen::VectorXd& x_try) override {
     if (trial_points_.empty()) {
       double scale = 1.0;
@@ -1736,12 +1747,19 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
         internal::ClampExpressions(options_, unknowns_.ExpressionSpans(), &p);
         trial_points_.push_back(std::move(p));
       }
-      trial_energies_ = Evaluate(trial_points_);
     }
-    if (halving < static_cast<int>(trial_points_.size()) && trial_points_[static_cast<size_t>(halving)] == x_try) {
-      return trial_energies_[static_cast<size_t>(halving)];
+    const size_t h = static_cast<size_t>(halving);
+    if (halving < 0 || h >= trial_points_.size() || trial_points_[h] != x_try) {
+      return Evaluate({x_try}).front();  // a point the loop formed otherwise (not expected)
     }
-    return Evaluate({x_try}).front();  // a point the loop formed otherwise (not expected)
+    if (h >= trial_energies_.size()) {
+      const size_t first = trial_energies_.size(), end = first == 0 ? 1 : trial_points_.size();
+      const std::vector<double> e =
+          Evaluate(std::vector<Eigen::VectorXd>(trial_points_.begin() + static_cast<std::ptrdiff_t>(first),
+                                                trial_points_.begin() + static_cast<std::ptrdiff_t>(end)));
+      trial_energies_.insert(trial_energies_.end(), e.begin(), e.end());
+    }
+    return trial_energies_[h];
   }
 
   double TakeUnusedStepMs() override { return std::exchange(step_ms_, 0.0); }
@@ -1754,15 +1772,31 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
                         analysis_ms, /*regularize_shared=*/f == 0);
   }
 
-  // Total energies at joint points, each frame linearised again at the step's start.
+  // Total energies at joint points, each frame linearised at the step's start: the frame the
+  // device still holds first (its linearisation at x_ is in place), then the others linearised
+  // again. Summed in frame order, whichever order they were evaluated in.
   std::vector<double> Evaluate(const std::vector<Eigen::VectorXd>& points) {
-    std::vector<double> totals(points.size(), 0.0);
+    const int frames = unknowns_.frames();
+    std::vector<int> order;
+    if (held_frame_ >= 0) order.push_back(held_frame_);
+    for (int f = 0; f < frames; ++f) {
+      if (f != held_frame_) order.push_back(f);
+    }
+    std::vector<std::vector<TermEnergies>> per_frame(static_cast<size_t>(frames));
     double unused = 0;
-    for (int f = 0; f < unknowns_.frames(); ++f) {
-      linearize_frame(f, unknowns_.FrameX(x_, f), &unused, &unused);
+    for (const int f : order) {
+      if (f == held_frame_) {
+        m_.current_input = &inputs_[static_cast<size_t>(f)].at(level_).data;
+      } else {
+        linearize_frame(f, unknowns_.FrameX(x_, f), &unused, &unused);
+        held_frame_ = f;
+      }
       std::vector<Eigen::VectorXd> local;
       for (const Eigen::VectorXd& p : points) local.push_back(unknowns_.FrameX(p, f));
-      const std::vector<TermEnergies> e = m_.energies_at(local);
+      per_frame[static_cast<size_t>(f)] = m_.energies_at(local);
+    }
+    std::vector<double> totals(points.size(), 0.0);
+    for (const std::vector<TermEnergies>& e : per_frame) {
       for (size_t k = 0; k < points.size(); ++k) totals[k] += e[k].total();
     }
     m_.current_input = nullptr;
@@ -1777,6 +1811,9 @@ class VulkanSolver::Impl::JointGaussNewton final : public internal::GaussNewtonB
   const std::vector<gpu::FaceParameters>& bases_;
   PcgScratch scratch_;
   int level_ = 0;
+  // The frame whose linearisation at x_ (level_) the device holds (-1: none): the last one
+  // linearised, since each frame's linearisation replaces the one before on the device.
+  int held_frame_ = -1;
   Eigen::VectorXd x_, dx_;  // the last linearisation point and the step solved there
   std::vector<NormalEquations> systems_;
   std::vector<Eigen::VectorXd> trial_points_;
