@@ -187,17 +187,24 @@ class LandmarkFit {
   }
 
   // J^T J and J^T r of the energy above at the current point; unknowns [alpha | (omega, t) per frame],
-  // omega a rotation applied on the left of R.
+  // omega a rotation applied on the left of R. A landmark's rows touch alpha and its own frame's
+  // six unknowns only, so each frame's rows are stacked over those k + 6 columns and multiplied
+  // once (one matrix product per frame instead of a dense n x n update per landmark, which made
+  // this search a sixth of a short `reenact` run), then added into the frame's blocks.
   void Normal(const std::vector<gpu::PinholeCamera>& cams, const std::vector<Eigen::Matrix3d>& rot,
               const std::vector<Eigen::Vector3d>& trans, const Eigen::VectorXd& alpha, Eigen::MatrixXd* jtj,
               Eigen::VectorXd* jtr) const {
     const auto& r = model_.render;
-    const int n = static_cast<int>(jtr->size());
-    Eigen::Matrix<double, 2, Eigen::Dynamic> j(2, n);
+    const int local = k_ + 6;
+    Eigen::MatrixXd j;
+    Eigen::VectorXd res;
     for (size_t f = 0; f < frames_.size(); ++f) {
       const FrameLandmarks& fl = frames_[f];
       const gpu::PinholeCamera& c = cams[f];
       const int off = k_ + 6 * static_cast<int>(f);
+      const int rows = 2 * static_cast<int>(fl.vertices.size());
+      j.resize(rows, local);
+      res.resize(rows);
       for (size_t i = 0; i < fl.vertices.size(); ++i) {
         const int v = fl.vertices[i];
         const Eigen::Vector3d rx = rot[f] * Vertex(v, alpha);
@@ -206,14 +213,20 @@ class LandmarkFit {
         Eigen::Matrix<double, 2, 3> dp;
         dp << c.fx / x.z(), 0, -c.fx * x.x() / (x.z() * x.z()), 0, c.fy / x.z(), -c.fy * x.y() / (x.z() * x.z());
         dp *= s;
-        const Eigen::Vector2d res = (internal::project(c, x) - fl.uv[i]) * s;
-        j.setZero();
-        for (int k = 0; k < k_; ++k) j.col(k) = dp * (rot[f] * r.identity_basis.block<3, 1>(3 * v, k).cast<double>());
-        j.block<2, 3>(0, off) = -dp * skew(rx);
-        j.block<2, 3>(0, off + 3) = dp;
-        *jtj += j.transpose() * j;
-        *jtr += j.transpose() * res;
+        const int row = 2 * static_cast<int>(i);
+        res.segment<2>(row) = (internal::project(c, x) - fl.uv[i]) * s;
+        j.block(row, 0, 2, k_).noalias() = (dp * rot[f]) * r.identity_basis.block(3 * v, 0, 3, k_).cast<double>();
+        j.block<2, 3>(row, k_) = -dp * skew(rx);
+        j.block<2, 3>(row, k_ + 3) = dp;
       }
+      const Eigen::MatrixXd a = j.transpose() * j;
+      const Eigen::VectorXd b = j.transpose() * res;
+      jtj->topLeftCorner(k_, k_) += a.topLeftCorner(k_, k_);
+      jtj->block(0, off, k_, 6) += a.topRightCorner(k_, 6);
+      jtj->block(off, 0, 6, k_) += a.bottomLeftCorner(6, k_);
+      jtj->block<6, 6>(off, off) += a.bottomRightCorner<6, 6>();
+      jtr->head(k_) += b.head(k_);
+      jtr->segment<6>(off) += b.tail<6>();
     }
     for (int k = 0; k < k_; ++k) {
       const double w = options_.w_identity / std::pow(static_cast<double>(model_.identity_sigma[k]), 2);
