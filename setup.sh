@@ -117,7 +117,7 @@ run_tests() {
   # The sanitizer run checks memory and undefined behaviour on every code path once: each test
   # executable runs as one process and leaves the cases of tests/release_only.txt (whole programs
   # and long runs whose paths shorter cases walk here; the file says which and why) to the
-  # release run above.
+  # release run above; programs whose cases all are (`fr_test(... RELEASE_ONLY)`) are not built.
   ctest --test-dir "$BUILD_ASAN" -j "$JOBS" --output-on-failure
 }
 

@@ -32,10 +32,19 @@ endfunction()
 # In the sanitizer build the executable is one CTest test that runs all its cases in one process
 # (a sanitized process takes about a second to start, and most cases are far shorter), leaving
 # out those of tests/release_only.txt; TIMEOUT then bounds the whole run, at least
-# FR_SANITIZER_TEST_TIMEOUT.
+# FR_SANITIZER_TEST_TIMEOUT. RELEASE_ONLY: every case of the program is in release_only.txt, so
+# the sanitizer build does not build it at all (its compile cost nothing would run); the release
+# build labels its cases `release-only`, and tests/check_release_only.py fails when one of them
+# is not in the list.
 set(FR_SANITIZER_TEST_TIMEOUT 1200 CACHE STRING "Seconds a whole test executable may run in the sanitizer build")
 function(fr_test name)
-  cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
+  cmake_parse_arguments(ARG "RELEASE_ONLY" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
+  if(ARG_RELEASE_ONLY)
+    if(FR_SANITIZE)
+      return()
+    endif()
+    list(APPEND ARG_LABELS release-only)
+  endif()
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} fr_test_main GTest::gtest)
   fr_target_defaults(${name})
