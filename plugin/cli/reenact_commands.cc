@@ -223,6 +223,7 @@ struct ReenactArgs {
   int calibration_window = 0;      // as `track --calibration-window`, for both actors
   int relaxed_recalibration = tracker::TrackerOptions{}.relaxed_recalibration_frames;  // as track's, both actors
   bool no_brows = false;           // as `track --no-brows`, for both actors
+  int max_face_width = tracker::TrackerOptions{}.max_face_width_px;  // as `track --max-face-width`, both actors
   CameraArgs camera;               // --fov / --intrinsics of both actors' videos (none: estimated)
   double source_rest_s = -1;       // the source actor is at rest from this time on (s): calibrate there
   double target_rest_s = -1;       // the same for the target
@@ -317,6 +318,7 @@ void run_reenact(const ReenactArgs& a) {
   ro.tracker.calibration_window_frames = a.calibration_window;
   ro.tracker.relaxed_recalibration_frames = a.relaxed_recalibration;
   ro.tracker.brows.enabled = !a.no_brows;
+  ro.tracker.max_face_width_px = a.max_face_width;
   if (!ro.SetMouth(a.mouth)) {
     char* end = nullptr;
     const long long frame = std::strtoll(a.mouth.c_str(), &end, 10);
@@ -624,6 +626,7 @@ void run_reenact(const ReenactArgs& a) {
                         {"source", source_rec ? nlohmann::json(intrinsics_description(a.source, source_rec->info(), source_camera))
                                               : nlohmann::json()}}},
         {"calibration_window_frames", a.calibration_window},
+        {"max_face_width_px", a.max_face_width},
         {"relaxed_recalibration_frames", a.relaxed_recalibration},
         {"target_held_still", held_still},
         {"agreement", agreement_json(agreement.summary())},
@@ -1224,6 +1227,10 @@ void add_reenact_commands(CLI::App& app) {
                   "Calibrate each actor on the most varied head poses among this many frames (as track; default 0: the "
                   "first frames)")
         ->check(CLI::Range(0, 100000));
+    c->add_option("--max-face-width", args->max_face_width,
+                  "Track a larger face on coarser pyramid levels, so that it is at most this wide on the finest (px; as "
+                  "track; default " + std::to_string(tracker::TrackerOptions{}.max_face_width_px) + ", 0 = never coarser)")
+        ->check(CLI::Range(0, 4096));
     c->add_option("--relaxed-recalibration", args->relaxed_recalibration,
                   "After a calibration not at rest, calibrate each actor again on the most relaxed of this many "
                   "frames (as track; 0: off)")

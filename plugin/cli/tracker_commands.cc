@@ -236,6 +236,7 @@ struct TrackArgs {
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
+  int max_face_width = TrackerOptions{}.max_face_width_px;
   CameraArgs camera;  // --fov / --intrinsics: none = estimated for videos and webcams
   double tracking_tolerance = -1;  // < 0: TrackerOptions' default
   bool every_pixel = false;         // the per-frame solves' dense terms on every pixel (the paper's)
@@ -276,6 +277,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
   o.calibration_min_face_width_px = a.calibration_min_face_width;
+  o.max_face_width_px = a.max_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   if (a.no_agreement_check) {
     // Measured and reported still (the report's "agreement"), but no fit is refused for it.
@@ -612,6 +614,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["depth_used"] = depth && config.depth;
   j["min_face_width_px"] = tracker.options().min_face_width_px;
   j["calibration_min_face_width_px"] = tracker.options().ResolvedCalibrationMinFaceWidth();
+  j["max_face_width_px"] = tracker.options().max_face_width_px;
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
   j["pixel_sampling"] = tracker.options().tracking_solver.energy.pixel_sampling;  // 2: every other pixel
@@ -827,6 +830,10 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_option("--min-face-width", targs->min_face_width,
                  "Track on pyramid levels where the face is at least this wide (px; default " +
                      std::to_string(TrackerOptions{}.min_face_width_px) + ", 0 = the paper's levels 2 and 1)")
+      ->check(CLI::Range(0, 4096));
+  tc->add_option("--max-face-width", targs->max_face_width,
+                 "Track a larger face on coarser pyramid levels, so that it is at most this wide on the finest (px; "
+                 "default " + std::to_string(TrackerOptions{}.max_face_width_px) + ", 0 = never coarser)")
       ->check(CLI::Range(0, 4096));
   tc->add_option("--calibration-min-face-width", targs->calibration_min_face_width,
                  "The same for the calibration solve (px; default " +

@@ -184,6 +184,41 @@ TEST(FaceTrackerOptions, ScheduleFollowsTheFaceSize) {
   EXPECT_DOUBLE_EQ(LandmarkExtentPx(f, 0.f), 40.0);  // the zero-confidence point does not count
 }
 
+// The other way: a face wider than the bound on the finest solved level is solved on coarser
+// levels (its pyramid deepened), with hysteresis, and never so coarse that the coarsest level
+// holds it under the minimum.
+TEST(FaceTrackerOptions, ALargeFaceIsSolvedOnCoarserLevels) {
+  SolverOptions paper;  // levels 2 then 1, a pyramid of 3
+  // 180 px: 90 on level 1, within 96: as scheduled.
+  EXPECT_EQ(LargeFaceCoarsening(paper, 180, 96, 20, 0), 0);
+  // 200 px: 100 on level 1: one level coarser (50 on level 2, 25 on level 3).
+  EXPECT_EQ(LargeFaceCoarsening(paper, 200, 96, 20, 0), 1);
+  // 800 px (a face filling a 1280-wide frame): still 100 on level 3; three levels coarser puts
+  // the finest solve on level 4 (50 px) and the coarsest on 5 (25).
+  EXPECT_EQ(LargeFaceCoarsening(paper, 800, 96, 20, 0), 3);
+  // Hysteresis: coarser since the last frame, a face at 170 px (85 on level 1, over 0.8 x 96)
+  // stays a level coarser; at 150 px (75, under 76.8) it comes back.
+  EXPECT_EQ(LargeFaceCoarsening(paper, 170, 96, 20, 1), 1);
+  EXPECT_EQ(LargeFaceCoarsening(paper, 150, 96, 20, 1), 0);
+  // The minimum on the coarsest level wins: 200 px with a 30 px minimum would be 25 on level 3.
+  EXPECT_EQ(LargeFaceCoarsening(paper, 200, 96, 30, 0), 0);
+  // Off, or no face size known.
+  EXPECT_EQ(LargeFaceCoarsening(paper, 800, 0, 20, 2), 0);
+  EXPECT_EQ(LargeFaceCoarsening(paper, 0, 96, 20, 2), 0);
+  const SolverOptions c = CoarsenSchedule(paper, 2);
+  ASSERT_EQ(c.schedule.size(), paper.schedule.size());
+  EXPECT_EQ(c.schedule[0].level, 4);
+  EXPECT_EQ(c.schedule[1].level, 3);
+  EXPECT_EQ(c.schedule[0].gauss_newton_iterations, paper.schedule[0].gauss_newton_iterations);
+  EXPECT_EQ(c.pyramid.levels, 5);
+  EXPECT_EQ(CoarsenSchedule(paper, 0).schedule[0].level, 2);
+  TrackerOptions o;
+  std::string why;
+  o.max_face_width_px = -1;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("max_face_width_px"), std::string::npos) << why;
+}
+
 TEST(PoseFromLandmarks, RecoversATurnedHeadWithAndWithoutDepth) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
@@ -663,6 +698,38 @@ TEST(FaceTracker, UsesAReplacementSolver) {
   EXPECT_EQ(failed.status, TrackingStatus::kBadInput);
   EXPECT_NE(failed.message.find("device lost"), std::string::npos) << failed.message;
   EXPECT_TRUE(failed.has_parameters);
+}
+
+// A face wider than TrackerOptions::max_face_width_px on the finest solved level is tracked on
+// coarser levels: at 640x480 this test's face is ~150 px wide, 75 on level 1; with a bound of 60
+// the per-frame solves run on levels 3 and 2 (their pyramid deepened), with the default 96 on the
+// paper's 2 and 1, and the face is tracked either way.
+TEST(FaceTracker, ALargeFaceIsTrackedOnCoarserLevels) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  for (const int bound : {96, 60}) {
+    TrackerOptions o = fast_options(1);
+    o.max_face_width_px = bound;
+    o.min_face_width_px = 10;  // a level coarser leaves the face ~18 px on the coarsest (20 refuses that)
+    FaceTracker tracker(*model, o);
+    const CpuSolver& cpu = tracker.cpu_solver();
+    std::vector<std::pair<int, int>> finest_and_pyramid;
+    tracker.SetTrackingSolver([&](const InputFrame& frame, const ParameterLayout& layout, const SolverOptions& options,
+                                  gpu::FaceParameters* params) {
+      int finest = 99;
+      for (const auto& l : options.schedule) finest = std::min(finest, l.level);
+      finest_and_pyramid.emplace_back(finest, options.pyramid.levels);
+      return cpu.Solve(frame, layout, options, params);
+    });
+    TrackedFrame t;
+    for (int k = 0; k < 3; ++k) t = tracker.Track(render_frame(cpu, sequence_parameters(*model, k), 640, 480));
+    EXPECT_EQ(t.status, TrackingStatus::kTracking) << bound << ": " << t.message;
+    ASSERT_FALSE(finest_and_pyramid.empty());
+    for (const auto& [finest, pyramid] : finest_and_pyramid) {
+      EXPECT_EQ(finest, bound == 96 ? 1 : 2) << bound;
+      EXPECT_GE(pyramid, finest + 2) << bound;  // the coarser level of the two exists
+    }
+  }
 }
 
 // Whatever the solve leaves, the tracker never reports a light no room gives (plausible_light.h):

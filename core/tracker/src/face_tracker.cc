@@ -227,6 +227,37 @@ SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_
   return out;
 }
 
+int LargeFaceCoarsening(const SolverOptions& options, double face_width_px, int max_face_width_px,
+                        int min_face_width_px, int current) {
+  if (max_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty()) return 0;
+  int finest = options.schedule.front().level, coarsest = finest;
+  for (const auto& l : options.schedule) {
+    finest = std::min(finest, l.level);
+    coarsest = std::max(coarsest, l.level);
+  }
+  // Level k holds the face at face_width_px / 2^k. Never so coarse that the coarsest solved level
+  // holds it under min_face_width_px (nor more than 8 levels: a 256x smaller frame).
+  int limit = 0;
+  while (limit < 8 && face_width_px / static_cast<double>(1 << (coarsest + limit + 1)) >= min_face_width_px) ++limit;
+  const auto width_at = [&](int shift) { return face_width_px / static_cast<double>(1 << (finest + shift)); };
+  int shift = std::clamp(current, 0, limit);
+  while (shift < limit && width_at(shift) > max_face_width_px) ++shift;
+  while (shift > 0 && width_at(shift - 1) <= 0.8 * max_face_width_px) --shift;
+  return shift;
+}
+
+SolverOptions CoarsenSchedule(const SolverOptions& options, int levels) {
+  if (levels <= 0) return options;
+  SolverOptions out = options;
+  int coarsest = 0;
+  for (auto& l : out.schedule) {
+    l.level += levels;
+    coarsest = std::max(coarsest, l.level);
+  }
+  out.pyramid.levels = std::max(out.pyramid.levels, coarsest + 1);
+  return out;
+}
+
 double LandmarkExtentPx(const InputFrame& frame, float min_confidence) {
   float x0 = std::numeric_limits<float>::infinity(), x1 = -x0;
   int n = 0;
@@ -387,6 +418,7 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (!brows.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (!depth_alignment.IsValid(&inner)) return fail(why, "tracker: " + inner);
   if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
+  if (max_face_width_px < 0 || max_face_width_px > 4096) return fail(why, "tracker: max_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
   if (!(rest_warning_weight >= 0.f && rest_warning_weight <= 1.f))
@@ -438,6 +470,7 @@ void FaceTracker::Reset() {
   neutral_.delta = Eigen::VectorXf::Zero(m.num_expression());
   identity_ = neutral_;
   calibrated_ = false;
+  large_face_levels_ = 0;
   collecting_ = true;
   calibration_requested_.store(false);
   calibration_summary_ = SolverSummary();
@@ -504,7 +537,7 @@ TrackedFrame FaceTracker::Track(const InputFrame& frame, double landmarks_ms) {
 
 FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit,
                                         StageTimes* times, const std::stop_token& stop,
-                                        const EyeOpennessReading* lids) const {
+                                        const EyeOpennessReading* lids, int* large_face_levels) const {
   Attempt a;
   a.reinit = reinit;
   const TrackerModel& m = solver_.model();
@@ -525,10 +558,15 @@ FaceTracker::Attempt FaceTracker::Solve(const InputFrame& input, gpu::FaceParame
     start.euler = pose.euler;
     start.translation = pose.translation;
   }
-  const SolverOptions so = WithStop(
-      AdaptScheduleToFaceSize(reinit ? options_.recovery_solver : options_.tracking_solver,
-                              LandmarkExtentPx(input, options_.loss.min_landmark_confidence), options_.min_face_width_px),
-      stop);
+  const SolverOptions& base = reinit ? options_.recovery_solver : options_.tracking_solver;
+  const double face_width = LandmarkExtentPx(input, options_.loss.min_landmark_confidence);
+  const int coarser =
+      LargeFaceCoarsening(base, face_width, options_.max_face_width_px, options_.min_face_width_px,
+                          large_face_levels ? *large_face_levels : 0);
+  if (large_face_levels) *large_face_levels = coarser;
+  const SolverOptions so = WithStop(coarser > 0 ? CoarsenSchedule(base, coarser)
+                                                : AdaptScheduleToFaceSize(base, face_width, options_.min_face_width_px),
+                                    stop);
   const ParameterLayout layout = ParameterLayout::Tracking(m.num_expression());
   a.params = start;
   a.summary = tracking_solve_ ? tracking_solve_(input, layout, so, &a.params) : solver_.Solve(input, layout, so, &a.params);
@@ -727,7 +765,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     start.gamma = last_good_.has_parameters ? last_good_.params.gamma : initial_lighting(m, *input);
   }
 
-  Attempt a = Solve(*input, start, reinit, &out.times, options_.stop, &lids);
+  Attempt a = Solve(*input, start, reinit, &out.times, options_.stop, &lids, &large_face_levels_);
   out.gauss_newton_iterations = static_cast<int>(a.summary.iterations.size());
   // Energy jump: far above the recent level of this track.
   auto check_energy = [&](Attempt* at) {
@@ -770,7 +808,7 @@ TrackedFrame FaceTracker::TrackImpl(const InputFrame& frame, double /*landmarks_
     // closer to the landmarks, a stray fit the re-solve only when that passes and strays less.
     const std::string first_failure = a.failure.empty() ? a.agreement.landmark_warning : a.failure;
     start.delta = neutral_.delta;
-    Attempt b = Solve(*input, start, true, &out.times, options_.stop, &lids);
+    Attempt b = Solve(*input, start, true, &out.times, options_.stop, &lids, &large_face_levels_);
     out.gauss_newton_iterations += static_cast<int>(b.summary.iterations.size());
     check_energy(&b);
     check_agreement(&b);
@@ -1261,7 +1299,7 @@ void FaceTracker::Calibrate(const InputFrame& current, const gpu::FaceParameters
     out->params.beta = identity_.beta;
     out->gaze = ReadEyes(current_now, lids, use_depth, &out->params, &out->times);
   } else {
-    const Attempt a = Solve(current_now, start_now, /*reinit=*/false, &out->times, options_.stop, lids);
+    const Attempt a = Solve(current_now, start_now, /*reinit=*/false, &out->times, options_.stop, lids, &large_face_levels_);
     out->params = a.failure.empty() ? a.params : start_now;
     out->gaze = a.gaze;
   }

@@ -251,6 +251,14 @@ struct TrackerOptions {
   // too was as fast but fitted worse (seed 202: surface 1.22 against 0.53 mm).
   // docs/tracking-pipeline.md, "Accuracy and speed".
   int min_face_width_px = 20;
+  // The other way for a large face (the per-frame solves only): when the face is wider than
+  // this on the finest solved level, the schedule moves to coarser levels (the pyramid grows to
+  // match) until it is not; it moves back once the face is under 0.8 times this one level finer,
+  // so a face near the bound does not switch levels frame by frame. The synthetic actors of the
+  // tracker's targets are about 50 px wide on the paper's finest level; a face filling a 720p
+  // webcam's frame or a 512x512 portrait clip was solved on 4-9 times their pixels, for the same
+  // accuracy (docs/tracking-pipeline.md, "Large faces"). 0 keeps the schedule for any face.
+  int max_face_width_px = 96;
   // The same rule for the calibration solve; -1 takes min_face_width_px.
   int calibration_min_face_width_px = 40;
   LossDetectionOptions loss;
@@ -522,8 +530,12 @@ class FaceTracker {
   TrackedFrame TrackImpl(const InputFrame& frame, double landmarks_ms);
   // `lids`: the frame's eye-point reading (eye_openness.h), written into the fit's eyeBlink
   // weights before the gaze is read in the opening they leave.
+  // `large_face_levels` (optional): the LargeFaceCoarsening carried from frame to frame (the
+  // tracking thread's large_face_levels_), read and updated; without it the face's size alone
+  // decides (the calibration's re-reads, which may run on another thread).
   Attempt Solve(const InputFrame& input, gpu::FaceParameters start, bool reinit, StageTimes* times,
-                const std::stop_token& stop, const EyeOpennessReading* lids = nullptr) const;
+                const std::stop_token& stop, const EyeOpennessReading* lids = nullptr,
+                int* large_face_levels = nullptr) const;
   // The eyes of a fit `*params` of `input`: the lids from the eye points (`lids`, when read) and
   // the gaze, written into its eye weights (after every solve that passed its checks). `use_depth`:
   // the fit had depth terms (the gaze then reads the lids' opening from the colour too).
@@ -578,6 +590,7 @@ class FaceTracker {
   bool solves_on_gpu_ = false;
   std::atomic<bool> calibration_requested_{false};
   bool calibrated_ = false;
+  int large_face_levels_ = 0;  // LargeFaceCoarsening of the last per-frame solve
   bool collecting_ = true;  // gathering calibration frames (first calibration or requested)
   gpu::FaceParameters neutral_;
   gpu::FaceParameters identity_;  // alpha/beta used while tracking (mean face before calibration)
@@ -655,6 +668,15 @@ PoseInitResult InitializePoseFromLandmarks(const TrackerModel& model, const Inpu
 // `options` with its schedule moved to finer pyramid levels so that a face `face_width_px`
 // wide (level-0 pixels) is at least `min_face_width_px` wide on the coarsest solved level.
 SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_width_px, int min_face_width_px);
+// How many levels coarser than `options`' schedule a face `face_width_px` wide is solved so that
+// it is at most `max_face_width_px` wide on the finest solved level (TrackerOptions::
+// max_face_width_px), starting from `current` (the last frame's): up while it is wider, down
+// while one level finer would hold it under 0.8 times the bound; never so coarse that the
+// coarsest solved level holds it under `min_face_width_px`. 0 when the bound is 0.
+int LargeFaceCoarsening(const SolverOptions& options, double face_width_px, int max_face_width_px,
+                        int min_face_width_px, int current);
+// `options` solved `levels` pyramid levels coarser (its pyramid deep enough for them).
+SolverOptions CoarsenSchedule(const SolverOptions& options, int levels);
 // Width (pixels) of the box around the frame's landmarks with confidence > min_confidence; 0
 // when there are fewer than two.
 double LandmarkExtentPx(const InputFrame& frame, float min_confidence);
