@@ -12,10 +12,11 @@ set(FR_PCH_STANDARD <algorithm> <array> <atomic> <chrono> <cmath> <cstdint> <cst
     <string_view> <unordered_map> <variant> <vector>)
 set(FR_PCH_THIRD_PARTY <Eigen/Core> <Eigen/Geometry> <nlohmann/json.hpp> <opencv2/core.hpp>)
 
-# fr_pch_host(name LIBRARY|EXECUTABLE HEADERS... LINK targets...): a target whose only job is to
-# own a precompiled header that others reuse (fr_reuse_precompiled_headers).
+# fr_pch_host(name LIBRARY|EXECUTABLE [TEST_CODE] HEADERS... LINK targets...): a target whose only
+# job is to own a precompiled header that others reuse (fr_reuse_precompiled_headers); TEST_CODE
+# for the test programs' (fr_target_defaults).
 function(fr_pch_host name kind)
-  cmake_parse_arguments(ARG "" "" "HEADERS;LINK" ${ARGN})
+  cmake_parse_arguments(ARG "TEST_CODE" "" "HEADERS;LINK" ${ARGN})
   if(NOT FR_PRECOMPILED_HEADERS)
     return()
   endif()
@@ -28,7 +29,11 @@ function(fr_pch_host name kind)
     add_library(${name} STATIC ${source})
   endif()
   target_link_libraries(${name} PRIVATE ${ARG_LINK})
-  fr_target_defaults(${name})
+  if(ARG_TEST_CODE)
+    fr_target_defaults(${name} TEST_CODE)
+  else()
+    fr_target_defaults(${name})
+  endif()
   target_precompile_headers(${name} PRIVATE ${ARG_HEADERS})
 endfunction()
 
