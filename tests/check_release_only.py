@@ -41,7 +41,7 @@ def main():
     if len(cases) < 100:
         print(f"only {len(cases)} GoogleTest cases registered in {sys.argv[2]}: not the release build?")
         return 1
-    stale = [(n, p) for n, p in patterns(sys.argv[1]) if not fnmatch.filter(cases, p)]
+    stale = [(n, p) for n, p in patterns(sys.argv[1]) if not any(fnmatch.fnmatchcase(c, p) for c in cases)]
     for number, pattern in stale:
         print(f"{sys.argv[1]}:{number}: '{pattern}' names no test case of the release build")
     listed = [p for _, p in patterns(sys.argv[1])]
