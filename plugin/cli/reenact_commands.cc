@@ -26,6 +26,7 @@
 
 #include "command_registry.h"
 #include "camera_options.h"
+#include "tracking_options.h"
 #include "report_json.h"
 #include "video_output.h"
 #include "face_reenact/capture/media_file.h"
@@ -1227,10 +1228,7 @@ void add_reenact_commands(CLI::App& app) {
                   "Calibrate each actor on the most varied head poses among this many frames (as track; default 0: the "
                   "first frames)")
         ->check(CLI::Range(0, 100000));
-    c->add_option("--max-face-width", args->max_face_width,
-                  "Track a larger face on coarser pyramid levels, so that it is at most this wide on the finest (px; as "
-                  "track; default " + std::to_string(tracker::TrackerOptions{}.max_face_width_px) + ", 0 = never coarser)")
-        ->check(CLI::Range(0, 4096));
+    add_max_face_width_option(c, &args->max_face_width, "as track; ");
     c->add_option("--relaxed-recalibration", args->relaxed_recalibration,
                   "After a calibration not at rest, calibrate each actor again on the most relaxed of this many "
                   "frames (as track; 0: off)")

@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "camera_options.h"
+#include "tracking_options.h"
 #include "command_registry.h"
 #include "report_json.h"
 #include "video_output.h"
@@ -831,10 +832,7 @@ void add_tracker_commands(CLI::App& app) {
                  "Track on pyramid levels where the face is at least this wide (px; default " +
                      std::to_string(TrackerOptions{}.min_face_width_px) + ", 0 = the paper's levels 2 and 1)")
       ->check(CLI::Range(0, 4096));
-  tc->add_option("--max-face-width", targs->max_face_width,
-                 "Track a larger face on coarser pyramid levels, so that it is at most this wide on the finest (px; "
-                 "default " + std::to_string(TrackerOptions{}.max_face_width_px) + ", 0 = never coarser)")
-      ->check(CLI::Range(0, 4096));
+  add_max_face_width_option(tc, &targs->max_face_width);
   tc->add_option("--calibration-min-face-width", targs->calibration_min_face_width,
                  "The same for the calibration solve (px; default " +
                      std::to_string(TrackerOptions{}.calibration_min_face_width_px) +
