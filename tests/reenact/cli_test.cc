@@ -76,6 +76,11 @@ TEST(ReenactCliTest, MissingRecordingsAndBadUrlsAreClearErrors) {
   r = run_cli({"reenact", "--source", dir.string(), "--target", dir.string(), "--out", out, "--detail", "sparkle"});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--detail"), std::string::npos) << r.output;
+  for (const std::string width : {"-1", "5000", "wide"}) {
+    r = run_cli({"reenact", "--source", dir.string(), "--target", dir.string(), "--out", out, "--max-face-width", width});
+    EXPECT_NE(r.exit_code, 0) << width;
+    EXPECT_NE(r.output.find("--max-face-width"), std::string::npos) << r.output;
+  }
   r = run_cli({"demo", "--out", (dir / "d").string(), "--size", "10x10"});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--size"), std::string::npos) << r.output;
