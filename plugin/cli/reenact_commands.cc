@@ -25,6 +25,7 @@
 #include <opencv2/videoio.hpp>
 
 #include "command_registry.h"
+#include "frame_size.h"
 #include "camera_options.h"
 #include "tracking_options.h"
 #include "report_json.h"
@@ -740,15 +741,8 @@ capture::Timeline target_timeline(int frames, double fps) {
   return capture::Timeline(keys);
 }
 
-void parse_size(const std::string& text, int* w, int* h) {
-  int a = 0, b = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X') || a < 64 || b < 48 ||
-      a > 1920 || b > 1080)
-    throw Error("--size '" + text + "': expected WIDTHxHEIGHT between 64x48 and 1920x1080, e.g. 320x240");
-  *w = a;
-  *h = b;
-}
+// The demo and reenact frame sizes the synthetic actors are made and tracked at.
+constexpr FrameSizeLimits kReenactFrameSizes{64, 48, 1920, 1080};
 
 struct Mean {
   double sum = 0;
@@ -778,7 +772,7 @@ void run_demo(const DemoArgs& a) {
   }
   const tracker::LandmarkSourceChoice landmarks = parse_landmarks(a.landmarks);
   capture::SynthOptions so;
-  parse_size(a.size, &so.width, &so.height);
+  parse_frame_size(a.size, &so.width, &so.height, kReenactFrameSizes);
   so.frames = a.frames;
   so.fps = 30;
   so.sensor.min_range_m = kDemoSensorNearRangeM;
@@ -1078,7 +1072,7 @@ struct BenchArgs {
 // tracking), with each rasteriser: what a frame costs after the tracker.
 void run_bench(const BenchArgs& a) {
   int w = 0, h = 0;
-  parse_size(a.size, &w, &h);
+  parse_frame_size(a.size, &w, &h, kReenactFrameSizes);
   const FaceModel model = load_face_model(resolve_model_path(a.model));
   gpu::PinholeCamera cam;
   cam.width = w;

@@ -32,7 +32,6 @@ namespace face_reenact::cli {
 namespace {
 
 using namespace std::chrono_literals;
-namespace fs = face_reenact::stream;
 
 const char* signal_name(int sig) { return sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "signal"; }
 
@@ -43,8 +42,8 @@ struct KeygenArgs {
 };
 
 void run_keygen(const KeygenArgs& a) {
-  const fs::StreamKey key = fs::StreamKey::generate();
-  fs::write_key_file(a.out, key, fs::KeyFileOptions{a.force});
+  const stream::StreamKey key = stream::StreamKey::generate();
+  stream::write_key_file(a.out, key, stream::KeyFileOptions{a.force});
   std::printf("wrote a new stream key to %s (mode 0600, fingerprint %s)\n", a.out.c_str(), key.fingerprint().c_str());
   std::printf("copy it to the other machine over a secure channel (e.g. scp) and keep it private\n");
 }
@@ -66,7 +65,7 @@ struct SendArgs {
   std::string multicast_if;
 };
 
-void print_send_status(const fs::ExpressionSender& sender, const fs::ExpressionFrameSource& source,
+void print_send_status(const stream::ExpressionSender& sender, const stream::ExpressionFrameSource& source,
                        double rate, const char* prefix) {
   const auto& s = sender.statistics();
   std::fprintf(stderr, "send: %ssent %llu (%.1f/s), send errors %llu, input errors %llu%s%s\n", prefix,
@@ -84,7 +83,7 @@ void print_send_status(const fs::ExpressionSender& sender, const fs::ExpressionF
 }
 
 // `send --input`: the source actor tracked live (camera / OpenNI device / recording).
-std::unique_ptr<fs::ExpressionFrameSource> make_tracked_source(const SendArgs& a) {
+std::unique_ptr<stream::ExpressionFrameSource> make_tracked_source(const SendArgs& a) {
   live::TrackedSourceOptions o;
   o.grabber.input = live::parse_target_spec(a.input, "--input");
   o.grabber.loop = a.loop;
@@ -106,30 +105,30 @@ void run_send(const SendArgs& a) {
     throw Error("send: give exactly one frame source: --input CAMERA|RECORDING, --replay PARAMS.jsonl or --livelink PORT");
   if (a.livelink_port > 65535) throw Error("send: --livelink port must be 0-65535");
   if (!std::isfinite(a.rate) || a.rate < 0 || a.rate > 10000) throw Error("send: --rate must be between 0 (the file's timestamps) and 10000 Hz");
-  const fs::StreamKey key = fs::load_key_file(a.key);
-  const fs::UdpEndpoint to = fs::resolve_endpoint(a.to, "--to");
+  const stream::StreamKey key = stream::load_key_file(a.key);
+  const stream::UdpEndpoint to = stream::resolve_endpoint(a.to, "--to");
 
-  std::unique_ptr<fs::ExpressionFrameSource> source;
+  std::unique_ptr<stream::ExpressionFrameSource> source;
   if (!a.input.empty()) {
     source = make_tracked_source(a);
   } else if (!a.replay.empty()) {
-    fs::ReplayFileSource::Options o;
+    stream::ReplayFileSource::Options o;
     o.rate_hz = a.rate;
     o.loop = a.loop;
-    source = std::make_unique<fs::ReplayFileSource>(fs::load_parameter_file(a.replay), o, a.replay);
+    source = std::make_unique<stream::ReplayFileSource>(stream::load_parameter_file(a.replay), o, a.replay);
   } else {
-    fs::ListenSpec listen;
+    stream::ListenSpec listen;
     listen.port = static_cast<uint16_t>(a.livelink_port);
-    source = std::make_unique<fs::LiveLinkSource>(listen);
+    source = std::make_unique<stream::LiveLinkSource>(listen);
   }
-  fs::ExpressionSender::Options so;
+  stream::ExpressionSender::Options so;
   so.stream_id = a.stream_id;
   so.multicast.ttl = a.ttl;
   so.multicast.loopback = !a.no_multicast_loop;
   so.multicast.interface_address = a.multicast_if;
-  fs::ExpressionSender sender(key, to, so);
+  stream::ExpressionSender sender(key, to, so);
 
-  fs::ShutdownSignals signals;
+  stream::ShutdownSignals signals;
   std::fprintf(stderr, "send: %s -> %s (%s), stream %u, key %s\n", source->description().c_str(), a.to.c_str(),
                to.numeric().c_str(), a.stream_id, key.fingerprint().c_str());
   const auto started = std::chrono::steady_clock::now();
@@ -141,10 +140,10 @@ void run_send(const SendArgs& a) {
       stop_reason = signal_name(sig);
       break;
     }
-    fs::ExpressionFrame frame;
+    stream::ExpressionFrame frame;
     const auto st = source->next(&frame, 50ms);
-    if (st == fs::ExpressionFrameSource::Status::kEnd) break;
-    if (st == fs::ExpressionFrameSource::Status::kFrame) {
+    if (st == stream::ExpressionFrameSource::Status::kEnd) break;
+    if (st == stream::ExpressionFrameSource::Status::kFrame) {
       sender.send(frame);
       if (a.count > 0 && sender.statistics().sent + sender.statistics().send_errors >= a.count) {
         stop_reason = "--count reached";
@@ -176,10 +175,10 @@ struct ReceiveArgs {
   bool json = false;
 };
 
-nlohmann::json statistics_json(const fs::ReceiverStatistics& s) {
+nlohmann::json statistics_json(const stream::ReceiverStatistics& s) {
   nlohmann::json by_reason = nlohmann::json::object();
-  for (int i = 1; i < fs::kNumDatagramErrors; ++i)
-    by_reason[fs::datagram_error_name(static_cast<fs::DatagramError>(i))] = s.rejected_by_reason[i];
+  for (int i = 1; i < stream::kNumDatagramErrors; ++i)
+    by_reason[stream::datagram_error_name(static_cast<stream::DatagramError>(i))] = s.rejected_by_reason[i];
   nlohmann::json j = {{"type", "statistics"},          {"received", s.received},
                       {"applied", s.applied},          {"rejected", s.rejected_total()},
                       {"rejected_by_reason", by_reason}, {"lost", s.lost},
@@ -192,8 +191,8 @@ nlohmann::json statistics_json(const fs::ReceiverStatistics& s) {
   return j;
 }
 
-std::string frame_line(const fs::AppliedDatagram& d, bool json) {
-  const fs::ExpressionFrame& f = d.frame;
+std::string frame_line(const stream::AppliedDatagram& d, bool json) {
+  const stream::ExpressionFrame& f = d.frame;
   const double latency_ms = (double(d.receive_time_us) - double(f.capture_time_us)) / 1000.0;
   if (json) {
     nlohmann::json j = {{"type", "frame"},
@@ -212,7 +211,7 @@ std::string frame_line(const fs::AppliedDatagram& d, bool json) {
   // Human form: the three strongest coefficients of the relative expression.
   const auto rel = f.relative_expression();
   int top[3] = {-1, -1, -1};
-  for (int i = 0; i < fs::kNumCoefficients; ++i) {
+  for (int i = 0; i < stream::kNumCoefficients; ++i) {
     for (int k = 0; k < 3; ++k) {
       if (top[k] < 0 || std::fabs(rel[i]) > std::fabs(rel[top[k]])) {
         for (int m = 2; m > k; --m) top[m] = top[m - 1];
@@ -232,15 +231,15 @@ std::string frame_line(const fs::AppliedDatagram& d, bool json) {
 
 void run_receive(const ReceiveArgs& a) {
   if (!std::isfinite(a.timeout_s) || a.timeout_s < 0) throw Error("receive: --timeout must be >= 0 seconds");
-  const fs::StreamKey key = fs::load_key_file(a.key);
-  fs::ExpressionReceiver::Options o;
-  o.listen = fs::parse_listen_spec(a.listen, "--listen");
+  const stream::StreamKey key = stream::load_key_file(a.key);
+  stream::ExpressionReceiver::Options o;
+  o.listen = stream::parse_listen_spec(a.listen, "--listen");
   o.multicast_interface = a.multicast_if;
   o.stream.allowed_streams = a.streams;
 
   std::atomic<uint64_t> printed{0};
   std::mutex out_mu;
-  o.stream.on_applied = [&](const fs::AppliedDatagram& d) {
+  o.stream.on_applied = [&](const stream::AppliedDatagram& d) {
     if (a.count > 0 && printed.load() >= a.count) return;
     const std::string line = frame_line(d, a.json);
     std::lock_guard<std::mutex> lock(out_mu);
@@ -251,8 +250,8 @@ void run_receive(const ReceiveArgs& a) {
   };
 
   // Before the receiver thread starts, so that thread inherits the blocked signals.
-  fs::ShutdownSignals signals;
-  fs::ExpressionReceiver receiver(key, std::move(o));
+  stream::ShutdownSignals signals;
+  stream::ExpressionReceiver receiver(key, std::move(o));
   std::fprintf(stderr, "receive: listening on %s, UDP port %u, key %s%s\n", a.listen.c_str(), receiver.port(),
                key.fingerprint().c_str(),
                a.streams.empty() ? ", locking onto the first authenticated stream" : "");
@@ -271,7 +270,7 @@ void run_receive(const ReceiveArgs& a) {
     if (!thread_error.empty()) break;
   }
   receiver.stop();
-  const fs::ReceiverStatistics s = receiver.statistics();
+  const stream::ReceiverStatistics s = receiver.statistics();
   {
     std::lock_guard<std::mutex> lock(out_mu);
     if (a.json) {
@@ -280,9 +279,9 @@ void run_receive(const ReceiveArgs& a) {
       std::fputc('\n', stdout);
     } else {
       std::printf("%s, latency %.2f ms\n", s.Counts().c_str(), s.latency_ms);
-      for (int i = 1; i < fs::kNumDatagramErrors; ++i)
+      for (int i = 1; i < stream::kNumDatagramErrors; ++i)
         if (s.rejected_by_reason[i] > 0)
-          std::printf("  rejected %s: %llu\n", fs::datagram_error_name(static_cast<fs::DatagramError>(i)),
+          std::printf("  rejected %s: %llu\n", stream::datagram_error_name(static_cast<stream::DatagramError>(i)),
                       static_cast<unsigned long long>(s.rejected_by_reason[i]));
     }
     std::fflush(stdout);
@@ -306,16 +305,16 @@ struct BenchStreamArgs {
 void run_bench_stream(const BenchStreamArgs& a) {
   if (!std::isfinite(a.rate) || a.rate <= 0 || a.rate > 1e6) throw Error("bench stream: --rate must be in (0, 1e6]");
   if (!std::isfinite(a.seconds) || a.seconds <= 0 || a.seconds > 600) throw Error("bench stream: --seconds must be in (0, 600]");
-  const fs::StreamKey key = fs::StreamKey::generate();
-  fs::ExpressionFrame frame;
-  for (int i = 0; i < fs::kNumCoefficients; ++i) frame.expression[i] = 0.01f * float(i);
+  const stream::StreamKey key = stream::StreamKey::generate();
+  stream::ExpressionFrame frame;
+  for (int i = 0; i < stream::kNumCoefficients; ++i) frame.expression[i] = 0.01f * float(i);
   frame.has_rotation = true;
   frame.rotation = {0.1f, 0.f, 0.f};
 
   // Encode and verify+decrypt+apply costs over a batch of distinct datagrams, in this thread's
   // CPU time (wall time on a busy machine would include other processes).
   constexpr int kN = 20000;
-  std::vector<std::array<uint8_t, fs::kMaxDatagramSize>> buf(kN);
+  std::vector<std::array<uint8_t, stream::kMaxDatagramSize>> buf(kN);
   std::vector<size_t> len(kN);
   auto cpu_us = [] {
     timespec ts;
@@ -323,11 +322,11 @@ void run_bench_stream(const BenchStreamArgs& a) {
     return double(ts.tv_sec) * 1e6 + double(ts.tv_nsec) / 1e3;
   };
   const double t0 = cpu_us();
-  for (int i = 0; i < kN; ++i) len[i] = fs::encode_datagram(key, 1, uint64_t(i) + 1, frame, buf[i]);
+  for (int i = 0; i < kN; ++i) len[i] = stream::encode_datagram(key, 1, uint64_t(i) + 1, frame, buf[i]);
   const double t1 = cpu_us();
-  const auto now = fs::SteadyClock::now();
+  const auto now = stream::SteadyClock::now();
   {
-    fs::ExpressionStreamState state(key, {});
+    stream::ExpressionStreamState state(key, {});
     for (int i = 0; i < kN; ++i) state.process(std::span<const uint8_t>(buf[i].data(), len[i]), now, 0);
     if (state.statistics(now).applied != kN) throw Error("bench stream: datagrams failed to verify");
   }
@@ -335,26 +334,26 @@ void run_bench_stream(const BenchStreamArgs& a) {
   for (int i = 0; i < kN; ++i) buf[i][len[i] - 1] ^= 1;  // forge the tags
   const double t3 = cpu_us();
   {
-    fs::ExpressionStreamState state(key, {});  // fresh: no replay shortcut, every tag is checked
+    stream::ExpressionStreamState state(key, {});  // fresh: no replay shortcut, every tag is checked
     for (int i = 0; i < kN; ++i) state.process(std::span<const uint8_t>(buf[i].data(), len[i]), now, 0);
-    if (state.statistics(now).rejected(fs::DatagramError::kAuthFailed) != kN)
+    if (state.statistics(now).rejected(stream::DatagramError::kAuthFailed) != kN)
       throw Error("bench stream: forged datagrams were not all rejected as forged");
   }
   const double t4 = cpu_us();
   const double encode_us = (t1 - t0) / kN, open_us = (t2 - t1) / kN, forged_us = (t4 - t3) / kN;
 
   // A real receiver thread fed at the requested rate with absolute deadlines.
-  fs::ExpressionReceiver::Options o;
+  stream::ExpressionReceiver::Options o;
   o.listen.address = "127.0.0.1";
-  fs::ExpressionReceiver rx(key, o);
-  fs::ExpressionSender tx(key, fs::resolve_endpoint("127.0.0.1:" + std::to_string(rx.port()), "bench"), {});
+  stream::ExpressionReceiver rx(key, o);
+  stream::ExpressionSender tx(key, stream::resolve_endpoint("127.0.0.1:" + std::to_string(rx.port()), "bench"), {});
   const auto start = std::chrono::steady_clock::now();
   const auto period = std::chrono::duration<double>(1.0 / a.rate);
   const uint64_t total = static_cast<uint64_t>(std::llround(a.rate * a.seconds));
   for (uint64_t n = 0; n < total; ++n) {
     const auto due = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * double(n));
     if (due > std::chrono::steady_clock::now()) std::this_thread::sleep_until(due);
-    frame.capture_time_us = fs::realtime_now_us();
+    frame.capture_time_us = stream::realtime_now_us();
     tx.send(frame);
   }
   const double send_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -364,7 +363,7 @@ void run_bench_stream(const BenchStreamArgs& a) {
     if (s.received + s.kernel_drops >= total) break;
     std::this_thread::sleep_for(5ms);
   }
-  const fs::ReceiverStatistics s = rx.statistics();
+  const stream::ReceiverStatistics s = rx.statistics();
   const bool kept_up = s.applied == total && s.kernel_drops == 0 && s.lost == 0;
   const double offered = double(total) / send_seconds;
   if (a.json) {

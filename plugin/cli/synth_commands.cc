@@ -11,6 +11,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "command_registry.h"
+#include "frame_size.h"
 #include "face_reenact/capture/synth.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
@@ -41,15 +42,6 @@ std::string read_file(const std::string& path, const char* what) {
   return s.str();
 }
 
-void parse_size(const std::string& text, int* w, int* h) {
-  int a = 0, b = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X'))
-    throw Error("--size '" + text + "': expected WIDTHxHEIGHT, e.g. 640x480");
-  *w = a;
-  *h = b;
-}
-
 void run_synth(const SynthArgs& a) {
   namespace fs = std::filesystem;
   using namespace face_reenact::capture;
@@ -62,7 +54,7 @@ void run_synth(const SynthArgs& a) {
   SynthOptions opt;
   opt.seed = a.seed;
   opt.fps = a.fps;
-  parse_size(a.size, &opt.width, &opt.height);
+  parse_frame_size(a.size, &opt.width, &opt.height);
   // Check the output early: an unusable --out or --preview fails before minutes of rendering.
   {
     const fs::path out = fs::path(a.out).lexically_normal();

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "command_registry.h"
+#include "frame_size.h"
 #include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/process_resources.h"
@@ -97,15 +98,6 @@ void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
       ->capture_default_str();
 }
 
-void parse_size(const std::string& text, int* width, int* height) {
-  int w = 0, h = 0;
-  char tail = 0;
-  if (std::sscanf(text.c_str(), "%dx%d%c", &w, &h, &tail) != 2 || w <= 0 || h <= 0)
-    throw Error("--size '" + text + "' is not WIDTHxHEIGHT (e.g. 1280x720)");
-  *width = w;
-  *height = h;
-}
-
 // What `bench soak` adds to a webcam run: the frames may go nowhere (every frame is still
 // converted as for the device, so no loopback module is needed), and it hears the statistics and
 // the live session's headline about once a second.
@@ -125,7 +117,7 @@ class DiscardSink final : public FrameSink {
 void run_webcam(const WebcamArgs& args, const WebcamRunHooks& hooks = {}) {
   V4l2LoopbackWriter::Options writer_options;
   writer_options.device = args.device;
-  parse_size(args.size, &writer_options.width, &writer_options.height);
+  parse_frame_size(args.size, &writer_options.width, &writer_options.height);
   std::optional<PixelFormat> format = parse_pixel_format(args.format);
   if (!format) throw Error("--format '" + args.format + "' is not one of yuyv, i420");
   writer_options.format = *format;
@@ -151,7 +143,7 @@ void run_webcam(const WebcamArgs& args, const WebcamRunHooks& hooks = {}) {
     live_options.model_path = args.model;
     if (!live::parse_output_mode(args.mode, &live_options.mode))
       throw Error("--mode '" + args.mode + "' is not one of reenact, passthrough, overlay, mirror, raw");
-    parse_size(args.camera_size, &live_options.camera_width, &live_options.camera_height);
+    parse_frame_size(args.camera_size, &live_options.camera_width, &live_options.camera_height);
     live_options.camera_fps = rate->fps();
     apply_pipeline_args(args, &live_options);
     live::LiveSession::CheckInputs(live_options);  // a missing recording / key / model: exit 1 now
@@ -450,7 +442,7 @@ void add_webcam_command(CLI::App& app) {
   bench_webcam->add_option("--iterations", *iterations, "frames per measurement")->capture_default_str();
   bench_webcam->callback([bench_args, iterations] {
     int w, h;
-    parse_size(bench_args->size, &w, &h);
+    parse_frame_size(bench_args->size, &w, &h);
     if (*iterations <= 0) throw Error("--iterations must be positive");
     auto source = make_test_pattern_source(640, 480, 30);
     SourceFrame frame;

@@ -24,11 +24,6 @@ using nlohmann::json;
 
 namespace {
 
-bool fail_why(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 std::string frame_name(int index, const char* ext) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%06d.%s", index, ext);

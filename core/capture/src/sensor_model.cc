@@ -12,11 +12,6 @@
 namespace face_reenact::capture {
 namespace {
 
-bool fail_why(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 uint64_t splitmix(uint64_t x) {
   x += 0x9E3779B97F4A7C15ull;
   x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
@@ -25,7 +20,7 @@ uint64_t splitmix(uint64_t x) {
 }
 
 // Random streams, so that effects never share draws.
-enum Stream : uint64_t {
+enum SensorNoiseStream : uint64_t {
   kNoisePixel = 1,
   kNoiseBlock,
   kGrazing,

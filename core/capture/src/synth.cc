@@ -21,16 +21,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-bool fail_why(std::string* why, const std::string& m) {
-  if (why) *why = m;
-  return false;
-}
-
-double smoothstep01(double x) {
-  x = std::clamp(x, 0.0, 1.0);
-  return x * x * (3 - 2 * x);
-}
-
 double value_noise(uint64_t key, double u, double v) {
   const double fu = std::floor(u), fv = std::floor(v);
   const double a = u - fu, b = v - fv;

@@ -13,7 +13,7 @@ using nlohmann::json;
 
 namespace {
 
-enum Stream : uint64_t {
+enum PerformanceStream : uint64_t {
   kIdentity = 101,
   kAlbedo,
   kYaw,
@@ -44,11 +44,6 @@ enum Stream : uint64_t {
 constexpr double kCalibrationTurnYawDeg = 25;
 constexpr double kCalibrationTurnPitchDeg = 6;
 constexpr double kCalibrationTurnShare = 0.8;  // the rest of the turn eases into the performance
-
-double smoothstep01(double x) {
-  x = std::clamp(x, 0.0, 1.0);
-  return x * x * (3 - 2 * x);
-}
 
 void set_weight(PerformanceState& s, const char* name, double w) {
   const int k = arkit_blendshape_index(name);

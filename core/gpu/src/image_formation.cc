@@ -13,11 +13,6 @@ namespace {
 
 bool all_finite(const Eigen::VectorXf& v) { return v.size() == 0 || v.allFinite(); }
 
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-
 }  // namespace
 
 std::array<float, kNumShCoefficients> sh_basis(const Eigen::Vector3f& n) {
@@ -60,17 +55,17 @@ Eigen::Vector3f head_rotation_axis_angle(const Eigen::Vector3f& euler_xyz) {
 }
 
 bool FaceParameters::IsValid(std::string* why, int max_identity, int max_expression, int max_albedo) const {
-  if (!all_finite(alpha)) return fail(why, "identity coefficients (alpha) contain NaN or infinity");
-  if (!all_finite(beta)) return fail(why, "albedo coefficients (beta) contain NaN or infinity");
-  if (!all_finite(delta)) return fail(why, "expression coefficients (delta) contain NaN or infinity");
+  if (!all_finite(alpha)) return fail_why(why, "identity coefficients (alpha) contain NaN or infinity");
+  if (!all_finite(beta)) return fail_why(why, "albedo coefficients (beta) contain NaN or infinity");
+  if (!all_finite(delta)) return fail_why(why, "expression coefficients (delta) contain NaN or infinity");
   for (float g : gamma) {
-    if (!std::isfinite(g)) return fail(why, "SH lighting coefficients (gamma) contain NaN or infinity");
+    if (!std::isfinite(g)) return fail_why(why, "SH lighting coefficients (gamma) contain NaN or infinity");
   }
-  if (!euler.allFinite()) return fail(why, "rotation (Euler angles) contains NaN or infinity");
-  if (!translation.allFinite()) return fail(why, "translation contains NaN or infinity");
+  if (!euler.allFinite()) return fail_why(why, "rotation (Euler angles) contains NaN or infinity");
+  if (!translation.allFinite()) return fail_why(why, "translation contains NaN or infinity");
   auto too_long = [&](const Eigen::VectorXf& v, int max, const char* what) {
     return max >= 0 && v.size() > max
-               ? fail(why, std::string(what) + " has " + std::to_string(v.size()) + " coefficients, the model has " +
+               ? fail_why(why, std::string(what) + " has " + std::to_string(v.size()) + " coefficients, the model has " +
                                std::to_string(max))
                : true;
   };
@@ -94,14 +89,14 @@ float head_turn_from_camera_deg(const FaceParameters& params) {
 
 bool PinholeCamera::IsValid(std::string* why) const {
   if (!(std::isfinite(fx) && std::isfinite(fy) && std::isfinite(cx) && std::isfinite(cy))) {
-    return fail(why, "camera intrinsics contain NaN or infinity");
+    return fail_why(why, "camera intrinsics contain NaN or infinity");
   }
-  if (!(fx > 0 && fy > 0)) return fail(why, "camera focal lengths must be positive");
+  if (!(fx > 0 && fy > 0)) return fail_why(why, "camera focal lengths must be positive");
   if (width <= 0 || height <= 0 || width > 16384 || height > 16384) {
-    return fail(why, "camera size " + std::to_string(width) + "x" + std::to_string(height) + " is outside 1..16384");
+    return fail_why(why, "camera size " + std::to_string(width) + "x" + std::to_string(height) + " is outside 1..16384");
   }
   if (!(std::isfinite(near_plane) && std::isfinite(far_plane) && near_plane > 0 && far_plane > near_plane)) {
-    return fail(why, "camera needs 0 < near_plane < far_plane");
+    return fail_why(why, "camera needs 0 < near_plane < far_plane");
   }
   return true;
 }
@@ -121,7 +116,7 @@ PinholeCamera PinholeCamera::Downsampled(int level) const {
 }
 
 bool RenderOptions::IsValid(std::string* why) const {
-  if (parts & ~kAllParts) return fail(why, "part mask has bits outside the 9 face parts");
+  if (parts & ~kAllParts) return fail_why(why, "part mask has bits outside the 9 face parts");
   return true;
 }
 
@@ -152,27 +147,27 @@ bool VertexColumns::Describes(const BasisMatrix& basis, int num_vertices) const 
 
 bool RenderModel::IsValid(std::string* why) const {
   const int n = num_vertices();
-  if (n == 0) return fail(why, "render model has no vertices");
+  if (n == 0) return fail_why(why, "render model has no vertices");
   const Eigen::Index rows = 3 * static_cast<Eigen::Index>(n);
   if (mean_shape.size() != rows || mean_albedo.size() != rows) {
-    return fail(why, "render model: mean shape/albedo must have 3N entries");
+    return fail_why(why, "render model: mean shape/albedo must have 3N entries");
   }
-  if (identity_basis.rows() != rows && identity_basis.cols() != 0) return fail(why, "identity basis must have 3N rows");
-  if (expression_basis.rows() != rows && expression_basis.cols() != 0) return fail(why, "expression basis must have 3N rows");
-  if (albedo_basis.rows() != rows && albedo_basis.cols() != 0) return fail(why, "albedo basis must have 3N rows");
+  if (identity_basis.rows() != rows && identity_basis.cols() != 0) return fail_why(why, "identity basis must have 3N rows");
+  if (expression_basis.rows() != rows && expression_basis.cols() != 0) return fail_why(why, "expression basis must have 3N rows");
+  if (albedo_basis.rows() != rows && albedo_basis.cols() != 0) return fail_why(why, "albedo basis must have 3N rows");
   if (!mean_shape.allFinite() || !mean_albedo.allFinite() || !identity_basis.allFinite() ||
       !expression_basis.allFinite() || !albedo_basis.allFinite()) {
-    return fail(why, "render model contains NaN or infinity");
+    return fail_why(why, "render model contains NaN or infinity");
   }
   if (!expression_columns.Describes(expression_basis, n))
-    return fail(why, "render model: expression_columns do not describe expression_basis (IndexExpression)");
+    return fail_why(why, "render model: expression_columns do not describe expression_basis (IndexExpression)");
   for (const auto& t : triangles) {
     for (int k = 0; k < 3; ++k) {
-      if (t[k] < 0 || t[k] >= n) return fail(why, "render model: triangle vertex index out of range");
+      if (t[k] < 0 || t[k] >= n) return fail_why(why, "render model: triangle vertex index out of range");
     }
   }
   for (uint8_t p : vertex_part) {
-    if (p >= 32) return fail(why, "render model: vertex part out of range");
+    if (p >= 32) return fail_why(why, "render model: vertex part out of range");
   }
   return true;
 }

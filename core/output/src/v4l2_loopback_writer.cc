@@ -28,7 +28,6 @@ int xioctl(int fd, unsigned long request, void* arg) {
   return r;
 }
 
-std::string errno_text(int err) { return std::string(std::strerror(err)); }
 
 std::string caps_text(uint32_t caps) {
   std::string s;

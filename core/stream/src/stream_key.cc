@@ -22,7 +22,6 @@ void ensure_sodium() {
   if (sodium_init() < 0) throw Error("libsodium failed to initialise");
 }
 
-std::string errno_text(int err) { return std::strerror(err); }
 
 // Closes a descriptor on scope exit.
 struct FdCloser {

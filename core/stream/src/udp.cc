@@ -14,7 +14,6 @@
 namespace face_reenact::stream {
 namespace {
 
-std::string errno_text(int err) { return std::strerror(err); }
 
 uint16_t parse_port(const std::string& text, const std::string& what, const std::string& whole) {
   unsigned value = 0;

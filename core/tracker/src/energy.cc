@@ -13,7 +13,6 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 namespace {
 bool weight_ok(double w) { return std::isfinite(w) && w >= 0; }
 
@@ -212,30 +211,30 @@ double TermEnergies::total() const {
 bool EnergyOptions::IsValid(std::string* why) const {
   if (!weight_ok(w_point) || !weight_ok(w_plane) || !weight_ok(w_col) || !weight_ok(w_lan) || !weight_ok(w_reg) ||
       !weight_ok(w_reg_expression) || !weight_ok(w_expression_sparsity)) {
-    return fail(why, "energy: term weights must be finite and non-negative");
+    return fail_why(why, "energy: term weights must be finite and non-negative");
   }
   if (!(expression_sparsity_epsilon > 0) || !std::isfinite(expression_sparsity_epsilon)) {
-    return fail(why, "energy: expression_sparsity_epsilon must be positive");
+    return fail_why(why, "energy: expression_sparsity_epsilon must be positive");
   }
-  if (!(geometry_unit_m > 0) || !std::isfinite(geometry_unit_m)) return fail(why, "energy: geometry_unit_m must be positive");
+  if (!(geometry_unit_m > 0) || !std::isfinite(geometry_unit_m)) return fail_why(why, "energy: geometry_unit_m must be positive");
   if (!(landmark_reference_width > 0) || !std::isfinite(landmark_reference_width)) {
-    return fail(why, "energy: landmark_reference_width must be positive");
+    return fail_why(why, "energy: landmark_reference_width must be positive");
   }
-  if (!(max_point_distance_m > 0)) return fail(why, "energy: max_point_distance_m must be positive");
-  if (!(min_normal_dot >= -1 && min_normal_dot <= 1)) return fail(why, "energy: min_normal_dot must be in [-1, 1]");
-  if (!(max_depth_jump_m > 0)) return fail(why, "energy: max_depth_jump_m must be positive");
-  if (use_color && (color_parts & gpu::kAllParts) == 0) return fail(why, "energy: color_parts selects no part");
+  if (!(max_point_distance_m > 0)) return fail_why(why, "energy: max_point_distance_m must be positive");
+  if (!(min_normal_dot >= -1 && min_normal_dot <= 1)) return fail_why(why, "energy: min_normal_dot must be in [-1, 1]");
+  if (!(max_depth_jump_m > 0)) return fail_why(why, "energy: max_depth_jump_m must be positive");
+  if (use_color && (color_parts & gpu::kAllParts) == 0) return fail_why(why, "energy: color_parts selects no part");
   if (!(color_robust_threshold >= 0) || !std::isfinite(color_robust_threshold)) {
-    return fail(why, "energy: color_robust_threshold must be finite and non-negative (0 = off)");
+    return fail_why(why, "energy: color_robust_threshold must be finite and non-negative (0 = off)");
   }
   if (!(landmark_occlusion_m > 0) || !std::isfinite(landmark_occlusion_m)) {
-    return fail(why, "energy: landmark_occlusion_m must be positive");
+    return fail_why(why, "energy: landmark_occlusion_m must be positive");
   }
   if (pixel_sampling != 1 && pixel_sampling != 2) {
-    return fail(why, "energy: pixel_sampling must be 1 (every pixel) or 2 (every other pixel)");
+    return fail_why(why, "energy: pixel_sampling must be 1 (every pixel) or 2 (every other pixel)");
   }
   if (!use_point && !use_plane && !use_color && !use_landmarks && !use_regularizer) {
-    return fail(why, "energy: every term is switched off");
+    return fail_why(why, "energy: every term is switched off");
   }
   return true;
 }

@@ -18,7 +18,6 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 using internal::Clock;
 using internal::format;
 using internal::median;
@@ -363,68 +362,68 @@ bool tracking_status_has_fit(TrackingStatus status) {
 // ------------------------------------------------------------------------------------ options
 
 bool LossDetectionOptions::IsValid(std::string* why) const {
-  if (min_landmarks < 3 || min_landmarks > 68) return fail(why, "tracker: loss.min_landmarks must be 3..68");
+  if (min_landmarks < 3 || min_landmarks > 68) return fail_why(why, "tracker: loss.min_landmarks must be 3..68");
   if (!(min_landmark_confidence >= 0.f && min_landmark_confidence < 1.f)) {
-    return fail(why, "tracker: loss.min_landmark_confidence must be in [0, 1)");
+    return fail_why(why, "tracker: loss.min_landmark_confidence must be in [0, 1)");
   }
   if (!(reinit_landmark_error_px > 0) || !std::isfinite(reinit_landmark_error_px)) {
-    return fail(why, "tracker: loss.reinit_landmark_error_px must be positive");
+    return fail_why(why, "tracker: loss.reinit_landmark_error_px must be positive");
   }
   if (!(lost_landmark_error_px > 0) || !std::isfinite(lost_landmark_error_px)) {
-    return fail(why, "tracker: loss.lost_landmark_error_px must be positive");
+    return fail_why(why, "tracker: loss.lost_landmark_error_px must be positive");
   }
-  if (!(max_energy_ratio > 1) || !std::isfinite(max_energy_ratio)) return fail(why, "tracker: loss.max_energy_ratio must be > 1");
-  if (energy_history < 1 || energy_history > 10000) return fail(why, "tracker: loss.energy_history must be 1..10000");
+  if (!(max_energy_ratio > 1) || !std::isfinite(max_energy_ratio)) return fail_why(why, "tracker: loss.max_energy_ratio must be > 1");
+  if (energy_history < 1 || energy_history > 10000) return fail_why(why, "tracker: loss.energy_history must be 1..10000");
   if (!(min_reference_energy >= 0) || !std::isfinite(min_reference_energy)) {
-    return fail(why, "tracker: loss.min_reference_energy must be finite and non-negative");
+    return fail_why(why, "tracker: loss.min_reference_energy must be finite and non-negative");
   }
-  if (min_dense_pixels < 0) return fail(why, "tracker: loss.min_dense_pixels must be non-negative");
+  if (min_dense_pixels < 0) return fail_why(why, "tracker: loss.min_dense_pixels must be non-negative");
   std::string inner;
-  if (!agreement.IsValid(&inner)) return fail(why, "tracker: loss." + inner);
+  if (!agreement.IsValid(&inner)) return fail_why(why, "tracker: loss." + inner);
   return true;
 }
 
 bool TrackerOptions::IsValid(std::string* why) const {
-  if (calibration_frames < 1 || calibration_frames > 64) return fail(why, "tracker: calibration_frames must be 1..64");
+  if (calibration_frames < 1 || calibration_frames > 64) return fail_why(why, "tracker: calibration_frames must be 1..64");
   if (!focal_length.IsValid(why)) return false;
   if (std::string(calibration_start_name(calibration_start)) == "?")
-    return fail(why, "tracker: calibration_start is not one of neutral, per-frame-fits, lower-energy");
+    return fail_why(why, "tracker: calibration_start is not one of neutral, per-frame-fits, lower-energy");
   if (calibration_frame_stride < 1 || calibration_frame_stride > 10000) {
-    return fail(why, "tracker: calibration_frame_stride must be 1..10000");
+    return fail_why(why, "tracker: calibration_frame_stride must be 1..10000");
   }
   if (calibration_window_frames < 0 || calibration_window_frames > 100000)
-    return fail(why, "tracker: calibration_window_frames must be 0..100000 (0: the first usable frames)");
+    return fail_why(why, "tracker: calibration_window_frames must be 0..100000 (0: the first usable frames)");
   if (calibration_window_frames > 0 && calibration_window_frames < calibration_frames)
-    return fail(why, "tracker: calibration_window_frames must be at least calibration_frames");
+    return fail_why(why, "tracker: calibration_window_frames must be at least calibration_frames");
   if (calibration_window_frames > 0 && calibration_frame_stride != 1)
-    return fail(why, "tracker: calibration_window_frames chooses the frames itself: leave calibration_frame_stride at 1");
+    return fail_why(why, "tracker: calibration_window_frames chooses the frames itself: leave calibration_frame_stride at 1");
   if (relaxed_recalibration_frames < 0 || relaxed_recalibration_frames > 100000)
-    return fail(why, "tracker: relaxed_recalibration_frames must be 0..100000 (0: off)");
+    return fail_why(why, "tracker: relaxed_recalibration_frames must be 0..100000 (0: off)");
   if (relaxed_recalibration_frames > 0 && relaxed_recalibration_frames < calibration_frames)
-    return fail(why, "tracker: relaxed_recalibration_frames must be at least calibration_frames (or 0: off)");
-  if (!(relaxed_margin >= 0.f && relaxed_margin <= 1.f)) return fail(why, "tracker: relaxed_margin must be 0..1");
+    return fail_why(why, "tracker: relaxed_recalibration_frames must be at least calibration_frames (or 0: off)");
+  if (!(relaxed_margin >= 0.f && relaxed_margin <= 1.f)) return fail_why(why, "tracker: relaxed_margin must be 0..1");
   if (!(relaxed_recalibration_above >= 0.f && relaxed_recalibration_above <= 1.f))
-    return fail(why, "tracker: relaxed_recalibration_above must be 0..1");
+    return fail_why(why, "tracker: relaxed_recalibration_above must be 0..1");
   if (calibration_identity_components < -1 || calibration_albedo_components < -1) {
-    return fail(why, "tracker: calibration component counts must be -1 (all) or >= 0");
+    return fail_why(why, "tracker: calibration component counts must be -1 (all) or >= 0");
   }
   std::string inner;
-  if (!calibration_solver.IsValid(&inner)) return fail(why, "tracker: calibration_solver: " + inner);
-  if (!tracking_solver.IsValid(&inner)) return fail(why, "tracker: tracking_solver: " + inner);
-  if (!recovery_solver.IsValid(&inner)) return fail(why, "tracker: recovery_solver: " + inner);
+  if (!calibration_solver.IsValid(&inner)) return fail_why(why, "tracker: calibration_solver: " + inner);
+  if (!tracking_solver.IsValid(&inner)) return fail_why(why, "tracker: tracking_solver: " + inner);
+  if (!recovery_solver.IsValid(&inner)) return fail_why(why, "tracker: recovery_solver: " + inner);
   if (!loss.IsValid(why)) return false;
-  if (!gaze.IsValid(&inner)) return fail(why, "tracker: " + inner);
-  if (!eye_openness.IsValid(&inner)) return fail(why, "tracker: " + inner);
-  if (!brows.IsValid(&inner)) return fail(why, "tracker: " + inner);
-  if (!depth_alignment.IsValid(&inner)) return fail(why, "tracker: " + inner);
-  if (min_face_width_px < 0 || min_face_width_px > 4096) return fail(why, "tracker: min_face_width_px must be 0..4096");
-  if (max_face_width_px < 0 || max_face_width_px > 4096) return fail(why, "tracker: max_face_width_px must be 0..4096");
+  if (!gaze.IsValid(&inner)) return fail_why(why, "tracker: " + inner);
+  if (!eye_openness.IsValid(&inner)) return fail_why(why, "tracker: " + inner);
+  if (!brows.IsValid(&inner)) return fail_why(why, "tracker: " + inner);
+  if (!depth_alignment.IsValid(&inner)) return fail_why(why, "tracker: " + inner);
+  if (min_face_width_px < 0 || min_face_width_px > 4096) return fail_why(why, "tracker: min_face_width_px must be 0..4096");
+  if (max_face_width_px < 0 || max_face_width_px > 4096) return fail_why(why, "tracker: max_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
-    return fail(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
+    return fail_why(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
   if (!(rest_warning_weight >= 0.f && rest_warning_weight <= 1.f))
-    return fail(why, "tracker: rest_warning_weight must be in [0, 1] (0: no check)");
+    return fail_why(why, "tracker: rest_warning_weight must be in [0, 1] (0: no check)");
   if (!(default_face_distance_m > 0.1f && default_face_distance_m < 20.f)) {
-    return fail(why, "tracker: default_face_distance_m must be in (0.1, 20) m");
+    return fail_why(why, "tracker: default_face_distance_m must be in (0.1, 20) m");
   }
   return true;
 }

@@ -12,18 +12,17 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 
 bool FocalLengthOptions::IsValid(std::string* why) const {
   if (!(min_fov_deg >= 5 && min_fov_deg < max_fov_deg && max_fov_deg <= 170))
-    return fail(why, "focal length search: need 5 <= min_fov_deg < max_fov_deg <= 170");
-  if (grid_points < 3) return fail(why, "focal length search: grid_points must be >= 3");
-  if (refine_iterations < 0 || gauss_newton_iterations < 1) return fail(why, "focal length search: bad iteration counts");
-  if (identity_components < 0) return fail(why, "focal length search: identity_components must be >= 0");
-  if (!(w_identity >= 0 && w_landmarks > 0)) return fail(why, "focal length search: weights must be w_identity >= 0, w_landmarks > 0");
-  if (!(fallback_fov_deg > 1 && fallback_fov_deg < 179)) return fail(why, "focal length search: fallback_fov_deg must be in (1, 179)");
+    return fail_why(why, "focal length search: need 5 <= min_fov_deg < max_fov_deg <= 170");
+  if (grid_points < 3) return fail_why(why, "focal length search: grid_points must be >= 3");
+  if (refine_iterations < 0 || gauss_newton_iterations < 1) return fail_why(why, "focal length search: bad iteration counts");
+  if (identity_components < 0) return fail_why(why, "focal length search: identity_components must be >= 0");
+  if (!(w_identity >= 0 && w_landmarks > 0)) return fail_why(why, "focal length search: weights must be w_identity >= 0, w_landmarks > 0");
+  if (!(fallback_fov_deg > 1 && fallback_fov_deg < 179)) return fail_why(why, "focal length search: fallback_fov_deg must be in (1, 179)");
   if (!(min_relative_contrast >= 0) || !(min_landmark_confidence >= 0) || !(max_landmark_rms_px > 0))
-    return fail(why, "focal length search: min_relative_contrast, min_landmark_confidence >= 0 and max_landmark_rms_px > 0 needed");
+    return fail_why(why, "focal length search: min_relative_contrast, min_landmark_confidence >= 0 and max_landmark_rms_px > 0 needed");
   return true;
 }
 

@@ -13,7 +13,6 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 namespace {
 size_t pixel_count(const gpu::PinholeCamera& c) { return static_cast<size_t>(c.width) * static_cast<size_t>(c.height); }
 
@@ -147,7 +146,7 @@ bool InputFrame::IsValid(std::string* why) const {
   // at the first bad value does not (this check is a fifth of a 640x480 pyramid's time otherwise).
   uint32_t non_finite = 0;
   for (float v : color) non_finite |= static_cast<uint32_t>((std::bit_cast<uint32_t>(v) & 0x7f800000u) == 0x7f800000u);
-  if (non_finite) return fail(why, kNonFiniteColorMessage);
+  if (non_finite) return fail_why(why, kNonFiniteColorMessage);
   return true;
 }
 
@@ -155,17 +154,17 @@ bool InputFrame::IsValidExceptColorValues(std::string* why) const {
   if (!camera.IsValid(why)) return false;
   const size_t n = pixel_count(camera);
   if (color.size() != 3 * n) {
-    return fail(why, "input frame: colour has " + std::to_string(color.size()) + " values, " +
+    return fail_why(why, "input frame: colour has " + std::to_string(color.size()) + " values, " +
                          std::to_string(3 * n) + " expected (3 per pixel)");
   }
   if (!depth.empty() && depth.size() != n) {
-    return fail(why, "input frame: depth has " + std::to_string(depth.size()) + " values, " + std::to_string(n) +
+    return fail_why(why, "input frame: depth has " + std::to_string(depth.size()) + " values, " + std::to_string(n) +
                          " expected (1 per pixel, or none)");
   }
   for (const auto& l : landmarks) {
-    if (l.ibug_index < 0 || l.ibug_index > 67) return fail(why, "input frame: landmark index outside 0..67");
+    if (l.ibug_index < 0 || l.ibug_index > 67) return fail_why(why, "input frame: landmark index outside 0..67");
     if (!l.position.allFinite() || !std::isfinite(l.confidence) || l.confidence < 0.f) {
-      return fail(why, "input frame: landmark " + std::to_string(l.ibug_index) + " has a non-finite position or bad confidence");
+      return fail_why(why, "input frame: landmark " + std::to_string(l.ibug_index) + " has a non-finite position or bad confidence");
     }
   }
   return true;
@@ -180,8 +179,8 @@ void InputFrame::SetColorFromSrgb8(const uint8_t* rgb, size_t size_bytes) {
 }
 
 bool PyramidOptions::IsValid(std::string* why) const {
-  if (levels < 1 || levels > 8) return fail(why, "pyramid: levels must be 1..8");
-  if (!(depth_edge_threshold > 0.f)) return fail(why, "pyramid: depth_edge_threshold must be positive");
+  if (levels < 1 || levels > 8) return fail_why(why, "pyramid: levels must be 1..8");
+  if (!(depth_edge_threshold > 0.f)) return fail_why(why, "pyramid: depth_edge_threshold must be positive");
   return true;
 }
 

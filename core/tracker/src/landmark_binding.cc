@@ -15,11 +15,11 @@
 namespace face_reenact::tracker {
 
 bool BindingSearchOptions::IsValid(std::string* why) const {
-  if (points.empty()) return internal::fail(why, "binding search: no points to search");
+  if (points.empty()) return fail_why(why, "binding search: no points to search");
   for (int p : points) {
-    if (p < 0 || p > 67) return internal::fail(why, "binding search: iBUG index " + std::to_string(p) + " outside 0..67");
+    if (p < 0 || p > 67) return fail_why(why, "binding search: iBUG index " + std::to_string(p) + " outside 0..67");
   }
-  if (!(radius_m > 0.001 && radius_m < 0.1)) return internal::fail(why, "binding search: radius must be 1..100 mm");
+  if (!(radius_m > 0.001 && radius_m < 0.1)) return fail_why(why, "binding search: radius must be 1..100 mm");
   return true;
 }
 

@@ -42,14 +42,14 @@ ShapeErrors part_mean(const std::vector<FitEvalImage>& images, ShapeErrors FitEv
 
 bool PhotoFitOptions::IsValid(std::string* why) const {
   if (!(horizontal_fov_deg >= 10.0 && horizontal_fov_deg <= 150.0)) {
-    return internal::fail(why, "photo fit: the field of view must be 10..150 degrees");
+    return fail_why(why, "photo fit: the field of view must be 10..150 degrees");
   }
   if (tracker.calibration_frames != 1 || tracker.calibration_window_frames != 0) {
-    return internal::fail(why, "photo fit: one photo is one calibration frame (calibration_frames 1, no window)");
+    return fail_why(why, "photo fit: one photo is one calibration frame (calibration_frames 1, no window)");
   }
-  if (tracker.background_calibration) return internal::fail(why, "photo fit: the calibration runs in the foreground");
-  if (contour_rounds < 0 || contour_rounds > 20) return internal::fail(why, "photo fit: contour_rounds must be 0..20");
-  if (contour_iterations < 1 || contour_iterations > 200) return internal::fail(why, "photo fit: contour_iterations must be 1..200");
+  if (tracker.background_calibration) return fail_why(why, "photo fit: the calibration runs in the foreground");
+  if (contour_rounds < 0 || contour_rounds > 20) return fail_why(why, "photo fit: contour_rounds must be 0..20");
+  if (contour_iterations < 1 || contour_iterations > 200) return fail_why(why, "photo fit: contour_iterations must be 1..200");
   return tracker.IsValid(why);
 }
 

@@ -18,7 +18,6 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 using internal::model_vertex;
 using internal::project;
 namespace {
@@ -156,11 +155,11 @@ double refine_pnp(const gpu::PinholeCamera& cam, const std::vector<Correspondenc
 }  // namespace
 
 bool PoseInitOptions::IsValid(std::string* why) const {
-  if (min_landmarks < 3 || min_landmarks > 68) return fail(why, "pose init: min_landmarks must be 3..68");
-  if (!(min_confidence >= 0.f) || !(min_confidence <= 1.f)) return fail(why, "pose init: min_confidence must be in [0, 1]");
-  if (max_iterations < 1 || max_iterations > 1000) return fail(why, "pose init: max_iterations must be 1..1000");
+  if (min_landmarks < 3 || min_landmarks > 68) return fail_why(why, "pose init: min_landmarks must be 3..68");
+  if (!(min_confidence >= 0.f) || !(min_confidence <= 1.f)) return fail_why(why, "pose init: min_confidence must be in [0, 1]");
+  if (max_iterations < 1 || max_iterations > 1000) return fail_why(why, "pose init: max_iterations must be 1..1000");
   if (!(default_distance_m > 0.05f) || !(default_distance_m < 50.f)) {
-    return fail(why, "pose init: default_distance_m must be in (0.05, 50) m");
+    return fail_why(why, "pose init: default_distance_m must be in (0.05, 50) m");
   }
   return true;
 }
@@ -329,14 +328,14 @@ PoseInitResult InitializePoseFromLandmarks(const TrackerModel& model, const Inpu
 bool FitAgreementOptions::IsValid(std::string* why) const {
   auto off_or_positive = [](double v) { return std::isfinite(v) && v >= 0; };
   if (!off_or_positive(max_pose_disagreement_deg) || max_pose_disagreement_deg > 180)
-    return fail(why, "fit agreement: max_pose_disagreement_deg must be in [0, 180] (0: off)");
+    return fail_why(why, "fit agreement: max_pose_disagreement_deg must be in [0, 180] (0: off)");
   if (!off_or_positive(max_landmark_nme) || max_landmark_nme > 10)
-    return fail(why, "fit agreement: max_landmark_nme must be in [0, 10] (0: off)");
+    return fail_why(why, "fit agreement: max_landmark_nme must be in [0, 10] (0: off)");
   if (!off_or_positive(max_rotation_speed_deg_s) || max_rotation_speed_deg_s > 1e5)
-    return fail(why, "fit agreement: max_rotation_speed_deg_s must be in [0, 100000] (0: off)");
+    return fail_why(why, "fit agreement: max_rotation_speed_deg_s must be in [0, 100000] (0: off)");
   if (!(min_landmark_confidence >= 0.f && min_landmark_confidence < 1.f))
-    return fail(why, "fit agreement: min_landmark_confidence must be in [0, 1)");
-  if (!off_or_positive(pose_tie_nme) || pose_tie_nme > 10) return fail(why, "fit agreement: pose_tie_nme must be in [0, 10]");
+    return fail_why(why, "fit agreement: min_landmark_confidence must be in [0, 1)");
+  if (!off_or_positive(pose_tie_nme) || pose_tie_nme > 10) return fail_why(why, "fit agreement: pose_tie_nme must be in [0, 10]");
   return true;
 }
 

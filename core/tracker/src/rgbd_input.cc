@@ -10,7 +10,6 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 using internal::Clock;
 namespace {
 constexpr double kRadToDeg = 57.29577951308232;
@@ -19,14 +18,14 @@ constexpr double kRadToDeg = 57.29577951308232;
 
 bool RgbdInputOptions::IsValid(std::string* why) const {
   if (!(stored_landmark_confidence > 0.f && stored_landmark_confidence <= 1.f)) {
-    return fail(why, "input: stored_landmark_confidence must be in (0, 1]");
+    return fail_why(why, "input: stored_landmark_confidence must be in (0, 1]");
   }
   if (!(detector_confidence_scale > 0.f && detector_confidence_scale <= 1.f)) {
-    return fail(why, "input: detector_confidence_scale must be in (0, 1]");
+    return fail_why(why, "input: detector_confidence_scale must be in (0, 1]");
   }
   if (landmark_source == LandmarkSourceChoice::kDetector) {
     std::string inner;
-    if (!detector.IsValid(&inner)) return fail(why, "input: landmark detector: " + inner);
+    if (!detector.IsValid(&inner)) return fail_why(why, "input: landmark detector: " + inner);
   }
   return true;
 }

@@ -13,7 +13,6 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
-using internal::fail;
 using internal::Clock;
 namespace {
 std::string energy_line(const TermEnergies& e) {
@@ -194,20 +193,20 @@ const char* termination_name(Termination t) {
 
 bool SolverOptions::IsValid(std::string* why) const {
   if (!energy.IsValid(why) || !pyramid.IsValid(why) || !render.IsValid(why)) return false;
-  if (schedule.empty()) return fail(why, "solver: the level schedule is empty");
+  if (schedule.empty()) return fail_why(why, "solver: the level schedule is empty");
   for (const auto& s : schedule) {
     if (s.level < 0 || s.level >= pyramid.levels) {
-      return fail(why, "solver: scheduled level " + std::to_string(s.level) + " is outside the " +
+      return fail_why(why, "solver: scheduled level " + std::to_string(s.level) + " is outside the " +
                            std::to_string(pyramid.levels) + "-level pyramid");
     }
-    if (s.gauss_newton_iterations < 0 || s.gauss_newton_iterations > 1000) return fail(why, "solver: Gauss-Newton iterations must be 0..1000");
-    if (s.pcg_iterations < 1 || s.pcg_iterations > 10000) return fail(why, "solver: PCG iterations must be 1..10000");
+    if (s.gauss_newton_iterations < 0 || s.gauss_newton_iterations > 1000) return fail_why(why, "solver: Gauss-Newton iterations must be 0..1000");
+    if (s.pcg_iterations < 1 || s.pcg_iterations > 10000) return fail_why(why, "solver: PCG iterations must be 1..10000");
   }
-  if (!(damping >= 0) || !std::isfinite(damping)) return fail(why, "solver: damping must be finite and non-negative");
-  if (max_step_halvings < 0 || max_step_halvings > 30) return fail(why, "solver: max_step_halvings must be 0..30");
-  if (!(function_tolerance >= 0)) return fail(why, "solver: function_tolerance must be non-negative");
-  if (!(pcg_relative_tolerance >= 0)) return fail(why, "solver: pcg_relative_tolerance must be non-negative");
-  if (threads < 0 || threads > 64) return fail(why, "solver: threads must be 0..64 (0 = one per hardware thread)");
+  if (!(damping >= 0) || !std::isfinite(damping)) return fail_why(why, "solver: damping must be finite and non-negative");
+  if (max_step_halvings < 0 || max_step_halvings > 30) return fail_why(why, "solver: max_step_halvings must be 0..30");
+  if (!(function_tolerance >= 0)) return fail_why(why, "solver: function_tolerance must be non-negative");
+  if (!(pcg_relative_tolerance >= 0)) return fail_why(why, "solver: pcg_relative_tolerance must be non-negative");
+  if (threads < 0 || threads > 64) return fail_why(why, "solver: threads must be 0..64 (0 = one per hardware thread)");
   return true;
 }
 

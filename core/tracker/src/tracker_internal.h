@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "face_reenact/common/error.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/gpu/image_formation.h"
 #include "face_reenact/tracker/tracker_model.h"
@@ -13,12 +14,6 @@
 namespace face_reenact::tracker::internal {
 
 using Clock = SteadyClock;
-
-// For IsValid(std::string* why): stores the reason (when asked) and returns false.
-inline bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
 
 // printf into a string (messages of a few hundred characters at most).
 template <typename... Args>

@@ -4,24 +4,17 @@
 #include "face_reenact/model/face_model.h"
 
 namespace face_reenact::tracker {
-namespace {
-bool fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
-}
-}  // namespace
-
 bool TrackerModel::IsValid(std::string* why) const {
   if (!render.IsValid(why)) return false;
-  if (identity_sigma.size() != num_identity()) return fail(why, "tracker model: one identity sigma per identity column needed");
-  if (albedo_sigma.size() != num_albedo()) return fail(why, "tracker model: one albedo sigma per albedo column needed");
+  if (identity_sigma.size() != num_identity()) return fail_why(why, "tracker model: one identity sigma per identity column needed");
+  if (albedo_sigma.size() != num_albedo()) return fail_why(why, "tracker model: one albedo sigma per albedo column needed");
   if ((identity_sigma.size() > 0 && !(identity_sigma.array() > 0.f).all()) ||
       (albedo_sigma.size() > 0 && !(albedo_sigma.array() > 0.f).all()) || !(expression_sigma > 0.f)) {
-    return fail(why, "tracker model: prior standard deviations must be positive");
+    return fail_why(why, "tracker model: prior standard deviations must be positive");
   }
   for (const auto& l : landmarks) {
-    if (l.vertex < 0 || l.vertex >= num_vertices()) return fail(why, "tracker model: landmark vertex out of range");
-    if (l.ibug_index < 0 || l.ibug_index > 67) return fail(why, "tracker model: landmark index outside 0..67");
+    if (l.vertex < 0 || l.vertex >= num_vertices()) return fail_why(why, "tracker model: landmark vertex out of range");
+    if (l.ibug_index < 0 || l.ibug_index > 67) return fail_why(why, "tracker model: landmark index outside 0..67");
   }
   return true;
 }

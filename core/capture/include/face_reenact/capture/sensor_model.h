@@ -20,6 +20,7 @@
 // blur, vignetting, sRGB encoding, signal-dependent (shot) and constant (read) noise, 8 bits.
 // Every random draw comes from (seed, frame, stream) through a counter-based generator, so a
 // frame's output depends only on its inputs, the seed and its index.
+#include <algorithm>
 #include <cstdint>
 #include <string>
 
@@ -88,5 +89,10 @@ double uniform01(uint64_t key);  // [0, 1)
 double gaussian(uint64_t key);   // standard normal (Box-Muller of two derived uniforms)
 // Smooth noise of unit variance over time t: cosine interpolation of Gaussian knots `period` apart.
 double smooth_noise(uint64_t key, double t, double period);
+// 0 below 0, 1 above 1, Hermite-eased in between (the synthetic actor's fades and turns).
+inline double smoothstep01(double x) {
+  x = std::clamp(x, 0.0, 1.0);
+  return x * x * (3 - 2 * x);
+}
 
 }  // namespace face_reenact::capture
