@@ -21,6 +21,8 @@ JOBS="${FR_JOBS:-$(nproc)}"
 # Debian bookworm packages the project builds, runs and tests with (one list, one place).
 PACKAGES=(
   clang cmake ninja-build pkg-config git ca-certificates python3 python3-pip
+  # LLVM's linker: the build's links 4-5x faster than with GNU ld (CMakeLists.txt, FR_USE_LLD)
+  lld
   libclang-rt-14-dev
   libeigen3-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev
