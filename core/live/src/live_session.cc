@@ -272,6 +272,10 @@ LiveSession::LiveSession(Options options) : options_(std::move(options)) {
     }
     frame_cv_.notify_all();
   });
+  // Named here as well as in run(): once the constructor returns, the worker carries its name, so
+  // whoever counts the session's threads (a front-end's shutdown check, `top -H`) never misses one
+  // that has not reached its first line yet.
+  pthread_setname_np(worker_.native_handle(), options_.thread_name.c_str());
 }
 
 LiveSession::~LiveSession() { stop(); }
