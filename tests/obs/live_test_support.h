@@ -3,10 +3,8 @@
 // `face-reenact synth` (160x120, 12 frames: ~2 s) and shared by the test processes, and helpers.
 #include <gtest/gtest.h>
 #include <arpa/inet.h>
-#include <fcntl.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
-#include <sys/file.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -23,6 +21,7 @@
 
 #include "face_reenact/capture/recording.h"
 #include "face_reenact/common/thread_cpu.h"
+#include "support/cached_recording.h"
 
 namespace face_reenact::test {
 
@@ -64,49 +63,28 @@ inline std::string quote(const std::string& s) {
 }
 
 // A synthetic recording (`face-reenact synth`), made once and shared by every test process
-// (CTest runs each test case in its own process): FR_OBS_TEST_CACHE/NAME, created under a file
-// lock and reused while it reads back as expected. Empty with *why when it cannot be made (no
-// CLI, no model).
+// (support/cached_recording.h). Empty with *why when it cannot be made (no CLI, no model).
 struct TestRecordingSpec {
   std::string name;
   int width, height, frames, seed;
 };
 inline std::string make_test_recording(const TestRecordingSpec& spec, std::string* why) {
-  std::string dir, error;
   const char* cli = std::getenv("FR_CLI");
   const char* model = std::getenv("FR_MODEL");
-  const std::string cache = FR_OBS_TEST_CACHE;
-  const std::string out = cache + "/" + spec.name;
-  std::error_code ec;
-  std::filesystem::create_directories(cache, ec);
-  int lock = ::open((cache + "/.lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-  if (lock >= 0) ::flock(lock, LOCK_EX);
-  bool reusable = false;
-  try {
-    capture::RecordingReader reader(out);
-    reusable = reader.frame_count() == spec.frames && reader.info().camera.width == spec.width &&
-               reader.info().camera.height == spec.height;
-  } catch (const std::exception&) {
+  if (!cli || !std::filesystem::exists(cli)) {
+    if (why) *why = "the face-reenact program (FR_CLI) is not built";
+    return {};
   }
-  if (reusable) {
-    dir = out;
-  } else if (!cli || !std::filesystem::exists(cli)) {
-    error = "the face-reenact program (FR_CLI) is not built";
-  } else if (!model || !std::filesystem::exists(model)) {
-    error = std::string("no face model at FR_MODEL='") + (model ? model : "") + "' (run ./setup.sh to generate it)";
-  } else {
-    std::filesystem::remove_all(out, ec);
-    std::string log;
-    int rc = run_command(quote(cli) + " synth --size " + std::to_string(spec.width) + "x" + std::to_string(spec.height) +
-                             " --frames " + std::to_string(spec.frames) + " --seed " + std::to_string(spec.seed) +
-                             " --quiet --model " + quote(model) + " --out " + quote(out),
-                         &log);
-    if (rc != 0) error = "face-reenact synth failed (" + std::to_string(rc) + "): " + log;
-    else dir = out;
+  if (!model || !std::filesystem::exists(model)) {
+    if (why) *why = std::string("no face model at FR_MODEL='") + (model ? model : "") + "' (run ./setup.sh to generate it)";
+    return {};
   }
-  if (lock >= 0) ::close(lock);  // releases the lock
-  if (why) *why = error;
-  return dir;
+  return testing::cached_synthetic_recording(
+      cli,
+      {spec.name,
+       {"--size", std::to_string(spec.width) + "x" + std::to_string(spec.height), "--frames", std::to_string(spec.frames),
+        "--seed", std::to_string(spec.seed), "--quiet", "--model", model}},
+      why);
 }
 
 // The tests' usual recording: 160x120, 12 frames (~2 s), a face too small for the landmark

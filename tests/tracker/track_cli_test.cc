@@ -30,6 +30,7 @@
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/model/wheel_archive.h"
 #include "face_reenact/stream/sender.h"
+#include "support/cached_recording.h"
 #include "support/openni_fixture.h"
 #include "support/temp_dir.h"
 
@@ -53,7 +54,8 @@ std::string model() {
   return m && fs::exists(m) ? m : "";
 }
 
-// One synthetic recording for the whole file (synth costs ~0.1 s per 320x240 frame).
+// One synthetic recording for the whole file, made once per build tree (support/cached_recording.h),
+// and a scratch folder per process for what the cases write.
 struct Fixture {
   std::unique_ptr<face_reenact::testing::TempDir> scratch;  // removed with the fixture
   fs::path dir;
@@ -74,11 +76,12 @@ const Fixture& fixture() {
     if (!out->skip_reason.empty()) return out;
     out->scratch = std::make_unique<face_reenact::testing::TempDir>("fr-track-cli");
     out->dir = out->scratch->path();
-    out->recording = out->dir / "rec";
-    const SubprocessResult r = run_subprocess({cli(), "synth", "--seed", "7331", "--frames", "10", "--size", "320x240",
-                                               "--out", out->recording.string(), "--model", model(), "--wheel",
-                                               wheel_path(), "--device", "llvmpipe", "--quiet"});
-    if (r.exit_code != 0) out->skip_reason = "synth failed: " + r.output;
+    std::string why;
+    out->recording = face_reenact::testing::cached_synthetic_recording(
+        cli(), {"track-cli-7331", {"--seed", "7331", "--frames", "10", "--size", "320x240", "--model", model(), "--wheel",
+                                   wheel_path(), "--device", "llvmpipe", "--quiet"}},
+        &why);
+    if (out->recording.empty()) out->skip_reason = "synth failed: " + why;
     return out;
   }();
   return *f;
