@@ -16,6 +16,7 @@
 #include <optional>
 #include <sstream>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -46,6 +47,7 @@
 #include "face_reenact/reenact/contact_sheet.h"
 #include "face_reenact/reenact/closed_loop.h"
 #include "face_reenact/reenact/face_compositor.h"
+#include "face_reenact/reenact/overlapped_render.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
 #include "face_reenact/reenact/transfer.h"
 #include "face_reenact/stream/receiver.h"
@@ -418,7 +420,7 @@ void run_reenact(const ReenactArgs& a) {
   ProgressBar bar(total, !a.quiet);
 
   const auto start = Clock::now();
-  int done = 0;
+  int done = 0, started = 0;  // frames output, frames read and tracked (one more while one renders)
   double target_first_s = std::numeric_limits<double>::quiet_NaN();
   bool source_rest_requested = false, target_rest_requested = false;
   capture::RgbdFrame tf, sf;
@@ -427,70 +429,41 @@ void run_reenact(const ReenactArgs& a) {
   std::map<std::string, std::string> lost_examples;
   tracker::FitAgreementTally agreement;
   tracker::LightProjectionTally light;
-  while ((total <= 0 || done < total) && target->read_next(&tf)) {
-    if (std::isnan(target_first_s)) target_first_s = tf.timestamp_s;
-    const double target_time_s = tf.timestamp_s - target_first_s;
-    if (a.target_rest_s >= 0 && !target_rest_requested && target_time_s >= a.target_rest_s) {
-      pipeline.RequestCalibration();  // the target's identity from the frames where it is at rest
-      target_rest_requested = true;
-    }
+  // A frame between its tracking and its output: it renders while the next one is read and
+  // tracked (reenact::OverlappedRender), so what finishing it reads is kept here.
+  struct InFlight {
+    capture::RgbdFrame target, source;  // the target frame, the newest source frame (sheets)
+    tracker::TrackedFrame source_tracked;
     reenact::SourceExpression expr;
-    const reenact::SourceExpression* src = nullptr;
     bool source_fresh = false;
-    std::optional<reenact::TrackedTarget> tracked_target;
-    if (source_rec) {
-      bool ended = false;
-      source_fresh = source_by_time.advance(target_time_s, &sf, &ended);
-      if (ended) break;  // the source's performance is over
-      if (source_fresh) {
-        if (a.source_rest_s >= 0 && !source_rest_requested && source_by_time.time_s() >= a.source_rest_s) {
-          source_tracker->tracker->RequestCalibration();
-          source_rest_requested = true;
-        }
-        // The two actors' trackers are independent: the source's runs on a kept thread of its
-        // own while this one tracks the target (the render needs both), so both cores work.
-        st = RunBeside(*source_thread, [&] { return source_tracker->Track(sf); },
-                       [&] { tracked_target = pipeline.Track(tf); });
-        ++source_statuses[tracker::tracking_status_name(st.status)];
-      }
-      expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
-      // The source frame the fit belongs to, for its folds and wrinkles (Sec. 7.3) and its mouth.
-      if (expr.blend_weight > 0.f && ro.UsesSourceView() && !sf.color.empty())
-        expr.view = std::make_shared<reenact::SourceView>(reenact::SourceView{sf.color, st.camera, st.params, sf.index});
-      src = &expr;
-    } else {
-      // Live stream: process at the recording's rate so the stream's timing means something.
-      const auto due = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(done / fps));
-      std::this_thread::sleep_until(due);
-      expr = reenact::SourceFromRemote(receiver->sample());
-      src = &expr;
-    }
-    const reenact::ReenactedFrame out =
-        tracked_target ? pipeline.Render(std::move(*tracked_target), src) : pipeline.Process(tf, src);
+    double target_time_s = 0;
+    Eigen::VectorXf target_identity;  // the target's calibrated identity as of this frame
+  };
+  auto finish_frame = [&](InFlight& f, const reenact::ReenactedFrame& out) {
     if (out.bgr.cols != info.camera.width || out.bgr.rows != info.camera.height)
-      throw Error("target '" + a.target + "': frame " + std::to_string(tf.index) + " has a different size");
+      throw Error("target '" + a.target + "': frame " + std::to_string(f.target.index) + " has a different size");
     writer.write(out.bgr);
     // Only reenacted frames: the loop calibrates on them, so its identity is the re-rendered
     // face's (on the target's own frames, passed through while it calibrates, it would be the
     // target's own by construction).
     if (loop && out.reenacted) {
       capture::RgbdFrame of;
-      of.index = tf.index;
-      of.timestamp_s = tf.timestamp_s;
-      of.camera = out.tracked.has_parameters ? out.tracked.camera : tf.camera;
+      of.index = f.target.index;
+      of.timestamp_s = f.target.timestamp_s;
+      of.camera = out.tracked.has_parameters ? out.tracked.camera : f.target.camera;
       of.color = out.bgr;
       of.depth = out.depth;
       const tracker::TrackedFrame lt = loop->Track(of);
       const bool passed = mode == reenact::ReenactMode::kPassThrough;
       // Frames rendered with the whole source expression (none fading in or out).
-      if (passed || (src && src->blend_weight > 0.99f && !src->neutral_subtracted)) {
-        const Eigen::VectorXf reference = passed ? out.target_params.delta : st.params.delta;
+      if (passed || (f.expr.blend_weight > 0.99f && !f.expr.neutral_subtracted)) {
+        const Eigen::VectorXf reference = passed ? out.target_params.delta : f.source_tracked.params.delta;
         loop_score->AddLoop(lt, loop->tracker->calibrated(), loop->tracker->neutral().alpha, reference,
-                            out.output_params.delta, pipeline.target_neutral().alpha);
+                            out.output_params.delta, f.target_identity);
       }
     }
     if (mode == reenact::ReenactMode::kPassThrough && out.reenacted)
-      fidelity.Add(reenact::MeasureFaceFidelity(tf.color, out.bgr, out.face_mask));
+      fidelity.Add(reenact::MeasureFaceFidelity(f.target.color, out.bgr, out.face_mask));
     if (!a.frames_dir.empty()) {
       char name[32];
       std::snprintf(name, sizeof(name), "frame_%06d.png", done);
@@ -502,13 +475,13 @@ void run_reenact(const ReenactArgs& a) {
       std::snprintf(name, sizeof(name), "sheet_%06d.png", done);
       const std::string path = (fs::path(a.sheets) / name).string();
       const std::string caption = "frame " + std::to_string(done) + ", " + reenact::tracking_status_name(out.status);
-      if (!cv::imwrite(path, reenact::ReenactmentContactSheet(source_rec ? sf.color : cv::Mat(), tf.color, out.bgr,
+      if (!cv::imwrite(path, reenact::ReenactmentContactSheet(source_rec ? f.source.color : cv::Mat(), f.target.color, out.bgr,
                                                                out.reenacted ? out.face_mask : cv::Mat(), caption)))
         throw Error("--sheets: cannot write '" + path + "'");
       ++sheets_written;
     }
     const bool fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
-    agreement.Add(tf.index, fit, out.tracked.fit_refused(), out.tracked.agreement, out.tracked.message);
+    agreement.Add(f.target.index, fit, out.tracked.fit_refused(), out.tracked.agreement, out.tracked.message);
     if (fit) light.Add(out.tracked.light);
     if (out.status == reenact::TrackingStatus::kLost) {
       // Why, by the tracker's status (no_face, lost, bad_input) or the pipeline's reason.
@@ -519,18 +492,18 @@ void run_reenact(const ReenactArgs& a) {
     }
     if (status_log.is_open()) {
       nlohmann::json line = {{"frame", done},
-                             {"target_frame", tf.index},
-                             {"target_time_s", target_time_s},
+                             {"target_frame", f.target.index},
+                             {"target_time_s", f.target_time_s},
                              {"status", reenact::tracking_status_name(out.status)},
                              {"tracker_status", tracker::tracking_status_name(out.tracked.status)},
                              {"reenacted", out.reenacted},
                              {"mouth", out.mouth_drawn},
                              {"message", out.message}};
-      line["source_weight"] = expr.blend_weight;
+      line["source_weight"] = f.expr.blend_weight;
       if (source_rec) {
-        line["source_frame"] = sf.index;
-        line["source_fresh"] = source_fresh;
-        line["source_status"] = tracker::tracking_status_name(st.status);
+        line["source_frame"] = f.source.index;
+        line["source_fresh"] = f.source_fresh;
+        line["source_status"] = tracker::tracking_status_name(f.source_tracked.status);
       }
       status_log << line.dump() << '\n';
       if (!status_log) throw Error("--status-log '" + a.status_log + "': writing failed (disk full?)");
@@ -538,7 +511,55 @@ void run_reenact(const ReenactArgs& a) {
     ++done;
     bar.update(done, std::string(reenact::tracking_status_name(out.status)) +
                          (out.reenacted ? (out.mouth_drawn ? " (mouth)" : "") : ": " + out.message));
+  };
+  reenact::OverlappedRender<InFlight> overlap(pipeline, finish_frame);
+  while ((total <= 0 || started < total) && target->read_next(&tf)) {
+    auto next = std::make_unique<InFlight>();
+    InFlight& f = *next;
+    if (std::isnan(target_first_s)) target_first_s = tf.timestamp_s;
+    f.target_time_s = tf.timestamp_s - target_first_s;
+    if (a.target_rest_s >= 0 && !target_rest_requested && f.target_time_s >= a.target_rest_s) {
+      pipeline.RequestCalibration();  // the target's identity from the frames where it is at rest
+      target_rest_requested = true;
+    }
+    std::optional<reenact::TrackedTarget> tracked_target;
+    if (source_rec) {
+      bool ended = false;
+      f.source_fresh = source_by_time.advance(f.target_time_s, &sf, &ended);
+      if (ended) break;  // the source's performance is over
+      if (f.source_fresh) {
+        if (a.source_rest_s >= 0 && !source_rest_requested && source_by_time.time_s() >= a.source_rest_s) {
+          source_tracker->tracker->RequestCalibration();
+          source_rest_requested = true;
+        }
+        // The two actors' trackers are independent: the source's runs on a kept thread of its
+        // own while this one tracks the target (the render needs both), so both cores work.
+        st = RunBeside(*source_thread, [&] { return source_tracker->Track(sf); },
+                       [&] { tracked_target = pipeline.Track(tf); });
+        ++source_statuses[tracker::tracking_status_name(st.status)];
+      }
+      f.expr = reenact::SourceFromTrackedFrame(st, source_tracker->tracker->neutral());
+      // The source frame the fit belongs to, for its folds and wrinkles (Sec. 7.3) and its mouth.
+      // (A source frame is never written again once read: SourceByTime moves each new one in.)
+      if (f.expr.blend_weight > 0.f && ro.UsesSourceView() && !sf.color.empty())
+        f.expr.view = std::make_shared<reenact::SourceView>(reenact::SourceView{sf.color, st.camera, st.params, sf.index});
+      f.source = sf;
+      f.source_tracked = st;
+    } else {
+      // Live stream: process at the recording's rate so the stream's timing means something.
+      const auto due = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(started / fps));
+      std::this_thread::sleep_until(due);
+      f.expr = reenact::SourceFromRemote(receiver->sample());
+    }
+    if (!tracked_target) tracked_target = pipeline.Track(tf);
+    f.target_identity = pipeline.target_neutral().alpha;  // as Render leaves it: Track sets it
+    f.target = std::move(tf);
+    tf = capture::RgbdFrame();  // read the next frame into a buffer of its own
+    ++started;
+    const reenact::SourceExpression* expr = &f.expr;
+    overlap.Push(std::move(next), std::move(*tracked_target), expr);
   }
+  overlap.Drain();
   writer.close();
   if (done == 0) throw Error("target '" + a.target + "': no frames");
   const double seconds = ms_since(start) / 1000.0;

@@ -3,12 +3,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <future>
+#include <memory>
 #include <optional>
 
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/reenact/overlapped_render.h"
 #include "face_reenact/reenact/reenactment_pipeline.h"
 #include "face_reenact/reenact/transfer.h"
 #include "reenact_test_support.h"
@@ -217,10 +218,11 @@ TEST(ReenactPipelineTest, TrackedStaticTargetIsStableFrameToFrame) {
   EXPECT_EQ(c.status, TrackingStatus::kCalibrating);
 }
 
-// The live session's split: Track(n+1) on one thread while Render(n) runs on another gives the
-// same frames, bit for bit, as Process one frame after the other (Render keeps the appearance, the
-// neutral of Eq. 15 travels with each frame, so the overlap changes nothing), through a
-// calibration, a moving head and a recalibration request in the middle.
+// The split of the live session and of OverlappedRender (`reenact`): Track(n+1) on one
+// thread while Render(n) runs on another gives the same frames, bit for bit, as Process one frame
+// after the other (Render keeps the appearance, the neutral of Eq. 15 travels with each frame, so
+// the overlap changes nothing), through a calibration, a moving head and a recalibration request
+// in the middle.
 TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames) {
   FR_REQUIRE_MODEL();
   const gpu::PinholeCamera cam = test_camera(160, 120);
@@ -241,18 +243,28 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
     expected.push_back(sequential.Process(frames[i], &smile));
   }
 
+  // The same frames through OverlappedRender (what `reenact` uses): each frame's Track
+  // runs while the frame before renders on the helper's thread, and frames finish in order.
   ReenactmentPipeline split(*test_model(), recording_landmarks());
   std::vector<ReenactedFrame> got;
-  std::future<ReenactedFrame> rendering;
-  for (size_t i = 0; i < frames.size(); ++i) {
-    if (i == 5) split.RequestCalibration();
-    TrackedTarget tracked = split.Track(frames[i]);  // overlaps the previous frame's Render
-    if (rendering.valid()) got.push_back(rendering.get());
-    rendering = std::async(std::launch::async, [&split, &smile, t = std::move(tracked)]() mutable {
-      return split.Render(std::move(t), &smile);
+  std::vector<size_t> finished;
+  struct Index {
+    size_t i;
+  };
+  {
+    OverlappedRender<Index> overlap(split, [&](Index& f, const ReenactedFrame& out) {
+      finished.push_back(f.i);
+      got.push_back(out);
     });
+    for (size_t i = 0; i < frames.size(); ++i) {
+      if (i == 5) split.RequestCalibration();
+      overlap.Push(std::make_unique<Index>(Index{i}), split.Track(frames[i]), &smile);
+      EXPECT_EQ(got.size(), i) << "frame " << i << " renders while the next is tracked";
+    }
+    overlap.Drain();
   }
-  got.push_back(rendering.get());
+  ASSERT_EQ(finished.size(), frames.size());
+  for (size_t i = 0; i < finished.size(); ++i) EXPECT_EQ(finished[i], i);
 
   ASSERT_EQ(got.size(), expected.size());
   int reenacted = 0;
