@@ -11,6 +11,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/landmarks/evaluation.h"
+#include "dlib_backend.h"
 #include "face_reenact/landmarks/landmark_tracker.h"
 #include "test_data.h"
 
@@ -301,6 +302,17 @@ TEST(DetectorModelTest, MissingOrCorruptModelIsAClearError) {
   o.shape_predictor_path = corrupt;
   EXPECT_THROW(LandmarkDetector{o}, Error);
   std::filesystem::remove(corrupt);
+}
+
+// The face detector embedded at build time (its serialisation, read in 2 ms) is dlib's own,
+// which get_frontal_face_detector() decodes from dlib's built-in model in about 350 ms: the same
+// bytes, so the same faces are found.
+TEST(DlibBackend, TheEmbeddedFaceDetectorIsDlibsOwn) {
+  const std::string embedded = detail::EmbeddedFaceDetectorSerialization();
+  const std::string decoded = detail::DecodedFaceDetectorSerialization();
+  ASSERT_GT(decoded.size(), 100000u);  // five HOG filters
+  EXPECT_EQ(embedded.size(), decoded.size());
+  EXPECT_TRUE(embedded == decoded) << "the embedded detector differs from dlib's; rebuild fr_embed_face_detector";
 }
 
 TEST(BoxTest, OverlapAndOutsideFraction) {

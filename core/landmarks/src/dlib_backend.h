@@ -36,8 +36,14 @@ class ShapeModel {
 // path for a missing, unreadable or wrong model file.
 std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path);
 
-// dlib's HOG frontal face detector (5 view-specific filters, no model file). Not thread-safe:
-// one per LandmarkDetector.
+// dlib's frontal face detector in dlib's serialisation: as embedded at build time
+// (tools/embed_face_detector.cc), and as dlib's get_frontal_face_detector() decodes it at run time
+// (about 350 ms), for the test that they are the same.
+std::string EmbeddedFaceDetectorSerialization();
+std::string DecodedFaceDetectorSerialization();
+
+// dlib's HOG frontal face detector (5 view-specific filters, no model file; the one embedded at
+// build time, above). Not thread-safe: one per LandmarkDetector.
 class HogFaceDetector {
  public:
   HogFaceDetector();
