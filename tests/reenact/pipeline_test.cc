@@ -2,7 +2,9 @@
 // ground truth), bad input, pass-through of frames without a face, temporal stability.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <optional>
 
@@ -278,6 +280,44 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
   EXPECT_GE(reenacted, 3);
   EXPECT_EQ(split.summary().frames, sequential.summary().frames);
   EXPECT_EQ(split.summary().reenacted_frames, sequential.summary().reenacted_frames);
+}
+
+// A Render that throws (an invalid source expression: a caller's error) surfaces where its frame
+// is finished, at the next Push, with the frames before it finished in order; the frame queued
+// behind it still renders before the helper goes (no crash, no hang, nothing read after it is
+// freed).
+TEST(ReenactPipelineTest, OverlappedRenderRethrowsARenderErrorWhereItsFrameIsFinished) {
+  FR_REQUIRE_MODEL();
+  SourceExpression good, bad;
+  bad.weights[kJawOpenIndex] = std::numeric_limits<float>::quiet_NaN();
+  ASSERT_FALSE(bad.IsValid(nullptr));
+  ReenactmentPipeline pipeline(*test_model(), recording_landmarks());
+  // Frames Track left nothing to render for (as for a frame without a face): Render checks the
+  // source expression, then books them. No tracking: the test is about the helper, and stays short
+  // under the sanitizers, which check its hand-over and its destruction.
+  auto tracked = [](int i) {
+    TrackedTarget t;
+    t.finished = true;
+    t.frame.bgr = cv::Mat(24, 32, CV_8UC3, cv::Scalar(i, i, i));
+    t.start = std::chrono::steady_clock::now();
+    return t;
+  };
+  std::vector<int> finished;
+  struct Index {
+    int i;
+  };
+  {
+    OverlappedRender<Index> overlap(pipeline, [&](Index& f, const ReenactedFrame& out) {
+      EXPECT_EQ(out.bgr.at<cv::Vec3b>(0, 0)[0], f.i) << "frame " << f.i << " got another frame's output";
+      finished.push_back(f.i);
+    });
+    overlap.Push(std::make_unique<Index>(Index{0}), tracked(0), &good);
+    overlap.Push(std::make_unique<Index>(Index{1}), tracked(1), &bad);
+    EXPECT_EQ(finished, std::vector<int>({0}));
+    EXPECT_THROW(overlap.Push(std::make_unique<Index>(Index{2}), tracked(2), &good), Error);
+    EXPECT_EQ(finished, std::vector<int>({0}));  // frame 1 threw; frame 2 is still rendering
+  }  // the helper lets frame 2 finish rendering before the pipeline and the frame go
+  EXPECT_EQ(pipeline.summary().frames, 2);  // frames 0 and 2 rendered; frame 1 was refused
 }
 
 // The overlay mode (OBS, the webcam, `reenact --mode overlay`): the target is tracked and its
