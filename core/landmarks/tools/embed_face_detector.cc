@@ -34,10 +34,10 @@ int main(int argc, char** argv) {
            "extern const unsigned char kFrontalFaceDetector[];\n"
            "extern const std::size_t kFrontalFaceDetectorSize;\n"
            "const unsigned char kFrontalFaceDetector[] = {\n";
-    char hex[8];
+    char number[8];
     for (size_t i = 0; i < bytes.size(); ++i) {
-      std::snprintf(hex, sizeof(hex), "%u,", static_cast<unsigned>(static_cast<unsigned char>(bytes[i])));
-      out << hex << ((i + 1) % 24 == 0 ? "\n" : "");
+      std::snprintf(number, sizeof(number), "%u,", static_cast<unsigned>(static_cast<unsigned char>(bytes[i])));
+      out << number << ((i + 1) % 24 == 0 ? "\n" : "");
     }
     out << "};\nconst std::size_t kFrontalFaceDetectorSize = " << bytes.size() << ";\n\n"
         << "}  // namespace face_reenact::landmarks::detail\n";
