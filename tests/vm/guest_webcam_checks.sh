@@ -215,7 +215,7 @@ if [[ -n ${FR_VM_REENACTED:-} && -f ${FR_VM_REENACTED}/reenacted.mp4 ]] && comma
       --disable-extensions --disable-background-networking --disable-component-update --disable-default-apps \
       --disable-sync --mute-audio --no-default-browser-check \
       --disable-features=Translate,MediaRouter,OptimizationHints,AutofillServerCommunication \
-      "http://127.0.0.1:8765/browser_camera.html?label=Face%20Reenact&seconds=4" >browser-chromium.log 2>&1 &
+      "http://127.0.0.1:8765/browser_camera.html?label=Face%20Reenact&seconds=4&snapshots=6&spacing_ms=500" >browser-chromium.log 2>&1 &
     chromium_pid=$!
     wait "$server_pid"; echo $? >browser-server.rc
     kill -TERM "$chromium_pid" 2>/dev/null; wait "$chromium_pid" 2>/dev/null

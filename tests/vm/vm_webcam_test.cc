@@ -379,7 +379,7 @@ TEST_F(VmWebcamTest, TargetCameraUnpluggedSaysNoCameraAndRecoversWithinTwoSecond
 // A real browser, the stand-in for Zoom and Meet (the same WebRTC capture path): headless
 // Chromium inside the VM picks the camera labelled "Face Reenact" (the label packaging/modprobe.conf
 // gives it) with getUserMedia and reads its frames for 4 s (tests/vm/browser_camera.html) while
-// `face-reenact webcam --input` sends a reenacted video at 30 fps. Each frame the page kept must be
+// `face-reenact webcam --input` sends a reenacted video at 30 fps. Each of the six frames the page keeps must be
 // one the writer sent (the video's frames, decoded here by the same FFmpeg), and at least one of
 // them a reenacted frame, not the target unchanged while it calibrated.
 TEST_F(VmWebcamTest, ChromiumPicksTheCameraByItsLabelAndSeesTheReenactedFrames) {
@@ -413,7 +413,7 @@ TEST_F(VmWebcamTest, ChromiumPicksTheCameraByItsLabelAndSeesTheReenactedFrames) 
   std::vector<cv::Mat> sent;
   cv::VideoCapture video((video_dir / "reenacted.mp4").string());
   for (cv::Mat f; video.read(f);) sent.push_back(f.clone());
-  ASSERT_EQ(sent.size(), 12u);
+  ASSERT_EQ(sent.size(), 24u);
   std::vector<bool> reenacted;
   std::istringstream status(read_text_at(video_dir / "status.jsonl"));
   for (std::string line; std::getline(status, line);)
