@@ -5,6 +5,8 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <thread>
+#include <vector>
 
 #include "face_reenact/common/error.h"
 #include "support/temp_dir.h"
@@ -38,6 +40,37 @@ TEST(ByteIo, RoundTripsEveryTypeLittleEndian) {
   EXPECT_EQ(r.f64(), -2.25);
   EXPECT_EQ(r.str(), "héllo");
   EXPECT_EQ(r.remaining(), 0u);
+}
+
+// Arrays go in one copy on little-endian machines: still least significant byte first, and
+// element for element what the scalar writers write.
+TEST(ByteIo, ArraysAreLittleEndianLikeTheirElements) {
+  const std::vector<float> f{1.5f, -0.0f, std::numeric_limits<float>::infinity(), 3.25e-5f};
+  const std::vector<int32_t> i{-7, 0, 1 << 30};
+  const std::vector<uint32_t> u{0xDEADBEEFu, 1u};
+  ByteWriter arrays, scalars;
+  arrays.f32_array(f);
+  arrays.i32_array(i);
+  arrays.u32_array(u);
+  for (float x : f) scalars.f32(x);
+  for (int32_t x : i) scalars.i32(x);
+  for (uint32_t x : u) scalars.u32(x);
+  EXPECT_EQ(arrays.data(), scalars.data());
+  EXPECT_EQ(arrays.data()[4 * 7], 0xEF);
+
+  ByteReader r(arrays.data(), "arrays");
+  std::vector<float> f2;
+  std::vector<int32_t> i2;
+  std::vector<uint32_t> u2;
+  r.f32_array(f.size(), f2);
+  r.i32_array(i.size(), i2);
+  r.u32_array(u.size(), u2);
+  EXPECT_EQ(f2, f);
+  EXPECT_TRUE(std::signbit(f2[1]));
+  EXPECT_EQ(i2, i);
+  EXPECT_EQ(u2, u);
+  EXPECT_EQ(r.remaining(), 0u);
+  EXPECT_THROW(r.u32_array(1, u2), Error);
 }
 
 TEST(ByteIo, TruncatedReadsThrowWithContext) {
@@ -82,9 +115,22 @@ TEST(ByteIo, AtomicWriteReplacesAndReadsBack) {
   EXPECT_EQ(read_file_bytes(path), a);
   write_file_atomic(path, b);
   EXPECT_EQ(read_file_bytes(path), b);
-  EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
   EXPECT_THROW(read_file_bytes((dir / "missing").string()), Error);
   EXPECT_THROW(write_file_atomic("/proc/definitely/not/writable", a), Error);
+
+  // Writers of the same file at once (test processes filling one cache) each rename a whole file
+  // of their own: what is left is one of them, and no temporary file.
+  std::vector<uint8_t> big_a(1 << 20, 0xAA), big_b(1 << 20, 0xBB);
+  std::thread other([&] {
+    for (int k = 0; k < 20; ++k) write_file_atomic(path, big_b);
+  });
+  for (int k = 0; k < 20; ++k) write_file_atomic(path, big_a);
+  other.join();
+  const std::vector<uint8_t> left = read_file_bytes(path);
+  EXPECT_TRUE(left == big_a || left == big_b);
+  int files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir / "sub")) files += entry.is_regular_file();
+  EXPECT_EQ(files, 1) << "a temporary file was left beside " << path;
 }
 
 }  // namespace

@@ -1,5 +1,9 @@
 #include "face_reenact/common/byte_io.h"
 
+#include <unistd.h>
+
+#include <atomic>
+#include <bit>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -14,13 +18,41 @@ void ByteWriter::str(std::string_view s) {
   bytes_.insert(bytes_.end(), s.begin(), s.end());
 }
 
-void ByteWriter::f32_array(std::span<const float> v) {
-  for (float x : v) f32(x);
+// Arrays in one copy where the machine is little-endian (every machine this runs on; the
+// element-wise path stays for the others): 16 million floats take ~10 ms instead of ~100.
+template <typename T>
+void put_array_le(std::vector<uint8_t>& out, std::span<const T> v) {
+  static_assert(sizeof(T) == 4);
+  if constexpr (std::endian::native == std::endian::little) {
+    const auto* p = reinterpret_cast<const uint8_t*>(v.data());
+    out.insert(out.end(), p, p + v.size_bytes());
+  } else {
+    for (T x : v) {
+      uint32_t u;
+      std::memcpy(&u, &x, 4);
+      for (int i = 0; i < 4; ++i) out.push_back(static_cast<uint8_t>(u >> (8 * i)));
+    }
+  }
 }
 
-void ByteWriter::i32_array(std::span<const int32_t> v) {
-  for (int32_t x : v) i32(x);
+template <typename T>
+void get_array_le(std::span<const uint8_t> in, std::vector<T>& out) {
+  static_assert(sizeof(T) == 4);
+  out.resize(in.size() / 4);
+  if constexpr (std::endian::native == std::endian::little) {
+    std::memcpy(out.data(), in.data(), in.size());
+  } else {
+    for (size_t i = 0; i < out.size(); ++i) {
+      uint32_t u = 0;
+      for (int b = 0; b < 4; ++b) u |= uint32_t(in[4 * i + b]) << (8 * b);
+      std::memcpy(&out[i], &u, 4);
+    }
+  }
 }
+
+void ByteWriter::f32_array(std::span<const float> v) { put_array_le(bytes_, v); }
+void ByteWriter::i32_array(std::span<const int32_t> v) { put_array_le(bytes_, v); }
+void ByteWriter::u32_array(std::span<const uint32_t> v) { put_array_le(bytes_, v); }
 
 void ByteWriter::patch_u32(size_t offset, uint32_t v) {
   if (offset + 4 > bytes_.size()) throw Error("ByteWriter::patch_u32 out of range");
@@ -76,14 +108,17 @@ std::string ByteReader::str(size_t max_len) {
 
 void ByteReader::f32_array(size_t n, std::vector<float>& out) {
   if (n > remaining() / 4) fail("array of " + std::to_string(n) + " floats does not fit");
-  out.resize(n);
-  for (size_t i = 0; i < n; ++i) out[i] = f32();
+  get_array_le(bytes(4 * n), out);
 }
 
 void ByteReader::i32_array(size_t n, std::vector<int32_t>& out) {
   if (n > remaining() / 4) fail("array of " + std::to_string(n) + " ints does not fit");
-  out.resize(n);
-  for (size_t i = 0; i < n; ++i) out[i] = i32();
+  get_array_le(bytes(4 * n), out);
+}
+
+void ByteReader::u32_array(size_t n, std::vector<uint32_t>& out) {
+  if (n > remaining() / 4) fail("array of " + std::to_string(n) + " ints does not fit");
+  get_array_le(bytes(4 * n), out);
 }
 
 void ByteReader::seek(size_t offset) {
@@ -117,7 +152,10 @@ void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes) 
     fs::create_directories(target.parent_path(), ec);
     if (ec) throw Error("cannot create folder '" + target.parent_path().string() + "': " + ec.message());
   }
-  std::string tmp = path + ".tmp";
+  // A name of this process and call, so that two processes writing the same file at once (test
+  // processes filling one cache) each rename a whole file of their own.
+  static std::atomic<uint64_t> calls{0};
+  const std::string tmp = path + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(calls++);
   {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) throw Error("cannot write '" + tmp + "'");

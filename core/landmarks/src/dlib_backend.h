@@ -12,6 +12,15 @@
 
 namespace face_reenact::landmarks::detail {
 
+// How read_shape_model() reads the model.
+struct ShapeModelReadOptions {
+  // Where the raw copy of the model is kept (read when it is current, written after reading
+  // dlib's file); "" for none.
+  std::string cache_dir;
+  // dlib's own reader end to end, no copy: what the copy is checked against in the tests.
+  bool dlib_reader_only = false;
+};
+
 // dlib's 68-point shape predictor plus its mean shape. Immutable once loaded, so one instance
 // is shared by every detector and thread of the process.
 class ShapeModel {
@@ -22,18 +31,31 @@ class ShapeModel {
   // Mean shape in unit-box coordinates.
   const Shape68& mean_shape() const { return mean_shape_; }
   const std::string& path() const { return path_; }
+  // Whether it was read from the cache copy (shape_predictor_cache.h), and where it was not, why
+  // (and why no copy was written where that failed); "" when a copy was used.
+  bool from_cache() const { return from_cache_; }
+  const std::string& cache_note() const { return cache_note_; }
 
  private:
-  friend std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path);
+  friend std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path,
+                                                            const ShapeModelReadOptions& options);
   ShapeModel() = default;
   struct Predictor;
   std::unique_ptr<Predictor> predictor_;
   Shape68 mean_shape_{};
   std::string path_;
+  bool from_cache_ = false;
+  std::string cache_note_;
 };
 
-// Loads the model or returns the copy already in memory; throws face_reenact::Error with the
-// path for a missing, unreadable or wrong model file.
+// Reads the model from `path`, through the copy in `options.cache_dir` where that copy is of this
+// very file (path, size, modification time) and dlib version. Throws face_reenact::Error with the
+// path for a missing, unreadable or wrong model file; a bad or stale copy is not an error (the
+// model is read from its file and the copy written again).
+std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path, const ShapeModelReadOptions& options);
+
+// read_shape_model() with the user's cache folder (user_cache_dir()), once per model path: a
+// model already in memory is shared.
 std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path);
 
 // dlib's frontal face detector in dlib's serialisation: as embedded at build time

@@ -33,6 +33,7 @@ class ByteWriter {
   void str(std::string_view s);
   void f32_array(std::span<const float> v);
   void i32_array(std::span<const int32_t> v);
+  void u32_array(std::span<const uint32_t> v);
   // Overwrites 4 bytes at `offset` (for patching sizes and checksums after the fact).
   void patch_u32(size_t offset, uint32_t v);
   void patch_u64(size_t offset, uint64_t v);
@@ -68,6 +69,7 @@ class ByteReader {
   // Reads n floats into out (n checked against what is left before any allocation).
   void f32_array(size_t n, std::vector<float>& out);
   void i32_array(size_t n, std::vector<int32_t>& out);
+  void u32_array(size_t n, std::vector<uint32_t>& out);
 
   void seek(size_t offset);
   void skip(size_t n);
