@@ -1,6 +1,6 @@
 // libFuzzer target: the shape predictor's cache copy (shape_predictor_cache.h) is read from the
-// user's cache folder, where anything may have been left. Any bytes must parse into tables dlib's
-// constructor accepts (every index in range, every value finite) or be refused with a reason;
+// user's cache folder, where anything may have been left. Any bytes must parse into tables the
+// predictor can evaluate (every index in range, every value finite) or be refused with a reason;
 // never a crash, a hang, a sanitizer report or an allocation driven by a forged count.
 #include <cstdint>
 #include <cstdlib>

@@ -46,14 +46,93 @@ dlib::cv_image<unsigned char> wrap(const cv::Mat& gray) {
 
 }  // namespace
 
+// The predictor as the cache's tables (every model dlib's trainer writes), evaluated here, or
+// dlib's own object (dlib's reader end to end, for the tests, or a layout the tables cannot hold).
 struct ShapeModel::Predictor {
+  struct Cascade {
+    std::vector<unsigned long> anchors;           // dlib's types, for its feature extraction
+    std::vector<dlib::vector<float, 2>> deltas;
+    int num_trees = 0;
+    int depth = 0;
+    std::vector<uint32_t> split_features;         // idx1, idx2 per split, tree after tree
+    std::vector<float> split_thresholds;
+    std::vector<float> leaf_values;               // 2 * parts per leaf, tree after tree
+  };
+  bool tabled = false;
+  dlib::matrix<float, 0, 1> initial_shape;
+  std::vector<Cascade> cascades;
   dlib::shape_predictor sp;
+
+  explicit Predictor(ShapePredictorTables t) : tabled(true) {
+    initial_shape.set_size(long(t.initial_shape.size()));
+    std::copy(t.initial_shape.begin(), t.initial_shape.end(), initial_shape.begin());
+    cascades.resize(t.cascades.size());
+    for (size_t i = 0; i < t.cascades.size(); ++i) {
+      auto& from = t.cascades[i];
+      auto& to = cascades[i];
+      to.anchors.assign(from.anchors.begin(), from.anchors.end());
+      to.deltas.resize(from.anchors.size());
+      for (size_t j = 0; j < from.anchors.size(); ++j) to.deltas[j] = {from.deltas[2 * j], from.deltas[2 * j + 1]};
+      to.num_trees = from.num_trees;
+      to.depth = from.depth;
+      to.split_features = std::move(from.split_features);
+      to.split_thresholds = std::move(from.split_thresholds);
+      to.leaf_values = std::move(from.leaf_values);
+    }
+  }
+  Predictor() = default;
+
+  // dlib's cascade (Kazemi and Sullivan's ensemble of regression trees) over the tables: dlib's
+  // own feature extraction and transforms, and the same sums in the same order as its
+  // shape_predictor::operator(), so the points are dlib's to the bit
+  // (ShapeCacheTest.TheCopyIsDlibsPredictorAndABadCopyIsMadeAgain). What differs is memory:
+  // dlib keeps each tree's leaves as separately allocated vectors and adds them through its
+  // matrix expressions; here the leaves of a cascade are one array and the sum a plain loop.
+  dlib::full_object_detection operator()(const dlib::cv_image<unsigned char>& img, const dlib::rectangle& rect) const {
+    dlib::matrix<float, 0, 1> current = initial_shape;
+    float* shape = &current(0);
+    const size_t leaf_size = size_t(initial_shape.size());
+    std::vector<float> features;
+    std::vector<const float*> leaves;
+    for (const Cascade& c : cascades) {
+      dlib::impl::extract_feature_pixel_values(img, rect, current, initial_shape, c.anchors, c.deltas, features);
+      // A cascade's trees all read the same features, so every tree's leaf is known before the
+      // first is added: the leaves (4 MB of the 65 over a whole prediction, each where its tree
+      // sends it) are fetched ahead of the sum, which otherwise waits on memory for most of its time.
+      const unsigned splits = (1u << c.depth) - 1;
+      leaves.resize(size_t(c.num_trees));
+      for (int t = 0; t < c.num_trees; ++t) {
+        const uint32_t* feature = &c.split_features[2 * size_t(t) * splits];
+        const float* threshold = &c.split_thresholds[size_t(t) * splits];
+        unsigned node = 0;
+        while (node < splits)
+          node = features[feature[2 * node]] - features[feature[2 * node + 1]] > threshold[node] ? 2 * node + 1
+                                                                                                : 2 * node + 2;
+        leaves[size_t(t)] = &c.leaf_values[(size_t(t) * (splits + 1) + (node - splits)) * leaf_size];
+      }
+      constexpr int kAhead = 6;
+      for (int t = 0; t < c.num_trees; ++t) {
+        if (t + kAhead < c.num_trees) {
+          const char* next = reinterpret_cast<const char*>(leaves[size_t(t + kAhead)]);
+          for (size_t b = 0; b < leaf_size * sizeof(float); b += 64) __builtin_prefetch(next + b);
+        }
+        const float* leaf = leaves[size_t(t)];
+        for (size_t k = 0; k < leaf_size; ++k) shape[k] += leaf[k];
+      }
+    }
+    const dlib::point_transform_affine to_image = dlib::impl::unnormalizing_tform(rect);
+    std::vector<dlib::point> parts(leaf_size / 2);
+    for (size_t i = 0; i < parts.size(); ++i) parts[i] = to_image(dlib::impl::location(current, i));
+    return dlib::full_object_detection(rect, parts);
+  }
+  unsigned long num_parts() const { return tabled ? static_cast<unsigned long>(initial_shape.size() / 2) : sp.num_parts(); }
 };
 
 ShapeModel::~ShapeModel() = default;
 
 void ShapeModel::Predict(const cv::Mat& gray, const Box& box, Shape68* points) const {
-  const dlib::full_object_detection det = predictor_->sp(wrap(gray), to_dlib(box));
+  const dlib::full_object_detection det =
+      predictor_->tabled ? (*predictor_)(wrap(gray), to_dlib(box)) : predictor_->sp(wrap(gray), to_dlib(box));
   for (int i = 0; i < kNumLandmarks; ++i) {
     const dlib::point& p = det.part(static_cast<unsigned long>(i));
     (*points)[i] = Eigen::Vector2f(float(p.x()), float(p.y()));
@@ -135,65 +214,7 @@ bool stamp_of(const std::string& path, const std::string& canonical, ShapeModelS
   return true;
 }
 
-// dlib's public constructor takes each feature's position and finds its anchor (the nearest part)
-// and offset again, so a predictor built from the tables is dlib's own only where that gives back
-// the stored anchor and offset bit for bit. Checked before a copy is written and when one is read.
-bool encoding_round_trips(const ShapePredictorTables& t, std::vector<std::vector<dlib::vector<float, 2>>>* positions) {
-  dlib::matrix<float, 0, 1> initial_shape(long(t.initial_shape.size()));
-  std::copy(t.initial_shape.begin(), t.initial_shape.end(), initial_shape.begin());
-  positions->assign(t.cascades.size(), {});
-  for (size_t i = 0; i < t.cascades.size(); ++i) {
-    const auto& c = t.cascades[i];
-    auto& pos = (*positions)[i];
-    pos.resize(c.anchors.size());
-    for (size_t j = 0; j < c.anchors.size(); ++j)
-      pos[j] = dlib::impl::location(initial_shape, c.anchors[j]) + dlib::vector<float, 2>(c.deltas[2 * j], c.deltas[2 * j + 1]);
-    std::vector<unsigned long> anchors;
-    std::vector<dlib::vector<float, 2>> deltas;
-    dlib::impl::create_shape_relative_encoding(initial_shape, pos, anchors, deltas);
-    for (size_t j = 0; j < c.anchors.size(); ++j) {
-      if (anchors[j] != c.anchors[j] || std::bit_cast<uint32_t>(deltas[j].x()) != std::bit_cast<uint32_t>(c.deltas[2 * j]) ||
-          std::bit_cast<uint32_t>(deltas[j].y()) != std::bit_cast<uint32_t>(c.deltas[2 * j + 1]))
-        return false;
-    }
-  }
-  return true;
-}
-
-// dlib's predictor from the tables (whose encoding round-trips), through its public constructor.
-// The tables are consumed cascade by cascade, so that the leaves (65 MB for dlib's model) are held
-// at most twice at a time: as dlib's trees and as the predictor's copy of them.
-void build_predictor(ShapePredictorTables t, const std::vector<std::vector<dlib::vector<float, 2>>>& positions,
-                     dlib::shape_predictor* sp) {
-  dlib::matrix<float, 0, 1> initial_shape(long(t.initial_shape.size()));
-  std::copy(t.initial_shape.begin(), t.initial_shape.end(), initial_shape.begin());
-  std::vector<std::vector<dlib::impl::regression_tree>> forests(t.cascades.size());
-  const long leaf_size = 2L * t.num_parts;
-  for (size_t i = 0; i < t.cascades.size(); ++i) {
-    auto& c = t.cascades[i];
-    auto& forest = forests[i];
-    forest.resize(size_t(c.num_trees));
-    const float* leaf = c.leaf_values.data();
-    for (int k = 0; k < c.num_trees; ++k) {
-      auto& tree = forest[size_t(k)];
-      tree.splits.resize(size_t(c.splits_per_tree()));
-      for (int s = 0; s < c.splits_per_tree(); ++s) {
-        const size_t at = size_t(k) * size_t(c.splits_per_tree()) + size_t(s);
-        tree.splits[size_t(s)] = {c.split_features[2 * at], c.split_features[2 * at + 1], c.split_thresholds[at]};
-      }
-      tree.leaf_values.resize(size_t(c.leaves_per_tree()));
-      for (auto& value : tree.leaf_values) {
-        value.set_size(leaf_size);
-        std::copy(leaf, leaf + leaf_size, value.begin());
-        leaf += leaf_size;
-      }
-    }
-    std::vector<float>().swap(c.leaf_values);
-  }
-  *sp = dlib::shape_predictor(initial_shape, forests, positions);
-}
-
-// The cache copy's tables, or why it cannot be used ("" and true when it can).
+// The cache copy's tables, or why it cannot be used.
 bool read_cache_copy(const std::string& file, const ShapeModelStamp& stamp, ShapePredictorTables* tables,
                      std::string* why) {
   std::error_code ec;
@@ -221,37 +242,29 @@ bool read_cache_copy(const std::string& file, const ShapeModelStamp& stamp, Shap
   return true;
 }
 
-// The predictor from the cache copy; false, with the reason in `note`, where there is none to use.
-bool read_from_copy(const std::string& cache_file, const ShapeModelStamp& stamp, dlib::shape_predictor* sp,
-                    std::vector<float>* initial_shape, std::string* note) {
+// The predictor from the cache copy; null, with the reason in `note`, where there is none to use.
+std::unique_ptr<ShapeModel::Predictor> read_from_copy(const std::string& cache_file, const ShapeModelStamp& stamp,
+                                                      std::string* note) {
   ShapePredictorTables tables;
-  if (!read_cache_copy(cache_file, stamp, &tables, note)) return false;
-  std::vector<std::vector<dlib::vector<float, 2>>> positions;
-  if (!encoding_round_trips(tables, &positions)) {
-    *note = "cache copy " + cache_file + " does not rebuild dlib's predictor exactly";
-    return false;
-  }
-  *initial_shape = tables.initial_shape;
-  build_predictor(std::move(tables), positions, sp);
-  return true;
+  if (!read_cache_copy(cache_file, stamp, &tables, note)) return nullptr;
+  return std::make_unique<ShapeModel::Predictor>(std::move(tables));
 }
 
 // The predictor from dlib's file, and its copy written to `cache_file` ("" for none) where the
-// model can be kept as one; what went wrong with the copy is added to `note`. `initial_shape` is
-// left empty where dlib's own reader had to read the model.
-void read_from_model_file(const std::string& path, const std::string& cache_file, const ShapeModelStamp& stamp,
-                          dlib::shape_predictor* sp, std::vector<float>* initial_shape, std::string* note) {
+// model can be kept as one; what went wrong with the copy is added to `note`.
+std::unique_ptr<ShapeModel::Predictor> read_from_model_file(const std::string& path, const std::string& cache_file,
+                                                            const ShapeModelStamp& stamp, std::string* note) {
   ShapePredictorTables tables;
-  std::vector<std::vector<dlib::vector<float, 2>>> positions;
   bool tabled;
   {
     const DlibPredictorParts parts = read_dlib_parts(path);
-    tabled = to_tables(parts, &tables) && encoding_round_trips(tables, &positions);
+    tabled = to_tables(parts, &tables);
   }
   if (!tabled) {
     *note = "this model cannot be kept as a copy (not the layout dlib's trainer writes)";
-    dlib::deserialize(path) >> *sp;
-    return;
+    auto predictor = std::make_unique<ShapeModel::Predictor>();
+    dlib::deserialize(path) >> predictor->sp;
+    return predictor;
   }
   if (!cache_file.empty()) {
     try {
@@ -260,8 +273,7 @@ void read_from_model_file(const std::string& path, const std::string& cache_file
       *note += std::string("; not written: ") + e.what();
     }
   }
-  *initial_shape = tables.initial_shape;
-  build_predictor(std::move(tables), positions, sp);
+  return std::make_unique<ShapeModel::Predictor>(std::move(tables));
 }
 
 }  // namespace
@@ -274,27 +286,28 @@ std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path, cons
   }
   const std::string canonical = std::filesystem::weakly_canonical(path, ec).string();
   std::shared_ptr<ShapeModel> model(new ShapeModel());
-  model->predictor_ = std::make_unique<ShapeModel::Predictor>();
   model->path_ = path;
   ShapeModelStamp stamp;
   const bool stamped = stamp_of(path, canonical, &stamp);
   const std::string cache_file =
       options.cache_dir.empty() || !stamped ? "" : shape_cache_file(options.cache_dir);
 
-  dlib::shape_predictor& sp = model->predictor_->sp;
   std::vector<float> initial_shape;
   try {
     if (options.dlib_reader_only) {
-      dlib::deserialize(path) >> sp;
+      model->predictor_ = std::make_unique<ShapeModel::Predictor>();
+      dlib::deserialize(path) >> model->predictor_->sp;
     } else if (cache_file.empty()) {
       model->cache_note_ = "no cache folder";
-      read_from_model_file(path, "", stamp, &sp, &initial_shape, &model->cache_note_);
-    } else if (read_from_copy(cache_file, stamp, &sp, &initial_shape, &model->cache_note_)) {
+      model->predictor_ = read_from_model_file(path, "", stamp, &model->cache_note_);
+    } else if ((model->predictor_ = read_from_copy(cache_file, stamp, &model->cache_note_))) {
       model->from_cache_ = true;
     } else {
-      read_from_model_file(path, cache_file, stamp, &sp, &initial_shape, &model->cache_note_);
+      model->predictor_ = read_from_model_file(path, cache_file, stamp, &model->cache_note_);
     }
-    if (initial_shape.empty()) {  // dlib's own reader: the mean shape is the file's first matrix
+    if (model->predictor_->tabled) {
+      initial_shape.assign(model->predictor_->initial_shape.begin(), model->predictor_->initial_shape.end());
+    } else {  // dlib's own reader: the mean shape is the file's first matrix
       std::ifstream in(path, std::ios::binary);
       int version = 0;
       dlib::matrix<float, 0, 1> mean;
@@ -308,16 +321,15 @@ std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path, cons
     throw Error("shape predictor '" + path + "': not a dlib shape predictor (" + std::string(e.what()).substr(0, 200) +
                 ")");
   }
-  if (sp.num_parts() != kNumLandmarks || initial_shape.size() != 2 * kNumLandmarks) {
-    throw Error("shape predictor '" + path + "': has " + std::to_string(sp.num_parts()) +
-                " points, expected 68 (iBUG layout)");
+  const unsigned long parts = model->predictor_->num_parts();
+  if (parts != kNumLandmarks || initial_shape.size() != 2 * kNumLandmarks) {
+    throw Error("shape predictor '" + path + "': has " + std::to_string(parts) + " points, expected 68 (iBUG layout)");
   }
   for (int i = 0; i < kNumLandmarks; ++i)
     model->mean_shape_[i] = Eigen::Vector2f(initial_shape[2 * i], initial_shape[2 * i + 1]);
 #ifdef __GLIBC__
-  // The tables and dlib's trees were freed as 120,000 small blocks that glibc keeps for the
-  // process: returned, the process holds what dlib's own reader left (152 MB for `landmarks` on a
-  // photo, against 226 MB without this).
+  // Reading dlib's file freed its trees as 120,000 small blocks, which glibc would otherwise keep
+  // for the process (74 MB more held after the first read, measured on `landmarks`).
   malloc_trim(0);
 #endif
   return model;

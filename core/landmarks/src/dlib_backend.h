@@ -36,11 +36,12 @@ class ShapeModel {
   bool from_cache() const { return from_cache_; }
   const std::string& cache_note() const { return cache_note_; }
 
+  struct Predictor;  // dlib_backend.cc
+
  private:
   friend std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path,
                                                             const ShapeModelReadOptions& options);
   ShapeModel() = default;
-  struct Predictor;
   std::unique_ptr<Predictor> predictor_;
   Shape68 mean_shape_{};
   std::string path_;

@@ -31,8 +31,7 @@ struct ShapeModelStamp {
   bool operator==(const ShapeModelStamp&) const = default;
 };
 
-// The shape predictor as plain arrays (dlib's shape_predictor is rebuilt from these through its
-// public constructor).
+// The shape predictor as plain arrays, as dlib keeps it (what dlib_backend.cc evaluates).
 struct ShapePredictorTables {
   int num_parts = 0;
   std::vector<float> initial_shape;  // x, y per part, in the face box's unit square
