@@ -217,6 +217,14 @@ TEST(ShapeCacheTest, TheCopyIsDlibsPredictorAndABadCopyIsMadeAgain) {
   EXPECT_FALSE(restamped->from_cache());
   EXPECT_NE(restamped->cache_note().find("another model file"), std::string::npos) << restamped->cache_note();
 
+  // A copy that anyone may change (world-writable, as a file planted in a shared /tmp folder could
+  // be): not read, and written again by this user.
+  std::filesystem::permissions(file, std::filesystem::perms::others_write, std::filesystem::perm_options::add);
+  auto foreign = detail::read_shape_model(model, through_cache);
+  EXPECT_FALSE(foreign->from_cache());
+  EXPECT_NE(foreign->cache_note().find("not this user's own"), std::string::npos) << foreign->cache_note();
+  EXPECT_TRUE(detail::read_shape_model(model, through_cache)->from_cache());
+
   // A cache folder that cannot be made (a file in its place): the model still loads.
   const std::string blocked = dir / "blocked";
   std::ofstream(blocked) << "a file";

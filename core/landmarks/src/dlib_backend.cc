@@ -7,6 +7,7 @@
 
 #include <malloc.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <bit>
 #include <cstddef>
@@ -217,9 +218,16 @@ bool stamp_of(const std::string& path, const std::string& canonical, ShapeModelS
 // The cache copy's tables, or why it cannot be used.
 bool read_cache_copy(const std::string& file, const ShapeModelStamp& stamp, ShapePredictorTables* tables,
                      std::string* why) {
-  std::error_code ec;
-  if (!std::filesystem::exists(file, ec)) {
+  struct stat st {};
+  if (::stat(file.c_str(), &st) != 0) {
     *why = "no cache copy yet";
+    return false;
+  }
+  // Without $HOME the cache folder is under /tmp, where anyone may have left a file: only a copy
+  // this user owns and that others cannot write is read. (Group write is allowed: Debian's user
+  // private groups give users a umask of 002.)
+  if (st.st_uid != ::geteuid() || (st.st_mode & S_IWOTH) != 0) {
+    *why = "cache copy " + file + " is not this user's own (its owner or permissions), not read";
     return false;
   }
   std::vector<uint8_t> bytes;
