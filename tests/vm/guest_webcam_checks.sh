@@ -204,19 +204,38 @@ if [[ -n ${FR_VM_REENACTED:-} && -f ${FR_VM_REENACTED}/reenacted.mp4 ]] && comma
   step "browser (Chromium getUserMedia)"
   if start_writer browser --input "$FR_VM_REENACTED/reenacted.mp4" --loop --size 320x240 --fps 30 --format yuyv; then
     echo started >browser-started.txt
-    python3 "$FR_VM_TEST_DIR/browser_camera_server.py" 8765 "$results/browser.json" 240 >browser-server.log 2>&1 &
+    python3 "$FR_VM_TEST_DIR/browser_camera_server.py" 8765 "$results/browser.json" 360 >browser-server.log 2>&1 &
     server_pid=$!
     # Root in a chroot: no sandbox. Its temporary files on tmpfs (the exchange folder's 9p has no
     # sockets). The permission prompt is answered "allow", as a user would. No extensions, sync or
     # background services: they only slow the start under emulation (2.5 -> 1.5 s natively).
-    mkdir -p /run/chromium-tmp
-    TMPDIR=/run/chromium-tmp HOME=/run/chromium-tmp chromium --headless=new --no-sandbox --disable-gpu \
-      --no-first-run --use-fake-ui-for-media-stream --user-data-dir=/run/chromium-profile \
-      --disable-extensions --disable-background-networking --disable-component-update --disable-default-apps \
-      --disable-sync --mute-audio --no-default-browser-check \
-      --disable-features=Translate,MediaRouter,OptimizationHints,AutofillServerCommunication \
-      "http://127.0.0.1:8765/browser_camera.html?label=Face%20Reenact&seconds=4&snapshots=6&spacing_ms=500" >browser-chromium.log 2>&1 &
-    chromium_pid=$!
+    start_chromium() {
+      rm -rf /run/chromium-profile
+      mkdir -p /run/chromium-tmp
+      TMPDIR=/run/chromium-tmp HOME=/run/chromium-tmp chromium --headless=new --no-sandbox --disable-gpu \
+        --no-first-run --use-fake-ui-for-media-stream --user-data-dir=/run/chromium-profile \
+        --disable-extensions --disable-background-networking --disable-component-update --disable-default-apps \
+        --disable-sync --mute-audio --no-default-browser-check \
+        --disable-features=Translate,MediaRouter,OptimizationHints,AutofillServerCommunication \
+        "http://127.0.0.1:8765/browser_camera.html?label=Face%20Reenact&seconds=4&snapshots=6&spacing_ms=500" \
+        >>browser-chromium.log 2>&1 &
+      chromium_pid=$!
+    }
+    page_requested() { grep -q "GET /browser_camera.html" browser-server.log; }
+    start_chromium
+    # Chromium asks for the page 10-60 s after its start under the VM's emulation. Once, in a clean
+    # clone's run on a loaded host (2026-12-02), its network service crashed first and the page was
+    # never asked for: without a request in 150 s it is started once more (the server waits 360 s).
+    for _ in $(seq 150); do
+      page_requested || ! kill -0 "$server_pid" 2>/dev/null && break
+      sleep 1
+    done
+    if ! page_requested && kill -0 "$server_pid" 2>/dev/null; then
+      # Its own file: the server's log is written at the server's own offset, over lines added here.
+      echo "the page was not requested within 150 s of Chromium's start; started it again" >browser-retry.txt
+      kill -TERM "$chromium_pid" 2>/dev/null; wait "$chromium_pid" 2>/dev/null
+      start_chromium
+    fi
     wait "$server_pid"; echo $? >browser-server.rc
     kill -TERM "$chromium_pid" 2>/dev/null; wait "$chromium_pid" 2>/dev/null
   fi
