@@ -14,6 +14,7 @@
 #include <random>
 
 #include "dlib_backend.h"
+#include "face_reenact/common/error.h"
 #include "landmark_internal.h"
 #include "shape_predictor_cache.h"
 #include "support/temp_dir.h"
