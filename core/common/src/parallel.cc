@@ -1,6 +1,7 @@
 #include "face_reenact/common/parallel.h"
 
 #include <pthread.h>
+#include <sched.h>
 
 #include <algorithm>
 #include <chrono>
@@ -67,8 +68,14 @@ bool WatchFor(std::chrono::microseconds budget, const Ready& ready) {
   for (int spin = 0;; ++spin) {
     if (ready()) return true;
     CpuRelax();
-    // The clock only every 64 looks: reading it costs more than a look.
-    if ((spin & 63) == 63 && std::chrono::steady_clock::now() >= until) return ready();
+    // Every 64 looks: the clock (reading it costs more than a look), and the core to any other
+    // thread that waits for it (sched_yield returns at once when none does). With more threads
+    // at work than cores (`reenact` tracks both actors and renders at once) a watch that kept
+    // the core made the others wait.
+    if ((spin & 63) == 63) {
+      if (std::chrono::steady_clock::now() >= until) return ready();
+      sched_yield();
+    }
   }
 }
 
