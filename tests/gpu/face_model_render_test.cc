@@ -81,6 +81,39 @@ TEST(CpuRendererThreads, GBufferIsBitIdenticalOnAnyThreadCount) {
   }
 }
 
+// A draw without normals (RenderOptions::normals false: the tracker's synthesis on colour-only
+// input, the frame texture's tracked geometry) writes the same bits into every other field, and
+// zero normals, also into a kept buffer whose last draw had them (the rasteriser clears only the
+// rectangle that draw covered).
+TEST(CpuRendererNormals, ADrawWithoutNormalsGivesTheSameOtherFieldsAndZeroNormals) {
+  if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
+  const CpuRenderer cpu(RenderModel::FromFaceModel(face_model()));
+  std::mt19937 rng(77);
+  GBuffer kept;  // drawn with normals, then without, then with, as a per-frame caller keeps it
+  for (int trial = 0; trial < 3; ++trial) {
+    const VertexState state = cpu.evaluate(random_face_parameters(face_model(), rng));
+    const PinholeCamera camera = PinholeCamera{}.Downsampled(trial % 2);
+    GBuffer with;
+    cpu.rasterize(state, camera, RenderOptions{}, &with, 2);
+    ASSERT_GT(with.covered_count(), 100u);
+    RenderOptions no_normals;
+    no_normals.normals = false;
+    for (GBuffer* without : {&kept, static_cast<GBuffer*>(nullptr)}) {
+      GBuffer fresh;
+      GBuffer& g = without ? *without : fresh;
+      cpu.rasterize(state, camera, no_normals, &g, 2);
+      EXPECT_EQ(g.color, with.color) << "trial " << trial;
+      EXPECT_EQ(g.position, with.position);
+      EXPECT_EQ(g.barycentric, with.barycentric);
+      EXPECT_EQ(g.triangle, with.triangle);
+      EXPECT_EQ(g.vertices, with.vertices);
+      EXPECT_EQ(g.normal, std::vector<float>(with.normal.size(), 0.f));
+    }
+    cpu.rasterize(state, camera, RenderOptions{}, &kept, 2);
+    EXPECT_EQ(kept.normal, with.normal);
+  }
+}
+
 // The CPU renderer sums each vertex's expression over the blendshapes that move it
 // (RenderModel::expression_columns): the same positions as the dense product, and the index is
 // the real model's sparsity (a vertex moved by most of the 52 would make it no faster).

@@ -407,7 +407,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       Eigen::Vector3d corner_x[3], corner_n[3], corner_c[3];
       for (int k = 0; k < 3; ++k) {
         corner_x[k] = state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
-        corner_n[k] = state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
+        if (options.normals) corner_n[k] = state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
         corner_c[k] = state.colors.segment<3>(3 * tri[k]).cast<double>();
       }
       for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
@@ -448,18 +448,23 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
             sum += b[k];
           }
           for (int k = 0; k < 3; ++k) b[k] /= sum;
-          Eigen::Vector3d x = Eigen::Vector3d::Zero(), nrm = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
+          Eigen::Vector3d x = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
           for (int k = 0; k < 3; ++k) {
             x += b[k] * corner_x[k];
-            nrm += b[k] * corner_n[k];
             col += b[k] * corner_c[k];
           }
-          const double len = nrm.norm();
-          if (len > 0.0) nrm /= len;
+          if (options.normals) {
+            Eigen::Vector3d nrm = Eigen::Vector3d::Zero();
+            for (int k = 0; k < 3; ++k) nrm += b[k] * corner_n[k];
+            const double len = nrm.norm();
+            if (len > 0.0) nrm /= len;
+            for (int c = 0; c < 3; ++c) g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
+          } else {
+            for (int c = 0; c < 3; ++c) g.normal[3 * pix + c] = 0.f;  // whatever the buffer held there
+          }
           for (int c = 0; c < 3; ++c) {
             g.color[3 * pix + c] = static_cast<float>(col[c]);
             g.position[3 * pix + c] = static_cast<float>(x[c]);
-            g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
             g.barycentric[3 * pix + c] = static_cast<float>(b[c]);
             g.vertices[3 * pix + c] = tri[c];
           }

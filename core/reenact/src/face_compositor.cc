@@ -771,7 +771,9 @@ struct FaceCompositor::Impl {
     gpu::GBuffer& target_g = scratch_gbuffer(1);
     if (!same) {
       target_state = renderer.evaluate(target, nullptr, threads());
-      rasterize(target_state, target, camera, ropt, &target_g);
+      gpu::RenderOptions tracked_ropt = ropt;
+      tracked_ropt.normals = false;  // read below: which surface, its vertices and depth
+      rasterize(target_state, target, camera, tracked_ropt, &target_g);
     }
     const gpu::VertexState& ts = same ? out_state : target_state;
     const gpu::GBuffer& tg = same ? *g : target_g;

@@ -66,7 +66,10 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       const gpu::FaceParameters p = layout_.Unpack(xf, bases_[f]);
       const gpu::VertexState vs = renderer_.evaluate(p, nullptr, threads_);
       FrameState& st = states_[f];
-      renderer_.rasterize(vs, frame.camera, options_.render, &st.gbuffer, threads_);
+      // The synthesis' normals serve the depth terms alone (Linearize).
+      gpu::RenderOptions render = options_.render;
+      render.normals = frame.has_depth() && (options_.energy.use_point || options_.energy.use_plane);
+      renderer_.rasterize(vs, frame.camera, render, &st.gbuffer, threads_);
       *synthesis_ms += ms_since(t0);
       const auto t1 = Clock::now();
       st.lin = tracker::Linearize(model_, layout_, p, vs, st.gbuffer, frame, options_.energy, /*regularize_shared=*/f == 0);
