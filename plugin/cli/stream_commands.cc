@@ -95,6 +95,7 @@ std::unique_ptr<stream::ExpressionFrameSource> make_tracked_source(const SendArg
   o.input.landmark_source = tracker::LandmarkSourceChoice::kDetector;
   o.send_pose = !a.no_pose;
   if (!tracker::parse_solver_backend(a.solver, &o.tracker.solver)) throw Error("send: --solver must be auto, cpu or vulkan");
+  live::CheckRecordingOpens(o.grabber.input);  // before the models: a typo is reported at once
   const FaceModel model = load_face_model(resolve_model_path(a.model));
   return std::make_unique<live::TrackedExpressionSource>(model, o);
 }

@@ -1,7 +1,9 @@
 #include "face_reenact/live/input_spec.h"
 
 #include <cctype>
+#include <filesystem>
 
+#include "face_reenact/capture/recording.h"
 #include "face_reenact/common/error.h"
 
 namespace face_reenact::live {
@@ -106,6 +108,13 @@ InputSpec parse_source_spec(const std::string& raw, const std::string& what) {
     return spec;
   }
   return parse_capture(text);
+}
+
+void CheckRecordingOpens(const InputSpec& spec) {
+  if (spec.kind != InputKind::kRecording) return;
+  std::error_code ec;
+  if (!std::filesystem::exists(spec.path, ec)) throw Error("recording '" + spec.path + "': no such file or folder");
+  (void)capture::open_frame_source(spec.path);  // validates the recording / video
 }
 
 }  // namespace face_reenact::live

@@ -10,7 +10,6 @@
 #include <cmath>
 #include <cstdio>
 #include <deque>
-#include <filesystem>
 #include <functional>
 #include <future>
 #include <optional>
@@ -230,11 +229,7 @@ void LiveSession::CheckInputs(const Options& options) {
   if (!options.IsValid(&why)) throw Error(why);
   InputSpec t = parse_target_spec(options.target, "target");
   InputSpec s = parse_source_spec(options.source, "source");
-  for (const InputSpec& spec : {t, s}) {
-    if (spec.kind != InputKind::kRecording) continue;
-    if (!std::filesystem::exists(spec.path)) throw Error("recording '" + spec.path + "': no such file or folder");
-    (void)capture::open_frame_source(spec.path);  // validates the recording / video
-  }
+  for (const InputSpec& spec : {t, s}) CheckRecordingOpens(spec);
   if (s.kind == InputKind::kUdp) (void)stream::load_key_file(options.key_file);
   if (options.mode != OutputMode::kRaw) (void)resolve_model_path(options.model_path);
   // The texture, its placement and the light, read now (a front-end says what is wrong at once).

@@ -41,4 +41,10 @@ bool has_oni_extension(const std::string& path);
 // Parses an expression source: none/empty, udp://..., or a camera/OpenNI/recording actor.
 InputSpec parse_source_spec(const std::string& text, const std::string& what);
 
+// For a recording: that it exists and opens as a recording or a video (throws face_reenact::Error
+// saying which, e.g. "recording 'x.mp4': no such file or folder"); nothing for other kinds. The
+// front-ends call it before loading the face model and the landmark models (seconds on a cold
+// disk), so a typo is reported at once.
+void CheckRecordingOpens(const InputSpec& spec);
+
 }  // namespace face_reenact::live
