@@ -46,10 +46,10 @@ struct Job {
 // scheduler: 74 us on average, measured in `track`), while a tracked frame makes 70-100 calls,
 // most a few hundred microseconds long and a few microseconds apart: a helper that went to sleep
 // after each call joined the next one late, the caller ran its first items alone, and at the end
-// slept until the helper's last item woke it. So both sides first watch for a while before they sleep: a helper for the next call,
-// the caller for its helpers' last items. Bounded, so an idle pool costs nothing, and short
-// against a frame, so a pool between frames gives the core back to the other threads within a
-// fraction of a millisecond.
+// slept until the helper's last item woke it. So both sides first watch for a while before they
+// sleep: a helper for the next call, the caller for its helpers' last items. Bounded, so an idle
+// pool costs nothing, and short against a frame, so a pool between frames gives the core back to
+// the other threads within a fraction of a millisecond.
 constexpr auto kHelperWatch = std::chrono::microseconds(150);
 constexpr auto kCallerWatch = std::chrono::microseconds(100);
 

@@ -459,9 +459,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
             const double len = nrm.norm();
             if (len > 0.0) nrm /= len;
             for (int c = 0; c < 3; ++c) g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
-          } else {
-            for (int c = 0; c < 3; ++c) g.normal[3 * pix + c] = 0.f;  // whatever the buffer held there
-          }
+          }  // else zero, as the band's clear above left it
           for (int c = 0; c < 3; ++c) {
             g.color[3 * pix + c] = static_cast<float>(col[c]);
             g.position[3 * pix + c] = static_cast<float>(x[c]);

@@ -243,6 +243,10 @@ bool ColorFollowsProjection(const EnergyOptions& options, const InputFrame& fram
   return options.use_color && options.color_follows_projection && frame.has_depth();
 }
 
+bool UsesDepthTerms(const EnergyOptions& options, const InputFrame& frame) {
+  return frame.has_depth() && (options.use_point || options.use_plane);
+}
+
 double RobustColorWeight(const gpu::GBuffer& gbuffer, size_t pixel, const Eigen::Vector3d& input_color, double threshold) {
   if (!(threshold > 0)) return 1.0;
   // In float, as tracker_classify.comp computes it.
@@ -294,7 +298,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   }
 
   const std::vector<uint8_t>& vertex_part = model.render.vertex_part;
-  const bool want_geometry = frame.has_depth() && (options.use_point || options.use_plane);
+  const bool want_geometry = UsesDepthTerms(options, frame);
   const bool follows_projection = ColorFollowsProjection(options, frame);
   lin.color_follows_projection = follows_projection;
   const int w = frame.width();

@@ -68,7 +68,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       FrameState& st = states_[f];
       // The synthesis' normals serve the depth terms alone (Linearize).
       gpu::RenderOptions render = options_.render;
-      render.normals = frame.has_depth() && (options_.energy.use_point || options_.energy.use_plane);
+      render.normals = UsesDepthTerms(options_.energy, frame);
       renderer_.rasterize(vs, frame.camera, render, &st.gbuffer, threads_);
       *synthesis_ms += ms_since(t0);
       const auto t1 = Clock::now();

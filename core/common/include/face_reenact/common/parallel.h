@@ -7,8 +7,9 @@
 // The helper threads are kept in one process-wide pool rather than started per call: a tracked
 // frame makes 70-100 calls, and starting and joining a thread costs about 30 us here, plus a
 // cold stack and cache for every new one. Between calls a helper watches for the next one for a
-// moment before it sleeps (parallel.cc says why). Work handed over again and again to a thread of its
-// own (the other actor's fit beside the target's) goes to a kept NamedThread for the same reason.
+// moment before it sleeps (parallel.cc says why). Work handed over again and again to a thread of
+// its own (the other actor's fit beside the target's) goes to a kept NamedThread for the same
+// reason.
 #include <chrono>
 #include <condition_variable>
 #include <deque>

@@ -192,6 +192,10 @@ bool LandmarkVertexVisible(const Eigen::Vector3f& x, const gpu::GBuffer& gbuffer
 // on frames with depth).
 bool ColorFollowsProjection(const EnergyOptions& options, const InputFrame& frame);
 
+// Whether the depth terms (E_point, E_plane) take part for `frame`: the only readers of the
+// synthesis' positions beyond depth and of its normals.
+bool UsesDepthTerms(const EnergyOptions& options, const InputFrame& frame);
+
 // EnergyOptions::color_robust_threshold's weight of pixel `pixel`: 1 while the rendered colour
 // (gbuffer.color) is within `threshold` of the input colour, threshold / difference beyond.
 double RobustColorWeight(const gpu::GBuffer& gbuffer, size_t pixel, const Eigen::Vector3d& input_color, double threshold);
