@@ -51,6 +51,17 @@ ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000075.png"
 ffmpeg -loglevel error -y -ss 0 -i "$tgt" -i "$OUT/lids/webcam/frame_000095.png" -filter_complex \
        "[0]select='eq(n\,95)',crop=200:70:200:170,scale=800:280:flags=neighbor[a];[1]crop=200:70:200:170,scale=800:280:flags=neighbor[b];[a][b]vstack" \
        -frames:v 1 "$OUT/lids_95.png"
+# The same lids side by side (target | output; output frames 75, 89, 95), each crop around both eyes: the lids take
+# the colour of the target's own blink at its frames 19-20 (docs/reenactment.md, "The lids a blink shows"); run once
+# more with FR_CLI set to an earlier build to put a before beside it.
+lid_row() {  # lid_row FRAME X Y OUT.png
+  ffmpeg -loglevel error -y -i "$tgt" -i "$OUT/lids/webcam/$(printf frame_%06d.png "$1")" -filter_complex \
+         "[0]select='eq(n\,$1)',crop=200:70:$2:$3,scale=400:140[a];[1]crop=200:70:$2:$3,scale=400:140[b];[a][b]hstack" \
+         -frames:v 1 "$4"
+}
+lid_row 75 200 170 "$OUT/lids/row75.png"; lid_row 89 230 175 "$OUT/lids/row89.png"; lid_row 95 220 170 "$OUT/lids/row95.png"
+ffmpeg -loglevel error -y -i "$OUT/lids/row75.png" -i "$OUT/lids/row89.png" -i "$OUT/lids/row95.png" \
+       -filter_complex vstack=3 "$OUT/lids_rows.png"
 "$FR" reenact --source "$src" --target "$VIDEOS/liveportrait_d12.mp4" --frames 130 --out "$OUT/lids/d12.mp4" --quiet \
       --sheets "$OUT/lids/d12" --sheet-frames 125
 # A mouth the output opens less than the target's (docs/reenactment.md): d6 baring clenched teeth onto d12's wide-open

@@ -191,7 +191,8 @@ std::string albedo_texture_line(const reenact::PipelineSummary& s) {
   o.precision(1);
   o << s.albedo_texture_views.size() << " view(s):";
   for (const auto& v : s.albedo_texture_views)
-    o << " frame " << v.frame_index << " (yaw " << v.yaw_deg << " deg, " << v.seen_texels << " texels)";
+    o << " frame " << v.frame_index << " (" << (v.closed_eyes ? "eyes closed, " : "") << "yaw " << v.yaw_deg << " deg, "
+      << v.seen_texels << " texels)";
   o << "; built " << s.albedo_texture_builds << " time(s), the last in " << s.albedo_texture_ms << " ms";
   return o.str();
 }
@@ -199,7 +200,7 @@ std::string albedo_texture_line(const reenact::PipelineSummary& s) {
 nlohmann::json albedo_texture_json(const reenact::PipelineSummary& s, int size) {
   nlohmann::json views = nlohmann::json::array();
   for (const auto& v : s.albedo_texture_views)
-    views.push_back({{"frame", v.frame_index}, {"yaw_deg", v.yaw_deg}, {"seen_texels", v.seen_texels}});
+    views.push_back({{"frame", v.frame_index}, {"yaw_deg", v.yaw_deg}, {"seen_texels", v.seen_texels}, {"closed_eyes", v.closed_eyes}});
   return {{"size", size}, {"builds", s.albedo_texture_builds}, {"last_build_ms", s.albedo_texture_ms},
           {"views", views}, {"note", s.albedo_texture_note}};
 }

@@ -285,6 +285,26 @@ TEST(AlbedoTextureTest, ViewsAreAFrontAndATurnToEachSideAtRest) {
   EXPECT_EQ(chooser.Consider(pitched(-20.f)), AlbedoViewChooser::kNone);
   chooser.Reset();
 
+  // The closed-eyes view: a blink facing the camera, the more closed the better; not a blink turned
+  // aside, not one eye (a wink), not with the mouth open; it takes no front slot.
+  auto blink = [](float yaw_deg, float left, float right) {
+    gpu::FaceParameters p = turned(yaw_deg);
+    p.delta[arkit_blendshape_index("eyeBlinkLeft")] = left;
+    p.delta[arkit_blendshape_index("eyeBlinkRight")] = right;
+    return p;
+  };
+  EXPECT_EQ(chooser.Consider(blink(15.f, 0.9f, 0.9f)), AlbedoViewChooser::kNone) << "turned aside";
+  EXPECT_EQ(chooser.Consider(blink(0.f, 0.9f, 0.1f)), AlbedoViewChooser::kNone) << "a wink";
+  gpu::FaceParameters talking = blink(0.f, 0.9f, 0.9f);
+  talking.delta[kJawOpenIndex] = 0.6f;
+  EXPECT_EQ(chooser.Consider(talking), AlbedoViewChooser::kNone) << "the mouth open";
+  EXPECT_EQ(chooser.Consider(blink(0.f, 0.5f, 0.6f)), AlbedoViewChooser::kClosedEyes);
+  EXPECT_EQ(chooser.Consider(blink(0.f, 0.55f, 0.6f)), AlbedoViewChooser::kNone) << "not clearly more closed";
+  EXPECT_EQ(chooser.Consider(blink(0.f, 0.9f, 0.8f)), AlbedoViewChooser::kClosedEyes);
+  EXPECT_FALSE(chooser.filled(AlbedoViewChooser::kFront));
+  EXPECT_EQ(chooser.filled_count(), 1);
+  chooser.Reset();
+
   o.size = 10;
   EXPECT_FALSE(o.IsValid(&why));
   o = AlbedoTextureOptions{};
@@ -292,6 +312,9 @@ TEST(AlbedoTextureTest, ViewsAreAFrontAndATurnToEachSideAtRest) {
   EXPECT_FALSE(o.IsValid(&why));
   o = AlbedoTextureOptions{};
   o.max_front_pitch_deg = 0.f;
+  EXPECT_FALSE(o.IsValid(&why));
+  o = AlbedoTextureOptions{};
+  o.min_closed_eyes_blink = 0.2f;  // a resting eye would count as closed
   EXPECT_FALSE(o.IsValid(&why));
   o = AlbedoTextureOptions{};
   o.size = 0;  // off
@@ -327,6 +350,74 @@ TEST(AlbedoTextureTest, ThePipelineBuildsItFromAFrontAndTwoSideViews) {
   const PipelineSummary off = run(0);
   EXPECT_TRUE(off.albedo_texture_views.empty());
   EXPECT_EQ(off.albedo_texture_note, "off");
+}
+
+// A resting eye folds its upper lids away (the front and side views show them squeezed, and
+// teach the texture nothing there); a blink shows them. The closed-eyes view is taken on those lids
+// alone: the texture's summed weight grows only on triangles an eyeBlink moves. The pipeline keeps
+// the target's blink facing the camera as that view.
+TEST(AlbedoTextureTest, TheClosedEyesViewIsTakenOnTheLidsAlone) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const auto layout = AlbedoTextureLayout::ForModel(model, 1024);
+  const gpu::FaceParameters front = test_face(0.3f);
+  gpu::FaceParameters blink = front;
+  blink.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.8f;
+  blink.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.8f;
+  AlbedoMap map;
+  fc.ObserveAlbedo(render_target(front, cam), cam, front, &map);
+  const FaceCompositor::AlbedoTextureFrame front_view{render_target(front, cam), cv::Mat(), cam, front, 0, false};
+  const FaceCompositor::AlbedoTextureFrame closed_view{render_target(blink, cam), cv::Mat(), cam, blink, 1, true};
+  const AlbedoTexture alone = fc.BuildAlbedoTexture({front_view}, layout, map.albedo, 5);
+  const AlbedoTexture with = fc.BuildAlbedoTexture({front_view, closed_view}, layout, map.albedo, 5);
+  ASSERT_EQ(with.views.size(), 2u);
+  EXPECT_TRUE(with.views[1].closed_eyes);
+  EXPECT_GT(with.views[1].seen_texels, 100);
+  // The vertices an eyeBlink moves by 0.5 mm or more, and their neighbours (whose surroundings it
+  // stretches).
+  std::vector<char> moved(static_cast<size_t>(model.num_vertices()), 0), lid_vertex = moved;
+  for (int v = 0; v < model.num_vertices(); ++v)
+    for (const char* name : {"eyeBlinkLeft", "eyeBlinkRight"})
+      if (model.expression_basis.block(3 * v, arkit_blendshape_index(name), 3, 1).norm() >= 0.0005f) moved[static_cast<size_t>(v)] = 1;
+  for (const auto& t : model.triangles)
+    if (moved[static_cast<size_t>(t[0])] || moved[static_cast<size_t>(t[1])] || moved[static_cast<size_t>(t[2])])
+      for (int32_t v : t) lid_vertex[static_cast<size_t>(v)] = 1;
+  int gained = 0, gained_off_the_lids = 0;
+  for (int j = 0; j < layout->height; ++j)
+    for (int i = 0; i < layout->width; ++i) {
+      const size_t texel = static_cast<size_t>(j) * static_cast<size_t>(layout->width) + static_cast<size_t>(i);
+      if (!(with.seen.at<float>(j, i) > alone.seen.at<float>(j, i) + 1e-6f)) continue;
+      ++gained;
+      bool on_lid = false;
+      for (size_t k = 0; k < 3; ++k) on_lid = on_lid || lid_vertex[static_cast<size_t>(layout->vertices[3 * texel + k])];
+      gained_off_the_lids += !on_lid;
+    }
+  RecordProperty("texels_the_closed_eyes_view_adds", gained);
+  EXPECT_EQ(gained, with.views[1].seen_texels);
+  EXPECT_EQ(gained_off_the_lids, 0);
+
+  // The pipeline: a blink facing the camera becomes the closed-eyes view.
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  o.albedo_texture.size = 512;
+  ReenactmentPipeline pipeline(model, o);
+  const gpu::PinholeCamera small = test_camera(160, 120);
+  for (int index = 0; index < 10; ++index) {  // (the texture is first built at the 8th frame)
+    capture::RgbdFrame f = frame_turned(index == 3 ? 0.f : 1.f, index, small);
+    if (index == 3) {
+      f.ground_truth.params->delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.9f;
+      f.ground_truth.params->delta[arkit_blendshape_index("eyeBlinkRight")] = 0.9f;
+      f.color = render_target(*f.ground_truth.params, small);
+    }
+    EXPECT_TRUE(pipeline.Process(f, nullptr).reenacted);
+  }
+  const PipelineSummary s = pipeline.summary();
+  const auto closed = std::find_if(s.albedo_texture_views.begin(), s.albedo_texture_views.end(),
+                                   [](const AlbedoTexture::ViewInfo& v) { return v.closed_eyes; });
+  ASSERT_NE(closed, s.albedo_texture_views.end()) << s.albedo_texture_views.size() << " views, none with the eyes closed";
+  EXPECT_EQ(closed->frame_index, 3);
 }
 
 // In the background (the live session), the build runs beside the frames and a later frame takes

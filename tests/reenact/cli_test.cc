@@ -162,7 +162,10 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   for (const auto& e : fs::directory_iterator(frames_dir)) pngs += e.path().extension() == ".png";
   EXPECT_EQ(pngs, 20);
   std::ifstream out_report(dir / "out.json");
-  const nlohmann::json loop = nlohmann::json::parse(out_report).at("closed_loop");
+  const nlohmann::json report = nlohmann::json::parse(out_report);
+  // The albedo texture's views (frame, yaw, texels seen), each saying whether it is the closed-eyes view.
+  for (const auto& v : report.at("albedo_texture").at("views")) EXPECT_TRUE(v.at("closed_eyes").is_boolean()) << v.dump();
+  const nlohmann::json loop = report.at("closed_loop");
   ASSERT_GE(loop.at("frames").get<int>(), 5) << loop.dump(2);
   EXPECT_EQ(loop.at("reference"), "source");
   RecordProperty("reenact_closed_loop", loop.dump());

@@ -901,6 +901,62 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
   EXPECT_LT(tinted, all / 10) << tinted << " of " << all << " closed-lid pixels are tinted by the frame's blue";
 }
 
+// The vertices of `model` whose surface (the area of their triangles) the eyeBlinks at 1 spread
+// over at least twice its area in `p`: the upper lids a resting eye folds away under the brow.
+std::vector<int> folded_lid_vertices(const FaceModel& model, const gpu::FaceParameters& p) {
+  gpu::FaceParameters shut = p;
+  shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
+  shut.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
+  const Eigen::VectorXf now = model.shape(p.alpha, p.delta), closed = model.shape(shut.alpha, shut.delta);
+  std::vector<double> area_now(static_cast<size_t>(model.num_vertices()), 0.0), area_closed = area_now;
+  for (const auto& t : model.triangles) {
+    auto area = [&](const Eigen::VectorXf& x) {
+      const Eigen::Vector3f a = x.segment<3>(3 * t[0]);
+      return 0.5 * static_cast<double>((x.segment<3>(3 * t[1]) - a).cross(x.segment<3>(3 * t[2]) - a).norm());
+    };
+    for (int32_t v : t) {
+      area_now[static_cast<size_t>(v)] += area(now);
+      area_closed[static_cast<size_t>(v)] += area(closed);
+    }
+  }
+  std::vector<int> folded;
+  for (int v = 0; v < model.num_vertices(); ++v)
+    if (model.vertex_part[static_cast<size_t>(v)] == FacePart::Face && area_closed[static_cast<size_t>(v)] >= 2.0 * area_now[static_cast<size_t>(v)])
+      folded.push_back(v);
+  return folded;
+}
+
+// A resting eye folds its upper lid away under the brow: open eyes show that skin only as a
+// squeezed band (on the webcam clip a shadowed, grey-blue one), not the closed lid's colour.
+// Learned from it, the lids a source's blink closes over the target's open eyes were grey-blue and
+// smeared (d14 with her eyes shut, output frames 75 and 89). The map learns those lids only from a
+// frame that unfolds them: the target's own blink.
+TEST(ReenactCompositorTest, TheAlbedoMapLearnsTheUpperLidsOnlyFromABlink) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.3f);
+  gpu::FaceParameters blink = target;
+  blink.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.8f;
+  blink.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.8f;
+  const std::vector<int> folded = folded_lid_vertices(model, target);
+  ASSERT_GE(folded.size(), 10u);
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  auto observed = [&](const AlbedoMap& albedo) {
+    return std::count_if(folded.begin(), folded.end(), [&](int v) { return albedo.weight[v] > 0.f; });
+  };
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(render_target(target, cam), cam, target, &albedo);
+  const auto from_open_eyes = observed(albedo);
+  fc.ObserveAlbedo(render_target(blink, cam), cam, blink, &albedo);
+  const auto from_the_blink = observed(albedo);
+  RecordProperty("folded_lid_vertices", static_cast<int>(folded.size()));
+  RecordProperty("observed_with_open_eyes", static_cast<int>(from_open_eyes));
+  RecordProperty("observed_after_a_blink", static_cast<int>(from_the_blink));
+  EXPECT_EQ(from_open_eyes, 0) << "open eyes show the upper lids folded";
+  EXPECT_GE(from_the_blink, static_cast<long>(folded.size() / 3)) << "a blink shows them";
+}
+
 // Lids the output lowers part way (a squint, a sleepy look): the frame's lash line along the
 // upper lid margin moves down with it. Its samples lie at the lid's occluding boundary and the
 // lid moves, so the boundary rule distrusted them; the map has no lash line (it observes no lid

@@ -137,6 +137,8 @@ bool AlbedoTextureOptions::IsValid(std::string* why) const {
   if (!(max_front_pitch_deg > 0.f) || !(max_front_pitch_deg <= 60.f))
     return fail("albedo texture max_front_pitch_deg must be in (0, 60]");
   if (!(max_expression > 0.f) || !(max_expression <= 1.f)) return fail("albedo texture max_expression must be in (0, 1]");
+  if (!(min_closed_eyes_blink > max_expression) || !(min_closed_eyes_blink <= 1.f))
+    return fail("albedo texture min_closed_eyes_blink must be in (max_expression, 1]");
   if (blend_levels < 1 || blend_levels > 10) return fail("albedo texture blend_levels must be in 1..10");
   return true;
 }
@@ -326,7 +328,7 @@ AlbedoTexture BlendAlbedoViews(std::shared_ptr<const AlbedoTextureLayout> layout
     lap.push_back(laplacian_pyramid(fill_holes(v.albedo, sees), lv));
     wgt.push_back(gaussian_pyramid(w, lv));
     out.seen += w;
-    out.views.push_back({v.frame_index, v.yaw_deg, v.seen_texels});
+    out.views.push_back({v.frame_index, v.yaw_deg, v.seen_texels, v.closed_eyes});
   }
   std::vector<cv::Mat> blended(static_cast<size_t>(lv));
   for (int l = 0; l < lv; ++l) {
@@ -369,12 +371,33 @@ float head_yaw_deg(const gpu::FaceParameters& params) {
 AlbedoViewChooser::Slot AlbedoViewChooser::Consider(const gpu::FaceParameters& params) {
   if (!params.translation.allFinite() || !params.euler.allFinite() || !(params.translation.norm() > 0.f)) return kNone;
   static const int blink_left = arkit_blendshape_index("eyeBlinkLeft"), blink_right = arkit_blendshape_index("eyeBlinkRight");
-  if (expression_weight(params.delta, kJawOpenIndex) > options_.max_expression ||
-      expression_weight(params.delta, blink_left) > options_.max_expression ||
-      expression_weight(params.delta, blink_right) > options_.max_expression)
-    return kNone;
+  if (expression_weight(params.delta, kJawOpenIndex) > options_.max_expression) return kNone;
+  const float blink = std::min(expression_weight(params.delta, blink_left), expression_weight(params.delta, blink_right));
   const float yaw = head_yaw_deg(params);
   const float turn = gpu::head_turn_from_camera_deg(params);
+  // Nearer rest is better too: every expression (gaze included) moves or hides some of the skin's
+  // own marks (lashes, the lip line, creases), and the texture carries them into every frame. The
+  // summed weights (about 0.5-1.5 on a tracked face at rest) count as this many degrees each.
+  constexpr float kDegreesPerExpression = 4.0f;
+  // A slot moves to a new frame only for a clearly better one: each move costs a rebuild.
+  constexpr float kBetterByDeg = 2.0f;
+  auto take = [&](Slot slot, float distance) {
+    if (best_[slot] >= 0.f && !(distance < best_[slot] - kBetterByDeg)) return kNone;
+    best_[slot] = distance;
+    return slot;
+  };
+  if (blink >= options_.min_closed_eyes_blink) {
+    // A blink facing the camera as a front view does (its lids are what it is kept for: a side
+    // view sees them foreshortened), the more closed the better: the output closes them fully.
+    if (!(std::abs(yaw) < options_.min_side_yaw_deg) || turn > options_.max_front_pitch_deg) return kNone;
+    constexpr float kDegreesPerOpenness = 20.0f;
+    const float rest = params.delta.cwiseAbs().sum() - expression_weight(params.delta, blink_left) -
+                       expression_weight(params.delta, blink_right);
+    return take(kClosedEyes, turn + kDegreesPerOpenness * (1.0f - blink) + kDegreesPerExpression * rest);
+  }
+  if (expression_weight(params.delta, blink_left) > options_.max_expression ||
+      expression_weight(params.delta, blink_right) > options_.max_expression)
+    return kNone;
   Slot slot = kNone;
   float distance = 0.f;
   if (turn > std::abs(yaw) + 12.f) {
@@ -395,16 +418,7 @@ AlbedoViewChooser::Slot AlbedoViewChooser::Consider(const gpu::FaceParameters& p
   } else {
     return kNone;
   }
-  // Nearer rest is better too: every expression (gaze included) moves or hides some of the skin's
-  // own marks (lashes, the lip line, creases), and the texture carries them into every frame. The
-  // summed weights (about 0.5-1.5 on a tracked face at rest) count as this many degrees each.
-  constexpr float kDegreesPerExpression = 4.0f;
-  distance += kDegreesPerExpression * params.delta.cwiseAbs().sum();
-  // A slot moves to a new frame only for a clearly better one: each move costs a rebuild.
-  constexpr float kBetterByDeg = 2.0f;
-  if (best_[slot] >= 0.f && !(distance < best_[slot] - kBetterByDeg)) return kNone;
-  best_[slot] = distance;
-  return slot;
+  return take(slot, distance + kDegreesPerExpression * params.delta.cwiseAbs().sum());
 }
 
 int AlbedoViewChooser::filled_count() const {

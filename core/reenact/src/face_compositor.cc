@@ -70,6 +70,21 @@ constexpr int kClippedLevel = 250;
 // greyer with them, with a light line along the lid margin. Such surface keeps what clearer views
 // gave it, or the colour of the skin around.
 constexpr float kAlbedoBoundaryClearancePx = 2.5f;
+// A resting eye folds its upper lid away under the brow, and a blink unfolds it over the eye: the
+// model's eyeBlink blendshapes stretch the lid's triangles 2-4 times. A frame teaches the albedo
+// a lid's surface in proportion to how far it unfolds it (Impl::LidUnfolding): not at all where
+// the area around a vertex is at most kFoldedLid of its area with the eyes closed, fully from
+// kUnfoldedLid. Open eyes show that skin only as a shadowed band under the brow (on the webcam
+// clip a grey-blue one); learned from it, the lids a source's blink closes over the target's eyes
+// were drawn grey and smeared.
+constexpr float kFoldedLid = 0.5f, kUnfoldedLid = 0.7f;
+// An eyeBlink moving a face vertex at least this far (metres) makes its triangles lid surface.
+constexpr float kLidMotionM = 0.0005f;
+// A lid the output closes further than the target's is closing in full from this much more blink.
+constexpr float kLidCloseSpan = 0.3f;
+// The per-vertex map knows a lid vertex in full from this observation weight (a blink facing the
+// camera gives it about 0.5-1: cos^2 of the view angle times the lid's unfolding).
+constexpr float kLearnedLidWeight = 0.25f;
 // Under the frame texture, the albedo texture replaces the per-vertex map in full where its views'
 // summed weight reaches this (a view facing the surface at cos 0.45), in part below.
 constexpr float kTextureSeenForFull = 0.2f;
@@ -228,6 +243,14 @@ struct FaceCompositor::Impl {
   // The teeth's texture coordinates per vertex (TeethTextureCoordinates; NaN off the teeth).
   std::vector<Eigen::Vector2f> teeth_uv;
   std::vector<int32_t> skin_around_mouth;  // ViewMouth's skin vertices
+  // The lids' unfolding (kFoldedLid): the face triangles an eyeBlink moves, their vertices, the
+  // eyeBlink blendshapes, and per vertex the eyeBlink that unfolds it where the resting mean face
+  // shows its surface folded (LidUnfolding below 1: the surface only a blink shows in full), -1
+  // elsewhere.
+  std::vector<std::array<int32_t, 3>> lid_triangles;
+  std::vector<int32_t> lid_vertices;
+  std::vector<int> blink_indices;
+  std::vector<int> folded_lid_blink;
 
   Impl(const FaceModel& m, const ReenactmentOptions& o) : model(m), renderer(gpu::RenderModel::FromFaceModel(m)), options(o) {
     std::array<int32_t, 68> by_index;
@@ -256,6 +279,7 @@ struct FaceCompositor::Impl {
       if (by_index[static_cast<size_t>(inner)] >= 0 && by_index[static_cast<size_t>(outer)] >= 0)
         eye_corners.push_back({by_index[static_cast<size_t>(inner)], by_index[static_cast<size_t>(outer)]});
     FindEyeballPlaces();
+    FindLids();
     FindMouthInterior();
     teeth_uv = TeethTextureCoordinates(model);
     FindSkinAroundMouth();
@@ -395,6 +419,80 @@ struct FaceCompositor::Impl {
       polygon.push_back(project(camera, x));
     }
     return polygon;
+  }
+
+  // lid_triangles, lid_vertices, blink_indices and folded_lid_blink from the mean shape.
+  void FindLids() {
+    const int n = model.num_vertices();
+    for (const char* name : {"eyeBlinkLeft", "eyeBlinkRight"})
+      if (const int b = arkit_blendshape_index(name); b >= 0 && b < model.num_expression()) blink_indices.push_back(b);
+    std::vector<char> moved(static_cast<size_t>(n), 0), in_lid(static_cast<size_t>(n), 0);
+    for (int v = 0; v < n; ++v)
+      for (int b : blink_indices)
+        if (part_of(v) == FacePart::Face && model.expression_basis.block(3 * v, b, 3, 1).norm() >= kLidMotionM) moved[static_cast<size_t>(v)] = 1;
+    for (const auto& t : model.triangles) {
+      bool face = true, any = false;
+      for (int32_t v : t) {
+        face = face && part_of(v) == FacePart::Face;
+        any = any || moved[static_cast<size_t>(v)];
+      }
+      if (!face || !any) continue;
+      lid_triangles.push_back(t);
+      for (int32_t v : t) in_lid[static_cast<size_t>(v)] = 1;
+    }
+    for (int v = 0; v < n; ++v)
+      if (in_lid[static_cast<size_t>(v)]) lid_vertices.push_back(v);
+    gpu::FaceParameters rest;
+    const std::vector<float> unfolded = LidUnfolding(rest);
+    folded_lid_blink.assign(static_cast<size_t>(n), -1);
+    for (int v = 0; v < n; ++v) {
+      if (!(unfolded[static_cast<size_t>(v)] < 1.0f)) continue;
+      float most = 0.f;
+      for (int b : blink_indices)
+        if (const float m = model.expression_basis.block(3 * v, b, 3, 1).norm(); m > most) {
+          most = m;
+          folded_lid_blink[static_cast<size_t>(v)] = b;
+        }
+    }
+  }
+
+  // Per vertex, how far the face at `params` (identity and expression) unfolds its surface
+  // (kFoldedLid): 0 where it shows it folded, 1 where unfolded or where a blink stretches nothing.
+  std::vector<float> LidUnfolding(const gpu::FaceParameters& params) const {
+    const int n = model.num_vertices();
+    std::vector<float> share(static_cast<size_t>(n), 1.0f);
+    if (lid_triangles.empty()) return share;
+    const Eigen::Index ka = std::min<Eigen::Index>(params.alpha.size(), model.num_identity());
+    const Eigen::Index kd = std::min<Eigen::Index>(params.delta.size(), model.num_expression());
+    std::vector<Eigen::Vector3f> now(static_cast<size_t>(n)), closed(static_cast<size_t>(n));
+    for (int32_t v : lid_vertices) {
+      Eigen::Vector3f x = model.mean_shape.segment<3>(3 * v);
+      if (ka > 0) x += model.identity_basis.block(3 * v, 0, 3, ka) * params.alpha.head(ka);
+      if (kd > 0) x += model.expression_basis.block(3 * v, 0, 3, kd) * params.delta.head(kd);
+      Eigen::Vector3f c = x;
+      for (int b : blink_indices)
+        c += (1.0f - std::clamp(expression_weight(params.delta, b), 0.0f, 1.0f)) * model.expression_basis.block(3 * v, b, 3, 1);
+      now[static_cast<size_t>(v)] = x;
+      closed[static_cast<size_t>(v)] = c;
+    }
+    std::vector<float> area_now(static_cast<size_t>(n), 0.f), area_closed(static_cast<size_t>(n), 0.f);
+    auto area = [](const std::vector<Eigen::Vector3f>& x, const std::array<int32_t, 3>& t) {
+      const Eigen::Vector3f& a = x[static_cast<size_t>(t[0])];
+      return 0.5f * (x[static_cast<size_t>(t[1])] - a).cross(x[static_cast<size_t>(t[2])] - a).norm();
+    };
+    for (const auto& t : lid_triangles) {
+      const float an = area(now, t), ac = area(closed, t);
+      for (int32_t v : t) {
+        area_now[static_cast<size_t>(v)] += an;
+        area_closed[static_cast<size_t>(v)] += ac;
+      }
+    }
+    for (int32_t v : lid_vertices) {
+      const size_t i = static_cast<size_t>(v);
+      if (!(area_closed[i] > area_now[i])) continue;
+      share[i] = std::clamp((area_now[i] / area_closed[i] - kFoldedLid) / (kUnfoldedLid - kFoldedLid), 0.0f, 1.0f);
+    }
+    return share;
   }
 
   // eyeball_place, eyeball_vertices and eyeball_radius from the mean shape (the builder's eyeball
@@ -758,7 +856,7 @@ struct FaceCompositor::Impl {
                          const Gamma& light, const gpu::RenderOptions& ropt, float mouth_redraw,
                          const TextureShading& fallback_texture, gpu::GBuffer* g, cv::Mat* shown = nullptr,
                          const EyeExemplar* open_eyes = nullptr, bool* eyes_drawn = nullptr,
-                         const EyeOpenings* openings = nullptr) const {
+                         const EyeOpenings* openings = nullptr, const Eigen::VectorXf* map_weight = nullptr) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
     if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
     if (eyes_drawn) *eyes_drawn = false;
@@ -815,7 +913,6 @@ struct FaceCompositor::Impl {
       // light line along the lash line (d14 smiling with her eyes shut onto the webcam clip, output
       // frame 95: the lower lids' samples, unmoved and trusted, were the frame's eye white and
       // rim). How much: the extra blink over kLidCloseSpan.
-      constexpr float kLidCloseSpan = 0.3f;
       for (size_t k = 0; k < lid_contours.size(); ++k) {
         const int b = lid_blink_index[k];
         const float closing =
@@ -1264,6 +1361,40 @@ struct FaceCompositor::Impl {
     std::array<float, 2> aperture_width{1.f, 1.f};
     for (size_t e = 0; e < 2; ++e)
       if (apertures[e]) aperture_width[e] = std::max(1.0f, static_cast<float>(apertures[e]->Bounds(internal::EyeAperture::Which::kOutput, 0, w, h).width));
+    // The lids the output closes further than the target's (kFoldedLid): the frame shows their
+    // surface only folded, and the trusted skin nearest them is the shadowed band under the brow
+    // above and the lower lid's below; filled from those, the closed lids were grey-blue (d14 with
+    // her eyes shut onto the webcam clip, output frames 75 and 89). Where the map learned the lids
+    // from the target's own blinks (ObserveAlbedo, the texture's closed-eyes view), their
+    // distrusted pixels take it, by the share of the pixel's surface that is such a lid, smoothed
+    // so the change draws no edge. A map that never saw a blink knows them only from the skin
+    // around (FillUnobserved), no better than the fill (d12, behind glasses: a dull patch).
+    cv::Mat closing_lid;
+    if (map_weight) {
+      std::vector<std::pair<int, float>> closing;  // (eyeBlink, how much the output closes it further)
+      for (int b : blink_indices)
+        if (const float c = std::clamp((expression_weight(output.delta, b) - expression_weight(target.delta, b)) / kLidCloseSpan, 0.0f, 1.0f); c > 0.f)
+          closing.push_back({b, c});
+      if (!closing.empty()) {
+        closing_lid = cv::Mat::zeros(box.size(), CV_32FC1);
+        ForRowsOf(box, [&](int bj) {
+          for (int bi = 0; bi < box.width; ++bi) {
+            if (!(covered.at<float>(bj, bi) > 0.f)) continue;
+            const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+            float share = 0.f;
+            for (size_t k = 0; k < 3; ++k) {
+              const int32_t v = g->vertices[3 * p + k];
+              const int b = folded_lid_blink[static_cast<size_t>(v)];
+              const float learned = std::clamp((*map_weight)[v] / kLearnedLidWeight, 0.0f, 1.0f);
+              for (const auto& [blink, c] : closing)
+                if (b == blink) share += c * learned * g->barycentric[3 * p + k];
+            }
+            closing_lid.at<float>(bj, bi) = share;
+          }
+        });
+        cv::GaussianBlur(closing_lid, closing_lid, cv::Size(0, 0), kFillSigmaPx);
+      }
+    }
     // Every drawn pixel's own trust, for the other parts (teeth, tongue).
     cv::Mat ws;
     cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
@@ -1324,6 +1455,18 @@ struct FaceCompositor::Impl {
             // The pixel's own sample as far as it is trusted, its trusted neighbours' for the rest.
             const cv::Vec3f around = skin.sums.at<cv::Vec3f>(bj, bi) / trusted;
             t = own > 0.f ? own * texture.at<cv::Vec3f>(bj, bi) + (1.0f - own) * around : around;
+          }
+          if (const float lid = closing_lid.empty() ? 0.f : std::min(1.0f, closing_lid.at<float>(bj, bi));
+              lid > 0.f && !(lid_distance.at<float>(bj, bi) < lid_reach_px) && own < 1.f) {
+            // The pixel's own sample as far as it is trusted, the map for the rest (above).
+            const Eigen::Vector3f map = MapColour(fallback_texture, *g, p, &gain);
+            const cv::Vec3f own_t = texture.at<cv::Vec3f>(bj, bi);
+            for (int c = 0; c < 3; ++c) {
+              const float filled = a * std::min(1.0f, t[c]) + (1.0f - a) * map[c];
+              const float mapped = own * std::min(1.0f, own_t[c]) + (1.0f - own) * map[c];
+              t[c] = lid * mapped + (1.0f - lid) * filled;
+            }
+            a = 1.0f;
           }
         } else if (own > 0.f) {
           a = cw > 1e-6f ? std::clamp(ws.at<float>(bj, bi) / cw, 0.0f, 1.0f) : 1.0f;
@@ -1740,7 +1883,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
                          mouth_pass ? mouth_alpha : 0.0f, texture_shading, &g, mouth_pass ? &frame_shown : nullptr, eyes,
-                         &result.eyes_from_exemplar, openings);
+                         &result.eyes_from_exemplar, openings,
+                         use_map && albedo->weight.size() == n ? &albedo->weight : nullptr);
 
   cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
   target_bgr.convertTo(rendered, CV_32FC3);
@@ -1865,9 +2009,10 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   const cv::Rect roi = covered_rect(g, 2);
   const cv::Mat boundary_px = roi.empty() ? cv::Mat() : im.BoundaryDistance(g, state, camera, roi);
   Eigen::Vector3f brightest = Eigen::Vector3f::Zero();
+  const std::vector<float> unfolded = im.LidUnfolding(params);
   for (int v = 0; v < n; ++v) {
     const FacePart part = im.part_of(v);
-    if (!(ropt.parts & part_bit(part))) continue;
+    if (!(ropt.parts & part_bit(part)) || !(unfolded[static_cast<size_t>(v)] > 0.f)) continue;
     const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
     if (!(x.z() > camera.near_plane)) continue;
     const Eigen::Vector2f uv = project(camera, x);
@@ -1910,7 +2055,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     if (!ok) continue;
     for (int c = 0; c < 3; ++c) brightest[c] = std::max(brightest[c], irradiance(light, basis, c));
     if (!plausible_albedo(model_albedo.segment<3>(3 * v), &observed)) continue;
-    const float wv = cos_view * cos_view;
+    const float wv = cos_view * cos_view * unfolded[static_cast<size_t>(v)];
     const float wold = std::min(map->weight[v], kMaxWeight);
     map->albedo.segment<3>(3 * v) = (map->albedo.segment<3>(3 * v) * wold + observed * wv) / (wold + wv);
     map->weight[v] = wold + wv;
@@ -1928,6 +2073,22 @@ AlbedoTexture FaceCompositor::BuildAlbedoTexture(const std::vector<AlbedoTexture
   for (const AlbedoTextureFrame& f : frames) {
     AlbedoTextureView v = UnwrapAlbedo(f.bgr, f.camera, f.params, *layout, f.depth.empty() ? nullptr : &f.depth);
     v.frame_index = f.frame_index;
+    v.closed_eyes = f.closed_eyes;
+    if (f.closed_eyes) {
+      // Only on the lids a resting eye folds: elsewhere the resting views are the face's rest.
+      const Impl& im = *impl_;
+      v.seen_texels = 0;
+      for (int j = 0; j < layout->height; ++j)
+        for (int i = 0; i < layout->width; ++i) {
+          const size_t texel = static_cast<size_t>(j) * static_cast<size_t>(layout->width) + static_cast<size_t>(i);
+          if (layout->triangle[texel] < 0) continue;
+          float folded = 0.f;
+          for (size_t k = 0; k < 3; ++k)
+            if (im.folded_lid_blink[static_cast<size_t>(layout->vertices[3 * texel + k])] >= 0) folded += layout->barycentric[3 * texel + k];
+          v.weight.at<float>(j, i) *= folded;
+          v.seen_texels += v.weight.at<float>(j, i) > 0.f;
+        }
+    }
     views.push_back(std::move(v));
   }
   AlbedoTexture texture = BlendAlbedoViews(std::move(layout), views, base_albedo, levels);
@@ -1974,6 +2135,7 @@ AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const g
       if (!well_lit(light, gpu::sh_basis(nrm), c)) lit_well[static_cast<size_t>(v)] = 0;
     }
   }
+  const std::vector<float> unfolded = im.LidUnfolding(params);
   const bool with_depth = frame_depth && frame_depth->type() == CV_32FC1 && frame_depth->size() == frame_bgr.size();
   const float w_max = static_cast<float>(camera.width - 1), h_max = static_cast<float>(camera.height - 1);
   // The weight rises from nothing at a grazing kMinCos to cos^2 at kFullCos and beyond, and from
@@ -2006,15 +2168,17 @@ AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const g
       if (layout.triangle[texel] < 0) continue;
       Eigen::Vector3f x = Eigen::Vector3f::Zero(), nrm = Eigen::Vector3f::Zero(), e = Eigen::Vector3f::Zero();
       bool well = true;
+      float unfolded_w = 0.f;
       for (size_t k = 0; k < 3; ++k) {
         const int32_t v = layout.vertices[3 * texel + k];
         const float b = layout.barycentric[3 * texel + k];
+        unfolded_w += b * unfolded[static_cast<size_t>(v)];
         x += b * state.camera_positions.segment<3>(3 * v);
         nrm += b * state.camera_normals.segment<3>(3 * v);
         e += b * lit[static_cast<size_t>(v)];
         well = well && lit_well[static_cast<size_t>(v)];
       }
-      if (!well || !(x.z() > camera.near_plane) || !(nrm.norm() > 1e-6f)) continue;
+      if (!well || !(unfolded_w > 0.f) || !(x.z() > camera.near_plane) || !(nrm.norm() > 1e-6f)) continue;
       const float facing = -nrm.normalized().dot(x.normalized());
       if (facing < kMinCos) continue;
       const Eigen::Vector2f px = project(camera, x);
@@ -2037,7 +2201,7 @@ AlbedoTextureView FaceCompositor::UnwrapAlbedo(const cv::Mat& frame_bgr, const g
       const float cos_w = std::clamp((facing - kMinCos) / (kFullCos - kMinCos), 0.0f, 1.0f);
       const float edge_w = std::clamp(clearance / kAlbedoBoundaryClearancePx - 1.0f, 0.0f, 1.0f);
       view.albedo.at<cv::Vec3f>(j, i) = cv::Vec3f(observed[0], observed[1], observed[2]);
-      view.weight.at<float>(j, i) = cos_w * edge_w * std::min(facing, 1.0f) * std::min(facing, 1.0f);
+      view.weight.at<float>(j, i) = unfolded_w * cos_w * edge_w * std::min(facing, 1.0f) * std::min(facing, 1.0f);
       ++seen_here;
     }
     seen += seen_here;

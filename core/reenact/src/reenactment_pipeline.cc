@@ -136,7 +136,7 @@ struct ReenactmentPipeline::Impl {
   using KeptView = FaceCompositor::AlbedoTextureFrame;
   std::shared_ptr<const AlbedoTextureLayout> texture_layout;
   AlbedoViewChooser view_chooser;
-  KeptView kept_views[3];
+  KeptView kept_views[AlbedoViewChooser::kSlots];
   bool views_changed = false;
   int texture_built_at = 0;  // tracked_frames at the last build
   MouthExemplar mouth;
@@ -203,7 +203,8 @@ struct ReenactmentPipeline::Impl {
       TakeAlbedoTexture(texture_build.get());
     const AlbedoViewChooser::Slot slot = view_chooser.Consider(params);
     if (slot != AlbedoViewChooser::kNone) {
-      kept_views[slot] = KeptView{frame_bgr.clone(), depth.empty() ? cv::Mat() : depth.clone(), camera, params, frame_index};
+      kept_views[slot] = KeptView{frame_bgr.clone(), depth.empty() ? cv::Mat() : depth.clone(), camera, params, frame_index,
+                                  slot == AlbedoViewChooser::kClosedEyes};
       views_changed = true;
     }
     if (!views_changed || albedo_observations < kDenseAlbedoFrames || texture_build.valid()) return ms_since(start);
@@ -601,7 +602,12 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
   // --- the target's appearance: its own per-vertex albedo, learned from its frames.
   ++im.tracked_frames;
   try {
-    if (im.albedo_observations < kDenseAlbedoFrames || im.tracked_frames % kAlbedoRefreshInterval == 0) {
+    // A blink unfolds the upper lids, which open eyes show only folded (the map does not learn them
+    // there): every frame that closes an eye that far is observed.
+    static const int blink_left = arkit_blendshape_index("eyeBlinkLeft"), blink_right = arkit_blendshape_index("eyeBlinkRight");
+    const float blink = std::max(expression_weight(target_params.delta, blink_left), expression_weight(target_params.delta, blink_right));
+    if (im.albedo_observations < kDenseAlbedoFrames || im.tracked_frames % kAlbedoRefreshInterval == 0 ||
+        blink >= im.options.albedo_texture.min_closed_eyes_blink) {
       const auto ta = Clock::now();
       im.compositor.ObserveAlbedo(out.bgr, fit_camera, target_params, &im.albedo,
                                   out.depth.empty() ? nullptr : &out.depth);

@@ -43,6 +43,12 @@ struct AlbedoTextureOptions {
   // A view shows the face at rest enough: jawOpen and each eyeBlink at most this (an open mouth
   // stretches the lips' skin, a blink shows the lid where the eye is usually seen).
   float max_expression = 0.35f;
+  // The closed-eyes view: a frame facing the camera with both eyeBlinks at least this. A resting
+  // eye folds its upper lid away under the brow, so the front and side views show that skin only
+  // squeezed into a shadowed band; the view of a blink is where the lids a source's blink closes
+  // over the target's eyes take their colour from (FaceCompositor::UnwrapAlbedo takes each view in
+  // proportion to how far it unfolds the lids; this one only on them).
+  float min_closed_eyes_blink = 0.45f;
   int blend_levels = 5;  // pyramid levels of the multi-band blend (>= 1)
   // Build on a thread of its own (the live session: a build of three views takes 0.1-0.2 s on two
   // cores, a stalled frame); the frames meanwhile keep the last texture. Off, the frame that
@@ -80,6 +86,7 @@ struct AlbedoTextureView {
   int64_t frame_index = -1;
   float yaw_deg = 0.f;
   int seen_texels = 0;
+  bool closed_eyes = false;  // the closed-eyes view (AlbedoViewChooser::kClosedEyes): weighted on the lids alone
 };
 
 struct AlbedoTexture {
@@ -94,6 +101,7 @@ struct AlbedoTexture {
     int64_t frame_index = -1;
     float yaw_deg = 0.f;
     int seen_texels = 0;
+    bool closed_eyes = false;
   };
   std::vector<ViewInfo> views;
   double build_ms = 0;  // the views' unwraps and the blend (FaceCompositor::BuildAlbedoTexture)
@@ -122,11 +130,15 @@ float head_yaw_deg(const gpu::FaceParameters& params);
 // mostly up or down, up to options.max_front_pitch_deg, only while no level one is), and per
 // side the one turned closest to options.side_yaw_deg (between min_ and max_side_yaw_deg), each
 // with the mouth and eyes near rest (options.max_expression) and, among those, the nearest to
-// rest overall (the expression's summed weights count as 4 degrees each). Consider() says which
-// slot a frame would fill or improve (by 2 degrees or more); the caller keeps that frame.
+// rest overall (the expression's summed weights count as 4 degrees each); and the closed-eyes
+// view: a blink (both eyeBlinks at least options.min_closed_eyes_blink, the mouth near rest)
+// facing the camera, the more closed the better (each 0.1 of the less closed eye's blink short of
+// 1 counts as 2 degrees). Consider() says which slot a frame would fill or improve (by 2 degrees
+// or more); the caller keeps that frame.
 class AlbedoViewChooser {
  public:
-  enum Slot { kFront = 0, kLeft = 1, kRight = 2, kNone = -1 };
+  enum Slot { kFront = 0, kLeft = 1, kRight = 2, kClosedEyes = 3, kNone = -1 };
+  static constexpr int kSlots = 4;
   explicit AlbedoViewChooser(const AlbedoTextureOptions& options) : options_(options) {}
   // The slot this frame improves (kNone: none), and takes it.
   Slot Consider(const gpu::FaceParameters& params);
@@ -136,7 +148,7 @@ class AlbedoViewChooser {
 
  private:
   AlbedoTextureOptions options_;
-  float best_[3] = {-1.f, -1.f, -1.f};  // the slot's distance from its ideal yaw; -1 = empty
+  float best_[kSlots] = {-1.f, -1.f, -1.f, -1.f};  // the slot's distance from its ideal view; -1 = empty
 };
 
 }  // namespace face_reenact::reenact

@@ -134,7 +134,8 @@ class FaceCompositor {
 
   // Adds the observation of `frame_bgr` at the tracked `params` to `map` (started from the model
   // albedo of params.beta when empty): each visible, camera-facing vertex's colour divided by
-  // its SH irradiance, averaged with weight cos(view angle).
+  // its SH irradiance, averaged with weight cos^2(view angle) times how far the frame unfolds the
+  // upper lids there (0 for the lids of open eyes: only a blink teaches their colour).
   // With `frame_depth`, vertices whose pixel's depth disagrees with the vertex by more than
   // 1.5 cm (the fit overshoots onto the background, an occluder) are not observed.
   void ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
@@ -145,7 +146,9 @@ class FaceCompositor {
   // it (so the texture times the same shading gives the frame back), with a weight that is 0
   // where the frame does not show the point clearly (hidden, within
   // 2.5 px of an occluding boundary, grazing, clipped, badly lit, or an implausible colour: the
-  // per-vertex map's rules, ObserveAlbedo) and rises towards cos^2 of the view angle. With
+  // per-vertex map's rules, ObserveAlbedo), rises towards cos^2 of the view angle, and is taken in
+  // proportion to how far the frame unfolds the upper lids there (a resting eye folds them away
+  // under the brow; a blink shows them: ObserveAlbedo's rule too). With
   // `frame_depth`, only where the measured depth confirms the surface. Rasterises on the CPU and
   // changes nothing, so it may run on another thread beside Compose. Throws
   // face_reenact::Error on a bad camera or frame, or a layout of another model.
@@ -159,6 +162,9 @@ class FaceCompositor {
     gpu::PinholeCamera camera;
     gpu::FaceParameters params;
     int64_t frame_index = -1;
+    // The closed-eyes view (AlbedoViewChooser::kClosedEyes): taken only on the lids a resting
+    // eye folds away, which the resting views do not show.
+    bool closed_eyes = false;
   };
   // The albedo texture of `frames` over `layout`: each unwrapped (UnwrapAlbedo), blended over the
   // per-vertex `base_albedo` (BlendAlbedoViews); build_ms is the whole. Thread-safe as UnwrapAlbedo.
