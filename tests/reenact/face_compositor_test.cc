@@ -902,8 +902,9 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
 }
 
 // The vertices of `model` whose surface (the area of their triangles) the eyeBlinks at 1 spread
-// over at least twice its area in `p`: the upper lids a resting eye folds away under the brow.
-std::vector<int> folded_lid_vertices(const FaceModel& model, const gpu::FaceParameters& p) {
+// over at least `factor` times its area in `p` (2: the upper lids a resting eye folds away under
+// the brow).
+std::vector<int> folded_lid_vertices(const FaceModel& model, const gpu::FaceParameters& p, double factor = 2.0) {
   gpu::FaceParameters shut = p;
   shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
   shut.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
@@ -921,7 +922,7 @@ std::vector<int> folded_lid_vertices(const FaceModel& model, const gpu::FacePara
   }
   std::vector<int> folded;
   for (int v = 0; v < model.num_vertices(); ++v)
-    if (model.vertex_part[static_cast<size_t>(v)] == FacePart::Face && area_closed[static_cast<size_t>(v)] >= 2.0 * area_now[static_cast<size_t>(v)])
+    if (model.vertex_part[static_cast<size_t>(v)] == FacePart::Face && area_closed[static_cast<size_t>(v)] >= factor * area_now[static_cast<size_t>(v)])
       folded.push_back(v);
   return folded;
 }
@@ -955,6 +956,21 @@ TEST(ReenactCompositorTest, TheAlbedoMapLearnsTheUpperLidsOnlyFromABlink) {
   RecordProperty("observed_after_a_blink", static_cast<int>(from_the_blink));
   EXPECT_EQ(from_open_eyes, 0) << "open eyes show the upper lids folded";
   EXPECT_GE(from_the_blink, static_cast<long>(folded.size() / 3)) << "a blink shows them";
+  // A blink's frame observed for the folded lids alone (the pipeline's extra observations): no
+  // vertex whose surface a blink does not stretch is learned from it (its lower lids' margins show
+  // the upper lid).
+  AlbedoMap lids_only;
+  fc.ObserveAlbedo(render_target(blink, cam), cam, blink, &lids_only, nullptr, /*folded_lids_only=*/true);
+  const std::vector<int> stretched = folded_lid_vertices(model, target, 1.01);
+  int learned = 0, learned_elsewhere = 0;
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    if (!(lids_only.weight[v] > 0.f)) continue;
+    ++learned;
+    learned_elsewhere += !std::binary_search(stretched.begin(), stretched.end(), v);
+  }
+  RecordProperty("learned_from_a_blink_for_the_lids_alone", learned);
+  EXPECT_GE(learned, static_cast<int>(folded.size() / 3));
+  EXPECT_EQ(learned_elsewhere, 0);
 }
 
 // Lids the output lowers part way (a squint, a sleepy look): the frame's lash line along the

@@ -1985,7 +1985,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
 }
 
 void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera,
-                                   const gpu::FaceParameters& params, AlbedoMap* map, const cv::Mat* frame_depth) const {
+                                   const gpu::FaceParameters& params, AlbedoMap* map, const cv::Mat* frame_depth,
+                                   bool folded_lids_only) const {
   if (!map) return;
   std::string why;
   if (!camera.IsValid(&why)) throw Error("albedo observation: invalid camera: " + why);
@@ -2013,6 +2014,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
   for (int v = 0; v < n; ++v) {
     const FacePart part = im.part_of(v);
     if (!(ropt.parts & part_bit(part)) || !(unfolded[static_cast<size_t>(v)] > 0.f)) continue;
+    if (folded_lids_only && im.folded_lid_blink[static_cast<size_t>(v)] < 0) continue;
     const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
     if (!(x.z() > camera.near_plane)) continue;
     const Eigen::Vector2f uv = project(camera, x);

@@ -603,15 +603,15 @@ ReenactedFrame ReenactmentPipeline::Render(TrackedTarget tracked, const SourceEx
   ++im.tracked_frames;
   try {
     // A blink unfolds the upper lids, which open eyes show only folded (the map does not learn them
-    // there): every frame that closes an eye that far is observed.
+    // there): every frame that closes an eye that far teaches the map those lids (only those).
     static const int blink_left = arkit_blendshape_index("eyeBlinkLeft"), blink_right = arkit_blendshape_index("eyeBlinkRight");
     const float blink = std::max(expression_weight(target_params.delta, blink_left), expression_weight(target_params.delta, blink_right));
-    if (im.albedo_observations < kDenseAlbedoFrames || im.tracked_frames % kAlbedoRefreshInterval == 0 ||
-        blink >= im.options.albedo_texture.min_closed_eyes_blink) {
+    const bool observe = im.albedo_observations < kDenseAlbedoFrames || im.tracked_frames % kAlbedoRefreshInterval == 0;
+    if (observe || blink >= im.options.albedo_texture.min_closed_eyes_blink) {
       const auto ta = Clock::now();
       im.compositor.ObserveAlbedo(out.bgr, fit_camera, target_params, &im.albedo,
-                                  out.depth.empty() ? nullptr : &out.depth);
-      ++im.albedo_observations;
+                                  out.depth.empty() ? nullptr : &out.depth, /*folded_lids_only=*/!observe);
+      if (observe) ++im.albedo_observations;
       out.times.render_ms += ms_since(ta);
     }
     out.times.render_ms += im.UpdateAlbedoTexture(out.bgr, out.depth, out.frame_index, fit_camera, target_params);

@@ -137,9 +137,11 @@ class FaceCompositor {
   // its SH irradiance, averaged with weight cos^2(view angle) times how far the frame unfolds the
   // upper lids there (0 for the lids of open eyes: only a blink teaches their colour).
   // With `frame_depth`, vertices whose pixel's depth disagrees with the vertex by more than
-  // 1.5 cm (the fit overshoots onto the background, an occluder) are not observed.
+  // 1.5 cm (the fit overshoots onto the background, an occluder) are not observed. With
+  // `folded_lids_only`, only the lids a resting eye folds away are (a blink's frame: its fit's
+  // lids meet where the real ones do not quite, and its lower lids' margins show the upper lid).
   void ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeCamera& camera, const gpu::FaceParameters& params,
-                     AlbedoMap* map, const cv::Mat* frame_depth = nullptr) const;
+                     AlbedoMap* map, const cv::Mat* frame_depth = nullptr, bool folded_lids_only = false) const;
 
   // One view of the albedo texture (albedo_texture.h): for each texel of `layout`, the frame's
   // colour where `params` puts that surface point, divided by the shading the re-rendering gives
