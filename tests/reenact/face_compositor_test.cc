@@ -971,6 +971,12 @@ TEST(ReenactCompositorTest, TheAlbedoMapLearnsTheUpperLidsOnlyFromABlink) {
   RecordProperty("learned_from_a_blink_for_the_lids_alone", learned);
   EXPECT_GE(learned, static_cast<int>(folded.size() / 3));
   EXPECT_EQ(learned_elsewhere, 0);
+  // Nor does it say how bright the face's light gets (the re-rendering's cap): the whole face's
+  // observations do.
+  const Eigen::Vector3f cap = albedo.max_irradiance;
+  ASSERT_GT(cap.minCoeff(), 0.f);
+  fc.ObserveAlbedo(render_target(blink, cam), cam, blink, &albedo, nullptr, /*folded_lids_only=*/true);
+  EXPECT_EQ(albedo.max_irradiance, cap);
 }
 
 // Lids the output lowers part way (a squint, a sleepy look): the frame's lash line along the

@@ -456,6 +456,12 @@ struct FaceCompositor::Impl {
     }
   }
 
+  // How much further the output closes the eye of eyeBlink `b` than the target's: 0-1, in full
+  // from kLidCloseSpan more blink.
+  static float LidClosing(const gpu::FaceParameters& target, const gpu::FaceParameters& output, int b) {
+    return std::clamp((expression_weight(output.delta, b) - expression_weight(target.delta, b)) / kLidCloseSpan, 0.0f, 1.0f);
+  }
+
   // Per vertex, how far the face at `params` (identity and expression) unfolds its surface
   // (kFoldedLid): 0 where it shows it folded, 1 where unfolded or where a blink stretches nothing.
   std::vector<float> LidUnfolding(const gpu::FaceParameters& params) const {
@@ -915,8 +921,7 @@ struct FaceCompositor::Impl {
       // rim). How much: the extra blink over kLidCloseSpan.
       for (size_t k = 0; k < lid_contours.size(); ++k) {
         const int b = lid_blink_index[k];
-        const float closing =
-            std::clamp((expression_weight(output.delta, b) - expression_weight(target.delta, b)) / kLidCloseSpan, 0.0f, 1.0f);
+        const float closing = LidClosing(target, output, b);
         if (!(closing > 0.f)) continue;
         cv::Rect zone;
         for (int32_t v : lid_contours[k]) {
@@ -1373,8 +1378,7 @@ struct FaceCompositor::Impl {
     if (map_weight) {
       std::vector<std::pair<int, float>> closing;  // (eyeBlink, how much the output closes it further)
       for (int b : blink_indices)
-        if (const float c = std::clamp((expression_weight(output.delta, b) - expression_weight(target.delta, b)) / kLidCloseSpan, 0.0f, 1.0f); c > 0.f)
-          closing.push_back({b, c});
+        if (const float c = LidClosing(target, output, b); c > 0.f) closing.push_back({b, c});
       if (!closing.empty()) {
         closing_lid = cv::Mat::zeros(box.size(), CV_32FC1);
         ForRowsOf(box, [&](int bj) {
@@ -2062,7 +2066,8 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     map->albedo.segment<3>(3 * v) = (map->albedo.segment<3>(3 * v) * wold + observed * wv) / (wold + wv);
     map->weight[v] = wold + wv;
   }
-  if (brightest.minCoeff() > 0.f) map->max_irradiance = brightest;
+  // (A lids-only observation sees too little of the face to say how bright its light gets.)
+  if (!folded_lids_only && brightest.minCoeff() > 0.f) map->max_irradiance = brightest;
   im.FillUnobserved(model_albedo, map);
 }
 
