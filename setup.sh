@@ -29,6 +29,7 @@ PACKAGES=(
   libsodium-dev libzip-dev zlib1g-dev libpng-dev
   libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers vulkan-tools glslang-tools glslang-dev libglm-dev
   libopencv-dev libdlib-dev libdlib-data libblas-dev liblapack-dev
+  libavformat-dev libavcodec-dev libavutil-dev libswscale-dev
   libopenni2-dev libusb-1.0-0-dev
   ffmpeg
   # the virtual-webcam test boots Debian's kernel with v4l2loopback in QEMU (tests/vm)
