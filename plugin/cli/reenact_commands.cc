@@ -440,10 +440,18 @@ void run_reenact(const ReenactArgs& a) {
     double target_time_s = 0;
     Eigen::VectorXf target_identity;  // the target's calibrated identity as of this frame
   };
+  // The first reenacted output frame: the rate from there on is the pipeline's own, the time
+  // before it mostly both actors' calibrations (a user's question: how fast once it runs?).
+  std::optional<Clock::time_point> first_reenacted_at;
+  int first_reenacted_frame = -1;
   auto finish_frame = [&](InFlight& f, const reenact::ReenactedFrame& out) {
     if (out.bgr.cols != info.camera.width || out.bgr.rows != info.camera.height)
       throw Error("target '" + a.target + "': frame " + std::to_string(f.target.index) + " has a different size");
     writer.write(out.bgr);
+    if (out.reenacted && !first_reenacted_at) {
+      first_reenacted_at = Clock::now();
+      first_reenacted_frame = done;
+    }
     // Only reenacted frames: the loop calibrates on them, so its identity is the re-rendered
     // face's (on the target's own frames, passed through while it calibrates, it would be the
     // target's own by construction).
@@ -563,11 +571,33 @@ void run_reenact(const ReenactArgs& a) {
   overlap.Drain();
   writer.close();
   if (done == 0) throw Error("target '" + a.target + "': no frames");
-  const double seconds = ms_since(start) / 1000.0;
+  const auto end = Clock::now();
+  const double seconds = std::chrono::duration<double>(end - start).count();
   const reenact::PipelineSummary s = pipeline.summary();
   const double source_ms = source_tracker ? source_tracker->track_ms_sum / std::max(1, source_tracker->frames) : 0.0;
-  std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s\n", a.out.c_str(), writer.codec().c_str(), done,
-              info.camera.width, info.camera.height, seconds);
+  // From the first reenacted frame on: its time into the run, and the rate of the frames after it.
+  nlohmann::json reenacting = nullptr;
+  std::string reenacting_words;
+  if (first_reenacted_at) {
+    const double from_s = std::chrono::duration<double>(*first_reenacted_at - start).count();
+    const int after = done - first_reenacted_frame - 1;
+    const double after_s = std::chrono::duration<double>(end - *first_reenacted_at).count();
+    const bool rate = after > 0 && after_s > 0;
+    reenacting = {{"first_frame", first_reenacted_frame},
+                  {"from_s", from_s},
+                  {"frames", done - first_reenacted_frame},
+                  {"fps", rate ? nlohmann::json(after / after_s) : nlohmann::json(nullptr)}};
+    char words[160];
+    if (rate)
+      std::snprintf(words, sizeof words, "; %.1f fps from the first reenacted frame on, output frame %d, %.1f s in",
+                    after / after_s, first_reenacted_frame, from_s);
+    else
+      std::snprintf(words, sizeof words, "; the first reenacted frame was output frame %d, %.1f s in",
+                    first_reenacted_frame, from_s);
+    reenacting_words = words;
+  }
+  std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s (%.1f fps%s)\n", a.out.c_str(), writer.codec().c_str(), done,
+              info.camera.width, info.camera.height, seconds, done / std::max(seconds, 1e-9), reenacting_words.c_str());
   std::printf("%s\n", s.BriefReport().c_str());
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
@@ -630,6 +660,7 @@ void run_reenact(const ReenactArgs& a) {
         {"fps", fps},
         {"wall_s", seconds},
         {"output_fps", done / std::max(seconds, 1e-9)},
+        {"reenacting", reenacting},
         {"statuses", {{"reenacted", s.reenacted_frames}, {"calibrating", s.calibrating_frames}, {"lost", s.lost_frames},
                       {"tracked_not_drawn", s.frames - s.reenacted_frames - s.calibrating_frames - s.lost_frames}}},
         {"lost_reasons", lost},

@@ -163,6 +163,15 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   EXPECT_EQ(pngs, 20);
   std::ifstream out_report(dir / "out.json");
   const nlohmann::json report = nlohmann::json::parse(out_report);
+  // The rate from the first reenacted frame on, beside the whole run's (which mixes in the calibrations).
+  const nlohmann::json& from = report.at("reenacting");
+  ASSERT_TRUE(from.is_object()) << report.dump(2);
+  EXPECT_EQ(from.at("first_frame").get<int>() + from.at("frames").get<int>(), 20) << from.dump();
+  EXPECT_GE(from.at("frames").get<int>(), report.at("statuses").at("reenacted").get<int>()) << from.dump();
+  EXPECT_GT(from.at("from_s").get<double>(), 0.0);
+  EXPECT_LT(from.at("from_s").get<double>(), report.at("wall_s").get<double>());
+  EXPECT_GT(from.at("fps").get<double>(), 0.0) << from.dump();
+  EXPECT_NE(r.output.find("fps from the first reenacted frame on"), std::string::npos) << r.output;
   // The albedo texture's views (frame, yaw, texels seen), each saying whether it is the closed-eyes view.
   for (const auto& v : report.at("albedo_texture").at("views")) EXPECT_TRUE(v.at("closed_eyes").is_boolean()) << v.dump();
   const nlohmann::json loop = report.at("closed_loop");
