@@ -573,6 +573,7 @@ void run_reenact(const ReenactArgs& a) {
   if (done == 0) throw Error("target '" + a.target + "': no frames");
   const auto end = Clock::now();
   const double seconds = std::chrono::duration<double>(end - start).count();
+  const double output_fps = done / std::max(seconds, 1e-9);
   const reenact::PipelineSummary s = pipeline.summary();
   const double source_ms = source_tracker ? source_tracker->track_ms_sum / std::max(1, source_tracker->frames) : 0.0;
   // From the first reenacted frame on: its time into the run, and the rate of the frames after it.
@@ -597,7 +598,7 @@ void run_reenact(const ReenactArgs& a) {
     reenacting_words = words;
   }
   std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s (%.1f fps%s)\n", a.out.c_str(), writer.codec().c_str(), done,
-              info.camera.width, info.camera.height, seconds, done / std::max(seconds, 1e-9), reenacting_words.c_str());
+              info.camera.width, info.camera.height, seconds, output_fps, reenacting_words.c_str());
   std::printf("%s\n", s.BriefReport().c_str());
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
@@ -659,7 +660,7 @@ void run_reenact(const ReenactArgs& a) {
         {"frames", done},
         {"fps", fps},
         {"wall_s", seconds},
-        {"output_fps", done / std::max(seconds, 1e-9)},
+        {"output_fps", output_fps},
         {"reenacting", reenacting},
         {"statuses", {{"reenacted", s.reenacted_frames}, {"calibrating", s.calibrating_frames}, {"lost", s.lost_frames},
                       {"tracked_not_drawn", s.frames - s.reenacted_frames - s.calibrating_frames - s.lost_frames}}},

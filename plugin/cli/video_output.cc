@@ -7,7 +7,6 @@
 extern "C" {
 #include <libavcodec/avcodec.h>
 #include <libavformat/avformat.h>
-#include <libavutil/opt.h>
 #include <libswscale/swscale.h>
 }
 
@@ -16,8 +15,9 @@ namespace face_reenact::cli {
 namespace {
 
 // x264's speed against size: "veryfast" drops the trellis quantisation and the deeper motion
-// search that made "medium" cost 20-30 ms per 640x480 frame here; CRF 21 buys back the quality
-// that costs (measured on the webcam clip: medium/23 31.63 dB, veryfast/21 31.65 dB).
+// search that made "medium" cost about 20 ms per 640x480 frame on one core here; CRF 21 buys back
+// the quality that costs (the webcam clip against its frames: medium/23 31.63 dB, veryfast/21
+// 31.65 dB).
 constexpr const char* kX264Preset = "veryfast";
 constexpr const char* kX264Crf = "21";
 
@@ -106,7 +106,9 @@ Mp4Writer::Mp4Writer(const std::string& path, double fps, cv::Size size) : path_
     av_dict_set(&options, "preset", kX264Preset, 0);
     av_dict_set(&options, "crf", kX264Crf, 0);
   } else {
-    m.encoder->bit_rate = static_cast<int64_t>(std::min(8e6, 4.0 * fps * size.area()));  // about what OpenCV gave it
+    // The fallback has no constant-quality mode set here: a rate ample for its frames (4 bits a
+    // pixel a second, at most 8 Mbit/s).
+    m.encoder->bit_rate = static_cast<int64_t>(std::min(8e6, 4.0 * fps * size.area()));
   }
   err = avcodec_open2(m.encoder, codec, &options);
   av_dict_free(&options);

@@ -29,7 +29,7 @@ inline void check_output_file(const std::string& path, const char* what) {
 // Writes an mp4 (H.264 by libx264, else FFmpeg's MPEG-4 part 2) through FFmpeg's own libraries:
 // OpenCV's writer opens x264 at its "medium" preset with no say over it, and that encoder took
 // a sixth of `reenact`'s CPU on two cores; "veryfast" at CRF 21 keeps the picture (PSNR against
-// the frames as medium's CRF 23 does) for about 15 % more bytes (docs/reenactment.md).
+// the frames as medium's CRF 23 does) for 15-20 % more bytes (docs/reenactment.md).
 class Mp4Writer {
  public:
   Mp4Writer(const std::string& path, double fps, cv::Size size);
