@@ -145,6 +145,16 @@ ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/
 ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/transient/frame_000126.png" -filter_complex \
        "[0]crop=120:90:150:250,scale=360:270:flags=neighbor[a];[1]crop=120:90:150:250,scale=360:270:flags=neighbor[b];[a][b]hstack" \
        "$OUT/detail_zoom.png"
+# d14 onto the webcam clip, output frame 160: her jaw's edge over the shadowed neck lies inside her fitted face, a
+# step the transfer must not read as a fold (it drew a thin curve down his left cheek until 2026-12-02); without and
+# with the transfer, and their difference x4 (detail_outline.png).
+for detail in off transient; do
+  "$FR" reenact --source "$VIDEOS/liveportrait_d14.mp4" --target "$tgt" --frames 170 --out "$OUT/detail/d14_$detail.mp4" \
+        --quiet --detail "$detail" --frames-dir "$OUT/detail/d14_$detail"
+done
+ffmpeg -loglevel error -y -i "$OUT/detail/d14_off/frame_000160.png" -i "$OUT/detail/d14_transient/frame_000160.png" -filter_complex \
+       "[0]crop=200:220:130:120[a];[1]crop=200:220:130:120[b];[0][1]blend=all_expr='128+4*(B-A)',crop=200:220:130:120[d];[a][b][d]hstack=3,scale=1200:-1" \
+       "$OUT/detail_outline.png"
 # A photo as the target (docs/reenactment.md, "A fitted light with a dark channel"): the Breaking Bad still, held
 # for d6's 300 frames, graded teal and orange with a hard key light; output frames 120 and 252, and a crop of frame
 # 120 beside the still and the pass-through (still_crop.png: still | pass-through | reenacted).
@@ -192,4 +202,4 @@ for pair in webcam:webcam_talking_640x480.wmv:30:240:280:200:120 d14:liveportrai
          -filter_complex "[0]select='eq(n\,$frame)',$crop[a];[1]$crop[b];[2]$crop[c];[a][b][c]hstack=3" -frames:v 1 \
          "$OUT/albedo_texture_$name.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference; detail_outline.png: a jaw's edge that must not become a fold), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"

@@ -239,6 +239,51 @@ TEST(DetailTransferTest, LipsAHiddenCheekAndAFadedSourceTransferLessOrNothing) {
   EXPECT_NEAR(m_half, 0.5f * m_full, 0.1f * m_full);
 }
 
+// An outline that the fit does not follow is a step, not a fold: on real clips a source whose jaw
+// the model does not reach (liveportrait_d14) showed her jaw's edge over the shadowed neck inside
+// the fitted face, and its dark side was drawn on the target's cheek as a thin curve. Here the
+// source's frame darkens the skin below a level line across the cheek by a quarter (the jaw's
+// shadow, a strand of hair): its edge's Laplacian is as dark as the fold above, but the level
+// below changes across it by a large fraction. A fold beside it still comes through.
+TEST(DetailTransferTest, AnOutlineTheFitMissesIsNotDrawnAsAFold) {
+  FR_REQUIRE_MODEL();
+  DetailTransfer dt(*test_model(), DetailTransferOptions{});
+  const int32_t cheek = skin_vertex_near(dt, {2, 31, 36, 48});
+  ASSERT_GE(cheek, 0);
+  const gpu::PinholeCamera scam = test_camera(320, 240);
+  const gpu::FaceParameters sp = test_face(0.5f);
+  const cv::Mat rest = render_target(sp, scam);
+  const cv::Point2f edge_at = pixel_of(sp, scam, cheek);
+  cv::Mat shadowed = rest.clone();
+  const cv::Rect below(cvRound(edge_at.x) - 10, cvRound(edge_at.y), 21, 12);
+  shadowed(below).convertTo(shadowed(below), -1, 0.75);
+  Target t;
+  const cv::Point2f at = pixel_of(t.params, t.cam, cheek);
+  dt.Observe(view_of(rest, scam, sp, 0));
+  dt.Observe(view_of(shadowed, scam, sp, 1));
+  ASSERT_EQ(dt.rest_frame_index(), 0);
+  cv::Mat out = t.rendered.clone();
+  dt.Apply(t.g, t.cam, t.drawn, &out);
+  const Change c = compare(t.rendered, out, at, 12.f);
+  RecordProperty("darkest_along_the_outline", std::to_string(c.darkest));
+  EXPECT_LT(c.darkest, 1.5f) << "the step's dark side drawn as a line (" << c.pixels << " pixels changed)";
+
+  // A fold 8 px above the step, in the same frame, is still a fold.
+  const cv::Point2f fold_at = edge_at - cv::Point2f(0.f, 8.f);
+  DetailTransfer with_both(*test_model(), DetailTransferOptions{});
+  with_both.Observe(view_of(rest, scam, sp, 0));
+  with_both.Observe(view_of(with_fold(rest, fold_at, 0.12f), scam, sp, 1));
+  cv::Mat fold_only = t.rendered.clone();
+  with_both.Apply(t.g, t.cam, t.drawn, &fold_only);
+  const float fold_alone = compare(t.rendered, fold_only, at, 12.f).darkest;
+  with_both.Observe(view_of(with_fold(shadowed, fold_at, 0.12f), scam, sp, 2));
+  out = t.rendered.clone();
+  with_both.Apply(t.g, t.cam, t.drawn, &out);
+  RecordProperty("darkest_fold_alone", std::to_string(fold_alone));
+  EXPECT_GT(fold_alone, 3.f);
+  EXPECT_GT(compare(t.rendered, out, at, 12.f).darkest, 0.6f * fold_alone) << "the fold beside the step";
+}
+
 TEST(DetailTransferTest, BadOptionsViewsAndBuffersAreRefused) {
   FR_REQUIRE_MODEL();
   DetailMode mode = DetailMode::kOff;

@@ -36,6 +36,15 @@ constexpr float kSmoothRange = 0.08f, kTexturedRange = 0.2f;
 // taken whole, fading to none at kEdgeContrast (a hair strand over the cheek, a jaw's shadow line
 // read a few pixels off: -0.2 and darker on the shared clips).
 constexpr float kFoldContrast = 0.12f, kEdgeContrast = 0.2f;
+// A fold is a valley: the level below it barely changes across it. A face's outline is a step
+// (the jaw over the shadowed neck, a cheek against the background, a hair strand's edge): the
+// level below changes across it by a large fraction per pixel. Where the fit is off by more than
+// the outline guard allows (a source whose jaw the model does not reach: liveportrait_d14's
+// narrow chin), the step's dark side was read as a new fold and drawn on the target's cheek as a
+// thin curve. Up to kFoldStep of relative change per pixel (of the level read) is skin, from
+// kOutlineStep on an outline (at d14's jaw edge the strongly changed pixels read 0.1-0.34, half
+// of them above 0.18; a fold 12 % deep painted on a rendered cheek keeps its full darkening).
+constexpr float kFoldStep = 0.06f, kOutlineStep = 0.12f;
 // No detail within kOutlineZeroPx of a face's outline in its frame, all of it from kOutlineFullPx.
 constexpr float kOutlineZeroPx = 3.0f, kOutlineFullPx = 10.0f;
 
@@ -61,7 +70,9 @@ cv::Mat luminance_of(const cv::Mat& bgr) {
 }
 
 // Levels 0..count-1 of the relative Laplacian pyramid of `y`: (G_k - up(G_k+1)) / up(G_k+1).
-std::vector<cv::Mat> relative_detail(const cv::Mat& y, int count) {
+// With `steps`, each level's relative step too: |grad up(G_k+1)| / up(G_k+1) per pixel of level k
+// (how much the smoother image changes across the pixel: large at an outline, small at a fold).
+std::vector<cv::Mat> relative_detail(const cv::Mat& y, int count, std::vector<cv::Mat>* steps = nullptr) {
   std::vector<cv::Mat> levels;
   cv::Mat g = y;
   for (int k = 0; k < count; ++k) {
@@ -77,6 +88,22 @@ std::vector<cv::Mat> relative_detail(const cv::Mat& y, int count) {
       for (int i = 0; i < g.cols; ++i) dr[i] = (gr[i] - ur[i]) / std::max(ur[i], kMinLuminance);
     }
     levels.push_back(std::move(d));
+    if (steps) {
+      cv::Mat gx, gy;
+      cv::Sobel(up, gx, CV_32F, 1, 0, 3, 1.0 / 8.0);  // 1/8: the kernel's weights, per pixel
+      cv::Sobel(up, gy, CV_32F, 0, 1, 3, 1.0 / 8.0);
+      cv::Mat st(g.size(), CV_32FC1);
+      for (int j = 0; j < g.rows; ++j) {
+        const float* xr = gx.ptr<float>(j);
+        const float* yr = gy.ptr<float>(j);
+        const float* ur = up.ptr<float>(j);
+        float* sr = st.ptr<float>(j);
+        for (int i = 0; i < g.cols; ++i) sr[i] = std::hypot(xr[i], yr[i]) / std::max(ur[i], kMinLuminance);
+      }
+      // The largest within 2 px: a fold's reading beside an edge sits on the edge's lobe.
+      cv::dilate(st, st, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 5)));
+      steps->push_back(std::move(st));
+    }
     g = down;
   }
   return levels;
@@ -99,6 +126,7 @@ struct PreparedFrame {
   // off (a fit is never exact), not something the expression made. A wide range marks hair, a
   // brow, a lid's edge: no smooth skin for a fold to show on.
   std::vector<cv::Mat> low, high;
+  std::vector<cv::Mat> step;              // each level's relative step (relative_detail)
   Eigen::VectorXf positions, normals;     // 3N, camera space
   cv::Mat depth;                          // CV_32FC1, z of the visible face surface, 0 = none
   cv::Mat inside;                         // CV_32FC1, pixels from the visible face's outline
@@ -113,10 +141,10 @@ struct PreparedFrame {
 
 // Where a surface point (triangle corners v, barycentrics b) lies in a prepared frame and the
 // detail read there at `level` (with `low` and `high`, also the frame's range there: a rest
-// frame's); `facing` how squarely and how far inside its outline the frame shows it. False where
-// the frame does not show the point.
+// frame's; with `step`, the frame's relative step there); `facing` how squarely and how far inside
+// its outline the frame shows it. False where the frame does not show the point.
 bool read_detail(const PreparedFrame& f, const int32_t* v, const float* b, int level, float* detail, float* facing,
-                 float* low = nullptr, float* high = nullptr) {
+                 float* low = nullptr, float* high = nullptr, float* step = nullptr) {
   Eigen::Vector3f x = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
   for (int k = 0; k < 3; ++k) {
     x += b[k] * f.positions.segment<3>(3 * v[k]);
@@ -145,6 +173,7 @@ bool read_detail(const PreparedFrame& f, const int32_t* v, const float* b, int l
     *low = sample_float(f.low[k], lu, lw);
     *high = sample_float(f.high[k], lu, lw);
   }
+  if (step) *step = k < f.step.size() ? sample_float(f.step[k], lu, lw) : 0.f;
   return true;
 }
 
@@ -331,7 +360,7 @@ struct DetailTransfer::Impl {
         }
     }
     f.inside = distance_inside(covered);
-    f.detail = relative_detail(luminance_of(view.bgr(box)), kLevels);
+    f.detail = relative_detail(luminance_of(view.bgr(box)), kLevels, &f.step);
     f.positions = state.camera_positions;
     f.normals = state.camera_normals;
     f.camera = crop;
@@ -514,8 +543,8 @@ DetailStats DetailTransfer::Apply(const gpu::GBuffer& g, const gpu::PinholeCamer
         const float facing_target = smoothstep(0.4f, 0.7f, -nt.normalized().dot(xt.normalized())) *
                                     smoothstep(kOutlineZeroPx, kOutlineFullPx, target_inside.at<float>(j - box.y, i - box.x));
         if (facing_target <= 0.f) continue;
-        float d_now = 0.f, facing_now = 0.f;
-        if (!read_detail(im.now, v, b, level, &d_now, &facing_now)) continue;
+        float d_now = 0.f, facing_now = 0.f, step_now = 0.f;
+        if (!read_detail(im.now, v, b, level, &d_now, &facing_now, nullptr, nullptr, &step_now)) continue;
         float change = 0.f, facing = facing_now;
         if (copy) {
           change = d_now - own.at<float>(j - box.y, i - box.x);
@@ -529,7 +558,8 @@ DetailStats DetailTransfer::Apply(const gpu::GBuffer& g, const gpu::PinholeCamer
           // the cheek, a brow, a lid), what moves is that texture, not a fold.
           facing = std::min(facing, facing_rest) * smoothstep(kTexturedRange, kSmoothRange, high - low);
         }
-        const float fold = copy ? 1.f : smoothstep(kEdgeContrast, kFoldContrast, std::abs(d_now));
+        const float fold =
+            copy ? 1.f : smoothstep(kEdgeContrast, kFoldContrast, std::abs(d_now)) * smoothstep(kOutlineStep, kFoldStep, step_now);
         change = std::clamp(gain * skin * fold * std::min(facing, facing_target) * change, -limit, limit);
         if (change == 0.f) continue;
         cv::Vec3f& px = rendered->at<cv::Vec3f>(j, i);
