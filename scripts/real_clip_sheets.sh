@@ -131,6 +131,11 @@ ffmpeg -loglevel error -y "${turned[@]}" -filter_complex \
           printf "[%d]select='eq(n\\,%d)',crop=150:40:170:198,scale=450:120:flags=neighbor[a%d];[%d]crop=150:40:170:198,scale=450:120:flags=neighbor[b%d];" \
                  $((2 * k)) $f $k $((2 * k + 1)) $k; k=$((k + 1))
         done)[a0][b0][a1][b1][a2][b2][a3][b3]vstack=8" -frames:v 1 "$OUT/eyes_turned.png"
+# A source filmed from below lends its mouth (docs/reenactment.md, "The source actor's mouth"): d10 (pitched 17-28
+# degrees) onto the webcam clip, output frames 40 and 80 (mouth_from_below/sheet_*.png: teeth and tongue, no dark gash).
+mkdir -p "$OUT/mouth_from_below"
+"$FR" reenact --source "$VIDEOS/liveportrait_d10.mp4" --target "$tgt" --frames 90 --out "$OUT/mouth_from_below/out.mp4" \
+      --quiet --sheets "$OUT/mouth_from_below" --sheet-frames 40,80
 # The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"): d6's grimace (source frame ~252) onto the
 # webcam clip's output frame 126, without and with the transfer, and their difference x4 around mid-grey
 # (detail.png: the face; detail_zoom.png: the chin, 3x).

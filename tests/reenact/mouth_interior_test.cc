@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <tuple>
 #include <vector>
 
 #include <opencv2/imgcodecs.hpp>
@@ -494,6 +495,47 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
   EXPECT_TRUE(m.mouth_exemplar && m.source_mouth);
   EXPECT_FALSE(m.SetMouth("wide"));
   EXPECT_TRUE(m.mouth_exemplar && m.source_mouth);
+}
+
+// A source filmed from below (liveportrait_d10 is pitched 17-28 degrees: a phone held low) still
+// lends its mouth of that frame: refused beyond the target's still's 20 degrees, the output's
+// opening was the model's flat dark cavity on 58 of 86 frames (d10 onto the webcam clip). A
+// source turned 50 degrees away lends nothing.
+TEST(MouthInteriorTest, ASourceFilmedFromBelowStillLendsItsMouth) {
+  FR_REQUIRE_MODEL();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  const FaceCompositor fc(*test_model(), ReenactmentOptions{});
+  auto source_view = [&](float pitch_deg, float yaw_deg) {
+    gpu::FaceParameters p = test_face(0.45f);
+    p.delta[kJawOpenIndex] = 0.8f;
+    p.euler.x() += pitch_deg * static_cast<float>(M_PI) / 180.f;
+    p.euler.y() += yaw_deg * static_cast<float>(M_PI) / 180.f;
+    cv::Mat bgr = render_target(p, cam);
+    cv::fillPoly(bgr, std::vector<std::vector<cv::Point>>{pixel_polygon(fc.MouthOpening(cam, p))}, cv::Scalar(40, 200, 40));
+    SourceExpression e;
+    e.weights[kJawOpenIndex] = 0.8f;
+    e.view = std::make_shared<SourceView>(SourceView{bgr, cam, p, 3});
+    return std::pair{e, gpu::head_turn_from_camera_deg(p)};
+  };
+  ReenactmentOptions o;
+  o.use_ground_truth_target = true;
+  o.detail.mode = DetailMode::kOff;
+  for (const auto& [pitch, yaw, lends] : {std::tuple{0.f, 0.f, true}, std::tuple{28.f, 0.f, true}, std::tuple{0.f, 50.f, false}}) {
+    const auto [expression, turn] = source_view(pitch, yaw);
+    ReenactmentPipeline pipeline(*test_model(), o);
+    const ReenactedFrame r = pipeline.Process(ground_truth_frame(cam, 0.f, 0), &expression);
+    ASSERT_TRUE(r.reenacted && r.mouth_drawn);
+    int green = 0;
+    for (int j = 0; j < cam.height; ++j)
+      for (int i = 0; i < cam.width; ++i) {
+        const cv::Vec3b px = r.rendered.at<cv::Vec3b>(j, i);
+        green += px[1] > px[0] + 40 && px[1] > px[2] + 40;
+      }
+    RecordProperty("green_pixels_pitch_" + std::to_string(static_cast<int>(pitch)) + "_yaw_" + std::to_string(static_cast<int>(yaw)), green);
+    EXPECT_EQ(r.mouth_from_source, lends) << "pitch " << pitch << ", yaw " << yaw << " (" << turn << " degrees from the camera)";
+    if (lends) EXPECT_GT(green, 100) << "pitch " << pitch << ": the source's interior fills the opening";
+    else EXPECT_EQ(green, 0);
+  }
 }
 
 // --- the teeth proxy's texture (teeth_texture.h) ---

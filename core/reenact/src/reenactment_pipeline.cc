@@ -33,6 +33,13 @@ constexpr int kAlbedoTextureRebuildFrames = 30;
 constexpr int kLandmarkResetFrames = 3;
 // The source actor's opening stands in for the target's from this size on (a slit shows lips).
 constexpr double kSourceMouthMinAreaPx = 30.0;
+// ... and with the source's head up to this far from facing its camera. The still the target keeps
+// must face the camera (MouthExemplarOptions::max_turn_deg, 20), since every later opening is
+// warped from it; the source's mouth of this very frame is warped into an opening the output
+// opens as the source does. A source filmed from below (liveportrait_d10, pitched 17-28 degrees:
+// a phone held low) was refused on 58 of 86 frames, and the output's opened mouth was the model's
+// flat dark cavity, a black gash (d10 onto the webcam clip, output frames 40 and 80).
+constexpr float kSourceMouthMaxTurnDeg = 35.f;
 
 TrackingStatus coarse_status(tracker::TrackingStatus s) {
   switch (s) {
@@ -287,6 +294,7 @@ struct ReenactmentPipeline::Impl {
     // Any opening the output draws an interior for: the output opens as the source does.
     eo.min_jaw_open = options.mouth_open_threshold;
     eo.min_area_px = kSourceMouthMinAreaPx;
+    eo.max_turn_deg = kSourceMouthMaxTurnDeg;
     const FaceCompositor::MouthView source = compositor.ViewMouth(view.bgr, view.camera, view.params);
     if (!IsBetterMouthExemplar(MouthExemplar{}, source.opening, jaw, gpu::head_turn_from_camera_deg(view.params), eo))
       return {};
