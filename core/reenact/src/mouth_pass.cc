@@ -30,6 +30,10 @@ float MouthApertureLight(float opening_radius_m, float depth_m) {
   return r2 / (r2 + depth_m * depth_m);
 }
 
+float MouthInteriorLight(float opening_radius_m, float depth_m) {
+  return kMouthBounceLight + (1.f - kMouthBounceLight) * MouthApertureLight(opening_radius_m, depth_m);
+}
+
 MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::Mat* face_mask_out, cv::Mat* mouth_mask_out,
                           cv::Mat* face_depth_out) {
   MouthPassResult result;
@@ -319,13 +323,14 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
         continue;
       } else if (mouth_part) {
         // Lit through the opening: the light from in front of the face, of which a point inside
-        // gets the share the opening subtends. Shaded at their own normals instead (up, down,
+        // gets the share the opening subtends and what the mouth's inside bounces
+        // (MouthInteriorLight). Shaded at their own normals instead (up, down,
         // inwards: where the fit's light is an extrapolation) and darkened linearly with depth,
         // the tongue of a wide-open mouth drew at 2 % of the cheek's luminance, the cavity's own
         // colour: one flat dark gash with a band of teeth above it (d6 onto the webcam clip,
         // --mouth model, output frame 60), where a real open mouth's tongue shows at about a
         // third of the cheek (d12's frame 125) and only its rim and the throat are that dark.
-        const float light = MouthApertureLight(opening_radius_m, depth_behind);
+        const float light = MouthInteriorLight(opening_radius_m, depth_behind);
         // The teeth's texture (teeth_texture.h): gaps, edges and darker corners on the band.
         const Eigen::Vector3f pattern = part == FacePart::Tongue ? Eigen::Vector3f::Ones() : in.teeth_pattern(p);
         // The teeth's biting edges face up or down, away from the opening, so they keep the fit's

@@ -58,6 +58,23 @@ struct MouthPassInput {
 // radius: 0 behind the lip line.
 float MouthApertureLight(float opening_radius_m, float depth_m);
 
+// The light the model's teeth and tongue are drawn with: kMouthBounceLight of the light from in
+// front whatever their depth, the aperture's share (above) of the rest. The aperture alone is an
+// even sky seen through a hole; a real mouth also gets its share of a light in front of it
+// straight through the opening (a screen, a window) and the light its moist inside reflects. Lit
+// by the aperture alone, the model's tongue 3 cm in drew at 6 % of its albedo's front-lit colour
+// in a moderately open mouth: a flat black gash (liveportrait_d10 onto the webcam clip, --mouth
+// model, output frames 40 and 80), where the shared clips' real openings, seen through their
+// fits' inner-lip polygons, have a median luminance of 0.40-0.58 of the skin around the mouth and
+// a darker quartile of 0.29-0.36 (330 source frames of d0, d6, d10, d12 and d14, radii 4-14 mm).
+// The tongue's albedo is 0.82 of the skin's in luminance. At 0.35 a deep tongue showed at that
+// darker quartile, but a flat fill that bright reads as less open: re-tracked, d6 onto the webcam
+// clip (--mouth model, 150 frames) read jawOpen 0.109 from the source's against 0.069 with the
+// aperture alone. At 0.2 it shows at about a fifth of the skin, the opening still reads open
+// (0.077; the whole expression 0.073 against 0.074), and the gash is a tongue.
+constexpr float kMouthBounceLight = 0.2f;
+float MouthInteriorLight(float opening_radius_m, float depth_m);
+
 struct MouthPassResult {
   bool drawn = false;          // some interior pixel was drawn
   bool from_exemplar = false;  // some of it from the open-mouth image
