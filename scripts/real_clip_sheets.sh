@@ -136,30 +136,31 @@ ffmpeg -loglevel error -y "${turned[@]}" -filter_complex \
 mkdir -p "$OUT/mouth_from_below"
 "$FR" reenact --source "$VIDEOS/liveportrait_d10.mp4" --target "$tgt" --frames 90 --out "$OUT/mouth_from_below/out.mp4" \
       --quiet --sheets "$OUT/mouth_from_below" --sheet-frames 40,80
-# The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"): d6's grimace (source frame ~252) onto the
-# webcam clip's output frame 126, without and with the transfer, and their difference x4 around mid-grey
-# (detail.png: the face; detail_zoom.png: the chin, 3x).
+# The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"), each pair without and with the transfer.
 mkdir -p "$OUT/detail"
-for detail in off transient; do
-  "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --frames 130 --out "$OUT/detail/$detail.mp4" \
-        --quiet --detail "$detail" --frames-dir "$OUT/detail/$detail"
-done
-ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/transient/frame_000126.png" -filter_complex \
-       "[0]crop=320:360:80:60[a];[1]crop=320:360:80:60[b];[0][1]blend=all_expr='128+4*(B-A)',crop=320:360:80:60[d];[a][b][d]hstack=3" \
-       "$OUT/detail.png"
-ffmpeg -loglevel error -y -i "$OUT/detail/off/frame_000126.png" -i "$OUT/detail/transient/frame_000126.png" -filter_complex \
+detail_runs() {  # detail_runs SOURCE_CLIP FRAMES NAME: $OUT/detail/NAME_{off,transient}/frame_*.png
+  for detail in off transient; do
+    "$FR" reenact --source "$VIDEOS/$1" --target "$tgt" --frames "$2" --out "$OUT/detail/$3_$detail.mp4" \
+          --quiet --detail "$detail" --frames-dir "$OUT/detail/$3_$detail"
+  done
+}
+detail_difference() {  # detail_difference NAME FRAME CROP OUT.png: off | transient | their difference x4 around mid-grey
+  local f; f=$(printf frame_%06d.png "$2")
+  ffmpeg -loglevel error -y -i "$OUT/detail/$1_off/$f" -i "$OUT/detail/$1_transient/$f" -filter_complex \
+         "[0]crop=$3[a];[1]crop=$3[b];[0][1]blend=all_expr='128+4*(B-A)',crop=$3[d];[a][b][d]hstack=3" "$4"
+}
+# d6's grimace (source frame ~252) onto the webcam clip's output frame 126 (detail.png: the face; detail_zoom.png:
+# the chin, 3x).
+detail_runs liveportrait_d6.mp4 130 d6
+detail_difference d6 126 320:360:80:60 "$OUT/detail.png"
+ffmpeg -loglevel error -y -i "$OUT/detail/d6_off/frame_000126.png" -i "$OUT/detail/d6_transient/frame_000126.png" -filter_complex \
        "[0]crop=120:90:150:250,scale=360:270:flags=neighbor[a];[1]crop=120:90:150:250,scale=360:270:flags=neighbor[b];[a][b]hstack" \
        "$OUT/detail_zoom.png"
 # d14 onto the webcam clip, output frame 160: her jaw's edge over the shadowed neck lies inside her fitted face, a
-# step the transfer must not read as a fold (it drew a thin curve down his left cheek until 2026-12-02); without and
-# with the transfer, and their difference x4 (detail_outline.png).
-for detail in off transient; do
-  "$FR" reenact --source "$VIDEOS/liveportrait_d14.mp4" --target "$tgt" --frames 170 --out "$OUT/detail/d14_$detail.mp4" \
-        --quiet --detail "$detail" --frames-dir "$OUT/detail/d14_$detail"
-done
-ffmpeg -loglevel error -y -i "$OUT/detail/d14_off/frame_000160.png" -i "$OUT/detail/d14_transient/frame_000160.png" -filter_complex \
-       "[0]crop=200:220:130:120[a];[1]crop=200:220:130:120[b];[0][1]blend=all_expr='128+4*(B-A)',crop=200:220:130:120[d];[a][b][d]hstack=3,scale=1200:-1" \
-       "$OUT/detail_outline.png"
+# step the transfer must not read as a fold (it drew a thin curve down his left cheek until 2026-12-02)
+# (detail_outline.png).
+detail_runs liveportrait_d14.mp4 170 d14
+detail_difference d14 160 200:220:130:120 "$OUT/detail_outline.png"
 # A photo as the target (docs/reenactment.md, "A fitted light with a dark channel"): the Breaking Bad still, held
 # for d6's 300 frames, graded teal and orange with a hard key light; output frames 120 and 252, and a crop of frame
 # 120 beside the still and the pass-through (still_crop.png: still | pass-through | reenacted).

@@ -421,17 +421,20 @@ TEST(ReenactCliTest, ExpressionStreamDrivesTheReenactment) {
     cv::absdiff(a, b, diff);
     cv::Mat gray;
     cv::extractChannel(diff, gray, 1);
-    const cv::Mat changed_mask = gray > 40;
+    const cv::Mat changed_mask = gray > 20;
     const int changed = cv::countNonZero(changed_mask);
-    std::cout << png << ": " << changed << " pixels differ by more than 40\n";
+    std::cout << png << ": " << changed << " pixels differ by more than 20\n";
     if (k < kUnchanged) {
       EXPECT_EQ(changed, 0) << png << ": the calibration frames are the target's own";
     } else {
-      // The face is ~45 px wide here and its open mouth ~10 x 8 px (measured 62-69 pixels
-      // changed); nothing else changes: the changes lie within a mouth-sized box.
-      EXPECT_GT(changed, 30) << png << ": an open jaw streamed, the same mouth shown";
+      // The face is ~45 px wide here and its open mouth ~10 x 8 px (measured 110-174 pixels
+      // changed since the model's tongue takes the light the mouth's inside bounces, 2026-12-02:
+      // a lit tongue differs from the closed lips less than the dark gash did, 19-65 of them by
+      // more than 40); nothing else changes: the changes lie within a mouth-sized box.
+      EXPECT_GT(changed, 60) << png << ": an open jaw streamed, the same mouth shown";
+      // (The strong changes: at 20 levels the lips and the chin moved by the open jaw count too.)
       std::vector<cv::Point> where;
-      cv::findNonZero(changed_mask, where);
+      cv::findNonZero(gray > 40, where);
       const cv::Rect box = where.empty() ? cv::Rect() : cv::boundingRect(where);
       EXPECT_LT(box.width, 30) << png;
       EXPECT_LT(box.height, 30) << png;
