@@ -1272,7 +1272,10 @@ TEST(ReenactCompositorTest, WithTheFrameTextureTheMouthInteriorFadesInWithTheExt
     EXPECT_LE(red, previous + 0.5) << "jawOpen " << jaw;
     previous = red;
   }
-  EXPECT_LT(previous, cv::mean(t.target, region)[2] - 40) << "the fully opened mouth should be dark";
+  // 39 levels darker than the target's lips in red since the model's interior takes the light the
+  // mouth's inside bounces (MouthInteriorLight; 56 with the aperture alone, a black gash on real
+  // clips).
+  EXPECT_LT(previous, cv::mean(t.target, region)[2] - 25) << "the fully opened mouth should be dark";
 }
 
 TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
@@ -1316,10 +1319,15 @@ TEST(ReenactCompositorTest, OpenMouthOnAClosedMouthTargetShowsCavityAndTeeth) {
   EXPECT_GT(dark + teeth + tongue, 2 * mouth / 3);
   EXPECT_GT(dark, 0) << "the cavity behind the tongue";
   EXPECT_GT(teeth, 0) << "the lower teeth should show in a wide-open mouth";
-  EXPECT_GT(mean_abs_diff(c.bgr, t.target, c.mouth_mask), 40.0);
+  // (With the light the mouth's inside bounces, MouthInteriorLight: 33 levels from the target on
+  // average; the aperture alone drew the interior darker.)
+  const double differs = mean_abs_diff(c.bgr, t.target, c.mouth_mask);
+  RecordProperty("mean_abs_diff_in_mouth", std::to_string(differs));
+  EXPECT_GT(differs, 25.0);
   const cv::Scalar target_in_mouth = cv::mean(t.target, c.mouth_mask);
   const cv::Scalar out_in_mouth = cv::mean(c.bgr, c.mouth_mask);
-  EXPECT_LT(out_in_mouth[2], target_in_mouth[2] - 40) << "the mouth region should be darker than the target's lips";
+  RecordProperty("red_darker_than_the_lips", std::to_string(target_in_mouth[2] - out_in_mouth[2]));
+  EXPECT_LT(out_in_mouth[2], target_in_mouth[2] - 25) << "the mouth region should be darker than the target's lips";
   // Jaw closed again: no mouth pass.
   const CompositeResult closed = fc.Compose(t.target, cam, target, target, &t.albedo);
   EXPECT_FALSE(closed.mouth_drawn);
