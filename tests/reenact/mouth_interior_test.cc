@@ -202,6 +202,21 @@ MouthExemplar green_still(const FaceCompositor& fc, const gpu::PinholeCamera& ca
 
 bool is_green(const cv::Vec3b& px) { return px[1] > px[0] + 40 && px[1] > px[2] + 40; }
 
+// The green pixels of a whole 8-bit BGR image, and their mean green.
+int count_green(const cv::Mat& bgr, double* mean_green = nullptr) {
+  int n = 0;
+  double sum = 0;
+  for (int j = 0; j < bgr.rows; ++j)
+    for (int i = 0; i < bgr.cols; ++i) {
+      const cv::Vec3b px = bgr.at<cv::Vec3b>(j, i);
+      if (!is_green(px)) continue;
+      ++n;
+      sum += px[1];
+    }
+  if (mean_green) *mean_green = n ? sum / n : 0.0;
+  return n;
+}
+
 // The compositor: an opened mouth shows the exemplar, not the model's teeth and cavity, and
 // darker where the output opens less than the still did.
 TEST(MouthInteriorTest, TheCompositorFillsTheOpeningWithTheActorsOwnMouth) {
@@ -416,20 +431,6 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
   open.weights[kJawOpenIndex] = 0.8f;
   open.view = std::make_shared<SourceView>(SourceView{source_bgr, cam, wide, 7});
 
-  auto green = [&](const ReenactedFrame& r, double* mean_green) {
-    int g = 0, n = 0;
-    double sum = 0;
-    for (int j = 0; j < cam.height; ++j)
-      for (int i = 0; i < cam.width; ++i) {
-        const cv::Vec3b px = r.rendered.at<cv::Vec3b>(j, i);
-        if (!(px[1] > px[0] + 40 && px[1] > px[2] + 40)) continue;
-        ++g;
-        sum += px[1];
-        ++n;
-      }
-    if (mean_green) *mean_green = n ? sum / n : 0.0;
-    return g;
-  };
   ReenactmentOptions o;
   o.use_ground_truth_target = true;
   o.detail.mode = DetailMode::kOff;
@@ -439,7 +440,7 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
     ASSERT_TRUE(r.reenacted && r.mouth_drawn);
     EXPECT_TRUE(r.mouth_from_source && r.mouth_from_exemplar);
     double mean_green = 0;
-    const int g = green(r, &mean_green);
+    const int g = count_green(r.rendered, &mean_green);
     RecordProperty("green_pixels", g);
     RecordProperty("mean_green", std::to_string(mean_green));
     EXPECT_GT(g, 100) << "the source's interior fills the opening";
@@ -454,7 +455,7 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
     const ReenactedFrame after = pipeline.Process(target_frame(0.f, 2), &open);
     EXPECT_TRUE(after.mouth_from_exemplar);
     EXPECT_FALSE(after.mouth_from_source);
-    EXPECT_EQ(green(after, nullptr), 0);
+    EXPECT_EQ(count_green(after.rendered), 0);
   }
   {
     o.source_mouth = false;
@@ -462,7 +463,7 @@ TEST(MouthInteriorTest, TheSourceActorsMouthStandsInUntilTheTargetOpensItsOwn) {
     const ReenactedFrame r = pipeline.Process(target_frame(0.f, 0), &open);
     ASSERT_TRUE(r.mouth_drawn);
     EXPECT_FALSE(r.mouth_from_source || r.mouth_from_exemplar);
-    EXPECT_EQ(green(r, nullptr), 0) << "off: the model's teeth";
+    EXPECT_EQ(count_green(r.rendered), 0) << "off: the model's teeth";
   }
   {
     // A source whose mouth is closed in its frame (the output opens only by the weights): nothing
@@ -525,12 +526,7 @@ TEST(MouthInteriorTest, ASourceFilmedFromBelowStillLendsItsMouth) {
     ReenactmentPipeline pipeline(*test_model(), o);
     const ReenactedFrame r = pipeline.Process(ground_truth_frame(cam, 0.f, 0), &expression);
     ASSERT_TRUE(r.reenacted && r.mouth_drawn);
-    int green = 0;
-    for (int j = 0; j < cam.height; ++j)
-      for (int i = 0; i < cam.width; ++i) {
-        const cv::Vec3b px = r.rendered.at<cv::Vec3b>(j, i);
-        green += px[1] > px[0] + 40 && px[1] > px[2] + 40;
-      }
+    const int green = count_green(r.rendered);
     RecordProperty("green_pixels_pitch_" + std::to_string(static_cast<int>(pitch)) + "_yaw_" + std::to_string(static_cast<int>(yaw)), green);
     EXPECT_EQ(r.mouth_from_source, lends) << "pitch " << pitch << ", yaw " << yaw << " (" << turn << " degrees from the camera)";
     if (lends) EXPECT_GT(green, 100) << "pitch " << pitch << ": the source's interior fills the opening";

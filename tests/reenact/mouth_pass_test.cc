@@ -140,6 +140,11 @@ TEST(MouthPassTest, ApertureLightIsTheShareOfTheHemisphereTheOpeningSubtends) {
   EXPECT_EQ(MouthApertureLight(0.f, 0.01f), 0.f);
   EXPECT_EQ(MouthApertureLight(std::nanf(""), 0.01f), 0.f);
   EXPECT_EQ(MouthApertureLight(0.02f, std::numeric_limits<float>::infinity()), 0.f);
+  // What the model's teeth and tongue are drawn with: the light the mouth's inside bounces, and the
+  // aperture's share of the rest.
+  EXPECT_FLOAT_EQ(MouthInteriorLight(0.02f, 0.f), 1.f) << "at the lip line";
+  EXPECT_NEAR(MouthInteriorLight(0.02f, 0.02f), kMouthBounceLight + (1.f - kMouthBounceLight) * 0.5f, 1e-6f);
+  EXPECT_FLOAT_EQ(MouthInteriorLight(0.f, 0.01f), kMouthBounceLight) << "no opening: the bounce alone";
 }
 
 // Issue #28: without an open-mouth image, the model's tongue was shaded at its own normal and
@@ -170,8 +175,7 @@ TEST(MouthPassTest, TheTongueIsLitThroughTheOpeningByItsSizeAndDepth) {
             std::abs(j - 34) < 14)
           s.paint(i, j, 3);
     const double radius_m = std::sqrt(PolygonArea(s.opening) / M_PI) * Scene::kLipZ / lighting.focal_px;
-    const double r2 = radius_m * radius_m;
-    const double light = kMouthBounceLight + (1.0 - kMouthBounceLight) * r2 / (r2 + depth_m * depth_m);
+    const double light = MouthInteriorLight(static_cast<float>(radius_m), depth_m);
     *expected = std::max(light * tongue_albedo[0] * 2.0, 0.018);  // the cavity's floor
     const Scene::Drawn d = s.Draw(nullptr, &lighting);
     return srgb_decode(d.rendered.at<cv::Vec3f>(34, 60)[2] / 255.f);
@@ -207,8 +211,7 @@ TEST(MouthPassTest, TeethTakeTheLightFromInFrontOnlyUpToTheirOwnShading) {
       for (int i = 40; i < 81; ++i) s.paint(i, j, 1);  // teeth 1 cm in, shaded (0.8, 0.8, 0.75)
     lighting.front_light = Eigen::Vector3f(front, front, front);
     const double radius_m = std::sqrt(PolygonArea(s.opening) / M_PI) * Scene::kLipZ / lighting.focal_px;
-    const double share =
-        kMouthBounceLight + (1.0 - kMouthBounceLight) * radius_m * radius_m / (radius_m * radius_m + 0.01 * 0.01);
+    const double share = MouthInteriorLight(static_cast<float>(radius_m), 0.01f);
     const double drawn = srgb_decode(s.Draw(nullptr, &lighting).rendered.at<cv::Vec3f>(34, 60)[1] / 255.f);
     return drawn / share;  // the light the teeth took, before the mouth's share (MouthInteriorLight)
   };
