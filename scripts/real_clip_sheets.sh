@@ -136,6 +136,14 @@ ffmpeg -loglevel error -y "${turned[@]}" -filter_complex \
 mkdir -p "$OUT/mouth_from_below"
 "$FR" reenact --source "$VIDEOS/liveportrait_d10.mp4" --target "$tgt" --frames 90 --out "$OUT/mouth_from_below/out.mp4" \
       --quiet --sheets "$OUT/mouth_from_below" --sheet-frames 40,80
+# A closed mouth's seam (docs/reenactment.md, "A closed mouth's seam"): d6 pressing her lips onto the webcam clip's
+# closed mouth, output frame 120, the mouth 4x, target above output (seam.png: one soft line like the target's, no
+# dashes).
+"$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$tgt" --frames 122 --out "$OUT/seam.mp4" --quiet \
+      --frames-dir "$OUT/seam"
+ffmpeg -loglevel error -y -i "$tgt" -i "$OUT/seam/frame_000120.png" -filter_complex \
+       "[0]select='eq(n\,120)',crop=110:50:225:245,scale=440:200:flags=neighbor[a];[1]crop=110:50:225:245,scale=440:200:flags=neighbor[b];[a][b]vstack" \
+       -frames:v 1 "$OUT/seam.png"
 # The source's folds and wrinkles (docs/reenactment.md, "Detail transfer"), each pair without and with the transfer.
 mkdir -p "$OUT/detail"
 detail_runs() {  # detail_runs SOURCE_CLIP FRAMES NAME: $OUT/detail/NAME_{off,transient}/frame_*.png

@@ -365,6 +365,73 @@ TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps
                                  << " against the lips' median " << lips;
 }
 
+// The seam of a target's closed lips is carried to the output's closed lips, whole. The frame
+// texture held the inner lip line as an occluding boundary whatever the target's mouth did, so
+// the output's lips distrusted their samples over a band as tall as the ramp and drew the seam
+// from the fill and the map: a dotted or dashed dark line where the lips' inner faces fell on
+// pixel centres, nothing between (d6 pressing her lips onto the webcam clip, output frame 120;
+// d14 onto it, frame 30). Here the target's closed mouth has its seam painted dark along the
+// inner lips, and the output moves the mouth aside (mouthLeft 0.6): along the output's seam,
+// every column must keep a pixel darker than the lips. Before, the lightest column's darkest
+// pixel was 1.01 of the lips' median (no seam in it, over its last 9 columns); now 0.81.
+TEST(ReenactCompositorTest, AClosedMouthsSeamIsCarriedWholeToTheOutputsClosedLips) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  gpu::FaceParameters target = test_face(0.45f);
+  target.delta[kJawOpenIndex] = 0.0f;
+  gpu::FaceParameters pressed = target;
+  pressed.delta[arkit_blendshape_index("mouthLeft")] = 0.6f;
+  const std::vector<int32_t> inner_lips = landmark_vertices(model, 60, 67);
+  ASSERT_EQ(inner_lips.size(), 8u);
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  // The midline of a state's inner lips (60, the midpoints of 61/67, 62/66, 63/65, then 64), in pixels.
+  auto seam_of = [&](const gpu::FaceParameters& p) {
+    const std::vector<cv::Point> q = project_vertices(renderer.evaluate(p), cam, inner_lips);
+    std::vector<cv::Point2f> line = {cv::Point2f(q[0])};
+    for (size_t k = 1; k <= 3; ++k) line.push_back(0.5f * (cv::Point2f(q[k]) + cv::Point2f(q[8 - k])));
+    line.push_back(cv::Point2f(q[4]));
+    return line;
+  };
+  cv::Mat frame = render_target(target, cam);
+  std::vector<cv::Point> painted;
+  for (const cv::Point2f& q : seam_of(target)) painted.emplace_back(cvRound(q.x), cvRound(q.y));
+  cv::polylines(frame, painted, false, cv::Scalar(40, 30, 60), 1, cv::LINE_8);
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(frame, cam, target, &albedo);
+  const CompositeResult c = fc.Compose(frame, cam, target, pressed, &albedo);
+  ASSERT_TRUE(c.drawn);
+  cv::Mat gray;
+  cv::cvtColor(c.rendered_bgr, gray, cv::COLOR_BGR2GRAY);
+  const std::vector<cv::Point2f> line = seam_of(pressed);
+  // Per column between the corners (3 px in from each), the darkest pixel within 2 rows of the
+  // line; the lips: the pixels 3-6 rows above and below it.
+  std::vector<double> darkest;
+  std::vector<uchar> lips;
+  const int first = static_cast<int>(std::ceil(line.front().x)) + 3, last = static_cast<int>(std::floor(line.back().x)) - 3;
+  for (int x = first; x <= last; ++x) {
+    size_t k = 0;
+    while (k + 2 < line.size() && x > line[k + 1].x) ++k;
+    const float s = std::clamp((x - line[k].x) / (line[k + 1].x - line[k].x), 0.0f, 1.0f);
+    const int y = cvRound((1 - s) * line[k].y + s * line[k + 1].y);
+    double m = 255;
+    for (int dy = -2; dy <= 2; ++dy) m = std::min(m, static_cast<double>(gray.at<uchar>(y + dy, x)));
+    darkest.push_back(m);
+    for (int dy = 3; dy <= 6; ++dy) {
+      lips.push_back(gray.at<uchar>(y - dy, x));
+      lips.push_back(gray.at<uchar>(y + dy, x));
+    }
+  }
+  ASSERT_GT(darkest.size(), 10u);
+  std::nth_element(lips.begin(), lips.begin() + lips.size() / 2, lips.end());
+  const double lip = lips[lips.size() / 2];
+  const double lightest = *std::max_element(darkest.begin(), darkest.end());
+  RecordProperty("seam_lightest_column_over_lips", std::to_string(lightest / lip));
+  EXPECT_LT(lightest, 0.85 * lip) << "a column of the output's closed lips shows no seam: its darkest pixel "
+                                  << lightest << " against the lips' median " << lip;
+}
+
 // The eye tests paint the frame's eyes blue: of the pixels of `bgr` under `mask`, those that show
 // that blue (blue 60 levels above the other channels), those white (every channel above 150, the
 // model's eyeball), and all.

@@ -225,6 +225,7 @@ struct FaceCompositor::Impl {
   // The inner lip line and the lid margins (iBUG 60-67, 36-41, 42-47), each in order around its
   // opening: where a closed mouth or eye meets itself, with no change of surface in a G-buffer.
   std::vector<std::vector<int32_t>> seam_contours;
+  int lip_seam_contour = -1;                        // the inner lip line's index in seam_contours
   std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
   std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
   std::vector<int> lid_eye_slot;                    // per lid contour: its eye's EyeSlot
@@ -273,6 +274,7 @@ struct FaceCompositor::Impl {
         lid_opening.push_back(first == 36 ? 0 : 1);
         lid_contours.push_back(contour);
       }
+      if (first == 60) lip_seam_contour = static_cast<int>(seam_contours.size());
       seam_contours.push_back(std::move(contour));
     }
     for (const auto& [inner, outer] : {std::pair{39, 36}, std::pair{42, 45}})
@@ -750,10 +752,11 @@ struct FaceCompositor::Impl {
   // Distance (pixels, over `roi`) from each pixel of `tg` (the target's rendering of `ts`) to the
   // nearest occluding boundary: a change of surface between neighbouring pixels (nothing drawn,
   // skin, an eyeball, teeth, tongue), a depth jump within one surface (an occluding contour such
-  // as the nose on a turned head), and the seam contours (a closed mouth or eye shows neither).
-  // Across such a boundary the frame shows something else than the surface on this side.
+  // as the nose on a turned head), and the seam contours (a closed mouth or eye shows neither),
+  // the inner lip line only `with_lip_seam`. Across such a boundary the frame shows something
+  // else than the surface on this side.
   cv::Mat BoundaryDistance(const gpu::GBuffer& tg, const gpu::VertexState& ts, const gpu::PinholeCamera& camera,
-                           const cv::Rect& roi) const {
+                           const cv::Rect& roi, bool with_lip_seam = true) const {
     constexpr float kDepthJumpM = 0.01f;  // ~10 pixel footprints at 0.6 m: no smooth surface but a grazing one
     const int w = camera.width;
     cv::Mat open(roi.size(), CV_8UC1, cv::Scalar(255));  // 0 on the boundary
@@ -776,7 +779,9 @@ struct FaceCompositor::Impl {
         }
       }
     });
-    DrawContours(seam_contours, ts, camera, roi.tl(), &open);
+    for (size_t k = 0; k < seam_contours.size(); ++k)
+      if (with_lip_seam || static_cast<int>(k) != lip_seam_contour)
+        DrawContours({seam_contours[k]}, ts, camera, roi.tl(), &open);
     cv::Mat dist;
     cv::distanceTransform(open, dist, cv::DIST_L2, cv::DIST_MASK_3);
     return dist;
@@ -836,6 +841,29 @@ struct FaceCompositor::Impl {
   }
   // The per-eye arrays' slot of an eyeball part: 0 the left eye (LeftEye), 1 the right.
   static int EyeSlot(FacePart part) { return part == FacePart::LeftEye ? 0 : 1; }
+
+  // How far apart `state` holds the inner lips, as a share of the mouth's width: the largest of
+  // the projected distances between iBUG 61 and 67, 62 and 66, 63 and 65 over the distance from
+  // 60 to 64 (infinite when the model has no inner lip landmarks or one is not in front of the
+  // camera).
+  float InnerLipGap(const gpu::VertexState& state, const gpu::PinholeCamera& camera) const {
+    if (inner_lip_vertices.size() != 8) return std::numeric_limits<float>::infinity();
+    std::array<Eigen::Vector2f, 8> at;
+    for (size_t k = 0; k < 8; ++k) {
+      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * inner_lip_vertices[k]);
+      if (!(x.z() > camera.near_plane) || !x.allFinite()) return std::numeric_limits<float>::infinity();
+      at[k] = project(camera, x);
+    }
+    float gap = 0.f;
+    for (size_t k = 1; k <= 3; ++k) gap = std::max(gap, (at[k] - at[8 - k]).norm());
+    const float width = (at[4] - at[0]).norm();
+    return width > 0.f ? gap / width : std::numeric_limits<float>::infinity();
+  }
+  // Lips further apart than this share of the mouth's width are parted (InnerLipGap). The
+  // model's inner lip vertices do not meet where real lips close: over the webcam clip's 284
+  // frames (its fits, d6 reenacted onto it) the gap was 0.02-0.04 on 158, its closed mouth, and
+  // its talking mouth's a second cluster at 0.10-0.16, with 9 frames at 0.08-0.10 between.
+  static constexpr float kLipsParted = 0.08f;
 
   // Appearance::kFrameTexture: every drawn pixel of `g` (the output's G-buffer)
   // whose surface point the target frame shows takes that frame's colour there, times the
@@ -902,7 +930,14 @@ struct FaceCompositor::Impl {
     if (distrust) {
       const int margin = static_cast<int>(std::ceil(ramp_px)) + 2;
       roi = covered_rect(tg, margin);
-      if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi);
+      // Not the inner lip line of lips the target holds closed: across it the frame shows the
+      // other lip and the seam where they meet, which is what the output's lips, closed or
+      // moved, are to show there too. Held as a boundary, it distrusted the samples in a band as
+      // tall as the ramp, and the output's seam was what the fill and the albedo map drew there:
+      // a dotted or dashed dark line where the lips' inner faces fell on pixel centres, nothing
+      // between (d6 pressing her lips onto the webcam clip, output frame 120; d14 onto it, 30).
+      const bool target_lips_parted = InnerLipGap(ts, camera) > kLipsParted;
+      if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi, target_lips_parted);
       // Samples landing here are next to the opening the mouth pass redraws.
       if (mouth_redraw > 0.f) {
         for (int32_t v : inner_lip_vertices) {
