@@ -409,7 +409,8 @@ TEST(ReenactCompositorTest, AClosedMouthsSeamIsCarriedWholeToTheOutputsClosedLip
   // line; the lips: the pixels 3-6 rows above and below it.
   std::vector<double> darkest;
   std::vector<uchar> lips;
-  const int first = static_cast<int>(std::ceil(line.front().x)) + 3, last = static_cast<int>(std::floor(line.back().x)) - 3;
+  const int first = static_cast<int>(std::ceil(line.front().x)) + 3;
+  const int last = static_cast<int>(std::floor(line.back().x)) - 3;
   for (int x = first; x <= last; ++x) {
     size_t k = 0;
     while (k + 2 < line.size() && x > line[k + 1].x) ++k;
