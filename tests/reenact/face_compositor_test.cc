@@ -461,6 +461,42 @@ int count_pixels(const cv::Mat& bgr, const cv::Mat& mask, const std::function<bo
 }
 bool is_white(const cv::Vec3b& px, int above) { return std::min({px[0], px[1], px[2]}) > above; }
 
+// The other side of the rule above: lips the output parts keep the inner lip line as a boundary.
+// Trusted there, the samples of a closed target's seam were drawn as a dark rim along the opened
+// upper lip (d6 onto the webcam clip, output frame 30). The same painted seam, the mouth opened:
+// no face pixel outside the mouth's own layer may take the seam's colour (26 did when only the
+// target's lips decided).
+TEST(ReenactCompositorTest, AClosedMouthsSeamIsNotDrawnAlongLipsTheOutputParts) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(320, 240);
+  gpu::FaceParameters target = test_face(0.45f);
+  target.delta[kJawOpenIndex] = 0.0f;
+  gpu::FaceParameters open = target;
+  open.delta[kJawOpenIndex] = 0.5f;
+  const std::vector<int32_t> inner_lips = landmark_vertices(model, 60, 67);
+  ASSERT_EQ(inner_lips.size(), 8u);
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  const std::vector<cv::Point> q = project_vertices(renderer.evaluate(target), cam, inner_lips);
+  std::vector<cv::Point> painted = {q[0]};
+  for (size_t k = 1; k <= 3; ++k) painted.push_back((q[k] + q[8 - k]) / 2);
+  painted.push_back(q[4]);
+  cv::Mat frame = render_target(target, cam);
+  // The seam in a colour no face or mouth part has: saturated blue.
+  cv::polylines(frame, painted, false, cv::Scalar(255, 40, 0), 1, cv::LINE_8);
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(frame, cam, target, &albedo);
+  const CompositeResult c = fc.Compose(frame, cam, target, open, &albedo);
+  ASSERT_TRUE(c.drawn);
+  ASSERT_TRUE(c.mouth_drawn);
+  const cv::Mat face = c.face_mask & ~c.mouth_mask;
+  const int blue = count_pixels(c.rendered_bgr, face, [](const cv::Vec3b& px) { return px[0] - std::max(px[1], px[2]) > 40; });
+  RecordProperty("seam_blue_face_pixels", std::to_string(blue));
+  EXPECT_EQ(blue, 0) << "the closed target's seam was drawn along the output's opened lips";
+}
+
+
 // The eye openings (iBUG 36-41, 42-47) of an evaluated face, filled.
 cv::Mat eye_openings(const FaceModel& model, const gpu::VertexState& state, const gpu::PinholeCamera& cam) {
   cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);

@@ -930,14 +930,16 @@ struct FaceCompositor::Impl {
     if (distrust) {
       const int margin = static_cast<int>(std::ceil(ramp_px)) + 2;
       roi = covered_rect(tg, margin);
-      // Not the inner lip line of lips the target holds closed: across it the frame shows the
-      // other lip and the seam where they meet, which is what the output's lips, closed or
-      // moved, are to show there too. Held as a boundary, it distrusted the samples in a band as
-      // tall as the ramp, and the output's seam was what the fill and the albedo map drew there:
-      // a dotted or dashed dark line where the lips' inner faces fell on pixel centres, nothing
-      // between (d6 pressing her lips onto the webcam clip, output frame 120; d14 onto it, 30).
-      const bool target_lips_parted = InnerLipGap(ts, camera) > kLipsParted;
-      if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi, target_lips_parted);
+      // Not the inner lip line where both the target and the output hold the lips closed:
+      // across it the frame shows the other lip and the seam where they meet, which is what the
+      // output's closed lips are to show there too. Held as a boundary, it distrusted the samples
+      // in a band as tall as the ramp, and the output's seam was what the fill and the albedo map
+      // drew there: a dotted or dashed dark line where the lips' inner faces fell on pixel
+      // centres, nothing between (d6 pressing her lips onto the webcam clip, output frame 120;
+      // d14 onto it, 30). Lips the output parts keep it: trusted, the target's seam was drawn as
+      // a dark rim along the opened upper lip (d6 onto the webcam clip, frame 30).
+      const bool lips_closed = InnerLipGap(ts, camera) <= kLipsParted && InnerLipGap(out_state, camera) <= kLipsParted;
+      if (!roi.empty()) boundary_px = BoundaryDistance(tg, ts, camera, roi, /*with_lip_seam=*/!lips_closed);
       // Samples landing here are next to the opening the mouth pass redraws.
       if (mouth_redraw > 0.f) {
         for (int32_t v : inner_lip_vertices) {
