@@ -365,6 +365,30 @@ TEST(ReenactCompositorTest, DistrustedSkinTakesTheFramesColourAroundItNotTheMaps
                                  << " against the lips' median " << lips;
 }
 
+// The midline of `p`'s inner lips in pixels: iBUG 60, the midpoints of 61/67, 62/66 and 63/65,
+// then 64.
+std::vector<cv::Point2f> inner_lip_midline(const FaceModel& model, const gpu::FaceParameters& p,
+                                           const gpu::PinholeCamera& cam) {
+  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
+  const std::vector<cv::Point> q = project_vertices(renderer.evaluate(p), cam, landmark_vertices(model, 60, 67));
+  if (q.size() != 8u) return {};
+  std::vector<cv::Point2f> line = {cv::Point2f(q[0])};
+  for (size_t k = 1; k <= 3; ++k) line.push_back(0.5f * (cv::Point2f(q[k]) + cv::Point2f(q[8 - k])));
+  line.push_back(cv::Point2f(q[4]));
+  return line;
+}
+
+// `target` rendered with a closed mouth's seam painted along its inner lips' midline in `colour`
+// (a line a pixel wide).
+cv::Mat frame_with_painted_seam(const FaceModel& model, const gpu::FaceParameters& target, const gpu::PinholeCamera& cam,
+                                const cv::Scalar& colour) {
+  cv::Mat frame = render_target(target, cam);
+  std::vector<cv::Point> painted;
+  for (const cv::Point2f& q : inner_lip_midline(model, target, cam)) painted.emplace_back(cvRound(q.x), cvRound(q.y));
+  cv::polylines(frame, painted, false, colour, 1, cv::LINE_8);
+  return frame;
+}
+
 // The seam of a target's closed lips is carried to the output's closed lips, whole. The frame
 // texture held the inner lip line as an occluding boundary whatever the target's mouth did, so
 // the output's lips distrusted their samples over a band as tall as the ramp and drew the seam
@@ -382,21 +406,7 @@ TEST(ReenactCompositorTest, AClosedMouthsSeamIsCarriedWholeToTheOutputsClosedLip
   target.delta[kJawOpenIndex] = 0.0f;
   gpu::FaceParameters pressed = target;
   pressed.delta[arkit_blendshape_index("mouthLeft")] = 0.6f;
-  const std::vector<int32_t> inner_lips = landmark_vertices(model, 60, 67);
-  ASSERT_EQ(inner_lips.size(), 8u);
-  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
-  // The midline of a state's inner lips (60, the midpoints of 61/67, 62/66, 63/65, then 64), in pixels.
-  auto seam_of = [&](const gpu::FaceParameters& p) {
-    const std::vector<cv::Point> q = project_vertices(renderer.evaluate(p), cam, inner_lips);
-    std::vector<cv::Point2f> line = {cv::Point2f(q[0])};
-    for (size_t k = 1; k <= 3; ++k) line.push_back(0.5f * (cv::Point2f(q[k]) + cv::Point2f(q[8 - k])));
-    line.push_back(cv::Point2f(q[4]));
-    return line;
-  };
-  cv::Mat frame = render_target(target, cam);
-  std::vector<cv::Point> painted;
-  for (const cv::Point2f& q : seam_of(target)) painted.emplace_back(cvRound(q.x), cvRound(q.y));
-  cv::polylines(frame, painted, false, cv::Scalar(40, 30, 60), 1, cv::LINE_8);
+  const cv::Mat frame = frame_with_painted_seam(model, target, cam, cv::Scalar(40, 30, 60));
   const FaceCompositor fc(model, ReenactmentOptions{});
   AlbedoMap albedo;
   fc.ObserveAlbedo(frame, cam, target, &albedo);
@@ -404,7 +414,8 @@ TEST(ReenactCompositorTest, AClosedMouthsSeamIsCarriedWholeToTheOutputsClosedLip
   ASSERT_TRUE(c.drawn);
   cv::Mat gray;
   cv::cvtColor(c.rendered_bgr, gray, cv::COLOR_BGR2GRAY);
-  const std::vector<cv::Point2f> line = seam_of(pressed);
+  const std::vector<cv::Point2f> line = inner_lip_midline(model, pressed, cam);
+  ASSERT_EQ(line.size(), 5u);
   // Per column between the corners (3 px in from each), the darkest pixel within 2 rows of the
   // line; the lips: the pixels 3-6 rows above and below it.
   std::vector<double> darkest;
@@ -474,16 +485,8 @@ TEST(ReenactCompositorTest, AClosedMouthsSeamIsNotDrawnAlongLipsTheOutputParts) 
   target.delta[kJawOpenIndex] = 0.0f;
   gpu::FaceParameters open = target;
   open.delta[kJawOpenIndex] = 0.5f;
-  const std::vector<int32_t> inner_lips = landmark_vertices(model, 60, 67);
-  ASSERT_EQ(inner_lips.size(), 8u);
-  const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
-  const std::vector<cv::Point> q = project_vertices(renderer.evaluate(target), cam, inner_lips);
-  std::vector<cv::Point> painted = {q[0]};
-  for (size_t k = 1; k <= 3; ++k) painted.push_back((q[k] + q[8 - k]) / 2);
-  painted.push_back(q[4]);
-  cv::Mat frame = render_target(target, cam);
   // The seam in a colour no face or mouth part has: saturated blue.
-  cv::polylines(frame, painted, false, cv::Scalar(255, 40, 0), 1, cv::LINE_8);
+  const cv::Mat frame = frame_with_painted_seam(model, target, cam, cv::Scalar(255, 40, 0));
   const FaceCompositor fc(model, ReenactmentOptions{});
   AlbedoMap albedo;
   fc.ObserveAlbedo(frame, cam, target, &albedo);

@@ -323,20 +323,20 @@ std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& fr
   std::vector<char> on_eye(gw * static_cast<size_t>(g.height)), across(on_eye.size()), near(on_eye.size());
   for (int j = 0; j < g.height; ++j)
     for (int i = 0; i < g.width; ++i) on_eye[static_cast<size_t>(j) * gw + static_cast<size_t>(i)] = part_at(i, j) == eye.part;
-  for (int j = 0; j < g.height; ++j)
-    for (int i = 0; i < g.width; ++i) {
-      char any = 0;
-      for (int ii = std::max(0, i - kLidReachPx); ii <= std::min(g.width - 1, i + kLidReachPx) && !any; ++ii)
-        any = on_eye[static_cast<size_t>(j) * gw + static_cast<size_t>(ii)];
-      across[static_cast<size_t>(j) * gw + static_cast<size_t>(i)] = any;
-    }
-  for (int j = 0; j < g.height; ++j)
-    for (int i = 0; i < g.width; ++i) {
-      char any = 0;
-      for (int jj = std::max(0, j - kLidReachPx); jj <= std::min(g.height - 1, j + kLidReachPx) && !any; ++jj)
-        any = across[static_cast<size_t>(jj) * gw + static_cast<size_t>(i)];
-      near[static_cast<size_t>(j) * gw + static_cast<size_t>(i)] = any;
-    }
+  // `to` at (i, j): whether `from` is set within kLidReachPx along the rows (di 1) or the columns (dj 1).
+  auto spread = [&](const std::vector<char>& from, std::vector<char>* to, int di, int dj) {
+    for (int j = 0; j < g.height; ++j)
+      for (int i = 0; i < g.width; ++i) {
+        char any = 0;
+        for (int k = -kLidReachPx; k <= kLidReachPx && !any; ++k) {
+          const int ii = i + k * di, jj = j + k * dj;
+          any = ii >= 0 && jj >= 0 && ii < g.width && jj < g.height && from[static_cast<size_t>(jj) * gw + static_cast<size_t>(ii)];
+        }
+        (*to)[static_cast<size_t>(j) * gw + static_cast<size_t>(i)] = any;
+      }
+  };
+  spread(on_eye, &across, 1, 0);
+  spread(across, &near, 0, 1);
   for (int j = 0; j < g.height; ++j) {
     for (int i = 0; i < g.width; ++i) {
       if (!near[static_cast<size_t>(j) * gw + static_cast<size_t>(i)] || part_at(i, j) != face) continue;
