@@ -225,8 +225,7 @@ struct FaceCompositor::Impl {
   // The inner lip line and the lid margins (iBUG 60-67, 36-41, 42-47), each in order around its
   // opening: where a closed mouth or eye meets itself, with no change of surface in a G-buffer.
   std::vector<std::vector<int32_t>> seam_contours;
-  int lip_seam_contour = -1;                        // the inner lip line's index in seam_contours
-  std::vector<std::vector<int32_t>> lid_contours;  // the two lid margins alone (36-41, 42-47)
+  std::vector<std::vector<int32_t>> lid_contours;  // the seam contours but the lips' (lid margins 36-41, 42-47)
   std::vector<int> lid_blink_index;                 // per lid contour: its eye's eyeBlink blendshape
   std::vector<int> lid_eye_slot;                    // per lid contour: its eye's EyeSlot
   std::vector<int> lid_opening;                     // per lid contour: its EyeOpenings index (0: 36-41)
@@ -274,7 +273,6 @@ struct FaceCompositor::Impl {
         lid_opening.push_back(first == 36 ? 0 : 1);
         lid_contours.push_back(contour);
       }
-      if (first == 60) lip_seam_contour = static_cast<int>(seam_contours.size());
       seam_contours.push_back(std::move(contour));
     }
     for (const auto& [inner, outer] : {std::pair{39, 36}, std::pair{42, 45}})
@@ -753,8 +751,8 @@ struct FaceCompositor::Impl {
   // nearest occluding boundary: a change of surface between neighbouring pixels (nothing drawn,
   // skin, an eyeball, teeth, tongue), a depth jump within one surface (an occluding contour such
   // as the nose on a turned head), and the seam contours (a closed mouth or eye shows neither),
-  // the inner lip line only `with_lip_seam`. Across such a boundary the frame shows something
-  // else than the surface on this side.
+  // the inner lip line only `with_lip_seam` (without it, the lids' alone). Across such a boundary
+  // the frame shows something else than the surface on this side.
   cv::Mat BoundaryDistance(const gpu::GBuffer& tg, const gpu::VertexState& ts, const gpu::PinholeCamera& camera,
                            const cv::Rect& roi, bool with_lip_seam = true) const {
     constexpr float kDepthJumpM = 0.01f;  // ~10 pixel footprints at 0.6 m: no smooth surface but a grazing one
@@ -779,9 +777,7 @@ struct FaceCompositor::Impl {
         }
       }
     });
-    for (size_t k = 0; k < seam_contours.size(); ++k)
-      if (with_lip_seam || static_cast<int>(k) != lip_seam_contour)
-        DrawContours({seam_contours[k]}, ts, camera, roi.tl(), &open);
+    DrawContours(with_lip_seam ? seam_contours : lid_contours, ts, camera, roi.tl(), &open);
     cv::Mat dist;
     cv::distanceTransform(open, dist, cv::DIST_L2, cv::DIST_MASK_3);
     return dist;
@@ -847,13 +843,8 @@ struct FaceCompositor::Impl {
   // 60 to 64 (infinite when the model has no inner lip landmarks or one is not in front of the
   // camera).
   float InnerLipGap(const gpu::VertexState& state, const gpu::PinholeCamera& camera) const {
-    if (inner_lip_vertices.size() != 8) return std::numeric_limits<float>::infinity();
-    std::array<Eigen::Vector2f, 8> at;
-    for (size_t k = 0; k < 8; ++k) {
-      const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * inner_lip_vertices[k]);
-      if (!(x.z() > camera.near_plane) || !x.allFinite()) return std::numeric_limits<float>::infinity();
-      at[k] = project(camera, x);
-    }
+    const std::vector<Eigen::Vector2f> at = Opening(camera, state);
+    if (at.size() != 8) return std::numeric_limits<float>::infinity();
     float gap = 0.f;
     for (size_t k = 1; k <= 3; ++k) gap = std::max(gap, (at[k] - at[8 - k]).norm());
     const float width = (at[4] - at[0]).norm();
