@@ -240,7 +240,7 @@ struct TrackArgs {
   int max_face_width = TrackerOptions{}.max_face_width_px;
   CameraArgs camera;  // --fov / --intrinsics: none = estimated for videos and webcams
   double tracking_tolerance = -1;  // < 0: TrackerOptions' default
-  bool every_pixel = false;         // the per-frame solves' dense terms on every pixel (the paper's)
+  bool every_pixel = false;         // the solves' dense terms on every pixel (the paper's)
   bool no_agreement_check = false;
   std::string solver = "auto";
   std::string device;
@@ -270,7 +270,8 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
     s->energy.use_brow_landmarks = a.brow_landmarks;
   }
   if (a.tracking_tolerance >= 0) o.tracking_solver.function_tolerance = a.tracking_tolerance;
-  if (a.every_pixel) o.tracking_solver.energy.pixel_sampling = o.recovery_solver.energy.pixel_sampling = 1;
+  if (a.every_pixel)
+    for (SolverOptions* s : {&o.calibration_solver, &o.tracking_solver, &o.recovery_solver}) s->energy.pixel_sampling = 1;
   o.gaze.enabled = !a.no_gaze;
   o.gaze.read_lids = !a.no_lids;
   o.brows.enabled = !a.no_brows;
@@ -619,6 +620,7 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
   j["pixel_sampling"] = tracker.options().tracking_solver.energy.pixel_sampling;  // 2: every other pixel
+  j["calibration_pixel_sampling"] = tracker.options().calibration_solver.energy.pixel_sampling;
   j["eye_corner_landmarks"] = tracker.options().tracking_solver.energy.eye_corner_landmarks;
   j["brow_landmarks"] = tracker.options().tracking_solver.energy.use_brow_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
@@ -813,9 +815,9 @@ void add_tracker_commands(CLI::App& app) {
                      "; 0 runs the paper's whole schedule, 7 + 1 iterations, on every frame)")
       ->check(CLI::Range(0.0, 1.0));
   tc->add_flag("--every-pixel", targs->every_pixel,
-               "Fit each frame's dense terms (colour, depth) on every pixel the face covers, as the paper does "
-               "(default: every other pixel, in a checkerboard, at 0.6-0.75 of the cost and the same accuracy; "
-               "the calibration takes every pixel either way)");
+               "Fit the dense terms (colour, depth) on every pixel the face covers, as the paper does, in the "
+               "calibration and in each frame's solve (default: every other pixel, in a checkerboard, at 0.45-0.75 "
+               "of the cost and the same accuracy)");
   tc->add_flag("--no-gaze", targs->no_gaze,
                "Do not read the gaze and the lids from the colour around the eyes (the eyeLook and eyeBlink weights "
                "are then the solver's, which cannot see the iris turn or, without the eye landmarks, a lid close)");

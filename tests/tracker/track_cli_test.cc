@@ -294,9 +294,9 @@ TEST(TrackCli, EarlyTerminationRunsFewerIterationsAndFitsAsWell) {
   EXPECT_NE(bad.exit_code, 0);
 }
 
-// The per-frame solves' dense terms on every other pixel (EnergyOptions::pixel_sampling 2, the
-// default) fit the same frames as well as every pixel (--every-pixel, the paper's); the report
-// says which ran.
+// The dense terms on every other pixel (EnergyOptions::pixel_sampling 2, the default of the
+// calibration and the per-frame solves) fit the same frames as well as every pixel (--every-pixel,
+// the paper's, for both); the report says which ran.
 TEST(TrackCli, EveryOtherPixelFitsAsWellAsEveryPixel) {
   REQUIRE_FIXTURE();
   const fs::path out = fx.dir / "sampling";
@@ -306,6 +306,8 @@ TEST(TrackCli, EveryOtherPixelFitsAsWellAsEveryPixel) {
   ASSERT_TRUE(half.contains("pixel_sampling"));
   EXPECT_EQ(half["pixel_sampling"], 2);
   EXPECT_EQ(every["pixel_sampling"], 1);
+  EXPECT_EQ(half["calibration_pixel_sampling"], 2);
+  EXPECT_EQ(every["calibration_pixel_sampling"], 1);
   ExpectFitsAsWell(half, every);
 }
 
