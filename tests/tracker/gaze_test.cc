@@ -177,7 +177,8 @@ TEST(Gaze, ReadsEyesTurnedTowardsEachOtherEyeByEye) {
     float tolerance;
   };
   for (const Case c : {Case{-0.6f, 0.6f, true, 0.1f}, Case{-0.8f, 0.4f, true, 0.1f}, Case{0.5f, -0.5f, true, 0.25f},
-                       Case{0.4f, 0.4f, false, 0.1f}, Case{-0.5f, -0.5f, false, 0.1f}}) {
+                       Case{0.4f, 0.4f, false, 0.1f}, Case{-0.5f, -0.5f, false, 0.1f}, Case{0.f, 0.9f, true, 0.15f},
+                       Case{-0.9f, 0.f, true, 0.15f}}) {
     SCOPED_TRACE(::testing::Message() << "left " << c.left << " right " << c.right);
     gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f);
     for (const auto& w : gaze.WeightsForEyes(c.left, c.right, 0.f)) truth.delta[w.index] = w.value;
