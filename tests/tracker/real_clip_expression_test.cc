@@ -1,7 +1,8 @@
 // What the tracker reads on a real clip without depth (issue #26 §4): liveportrait_d14, whose
 // actor blinks, closes her eyes, raises her brows and frowns, through `face-reenact track` with
 // its defaults (dlib's points; the lids from the eye points, eye_openness.h; the brows from the
-// brow points, brow_reader.h). Skipped without ../shared/data.
+// brow points, brow_reader.h); and liveportrait_d6, who crosses one eye (gaze.h). Skipped without
+// ../shared/data.
 #include <gtest/gtest.h>
 
 #include <nlohmann/json.hpp>
@@ -105,6 +106,44 @@ TEST(RealClipExpression, BlinksAndBrowsOfLivePortraitD14) {
   ASSERT_GT(eyes.size(), 50u);
   std::nth_element(eyes.begin(), eyes.begin() + static_cast<std::ptrdiff_t>(eyes.size() / 2), eyes.end());
   EXPECT_LT(eyes[eyes.size() / 2], 0.03) << "the eye points' median NME";
+}
+
+// liveportrait_d6 at frames 6-13 turns her right eye (the image's left) in towards the nose while
+// the left one looks ahead or a little in (checked by eye: ffmpeg's select=between(n\,6\,14),
+// crops of both eyes side by side). The gaze reader reads that eye past the model's range, and its
+// colour difference stays high at any reading; judged by the two eyes' sum the per-eye reading was
+// refused and both eyes took one full turn to her left (eyeLookOutLeft 1: the left eye turned
+// out). Each eye's own drop keeps the per-eye reading (gaze.h, vergence_improvement).
+TEST(RealClipExpression, OneEyeTurnedInOfLivePortraitD6) {
+  const char* shared = std::getenv("FR_SHARED_DATA");
+  const std::string video = std::string(shared ? shared : "") + "/videos/liveportrait_d6.mp4";
+  if (!shared || !std::filesystem::exists(video))
+    GTEST_SKIP() << "real test data 'videos/liveportrait_d6.mp4' not found: set FR_SHARED_DATA";
+  const char* cli = std::getenv("FR_CLI");
+  ASSERT_NE(cli, nullptr);
+  const char* model = std::getenv("FR_MODEL");
+  ::face_reenact::testing::TempDir dir("real_clip_d6_eyes");
+  const std::filesystem::path out = std::filesystem::path(dir.path()) / "d6.jsonl";
+  std::vector<std::string> args = {cli, "track", "--input", video, "--frames", "14", "--out", out.string(), "--quiet"};
+  if (model) args.insert(args.end(), {"--model", model});
+  const SubprocessResult r = run_subprocess(args);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(out);
+  std::vector<nlohmann::json> frames;
+  for (std::string line; std::getline(in, line);) frames.push_back(nlohmann::json::parse(line));
+  ASSERT_EQ(frames.size(), 14u);
+  auto weight = [&](int f, const char* name) {
+    return frames[size_t(f)]["expression"][size_t(arkit_blendshape_index(name))].get<double>();
+  };
+  int eye_by_eye = 0;
+  for (int f = 7; f <= 13; ++f) {
+    SCOPED_TRACE(f);
+    ASSERT_TRUE(frames[size_t(f)]["has_fit"].get<bool>());
+    EXPECT_LT(weight(f, "eyeLookOutLeft"), 0.2);  // the left eye is not turned out
+    EXPECT_GT(weight(f, "eyeLookInRight"), 0.5);  // the right eye is turned in
+    eye_by_eye += frames[size_t(f)]["gaze"].is_object() && !frames[size_t(f)]["gaze"]["per_eye"].is_null();
+  }
+  EXPECT_GE(eye_by_eye, 6) << "frames 7-13 read eye by eye";
 }
 
 }  // namespace

@@ -526,15 +526,18 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
       eye_grid(out.per_eye[e], eye_step, options.refine_steps);
     }
     const double apart = out.per_eye[1] - out.per_eye[0];
-    const double conjugate = at_conjugate[0] + at_conjugate[1], own = best[0] + best[1];
     // Turned towards each other or away (opposite sides): two readings of one side differing in
     // size are the side the iris hides in a corner (liveportrait_d0 glancing hard aside read -1.0
     // and -0.33, a conjugate -0.7). And only open eyes: in a slit each eye's few pixels read any
     // turn (liveportrait_d14 with her eyes nearly shut, frame 112: -0.6 and 0.97).
     bool open = true;
     for (int e = 0; e < 2; ++e) open = open && (blink_[e] < 0 || fit.delta[blink_[e]] <= options.max_blink_for_vergence);
-    out.vergent = open && out.per_eye[0] * out.per_eye[1] <= 0 && std::abs(apart) >= options.min_vergence &&
-                  conjugate - own >= options.vergence_improvement * conjugate;
+    // Each eye's own drop (GazeOptions::vergence_improvement): an eye turned past the model's
+    // range keeps most of its difference at any turn and would hide the other's in the sum.
+    bool lowered = false;
+    for (int e = 0; e < 2; ++e)
+      lowered = lowered || at_conjugate[e] - best[e] >= options.vergence_improvement * at_conjugate[e];
+    out.vergent = open && out.per_eye[0] * out.per_eye[1] <= 0 && std::abs(apart) >= options.min_vergence && lowered;
   }
   out.ok = true;
   return out;

@@ -71,12 +71,15 @@ struct GazeOptions {
   double min_improvement = 0.3;
   // Eyes that do not turn together (crossed, or turned out): after the conjugate reading each
   // eye's sideways turn is searched on its own, and the two are kept when they lie on opposite
-  // sides, differ by at least min_vergence, lower the colour difference of the conjugate reading
-  // by at least vergence_improvement of it, and neither eye is closed by more than
-  // max_blink_for_vergence. An actor crossing her eyes (liveportrait_d6, frames 102-116) read a
-  // full turn to one side for both eyes, since one eye matched it; her own turns lower the
-  // difference by 0.46-0.77 of it. A conjugate gaze's two eyes agree within the readings'
-  // scatter (0.1-0.2).
+  // sides, differ by at least min_vergence, one of them lowers its own colour difference at the
+  // conjugate reading by at least vergence_improvement of it, and neither eye is closed by more
+  // than max_blink_for_vergence. An actor crossing her eyes (liveportrait_d6, frames 102-116) read
+  // a full turn to one side for both eyes, since one eye matched it; her own turns lower the
+  // difference by 0.46-0.77 of it. Each eye on its own, not the two together: an eye turned
+  // further than the model turns it keeps most of its difference at any reading, and in the sum
+  // it hid the other eye's (d6 crossing one eye while the other looks ahead, frames 7-13: that
+  // eye's difference halved, the two together 0.2 lower; read as both eyes turned hard aside). A
+  // conjugate gaze's two eyes agree within the readings' scatter (0.1-0.2).
   bool read_vergence = true;
   double min_vergence = 0.3;
   double vergence_improvement = 0.3;
