@@ -21,6 +21,38 @@
 namespace face_reenact::tracker {
 namespace {
 
+// `face-reenact track` with its defaults over the first `frames` frames of the shared clip
+// videos/<clip>: one JSON object per frame, or *skip (the clip is not here) and nothing.
+std::vector<nlohmann::json> track_shared_clip(const std::string& clip, int frames, std::string* skip) {
+  const char* shared = std::getenv("FR_SHARED_DATA");
+  const std::string video = std::string(shared ? shared : "") + "/videos/" + clip;
+  if (!shared || !std::filesystem::exists(video)) {
+    *skip = "real test data 'videos/" + clip + "' not found: set FR_SHARED_DATA";
+    return {};
+  }
+  const char* cli = std::getenv("FR_CLI");
+  EXPECT_NE(cli, nullptr);
+  if (!cli) return {};
+  const char* model = std::getenv("FR_MODEL");
+  ::face_reenact::testing::TempDir dir("real_clip_expression");
+  const std::filesystem::path out = std::filesystem::path(dir.path()) / "track.jsonl";
+  std::vector<std::string> args = {cli, "track", "--input", video, "--frames", std::to_string(frames), "--out", out.string(),
+                                   "--quiet"};
+  if (model) args.insert(args.end(), {"--model", model});
+  const SubprocessResult r = run_subprocess(args);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(out);
+  std::vector<nlohmann::json> result;
+  for (std::string line; std::getline(in, line);) result.push_back(nlohmann::json::parse(line));
+  EXPECT_EQ(result.size(), static_cast<size_t>(frames));
+  return result;
+}
+
+// Blendshape `name` of frame f of track_shared_clip's output.
+double weight_at(const std::vector<nlohmann::json>& frames, int f, const char* name) {
+  return frames[size_t(f)]["expression"][size_t(arkit_blendshape_index(name))].get<double>();
+}
+
 // The frames were checked by eye on the clip itself (ffmpeg's select=eq(n\,N), crops of the eyes
 // and brows side by side, docs/tracker.md "Brows"):
 // - blinks at 16-18 and 65-67; 108-204 the eyes closed with brief half openings; open 24-48
@@ -30,26 +62,11 @@ namespace {
 // - both brows raised high (the eyes wide): 68-77;
 // - a frown (brows drawn down and together, the eyes squeezed half shut): 114-121.
 TEST(RealClipExpression, BlinksAndBrowsOfLivePortraitD14) {
-  const char* shared = std::getenv("FR_SHARED_DATA");
-  const std::string video = std::string(shared ? shared : "") + "/videos/liveportrait_d14.mp4";
-  if (!shared || !std::filesystem::exists(video))
-    GTEST_SKIP() << "real test data 'videos/liveportrait_d14.mp4' not found: set FR_SHARED_DATA";
-  const char* cli = std::getenv("FR_CLI");
-  ASSERT_NE(cli, nullptr);
-  const char* model = std::getenv("FR_MODEL");
-  ::face_reenact::testing::TempDir dir("real_clip_expression");
-  const std::filesystem::path out = std::filesystem::path(dir.path()) / "d14.jsonl";
-  std::vector<std::string> args = {cli, "track", "--input", video, "--frames", "262", "--out", out.string(), "--quiet"};
-  if (model) args.insert(args.end(), {"--model", model});
-  const SubprocessResult r = run_subprocess(args);
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  std::ifstream in(out);
-  std::vector<nlohmann::json> frames;
-  for (std::string line; std::getline(in, line);) frames.push_back(nlohmann::json::parse(line));
+  std::string skip;
+  const std::vector<nlohmann::json> frames = track_shared_clip("liveportrait_d14.mp4", 262, &skip);
+  if (!skip.empty()) GTEST_SKIP() << skip;
   ASSERT_EQ(frames.size(), 262u);
-  auto weight = [&](int f, const char* name) {
-    return frames[size_t(f)]["expression"][size_t(arkit_blendshape_index(name))].get<double>();
-  };
+  auto weight = [&](int f, const char* name) { return weight_at(frames, f, name); };
   auto mean = [&](int from, int to, const char* name) {
     double s = 0;
     int n = 0;
@@ -115,26 +132,11 @@ TEST(RealClipExpression, BlinksAndBrowsOfLivePortraitD14) {
 // refused and both eyes took one full turn to her left (eyeLookOutLeft 1: the left eye turned
 // out). Each eye's own drop keeps the per-eye reading (gaze.h, vergence_improvement).
 TEST(RealClipExpression, OneEyeTurnedInOfLivePortraitD6) {
-  const char* shared = std::getenv("FR_SHARED_DATA");
-  const std::string video = std::string(shared ? shared : "") + "/videos/liveportrait_d6.mp4";
-  if (!shared || !std::filesystem::exists(video))
-    GTEST_SKIP() << "real test data 'videos/liveportrait_d6.mp4' not found: set FR_SHARED_DATA";
-  const char* cli = std::getenv("FR_CLI");
-  ASSERT_NE(cli, nullptr);
-  const char* model = std::getenv("FR_MODEL");
-  ::face_reenact::testing::TempDir dir("real_clip_d6_eyes");
-  const std::filesystem::path out = std::filesystem::path(dir.path()) / "d6.jsonl";
-  std::vector<std::string> args = {cli, "track", "--input", video, "--frames", "14", "--out", out.string(), "--quiet"};
-  if (model) args.insert(args.end(), {"--model", model});
-  const SubprocessResult r = run_subprocess(args);
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  std::ifstream in(out);
-  std::vector<nlohmann::json> frames;
-  for (std::string line; std::getline(in, line);) frames.push_back(nlohmann::json::parse(line));
+  std::string skip;
+  const std::vector<nlohmann::json> frames = track_shared_clip("liveportrait_d6.mp4", 14, &skip);
+  if (!skip.empty()) GTEST_SKIP() << skip;
   ASSERT_EQ(frames.size(), 14u);
-  auto weight = [&](int f, const char* name) {
-    return frames[size_t(f)]["expression"][size_t(arkit_blendshape_index(name))].get<double>();
-  };
+  auto weight = [&](int f, const char* name) { return weight_at(frames, f, name); };
   int eye_by_eye = 0;
   for (int f = 7; f <= 13; ++f) {
     SCOPED_TRACE(f);
