@@ -22,7 +22,7 @@ namespace face_reenact::tracker {
 namespace {
 
 // `face-reenact track` with its defaults over the first `frames` frames of the shared clip
-// videos/<clip>: one JSON object per frame, or *skip (the clip is not here) and nothing.
+// videos/<clip>: one JSON object per frame line written, or *skip (the clip is not here) and nothing.
 std::vector<nlohmann::json> track_shared_clip(const std::string& clip, int frames, std::string* skip) {
   const char* shared = std::getenv("FR_SHARED_DATA");
   const std::string video = std::string(shared ? shared : "") + "/videos/" + clip;
@@ -44,8 +44,7 @@ std::vector<nlohmann::json> track_shared_clip(const std::string& clip, int frame
   std::ifstream in(out);
   std::vector<nlohmann::json> result;
   for (std::string line; std::getline(in, line);) result.push_back(nlohmann::json::parse(line));
-  EXPECT_EQ(result.size(), static_cast<size_t>(frames));
-  return result;
+  return result;  // the caller asserts the frame count
 }
 
 // Blendshape `name` of frame f of track_shared_clip's output.
