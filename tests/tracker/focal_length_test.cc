@@ -48,6 +48,9 @@ TEST(FocalLength, OptionsAndCameraHelpers) {
   o = FocalLengthOptions();
   o.grid_points = 2;
   EXPECT_FALSE(o.IsValid(&why));
+  o = FocalLengthOptions();
+  o.threads = -1;
+  EXPECT_FALSE(o.IsValid(&why));
   TrackerOptions to;
   to.focal_length.fallback_fov_deg = 0;
   EXPECT_FALSE(to.IsValid(&why));
@@ -73,6 +76,25 @@ TEST(FocalLength, EstimatesTheFieldOfViewOfRgbOnlyRendersWithinTenPercent) {
       EXPECT_EQ(static_cast<int>(e.energy_by_fov.size()), options.grid_points);
     }
   }
+}
+
+// The grid's fits run side by side on the pool (FocalLengthOptions::threads); each writes only
+// its own grid point, so the search reads the same energies and lens on one thread as on four.
+TEST(FocalLength, TheGridReadsTheSameOnAnyThreadCount) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const CpuSolver solver(*model);
+  const std::vector<InputFrame> frames = turning_head(solver, 70.0, 0.6f, 5, 31u);
+  FocalLengthOptions one, four;
+  one.threads = 1;
+  four.threads = 4;
+  const FocalLengthEstimate a = EstimateFocalLength(*model, frames, one);
+  const FocalLengthEstimate b = EstimateFocalLength(*model, frames, four);
+  ASSERT_TRUE(a.estimated) << a.message;
+  EXPECT_EQ(a.horizontal_fov_deg, b.horizontal_fov_deg);
+  EXPECT_EQ(a.energy, b.energy);
+  ASSERT_EQ(a.energy_by_fov.size(), b.energy_by_fov.size());
+  for (size_t i = 0; i < a.energy_by_fov.size(); ++i) EXPECT_EQ(a.energy_by_fov[i], b.energy_by_fov[i]) << "grid point " << i;
 }
 
 TEST(FocalLength, BadInputFallsBackToSixtyDegreesWithAMessage) {

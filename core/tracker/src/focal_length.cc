@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <limits>
 
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/model/face_model.h"
 #include "face_reenact/tracker/face_tracker.h"
 #include "tracker_internal.h"
@@ -18,6 +19,7 @@ bool FocalLengthOptions::IsValid(std::string* why) const {
     return fail_why(why, "focal length search: need 5 <= min_fov_deg < max_fov_deg <= 170");
   if (grid_points < 3) return fail_why(why, "focal length search: grid_points must be >= 3");
   if (refine_iterations < 0 || gauss_newton_iterations < 1) return fail_why(why, "focal length search: bad iteration counts");
+  if (threads < 0) return fail_why(why, "focal length search: threads must be >= 0 (0: one per hardware thread)");
   if (identity_components < 0) return fail_why(why, "focal length search: identity_components must be >= 0");
   if (!(w_identity >= 0 && w_landmarks > 0)) return fail_why(why, "focal length search: weights must be w_identity >= 0, w_landmarks > 0");
   if (!(fallback_fov_deg > 1 && fallback_fov_deg < 179)) return fail_why(why, "focal length search: fallback_fov_deg must be in (1, 179)");
@@ -218,7 +220,11 @@ class LandmarkFit {
         j.block<2, 3>(row, k_) = -dp * skew(rx);
         j.block<2, 3>(row, k_ + 3) = dp;
       }
-      const Eigen::MatrixXd a = j.transpose() * j;
+      // J^T J from its lower triangle (a symmetric rank update: half the product's work, which
+      // was most of this search's time), mirrored.
+      Eigen::MatrixXd a = Eigen::MatrixXd::Zero(local, local);
+      a.selfadjointView<Eigen::Lower>().rankUpdate(j.transpose());
+      a.triangularView<Eigen::StrictlyUpper>() = a.transpose();
       const Eigen::VectorXd b = j.transpose() * res;
       jtj->topLeftCorner(k_, k_) += a.topLeftCorner(k_, k_);
       jtj->block(0, off, k_, 6) += a.topRightCorner(k_, 6);
@@ -276,9 +282,12 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   std::vector<FitResult> grid(g);
   int best = -1;
   double e_min = std::numeric_limits<double>::infinity(), e_max = -e_min;
+  auto grid_fov = [&](int i) { return options.min_fov_deg + (options.max_fov_deg - options.min_fov_deg) * i / (g - 1); };
+  // The grid's fits are independent: side by side on the pool (the calibration waits for this
+  // search, and the live session's calibration has the other core idle).
+  ParallelFor(g, ResolvedThreadCount(options.threads), [&](int i) { grid[static_cast<size_t>(i)] = fit.Solve(grid_fov(i)); });
   for (int i = 0; i < g; ++i) {
-    const double fov = options.min_fov_deg + (options.max_fov_deg - options.min_fov_deg) * i / (g - 1);
-    grid[i] = fit.Solve(fov);
+    const double fov = grid_fov(i);
     out.energy_by_fov.emplace_back(fov, grid[i].energy);
     if (!std::isfinite(grid[i].energy)) continue;
     e_max = std::max(e_max, grid[i].energy);

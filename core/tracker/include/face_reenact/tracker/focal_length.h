@@ -35,6 +35,7 @@ struct FocalLengthOptions {
   double max_fov_deg = 100.0;
   int grid_points = 15;         // fields of view tried over the range, evenly spaced
   int refine_iterations = 10;   // golden-section steps between the grid's best and its neighbours
+  int threads = 0;              // grid points fitted side by side (0: one per hardware thread, at most 8)
   // The landmark fit per field of view.
   int gauss_newton_iterations = 20;
   // Leading identity components fitted (the rest stay at the mean). Measured on synthetic renders
