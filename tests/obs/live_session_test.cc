@@ -809,11 +809,14 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   EXPECT_EQ(session.timings().frames, 0);
   LiveFrame frame;
   uint64_t last = 0;
-  // Frames delivered before ResetTimings and still in flight (one being tracked, one rendering)
-  // belong to the measurement before it, so eight frames shown count at least six.
-  for (int k = 0; k < 8 && session.wait_frame(last, 10s, &frame); ++k) last = frame.sequence;
+  // Frames delivered before ResetTimings and still in flight belong to the measurement before it:
+  // with overlap_frames up to four (one waiting in the input's slot, one being tracked, one handed
+  // to the render thread, one rendering), so frames are shown until six count (at most 30; a clean
+  // clone's loaded ctest -j2 counted 4 of the first 8 shown).
+  for (int k = 0; k < 30 && session.timings().frames < 6 && session.wait_frame(last, 10s, &frame); ++k)
+    last = frame.sequence;
   const LiveTimings t = session.timings();
-  ASSERT_GE(t.frames, 5);
+  ASSERT_GE(t.frames, 6);
   EXPECT_EQ(t.tracked + t.calibrating + t.unchanged, t.frames);
   EXPECT_GT(t.tracked, 0);
   EXPECT_GT(t.seconds, 0.0);
