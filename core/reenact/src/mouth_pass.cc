@@ -192,17 +192,17 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   if (barely_open) {
     cv::morphologyEx(lips, lip_gaps, cv::MORPH_CLOSE, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(1, 3)));
     lip_gaps &= ~lips;
-    // So are the teeth and the tongue the rasteriser draws on the polygon's edge or just outside it
-    // (within 2 px): such an opening takes nothing past its polygon (below), and left to the face's
-    // rendering, in full or under a partly covered pixel, they were white specks and dashes on the
-    // lip line (d14 onto the webcam clip, output frames 95-97: tooth pixels at 170-190 between lips
-    // at 125-145).
-    constexpr int kGapReachPx = 2;
-    const cv::Mat near_opening = near_the_opening(kGapReachPx);
+    // So are the teeth and the tongue the rasteriser draws on the polygon's edge or outside it:
+    // such an opening takes nothing past its polygon (below), and left to the face's rendering,
+    // in full or under a partly covered pixel, they were white specks and dashes on the lip line
+    // (d14 onto the webcam clip, output frames 95-97: tooth pixels at 170-190 between lips at
+    // 125-145). Not only within 2 px of the polygon, as until 2026-12-03: cracks between the lips'
+    // meshes near a corner show teeth 3-4 px from it (liveportrait_d10 onto the webcam clip, output
+    // frames 100-101: (254, 235, 214) among lips at (167, 122, 119)).
     for (int j = zone.y; j < zone.y + zone.height; ++j)
       for (int i = zone.x; i < zone.x + zone.width; ++i) {
         const size_t p = static_cast<size_t>(j) * w + i;
-        if (opening.at<uchar>(j, i) == 255 || !near_opening.at<uchar>(j - zone.y, i - zone.x) || g.triangle[p] < 0) continue;
+        if (opening.at<uchar>(j, i) == 255 || g.triangle[p] < 0) continue;
         // On the edge (partly the opening's) only the rendering under the interior's share is lip.
         if ((kMouthParts & part_bit(part_of(g.vertices[3 * p]))) && !lip_gaps.at<uchar>(j - zone.y, i - zone.x))
           lip_gaps.at<uchar>(j - zone.y, i - zone.x) = opening.at<uchar>(j, i) ? kUnderOnly : 255;

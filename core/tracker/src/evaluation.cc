@@ -7,11 +7,11 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/model/face_model.h"
+#include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::kRadToDeg;
 namespace {
-
-constexpr double kRadToDeg = 57.29577951308232;
 
 // Camera-frame vertex positions of `p` (3N), double precision.
 Eigen::VectorXd camera_positions(const TrackerModel& model, const gpu::FaceParameters& p) {

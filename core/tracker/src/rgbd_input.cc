@@ -11,10 +11,7 @@
 
 namespace face_reenact::tracker {
 using internal::Clock;
-namespace {
-constexpr double kRadToDeg = 57.29577951308232;
-
-}  // namespace
+using internal::kRadToDeg;
 
 bool RgbdInputOptions::IsValid(std::string* why) const {
   if (!(stored_landmark_confidence > 0.f && stored_landmark_confidence <= 1.f)) {

@@ -15,6 +15,8 @@ namespace face_reenact::tracker::internal {
 
 using Clock = SteadyClock;
 
+constexpr double kRadToDeg = 57.29577951308232;
+
 // printf into a string (messages of a few hundred characters at most).
 template <typename... Args>
 std::string format(const char* fmt, Args... args) {
