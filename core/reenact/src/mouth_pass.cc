@@ -173,7 +173,11 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   // on the webcam clip, output frame 73: dashes of (107, 57, 55) between lips at (190, 130,
   // 135)); they are lip, in the colour of the lip pixels above and below them. A wider opening
   // keeps them: there the lips do not meet, and what shows between them is the mouth's inside.
-  // A gap pixel takes the mean of the nearest lip pixels above and below it (within 2 px).
+  // A gap pixel takes the mean of the nearest lip pixels above and below it (within 2 px). With an
+  // open-mouth image the lips' inner faces are not lips here (lip_at), and near a corner a gap can
+  // have only those above and below it: then it takes the mean of the skin within 3 px around it
+  // (the inner faces as the face's rendering drew them, which is lip), not the teeth it shows
+  // (liveportrait_d10 onto the webcam clip, output frame 99: two teeth pixels of (227, 210, 190)).
   auto fill_lip_gap = [&](int i, int j) {
     cv::Vec3f sum(0.f, 0.f, 0.f);
     int n = 0;
@@ -184,6 +188,14 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
         sum += rendered.at<cv::Vec3f>(y, i);
         ++n;
         break;
+      }
+    constexpr int kSkinAroundPx = 3;
+    for (int y = std::max(zone.y, j - kSkinAroundPx); n == 0 && y <= std::min(zone.y + zone.height - 1, j + kSkinAroundPx); ++y)
+      for (int x = std::max(zone.x, i - kSkinAroundPx); x <= std::min(zone.x + zone.width - 1, i + kSkinAroundPx); ++x) {
+        const size_t q = static_cast<size_t>(y) * w + x;
+        if (g.triangle[q] < 0 || (kMouthParts & part_bit(part_of(g.vertices[3 * q])))) continue;
+        sum += rendered.at<cv::Vec3f>(y, x);
+        ++n;
       }
     if (n > 0) rendered.at<cv::Vec3f>(j, i) = sum / static_cast<float>(n);
   };
