@@ -650,7 +650,8 @@ struct ReenactedFrame {
 };
 // Output frames `frames` (ascending) of `clip` reenacted onto the webcam clip, with the target's
 // frames; empty and `why` set when the shared data or the model is missing.
-std::vector<ReenactedFrame> ReenactOntoTheWebcamClip(const char* clip, const std::vector<int>& frames, std::string* why) {
+std::vector<ReenactedFrame> ReenactOntoTheWebcamClip(const char* clip, const std::vector<int>& frames,
+                                                     std::string* why) {
   const char* data = std::getenv("FR_SHARED_DATA");
   const fs::path target = fs::path(data ? data : "") / "videos" / "webcam_talking_640x480.wmv";
   const fs::path source = fs::path(data ? data : "") / "videos" / clip;

@@ -190,8 +190,10 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
         break;
       }
     constexpr int kSkinAroundPx = 3;
-    for (int y = std::max(zone.y, j - kSkinAroundPx); n == 0 && y <= std::min(zone.y + zone.height - 1, j + kSkinAroundPx); ++y)
-      for (int x = std::max(zone.x, i - kSkinAroundPx); x <= std::min(zone.x + zone.width - 1, i + kSkinAroundPx); ++x) {
+    const int y0 = std::max(zone.y, j - kSkinAroundPx), y1 = std::min(zone.y + zone.height - 1, j + kSkinAroundPx);
+    const int x0 = std::max(zone.x, i - kSkinAroundPx), x1 = std::min(zone.x + zone.width - 1, i + kSkinAroundPx);
+    for (int y = y0; n == 0 && y <= y1; ++y)
+      for (int x = x0; x <= x1; ++x) {
         const size_t q = static_cast<size_t>(y) * w + x;
         if (g.triangle[q] < 0 || (kMouthParts & part_bit(part_of(g.vertices[3 * q])))) continue;
         sum += rendered.at<cv::Vec3f>(y, x);
