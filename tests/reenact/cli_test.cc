@@ -631,20 +631,22 @@ namespace {
 
 // Pixels of `image` in `box` darker (mean of the channels) than both their upper and lower
 // neighbours by more than 25 levels: the dots of a dotted line along a horizontal edge.
+// A BGR pixel's level: the mean of its channels.
+int mean_level(const cv::Mat& bgr, int i, int j) {
+  const cv::Vec3b& v = bgr.at<cv::Vec3b>(j, i);
+  return (v[0] + v[1] + v[2]) / 3;
+}
+
 std::vector<cv::Point> dark_dots(const cv::Mat& image, const cv::Rect& box) {
   std::vector<cv::Point> dots;
-  auto level = [&](int i, int j) {
-    const cv::Vec3b& v = image.at<cv::Vec3b>(j, i);
-    return (v[0] + v[1] + v[2]) / 3;
-  };
+  auto level = [&](int i, int j) { return mean_level(image, i, j); };
   for (int j = box.y + 1; j + 1 < box.y + box.height; ++j)
     for (int i = box.x; i < box.x + box.width; ++i)
       if (level(i, j) < std::min(level(i, j - 1), level(i, j + 1)) - 25) dots.emplace_back(i, j);
   return dots;
 }
 
-// `source` reenacted onto the webcam clip: the target's frame `frame` and the output's. Empty
-// (and *why set) where the real clips are not here.
+// A frame of the webcam clip (the target) and the output frame reenacted onto it.
 struct ReenactedFrame {
   cv::Mat target, output;
 };
@@ -686,6 +688,7 @@ std::vector<ReenactedFrame> ReenactOntoTheWebcamClip(const char* clip, const std
   return out;
 }
 
+// One output frame; empty (and *why set) where the real clips are not here.
 ReenactedFrame ReenactOntoTheWebcamClip(const char* clip, int frame, std::string* why) {
   std::vector<ReenactedFrame> f = ReenactOntoTheWebcamClip(clip, std::vector<int>{frame}, why);
   return f.empty() ? ReenactedFrame{} : std::move(f.front());
@@ -720,8 +723,7 @@ int PixelsFarDarkerThanTheTarget(const ReenactedFrame& f, const cv::Rect& region
   int n = 0;
   for (int j = region.y; j < region.y + region.height; ++j)
     for (int i = region.x; i < region.x + region.width; ++i) {
-      const cv::Vec3b &o = f.output.at<cv::Vec3b>(j, i), &t = f.target.at<cv::Vec3b>(j, i);
-      const int lo = (o[0] + o[1] + o[2]) / 3, lt = (t[0] + t[1] + t[2]) / 3;
+      const int lo = mean_level(f.output, i, j), lt = mean_level(f.target, i, j);
       n += lo * 10 < lt * 6 && lo + 40 < lt;
     }
   return n;
@@ -761,16 +763,12 @@ TEST(ReenactCliTest, NoDottedDarkLinesAlongTheLips) {
 // levels above every pixel two away diagonally, where the target's frame has none within a pixel.
 int LightSpecksAdded(const ReenactedFrame& f, const cv::Rect& region) {
   if (f.output.size() != f.target.size() || f.target.empty()) return 1000;
-  auto level = [](const cv::Mat& m, int i, int j) {
-    const cv::Vec3b& v = m.at<cv::Vec3b>(j, i);
-    return (v[0] + v[1] + v[2]) / 3;
-  };
-  auto speck = [&](const cv::Mat& m, int i, int j) {
-    const int l = level(m, i, j);
+  auto speck = [](const cv::Mat& m, int i, int j) {
+    const int l = mean_level(m, i, j);
     if (l < 200) return false;
     for (const int di : {-2, 2})
       for (const int dj : {-2, 2})
-        if (level(m, i + di, j + dj) + 40 > l) return false;
+        if (mean_level(m, i + di, j + dj) + 40 > l) return false;
     return true;
   };
   int n = 0;
