@@ -177,6 +177,46 @@ TEST_F(TrackerSolverTest, ThreadCountDoesNotChangeTheResult) {
   EXPECT_EQ(s1.iterations.size(), s3.iterations.size());
 }
 
+// The solver keeps the identity shape and albedo a tracking solve holds fixed for the next solve
+// (CpuSolver::FixedPartsCache). A solve under another identity must not be served the kept one:
+// after solving with the true identity, a solve with a different identity (and albedo) gives
+// the bits a fresh solver gives, and so does the true identity again.
+TEST_F(TrackerSolverTest, KeptIdentityPartsFollowTheIdentity) {
+  ASSERT_GT(model_->num_identity(), 0);
+  ASSERT_GT(model_->num_albedo(), 0);
+  SolverOptions o;
+  gpu::FaceParameters other = perturbed_start(truth_);
+  other.alpha[0] += 1.5f;
+  other.beta[0] -= 1.0f;
+  auto solve = [&](const CpuSolver& solver, gpu::FaceParameters start) {
+    solver.Solve(frame_, tracking(), o, &start);
+    return start;
+  };
+  const gpu::FaceParameters true_kept = solve(*solver_, perturbed_start(truth_));
+  const gpu::FaceParameters other_kept = solve(*solver_, other);
+  const gpu::FaceParameters true_again = solve(*solver_, perturbed_start(truth_));
+  const CpuSolver fresh(*model_);
+  const gpu::FaceParameters other_fresh = solve(fresh, other);
+  EXPECT_EQ(other_kept.euler, other_fresh.euler);
+  EXPECT_EQ(other_kept.translation, other_fresh.translation);
+  EXPECT_EQ(other_kept.delta, other_fresh.delta);
+  EXPECT_NE(other_kept.delta, true_kept.delta);  // the identity changed what the solve found
+  EXPECT_EQ(true_again.delta, true_kept.delta);
+  EXPECT_EQ(true_again.translation, true_kept.translation);
+
+  // The cache itself: the same identity is the kept parts, another identity new ones.
+  CpuSolver::FixedPartsCache cache;
+  const auto first = cache.For(*model_, truth_, 2);
+  EXPECT_EQ(cache.For(*model_, truth_, 1), first);
+  const auto changed = cache.For(*model_, other, 2);
+  ASSERT_NE(changed, first);
+  EXPECT_NE(changed->shape[0], first->shape[0]);
+  EXPECT_NE(changed->albedo[0], first->albedo[0]);
+  const FixedModelParts made = ComputeFixedModelParts(*model_, other, 1);
+  EXPECT_EQ(changed->shape, made.shape);
+  EXPECT_EQ(changed->albedo, made.albedo);
+}
+
 // A camera sees the eyeballs (and teeth in an open mouth), so the tracker must draw them: with
 // the skin alone, the eye pixels match the eye sockets ~2 cm behind the measured eyes, and the
 // truth is no longer the minimum of the geometric terms (a calibration of the demo's target

@@ -38,7 +38,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
  public:
   CpuGaussNewton(const TrackerModel& model, const gpu::CpuRenderer& renderer, const ParameterLayout& layout,
                  const SolverOptions& options, const std::vector<const std::vector<InputFrame>*>& pyramids,
-                 const std::vector<gpu::FaceParameters>& bases)
+                 const std::vector<gpu::FaceParameters>& bases, CpuSolver::FixedPartsCache* fixed_parts)
       : model_(model),
         renderer_(renderer),
         layout_(layout),
@@ -47,6 +47,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
         bases_(bases),
         unknowns_(layout, static_cast<int>(pyramids.size())),
         threads_(options.ResolvedThreads()),
+        fixed_parts_(fixed_parts),
         states_(pyramids.size()),
         fixed_(pyramids.size()) {
     scratch_.Resize(unknowns_.size());
@@ -75,9 +76,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       st.lin = tracker::Linearize(model_, layout_, p, vs, st.gbuffer, frame, options_.energy, /*regularize_shared=*/f == 0);
       if (layout_.num_identity == 0 && layout_.num_albedo == 0) {
         // Tracking: the identity shape and albedo stay the base's for the whole solve.
-        if (!fixed_[f]) {
-          fixed_[f] = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model_, bases_[f], threads_));
-        }
+        if (!fixed_[f]) fixed_[f] = fixed_parts_->For(model_, bases_[f], threads_);
         st.lin.fixed = fixed_[f];
       }
       const auto t2 = Clock::now();
@@ -173,8 +172,10 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
   const std::vector<gpu::FaceParameters>& bases_;
   const internal::JointUnknowns unknowns_;
   const int threads_;
+  CpuSolver::FixedPartsCache* fixed_parts_;
   std::vector<FrameState> states_;
-  // Per frame, made on its first linearisation when the layout solves neither identity nor albedo.
+  // Per frame, taken on its first linearisation when the layout solves neither identity nor albedo
+  // (the solver keeps the last identity's: CpuSolver::FixedPartsCache).
   std::vector<std::shared_ptr<const FixedModelParts>> fixed_;
   PcgScratch scratch_;
   Eigen::VectorXd b_, column_norms_, stacked_r_, trial_r_;
@@ -240,6 +241,21 @@ std::string SolverSummary::FullReport() const {
     out += buf;
   }
   return out;
+}
+
+std::shared_ptr<const FixedModelParts> CpuSolver::FixedPartsCache::For(const TrackerModel& model,
+                                                                       const gpu::FaceParameters& params, int threads) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (last_ && last_->alpha.size() == params.alpha.size() && last_->alpha == params.alpha &&
+        last_->beta.size() == params.beta.size() && last_->beta == params.beta) {
+      return last_;
+    }
+  }
+  auto parts = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model, params, threads));
+  std::lock_guard<std::mutex> lock(mutex_);
+  last_ = parts;
+  return parts;
 }
 
 CpuSolver::CpuSolver(TrackerModel model) : model_(std::move(model)), renderer_(model_.render) {
@@ -312,7 +328,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
   const internal::JointUnknowns unknowns(layout, static_cast<int>(pyramids.size()));
   const std::vector<gpu::FaceParameters> bases = *params;
   Eigen::VectorXd x = unknowns.Pack(bases);
-  CpuGaussNewton backend(model_, renderer_, layout, options, pyramids, bases);
+  CpuGaussNewton backend(model_, renderer_, layout, options, pyramids, bases, &fixed_parts_);
   SolverSummary summary = internal::RunGaussNewton(options, unknowns.ExpressionSpans(), unknowns.frames(), &backend, &x);
   for (int f = 0; f < unknowns.frames(); ++f) (*params)[f] = layout.Unpack(unknowns.FrameX(x, f), bases[f]);
   summary.total_ms = ms_since(start);

@@ -5,6 +5,8 @@
 // Jacobi-preconditioned CG (analysis). It is the oracle a GPU path is compared against.
 #include <Eigen/Core>
 #include <functional>
+#include <memory>
+#include <mutex>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -131,12 +133,29 @@ class CpuSolver {
   TermEnergies Energy(const InputFrame& level_frame, const ParameterLayout& layout, const EnergyOptions& options,
                       const gpu::FaceParameters& params, const gpu::RenderOptions& render = kTrackedParts) const;
 
+  // The identity shape and albedo a tracking solve holds fixed, kept for the last identity: after
+  // the calibration every frame's solve holds the same one, and making it again cost a solve
+  // about 1 ms (as CpuRenderer keeps its own identity parts). Not copied with the solver.
+  class FixedPartsCache {
+   public:
+    FixedPartsCache() = default;
+    FixedPartsCache(const FixedPartsCache&) {}
+    FixedPartsCache& operator=(const FixedPartsCache&) { return *this; }
+    std::shared_ptr<const FixedModelParts> For(const TrackerModel& model, const gpu::FaceParameters& params,
+                                               int threads);
+
+   private:
+    std::mutex mutex_;
+    std::shared_ptr<const FixedModelParts> last_;
+  };
+
  private:
   SolverSummary SolvePyramids(const std::vector<const std::vector<InputFrame>*>& pyramids, const ParameterLayout& layout,
                               const SolverOptions& options, std::vector<gpu::FaceParameters>* params) const;
 
   TrackerModel model_;
   gpu::CpuRenderer renderer_;
+  mutable FixedPartsCache fixed_parts_;
 };
 
 // The single-frame entry point every solver shares: validates `options`, builds the frame's
