@@ -674,7 +674,11 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   // First over the whole range with the eyes rendered straight ahead (exactly the model's
   // spheres), then around that reading with the eyes rendered turned: the eyeLook blendshapes
   // move the lids a little too, and the second render has them where the reading puts them.
-  Pass first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
+  // The first pass's own per-eye (vergence) reading counts only where the second pass fails, so
+  // it runs only then: it was a third of the search's candidates on every frame.
+  GazeOptions conjugate_only = options;
+  conjugate_only.read_vergence = false;
+  Pass first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only);
   // The lids first, where the fit's opening shows lid or the fit has an eye closed: the gaze is
   // then read in the opening they leave.
   if (options.read_lids && !frame.has_depth()) {
@@ -690,7 +694,7 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
       fit.delta[blink_[0]] = out.blink[0];
       fit.delta[blink_[1]] = out.blink[1];
       params->delta = fit.delta;
-      first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
+      first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only);
     }
   }
   out.pixels = first.pixels;
@@ -701,6 +705,7 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   const double cell = 2.0 / (options.grid_steps - 1);
   const Pass second = Search(renderer, frame, fit, static_cast<float>(first.h), static_cast<float>(first.v), first.h,
                              first.v, 1.5 * cell, local);
+  if (!second.ok && options.read_vergence) first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
   const Pass& best = second.ok ? second : first;
   // A gaze the image shows clearly lowers the straight-ahead difference by far more than noise
   // and an eye region the fit does not match do (see GazeOptions::min_improvement).
