@@ -13,6 +13,7 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::same_coefficients;
 namespace {
 bool weight_ok(double w) { return std::isfinite(w) && w >= 0; }
 
@@ -164,10 +165,6 @@ class VertexCache {
   std::vector<uint8_t> have_position_, have_albedo_, have_shading_;  // shading: 1 without, 2 with derivatives
   Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block_;
 };
-
-bool same_coefficients(const Eigen::VectorXf& a, const Eigen::VectorXf& b) {
-  return a.size() == b.size() && (a.array() == b.array()).all();
-}
 
 }  // namespace
 

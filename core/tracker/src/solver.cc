@@ -247,10 +247,9 @@ std::shared_ptr<const FixedModelParts> CpuSolver::FixedPartsCache::For(const Tra
                                                                        const gpu::FaceParameters& params, int threads) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (last_ && last_->alpha.size() == params.alpha.size() && last_->alpha == params.alpha &&
-        last_->beta.size() == params.beta.size() && last_->beta == params.beta) {
+    if (last_ && internal::same_coefficients(last_->alpha, params.alpha) &&
+        internal::same_coefficients(last_->beta, params.beta))
       return last_;
-    }
   }
   auto parts = std::make_shared<const FixedModelParts>(ComputeFixedModelParts(model, params, threads));
   std::lock_guard<std::mutex> lock(mutex_);

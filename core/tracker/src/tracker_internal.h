@@ -17,6 +17,12 @@ using Clock = SteadyClock;
 
 constexpr double kRadToDeg = 57.29577951308232;
 
+// The same coefficients, value for value (identity or albedo: what decides whether parts made for
+// one may serve another).
+inline bool same_coefficients(const Eigen::VectorXf& a, const Eigen::VectorXf& b) {
+  return a.size() == b.size() && (a.array() == b.array()).all();
+}
+
 // printf into a string (messages of a few hundred characters at most).
 template <typename... Args>
 std::string format(const char* fmt, Args... args) {
