@@ -629,14 +629,14 @@ TEST(ReenactCliTest, OnARealFaceTheFrameTextureChangesOnlyWhatTheExpressionMoves
 namespace face_reenact {
 namespace {
 
-// Pixels of `image` in `box` darker (mean of the channels) than both their upper and lower
-// neighbours by more than 25 levels: the dots of a dotted line along a horizontal edge.
 // A BGR pixel's level: the mean of its channels.
 int mean_level(const cv::Mat& bgr, int i, int j) {
   const cv::Vec3b& v = bgr.at<cv::Vec3b>(j, i);
   return (v[0] + v[1] + v[2]) / 3;
 }
 
+// Pixels of `image` in `box` darker (mean of the channels) than both their upper and lower
+// neighbours by more than 25 levels: the dots of a dotted line along a horizontal edge.
 std::vector<cv::Point> dark_dots(const cv::Mat& image, const cv::Rect& box) {
   std::vector<cv::Point> dots;
   auto level = [&](int i, int j) { return mean_level(image, i, j); };
