@@ -59,8 +59,10 @@ double weight_at(const std::vector<nlohmann::json>& frames, int f, const char* n
 //   more than 0.03 (winks are tested on renders, eye_openness_test.cc).
 // - the brows at rest, eyes open and looking ahead: 38-49;
 // - both brows raised high (the eyes wide): 68-77;
-// - a frown (brows drawn down and together, the eyes squeezed half shut): 114-121.
-TEST(RealClipExpression, BlinksAndBrowsOfLivePortraitD14) {
+// - a frown (brows drawn down and together, the eyes squeezed half shut): 114-121;
+// - the gaze (crops of both eyes at twice the size, 600 px wide): hard to her right at 54-60 and
+//   95-103 (the irises in the image's left corners), hard to her left at 82-91.
+TEST(RealClipExpression, BlinksGazeAndBrowsOfLivePortraitD14) {
   std::string skip;
   const std::vector<nlohmann::json> frames = track_shared_clip("liveportrait_d14.mp4", 262, &skip);
   if (!skip.empty()) GTEST_SKIP() << skip;
@@ -86,6 +88,18 @@ TEST(RealClipExpression, BlinksAndBrowsOfLivePortraitD14) {
     for (int f = 15; f <= 19; ++f) blink = std::max(blink, weight(f, eye));
     EXPECT_GT(blink, 0.7);
   }
+
+  // Her hard glances (gaze.h), as the mean of the two eyes' sideways weights (> 0: to her left).
+  // Where she looks nearly ahead between quick glances (236-262) the reading still goes to the end
+  // of its range; docs/tracker.md, "Gaze", item 8.
+  auto sideways = [&](int f) {
+    const double left = weight(f, "eyeLookOutLeft") - weight(f, "eyeLookInLeft");
+    const double right = weight(f, "eyeLookInRight") - weight(f, "eyeLookOutRight");
+    return 0.5 * (left + right);
+  };
+  for (int f = 54; f <= 60; ++f) EXPECT_LT(sideways(f), -0.7) << "frame " << f;
+  for (int f = 95; f <= 103; ++f) EXPECT_LT(sideways(f), -0.7) << "frame " << f;
+  for (int f = 82; f <= 91; ++f) EXPECT_GT(sideways(f), 0.7) << "frame " << f;
 
   // The brows: read on (nearly) every frame once the reader knows the actor's resting brows.
   int read = 0;
