@@ -343,6 +343,8 @@ nlohmann::json frame_json(const TrackedFrame& t, int64_t frame_number, int64_t t
   j["gaze"] = t.gaze.ok ? nlohmann::json{{"horizontal", t.gaze.horizontal}, {"vertical", t.gaze.vertical},
                                          {"pixels", t.gaze.pixels}, {"eyeball_pixels", t.gaze.eyeball_pixels},
                                          {"energy", t.gaze.energy}, {"straight_energy", t.gaze.straight_energy},
+                                         // read with an iris of a real size (GazeOptions::real_iris_check)
+                                         {"real_iris", t.gaze.real_iris},
                                          // each eye's own turn where they turned apart (crossed), else null
                                          {"per_eye", t.gaze.vergence_read ? nlohmann::json{t.gaze.per_eye[0], t.gaze.per_eye[1]}
                                                                           : nlohmann::json()}}

@@ -87,6 +87,12 @@ TEST(GazeOptions, DefaultsValidAndBadValuesRejected) {
   bad.max_blink_for_vergence = std::numeric_limits<double>::quiet_NaN();
   expect_invalid(bad, "max_blink_for_vergence");
   bad = o;
+  bad.real_iris_check_above = 1.5;
+  expect_invalid(bad, "real_iris_check_above");
+  bad = o;
+  bad.real_iris_disagreement = std::numeric_limits<double>::quiet_NaN();
+  expect_invalid(bad, "real_iris_disagreement");
+  bad = o;
   bad.threads = -1;
   expect_invalid(bad, "threads");
 }
@@ -214,6 +220,65 @@ TEST(Gaze, ReadsEyesTurnedTowardsEachOtherEyeByEye) {
     EXPECT_FALSE(r2.vergence_read);
     if (r2.ok) EXPECT_EQ(weight(fit2, "eyeLookOutLeft") > 0.f, weight(fit2, "eyeLookInRight") > 0.f);
   }
+}
+
+// The model's iris reaches about 33 degrees from the eye's axis, half as wide again as a real
+// one. An eye showing a real-sized iris (the model with its eyeballs' vertices beyond 22 degrees
+// of the axis coloured as their white, rendered, and read with the model as built) looking
+// nearly ahead was read as the model's iris turned hard into a corner; the second reading with an
+// iris of a real size (GazeOptions::real_iris_check) replaces it.
+TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  TrackerModel small_iris = *model;
+  auto& rm = small_iris.render;
+  for (const FacePart part : {FacePart::LeftEye, FacePart::RightEye}) {
+    std::vector<int> eye;
+    for (int v = 0; v < rm.num_vertices(); ++v)
+      if (rm.vertex_part[v] == static_cast<int>(part)) eye.push_back(v);
+    ASSERT_GT(eye.size(), 20u);
+    Eigen::Vector3f centre = Eigen::Vector3f::Zero();
+    for (int v : eye) centre += rm.mean_shape.segment<3>(3 * v);
+    centre /= static_cast<float>(eye.size());
+    auto degrees = [&](int v) {
+      const Eigen::Vector3f d = (rm.mean_shape.segment<3>(3 * v) - centre).normalized();
+      return std::acos(std::clamp(d.z(), -1.f, 1.f)) * 180.f / static_cast<float>(M_PI);
+    };
+    // The white: the colour of the vertex farthest round from the front.
+    const int back = *std::max_element(eye.begin(), eye.end(), [&](int a, int b) { return degrees(a) < degrees(b); });
+    for (int v : eye) {
+      if (degrees(v) <= 22.f) continue;
+      rm.mean_albedo.segment<3>(3 * v) = rm.mean_albedo.segment<3>(3 * back);
+      rm.albedo_basis.middleRows(3 * v, 3) = rm.albedo_basis.middleRows(3 * back, 3);
+    }
+  }
+  const CpuSolver small_iris_solver(small_iris);
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  GazeOptions model_iris_only;
+  model_iris_only.real_iris_check = false;
+  double worst_model_only = 0;
+  for (const float h : {0.f, 0.2f, -0.2f, 0.4f, -0.4f}) {
+    SCOPED_TRACE(::testing::Message() << "h " << h);
+    const gpu::FaceParameters truth = face_looking(*model, gaze, h, 0.f);
+    const InputFrame frame = RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+    gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f), fit_model_only = fit;
+    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
+    const GazeReading m = gaze.Read(solver.renderer(), frame, &fit_model_only, model_iris_only);
+    // No reading leaves the eyes straight ahead.
+    const double read = r.ok ? r.horizontal : 0.0, read_model_only = m.ok ? m.horizontal : 0.0;
+    std::printf("h %.2f: read %.3f (%s), the model's iris alone %.3f (%s)\n", h, read,
+                r.ok ? (r.real_iris ? "real iris" : "model's iris") : r.message.c_str(), read_model_only,
+                m.ok ? "read" : m.message.c_str());
+    // A small turn may not stand out from looking ahead (GazeOptions::min_improvement).
+    if (r.ok) {
+      EXPECT_NEAR(read, h, 0.1);
+    } else {
+      EXPECT_LE(std::abs(h), 0.2f) << r.message;
+    }
+    worst_model_only = std::max(worst_model_only, std::abs(read_model_only - h));
+  }
+  EXPECT_GT(worst_model_only, 0.5);  // what the second reading is for (0.2 read as 1.0)
 }
 
 TEST(Gaze, ClosedEyesGiveNoReadingAndLeaveTheFit) {

@@ -89,9 +89,8 @@ TEST(RealClipExpression, BlinksGazeAndBrowsOfLivePortraitD14) {
     EXPECT_GT(blink, 0.7);
   }
 
-  // Her hard glances (gaze.h), as the mean of the two eyes' sideways weights (> 0: to her left).
-  // Where she looks nearly ahead between quick glances (236-262) the reading still goes to the end
-  // of its range; docs/tracker.md, "Gaze", item 8.
+  // Her hard glances (gaze.h), as the mean of the two eyes' sideways weights (> 0: to her left),
+  // judged by eye on crops of both eyes at twice the size (docs/tracker.md, "Gaze", item 8).
   auto sideways = [&](int f) {
     const double left = weight(f, "eyeLookOutLeft") - weight(f, "eyeLookInLeft");
     const double right = weight(f, "eyeLookInRight") - weight(f, "eyeLookOutRight");
@@ -100,6 +99,14 @@ TEST(RealClipExpression, BlinksGazeAndBrowsOfLivePortraitD14) {
   for (int f = 54; f <= 60; ++f) EXPECT_LT(sideways(f), -0.7) << "frame " << f;
   for (int f = 95; f <= 103; ++f) EXPECT_LT(sideways(f), -0.7) << "frame " << f;
   for (int f = 82; f <= 91; ++f) EXPECT_GT(sideways(f), 0.7) << "frame " << f;
+  // The end of the glance at 54-65, where too little of the model's iris shows for a clear
+  // reading: read with an iris of a real size (GazeOptions::real_iris_check; no reading before).
+  for (int f = 61; f <= 65; ++f) EXPECT_LT(sideways(f), -0.5) << "frame " << f;
+  // Nearly ahead between quick glances (judged turn in brackets): the model's iris read them
+  // turned into a corner, 0.46-1.0 off; with a real-sized iris they read within 0.4 of it.
+  for (const auto& [f, judged] : std::vector<std::pair<int, double>>{
+           {220, 0.0}, {223, -0.2}, {238, 0.2}, {247, 0.2}, {249, 0.0}, {251, 0.2}, {254, -0.3}, {260, 0.3}})
+    EXPECT_NEAR(sideways(f), judged, 0.42) << "frame " << f;
 
   // The brows: read on (nearly) every frame once the reader knows the actor's resting brows.
   int read = 0;

@@ -3,8 +3,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <exception>
 #include <limits>
+#include <map>
+#include <optional>
 #include <tuple>
 #include <utility>
 #include <vector>
@@ -26,6 +30,9 @@ constexpr double kFrontDegrees = 20.0;
 // A pixel's squared colour difference counts at most this much (linear RGB): an iris where the
 // sclera is costs about 0.6, sensor noise about 0.002.
 constexpr double kMaxPixelCost = 0.3;
+// A real iris: 11.7 mm across (the mean horizontal visible iris diameter of adults, which varies
+// by about half a millimetre), in a face whose eyes are 63 mm apart.
+constexpr double kRealIrisDiameterM = 11.7e-3, kRealEyeDistanceM = 63e-3;
 // The range of the per-eye brightness gain of the gaze search.
 constexpr double kMinGain = 0.5, kMaxGain = 2.0;
 // The albedo profile around the axis, in bins of this many degrees.
@@ -85,6 +92,39 @@ struct EyePixel {
   bool looks_like_lid = false;  // nearer the lid's colour than any colour of the eyeball
 };
 
+// The eyeball's iris and sclera colours: the means of the vertex colours darker and brighter than
+// halfway between the darkest and the brightest (by the sum of the channels). False when the
+// eyeball has one colour.
+bool split_iris_and_sclera(const std::vector<Eigen::Vector3d>& albedo, Eigen::Vector3d* dark, Eigen::Vector3d* bright) {
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (const auto& a : albedo) lo = std::min(lo, a.sum()), hi = std::max(hi, a.sum());
+  if (!(hi > lo)) return false;
+  dark->setZero();
+  bright->setZero();
+  int nd = 0, nb = 0;
+  for (const auto& a : albedo) {
+    if (a.sum() < 0.5 * (lo + hi)) {
+      *dark += a, ++nd;
+    } else {
+      *bright += a, ++nb;
+    }
+  }
+  *dark /= nd;
+  *bright /= nb;
+  return true;
+}
+
+// The profile of an iris `iris_degrees` wide from the axis: `dark` within it, `bright` beyond
+// (the bin it ends in mixed by the share of the bin it covers).
+AlbedoProfile two_tone_profile(const Eigen::Vector3d& dark, const Eigen::Vector3d& bright, double iris_degrees) {
+  AlbedoProfile p;
+  for (int k = 0; k < kProfileBins; ++k) {
+    const double f = std::clamp(iris_degrees / kProfileBinDegrees - k, 0.0, 1.0);
+    p.bin[static_cast<size_t>(k)] = f * dark + (1 - f) * bright;
+  }
+  return p;
+}
+
 }  // namespace
 
 // One eye as the fitted face has it: its centre and front (the centroid of the front vertices),
@@ -96,6 +136,10 @@ struct GazeEstimator::EyeState {
   // The colour of the skin around the eye as the camera sees it (the median of the face pixels
   // next to the eyeball in the render).
   Eigen::Vector3d skin = Eigen::Vector3d::Zero();
+  // An actor's iris of its own size (ActorEyes): the profile is these two colours, iris and
+  // sclera, and a pixel between them (an iris edge, blurred) is eyeball, not lid.
+  bool two_tone = false;
+  Eigen::Vector3d dark = Eigen::Vector3d::Zero(), bright = Eigen::Vector3d::Zero();
 };
 
 namespace {
@@ -132,6 +176,10 @@ bool GazeOptions::IsValid(std::string* why) const {
   }
   if (!(lids_from_weight >= 0 && lids_from_weight <= 1)) return fail("gaze: lids_from_weight must be in [0, 1]");
   if (lid_steps < 2 || lid_steps > 101) return fail("gaze: lid_steps must be in [2, 101]");
+  if (!(real_iris_check_above >= 0 && real_iris_check_above <= 1))
+    return fail("gaze: real_iris_check_above must be in [0, 1]");
+  if (!(real_iris_disagreement >= 0 && real_iris_disagreement <= 2))
+    return fail("gaze: real_iris_disagreement must be in [0, 2]");
   if (threads < 0) return fail("gaze: threads must be >= 0 (0: one per hardware thread)");
   return true;
 }
@@ -173,6 +221,15 @@ GazeEstimator::GazeEstimator(const TrackerModel& model) : model_(&model) {
       const Eigen::Vector3f d = rm.expression_basis.block(3 * v, blink_[0], 3, 1) + rm.expression_basis.block(3 * v, blink_[1], 3, 1);
       if (d.squaredNorm() > 0) lid_vertices_.push_back({v, d});
     }
+  }
+  // A real iris on the model's eyeball, scaled by the mean face's eye distance.
+  {
+    const Eigen::Vector3d c0 = centroid(rm.mean_shape, eyes_[0].vertices), c1 = centroid(rm.mean_shape, eyes_[1].vertices);
+    double radius = 0;
+    for (int v : eyes_[0].vertices) radius += (vec3(rm.mean_shape, v) - c0).norm();
+    radius /= static_cast<double>(eyes_[0].vertices.size());
+    const double iris_radius = 0.5 * kRealIrisDiameterM * (c1 - c0).norm() / kRealEyeDistanceM;
+    if (radius > iris_radius) real_iris_degrees_ = std::asin(iris_radius / radius) * 180.0 / M_PI;
   }
   available_ = true;
 }
@@ -255,7 +312,7 @@ GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& 
 // marked when it looks like the lid), the lid's colour; *opening_rows: the rows its pixels span.
 // Returns an empty string, or why the eye cannot be read.
 std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& frame, const gpu::FaceParameters& at,
-                                   int e, EyeState* out, int* opening_rows) const {
+                                   int e, double iris_degrees, EyeState* out, int* opening_rows) const {
   const auto& rm = model_->render;
   const gpu::GBuffer& g = region.g;
   const int w = frame.width();
@@ -283,6 +340,10 @@ std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& fr
     albedo.push_back(vec3(region.state.albedo, v));
   }
   s.profile = make_profile(degrees, albedo);
+  if (iris_degrees > 0 && split_iris_and_sclera(albedo, &s.dark, &s.bright)) {
+    s.two_tone = true;
+    s.profile = two_tone_profile(s.dark, s.bright, iris_degrees);
+  }
 
   int row_min = g.height, row_max = -1;
   for (int j = 0; j < g.height; ++j) {
@@ -358,6 +419,11 @@ std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& fr
       double eyeball = std::numeric_limits<double>::infinity();
       for (const Eigen::Vector3d& alb : s.profile.bin)
         eyeball = std::min(eyeball, (alb.cwiseProduct(px.irradiance) - px.input).squaredNorm());
+      if (s.two_tone) {  // the nearest colour between iris and sclera
+        const Eigen::Vector3d a = s.dark.cwiseProduct(px.irradiance), ab = s.bright.cwiseProduct(px.irradiance) - a;
+        const double t = ab.squaredNorm() > 0 ? std::clamp((px.input - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
+        eyeball = std::min(eyeball, (a + t * ab - px.input).squaredNorm());
+      }
       px.looks_like_lid = (s.skin - px.input).squaredNorm() < eyeball;
     }
   }
@@ -367,13 +433,15 @@ std::string GazeEstimator::ReadEye(const EyeRegion& region, const InputFrame& fr
 // One search: the face rendered with the gaze (h0, v0), candidates within `half` of (ch, cv).
 GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, const InputFrame& frame,
                                           const gpu::FaceParameters& fit, float h0, float v0, double ch, double cv,
-                                          double half, const GazeOptions& options) const {
+                                          double half, const GazeOptions& options, double iris_degrees,
+                                          std::shared_ptr<const EyeRegion> reuse) const {
   Pass out;
   const int threads = ResolvedThreadCount(options.threads);
   gpu::FaceParameters at = fit;
   const auto rendered = WeightsFor(h0, v0);
   for (const Weight& wt : rendered) at.delta[wt.index] = wt.value;
-  const EyeRegion region = RenderEyeRegion(renderer, frame, at, threads);
+  out.region = reuse ? std::move(reuse) : std::make_shared<const EyeRegion>(RenderEyeRegion(renderer, frame, at, threads));
+  const EyeRegion& region = *out.region;
   if (!region.message.empty()) {
     out.message = region.message;
     return out;
@@ -382,7 +450,7 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   for (int e = 0; e < 2; ++e) {
     EyeState& s = eyes[e];
     int rows = 0;
-    const std::string why = ReadEye(region, frame, at, e, &s, &rows);
+    const std::string why = ReadEye(region, frame, at, e, iris_degrees, &s, &rows);
     if (!why.empty()) {
       out.message = why;
       return out;
@@ -544,7 +612,7 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
 }
 
 bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame& frame, const gpu::FaceParameters& fit,
-                             const GazeOptions& options, GazeReading* reading) const {
+                             const GazeOptions& options, double iris_degrees, GazeReading* reading) const {
   if (blink_[0] < 0 || blink_[1] < 0) {
     reading->lids_message = "the model has no eyeBlink blendshapes";
     return false;
@@ -567,7 +635,7 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
   for (int e = 0; e < 2; ++e) {
     EyeState s;
     int rows = 0;
-    const std::string why = ReadEye(open, frame, open_at, e, &s, &rows);
+    const std::string why = ReadEye(open, frame, open_at, e, iris_degrees, &s, &rows);
     if (!why.empty()) {
       reading->lids_message = why;
       return false;
@@ -678,7 +746,8 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   // it runs only then: it was a third of the search's candidates on every frame.
   GazeOptions conjugate_only = options;
   conjugate_only.read_vergence = false;
-  Pass first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only);
+  const double iris = 0;  // the model's own iris
+  Pass first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only, iris);
   // The lids first, where the fit's opening shows lid or the fit has an eye closed: the gaze is
   // then read in the opening they leave.
   if (options.read_lids && !frame.has_depth()) {
@@ -690,11 +759,11 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
     for (int e = 0; e < 2; ++e)
       look = look || (first.rendered_pixels > 0 && first.open_fraction[e] < options.lids_below_open_fraction) ||
              fit.delta[blink_[e]] > options.lids_from_weight;
-    if (look && ReadLids(renderer, frame, fit, options, &out)) {
+    if (look && ReadLids(renderer, frame, fit, options, iris, &out)) {
       fit.delta[blink_[0]] = out.blink[0];
       fit.delta[blink_[1]] = out.blink[1];
       params->delta = fit.delta;
-      first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only);
+      first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only, iris);
     }
   }
   out.pixels = first.pixels;
@@ -704,12 +773,68 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   local.grid_steps = 7;
   const double cell = 2.0 / (options.grid_steps - 1);
   const Pass second = Search(renderer, frame, fit, static_cast<float>(first.h), static_cast<float>(first.v), first.h,
-                             first.v, 1.5 * cell, local);
-  if (!second.ok && options.read_vergence) first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options);
+                             first.v, 1.5 * cell, local, iris);
+  if (!second.ok && options.read_vergence)
+    first = Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, options, iris, first.region);
   const Pass& best = second.ok ? second : first;
   // A gaze the image shows clearly lowers the straight-ahead difference by far more than noise
   // and an eye region the fit does not match do (see GazeOptions::min_improvement).
-  if (!(first.straight_energy - best.energy >= options.min_improvement * best.energy)) {
+  // The model's iris is half as wide again as a real one (kRealIrisDiameterM): on a real eye
+  // looking nearly ahead, the best match for its iris can be the model's turned into a corner
+  // (liveportrait_d14, frames 220-262: +-0.8-1.0 where she looks within 0.3 of ahead), and a hard
+  // glance can leave too little of the model's iris on show to pass the gate (d14, 61-65).
+  // Read again with an iris of a real size there (GazeOptions::real_iris_check_above); on a render
+  // of the model the two readings agree within the disagreement (0.5 read 0.71), so renders keep
+  // the model's own reading.
+  auto real_iris = [&](const Pass& full) {
+    Pass real = full;
+    if (!full.ok) return real;
+    GazeOptions refine = conjugate_only;
+    refine.grid_steps = 7;
+    const Pass around = Search(renderer, frame, fit, static_cast<float>(full.h), 0.f, full.h, 0.0, 1.5 * cell, refine,
+                               real_iris_degrees_);
+    if (around.ok) real = around;
+    return real;
+  };
+  auto take_real = [&](const Pass& real, const Pass& full) {
+    out.ok = true;
+    out.real_iris = true;
+    out.horizontal = static_cast<float>(real.h);
+    out.energy = real.energy;
+    out.straight_energy = full.straight_energy;
+    out.pixels = real.pixels;
+    out.eyeball_pixels = real.rendered_pixels;
+    for (const Weight& wt : WeightsFor(out.horizontal, 0.f)) fit.delta[wt.index] = wt.value;
+    params->delta = fit.delta;
+    return done("");
+  };
+  const bool check_real = options.real_iris_check && real_iris_degrees_ > 0;
+  const bool clear = first.straight_energy - best.energy >= options.min_improvement * best.energy;
+  if (check_real && clear && !best.vergent && std::abs(best.h) >= options.real_iris_check_above) {
+    const Pass full =
+        Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only, real_iris_degrees_, first.region);
+    const Pass real = real_iris(full);
+    if (real.ok && std::abs(real.h - best.h) > options.real_iris_disagreement) return take_real(real, full);
+  }
+  if (check_real && !clear) {
+    // Only a hard glance, clear by the same gate, with the eyes turned together: without each
+    // eye's own search (read_vergence's test) an actor crossing her eyes (d6, 246-250) was read
+    // as a conjugate glance.
+    const Pass full =
+        Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only, real_iris_degrees_, first.region);
+    if (full.ok && std::abs(full.h) >= options.real_iris_check_above) {
+      const Pass real = real_iris(full);
+      if (real.ok && std::abs(real.h) >= options.real_iris_check_above &&
+          full.straight_energy - real.energy >= options.min_improvement * real.energy) {
+        GazeOptions with_vergence = options;
+        with_vergence.read_vergence = true;
+        const Pass eyes =
+            Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, with_vergence, real_iris_degrees_, first.region);
+        if (eyes.ok && !eyes.vergent) return take_real(real, full);
+      }
+    }
+  }
+  if (!clear) {
     out.message = "no clear gaze: looking straight ahead differs by " +
                   std::to_string(best.energy > 0 ? (first.straight_energy - best.energy) / best.energy : 0.0) +
                   " of the reading's colour difference";
