@@ -261,7 +261,8 @@ TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
   for (const float h : {0.f, 0.2f, -0.2f, 0.4f, -0.4f}) {
     SCOPED_TRACE(::testing::Message() << "h " << h);
     const gpu::FaceParameters truth = face_looking(*model, gaze, h, 0.f);
-    const InputFrame frame = RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+    const InputFrame frame =
+        RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
     gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f), fit_model_only = fit;
     const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
     const GazeReading m = gaze.Read(solver.renderer(), frame, &fit_model_only, model_iris_only);

@@ -224,7 +224,8 @@ GazeEstimator::GazeEstimator(const TrackerModel& model) : model_(&model) {
   }
   // A real iris on the model's eyeball, scaled by the mean face's eye distance.
   {
-    const Eigen::Vector3d c0 = centroid(rm.mean_shape, eyes_[0].vertices), c1 = centroid(rm.mean_shape, eyes_[1].vertices);
+    const Eigen::Vector3d c0 = centroid(rm.mean_shape, eyes_[0].vertices);
+    const Eigen::Vector3d c1 = centroid(rm.mean_shape, eyes_[1].vertices);
     double radius = 0;
     for (int v : eyes_[0].vertices) radius += (vec3(rm.mean_shape, v) - c0).norm();
     radius /= static_cast<double>(eyes_[0].vertices.size());
@@ -440,7 +441,8 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
   gpu::FaceParameters at = fit;
   const auto rendered = WeightsFor(h0, v0);
   for (const Weight& wt : rendered) at.delta[wt.index] = wt.value;
-  out.region = reuse ? std::move(reuse) : std::make_shared<const EyeRegion>(RenderEyeRegion(renderer, frame, at, threads));
+  out.region =
+      reuse ? std::move(reuse) : std::make_shared<const EyeRegion>(RenderEyeRegion(renderer, frame, at, threads));
   const EyeRegion& region = *out.region;
   if (!region.message.empty()) {
     out.message = region.message;
