@@ -3,12 +3,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <exception>
 #include <limits>
-#include <map>
-#include <optional>
 #include <tuple>
 #include <utility>
 #include <vector>
@@ -136,7 +132,7 @@ struct GazeEstimator::EyeState {
   // The colour of the skin around the eye as the camera sees it (the median of the face pixels
   // next to the eyeball in the render).
   Eigen::Vector3d skin = Eigen::Vector3d::Zero();
-  // An actor's iris of its own size (ActorEyes): the profile is these two colours, iris and
+  // An iris of a given size (ReadEye's iris_degrees): the profile is these two colours, iris and
   // sclera, and a pixel between them (an iris edge, blurred) is eyeball, not lid.
   bool two_tone = false;
   Eigen::Vector3d dark = Eigen::Vector3d::Zero(), bright = Eigen::Vector3d::Zero();
@@ -614,7 +610,7 @@ GazeEstimator::Pass GazeEstimator::Search(const gpu::CpuRenderer& renderer, cons
 }
 
 bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame& frame, const gpu::FaceParameters& fit,
-                             const GazeOptions& options, double iris_degrees, GazeReading* reading) const {
+                             const GazeOptions& options, GazeReading* reading) const {
   if (blink_[0] < 0 || blink_[1] < 0) {
     reading->lids_message = "the model has no eyeBlink blendshapes";
     return false;
@@ -637,7 +633,7 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
   for (int e = 0; e < 2; ++e) {
     EyeState s;
     int rows = 0;
-    const std::string why = ReadEye(open, frame, open_at, e, iris_degrees, &s, &rows);
+    const std::string why = ReadEye(open, frame, open_at, e, /*iris_degrees=*/0, &s, &rows);
     if (!why.empty()) {
       reading->lids_message = why;
       return false;
@@ -761,7 +757,7 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
     for (int e = 0; e < 2; ++e)
       look = look || (first.rendered_pixels > 0 && first.open_fraction[e] < options.lids_below_open_fraction) ||
              fit.delta[blink_[e]] > options.lids_from_weight;
-    if (look && ReadLids(renderer, frame, fit, options, iris, &out)) {
+    if (look && ReadLids(renderer, frame, fit, options, &out)) {
       fit.delta[blink_[0]] = out.blink[0];
       fit.delta[blink_[1]] = out.blink[1];
       params->delta = fit.delta;

@@ -170,7 +170,6 @@ class GazeEstimator {
   GazeReading Read(const gpu::CpuRenderer& renderer, const InputFrame& frame, gpu::FaceParameters* params,
                    const GazeOptions& options, bool lids_fit = true) const;
 
-
   // The eyeLook weights (model's expression indices, ARKit order) for a conjugate gaze.
   struct Weight {
     int index = -1;
@@ -218,7 +217,7 @@ class GazeEstimator {
               std::shared_ptr<const EyeRegion> rendered = nullptr) const;
   // The lids (eyeBlink weights) read into `reading`; false when they cannot be read.
   bool ReadLids(const gpu::CpuRenderer& renderer, const InputFrame& frame, const gpu::FaceParameters& fit,
-                const GazeOptions& options, double iris_degrees, GazeReading* reading) const;
+                const GazeOptions& options, GazeReading* reading) const;
 
   bool available_ = false;
   std::array<Eye, 2> eyes_{};  // left (the person's), right
