@@ -183,6 +183,22 @@ if [ -f "$STILL" ]; then
          -filter_complex "[0]crop=260:320:600:120[a];[1]crop=260:320:600:120[b];[2]crop=260:320:600:120[c];[a][b][c]hstack=3" \
          "$OUT/still_crop.png"
 fi
+# Lids the output closes on a face that never blinks (issue #28, not solved): d14 blinking (output frame 66) and with
+# her eyes shut (150, 190) onto NASA's portrait (the demo's real face, from the scikit-image wheel `demo --fetch-only`
+# keeps in the cache), target above output around the eyes at frame 150 (portrait_lids.png). Measured 2026-12-04: the
+# closed lids are the skin's colour (208, 179, 154 against 208, 179, 159 between brow and lid) but flat, with no
+# crease or shading, a dotted lash line, and cover the brows' lower edge; the same with `--albedo-texture 0`.
+WHEEL="$(ls "${XDG_CACHE_HOME:-$HOME/.cache}"/face-reenact/scikit_image-0.22.0-*.whl 2>/dev/null | head -n 1)"
+if [ -n "$WHEEL" ]; then
+  mkdir -p "$OUT/portrait_lids"
+  portrait="$OUT/portrait_lids/astronaut.png" eyes="crop=110:40:190:90,scale=440:160:flags=neighbor"
+  python3 -c 'import sys, zipfile; open(sys.argv[2], "wb").write(zipfile.ZipFile(sys.argv[1]).read(sys.argv[3]))' \
+          "$WHEEL" "$portrait" skimage/data/astronaut.png
+  "$FR" reenact --source "$src" --target "$portrait" --frames 200 --out "$OUT/portrait_lids/reenact.mp4" \
+        --quiet --sheets "$OUT/portrait_lids" --sheet-frames 66,150,190
+  ffmpeg -loglevel error -y -i "$portrait" -i "$OUT/portrait_lids/reenact.mp4" -filter_complex \
+         "[0]$eyes[a];[1]select='eq(n\,150)',$eyes[b];[a][b]vstack" -frames:v 1 "$OUT/portrait_lids.png"
+fi
 # The virtual mirror (docs/reenactment.md, "Virtual mirror"): a round sticker (made here: magenta, transparent around it)
 # on the left cheek, and the light from the image's left, on the webcam clip and on d14; frame 50 of each, input |
 # sticker | light, side by side (mirror_webcam.png, mirror_d14.png).
@@ -216,4 +232,4 @@ for pair in webcam:webcam_talking_640x480.wmv:30:240:280:200:120 d14:liveportrai
          -filter_complex "[0]select='eq(n\,$frame)',$crop[a];[1]$crop[b];[2]$crop[c];[a][b][c]hstack=3" -frames:v 1 \
          "$OUT/albedo_texture_$name.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference; detail_outline.png: a jaw's edge that must not become a fold), still/ and still_crop.png (a photo as the target), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference; detail_outline.png: a jaw's edge that must not become a fold), still/ and still_crop.png (a photo as the target), portrait_lids/ and portrait_lids.png (lids closed on a face that never blinks), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"
