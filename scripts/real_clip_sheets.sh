@@ -198,6 +198,16 @@ if [ -n "$WHEEL" ]; then
         --quiet --sheets "$OUT/portrait_lids" --sheet-frames 66,150,190
   ffmpeg -loglevel error -y -i "$portrait" -i "$OUT/portrait_lids/reenact.mp4" -filter_complex \
          "[0]$eyes[a];[1]select='eq(n\,150)',$eyes[b];[a][b]vstack" -frames:v 1 "$OUT/portrait_lids.png"
+  # Crossed eyes (docs/tracker.md, "Gaze", item 10): d6 crossing hers at 80 and 248, one eye turned in at 112, onto
+  # the same portrait; the source's eyes above the output's, frames 80, 112, 248 (crossed_eyes.png; with FR_CLI set
+  # to an earlier build, a before: the output's eyes looked ahead at 80 and 248).
+  "$FR" reenact --source "$VIDEOS/liveportrait_d6.mp4" --target "$portrait" --frames 250 --quiet \
+        --out "$OUT/portrait_lids/crossed.mp4" --frames-dir "$OUT/portrait_lids/crossed"
+  ffmpeg -loglevel error -y -i "$VIDEOS/liveportrait_d6.mp4" -i "$OUT/portrait_lids/crossed/frame_000080.png" \
+         -i "$OUT/portrait_lids/crossed/frame_000112.png" -i "$OUT/portrait_lids/crossed/frame_000248.png" \
+         -filter_complex "[0]select='eq(n\,80)+eq(n\,248)+eq(n\,112)',crop=240:80:120:185,scale=440:147,tile=3x1[s];$(
+           for k in 1 2 3; do printf '[%d]%s[o%d];' $k "$eyes" $k; done)[o1][o2][o3]hstack=3[o];[s][o]vstack" \
+         -frames:v 1 "$OUT/crossed_eyes.png"
 fi
 # The virtual mirror (docs/reenactment.md, "Virtual mirror"): a round sticker (made here: magenta, transparent around it)
 # on the left cheek, and the light from the image's left, on the webcam clip and on d14; frame 50 of each, input |
@@ -232,4 +242,4 @@ for pair in webcam:webcam_talking_640x480.wmv:30:240:280:200:120 d14:liveportrai
          -filter_complex "[0]select='eq(n\,$frame)',$crop[a];[1]$crop[b];[2]$crop[c];[a][b][c]hstack=3" -frames:v 1 \
          "$OUT/albedo_texture_$name.png"
 done
-echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference; detail_outline.png: a jaw's edge that must not become a fold), still/ and still_crop.png (a photo as the target), portrait_lids/ and portrait_lids.png (lids closed on a face that never blinks), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"
+echo "sheets in $OUT: *.overlay.png (fit over the clip), sheet_NNNNNN.png (source | target | output, the faces and the mouth), brows/ (raise, frown, after the light drifted), mouth_{auto,model}/ (the target's own mouth against the model's), mirror_*.png (input | sticker | light from the left), detail*.png (without | with the source's folds | difference; detail_outline.png: a jaw's edge that must not become a fold), still/ and still_crop.png (a photo as the target), portrait_lids/ and portrait_lids.png (lids closed on a face that never blinks), crossed_eyes.png (d6 crossing her eyes), lids.png and lids/ (closed lids), bared_teeth/ (a grimace onto a wide-open mouth filmed from below), closed_loop_*.json (the output tracked again), albedo_texture_*.png (input | per-vertex albedo | albedo texture)"

@@ -151,11 +151,15 @@ TEST(RealClipExpression, BlinksGazeAndBrowsOfLivePortraitD14) {
 // colour difference stays high at any reading; judged by the two eyes' sum the per-eye reading was
 // refused and both eyes took one full turn to her left (eyeLookOutLeft 1: the left eye turned
 // out). Each eye's own drop keeps the per-eye reading (gaze.h, vergence_improvement).
-TEST(RealClipExpression, OneEyeTurnedInOfLivePortraitD6) {
+// At 78-81 and 244-250 she crosses both eyes hard (both irises in the corners by the nose; checked
+// the same way, and side by side with frame 0, where she looks ahead): the model's iris read no
+// clear gaze there, and the reading with an iris of a real size one hard glance to a side; each
+// eye read on its own with the real iris reads them crossed (GazeOptions::real_iris_crossed_min_turn).
+TEST(RealClipExpression, OneEyeTurnedInAndCrossedEyesOfLivePortraitD6) {
   std::string skip;
-  const std::vector<nlohmann::json> frames = track_shared_clip("liveportrait_d6.mp4", 14, &skip);
+  const std::vector<nlohmann::json> frames = track_shared_clip("liveportrait_d6.mp4", 251, &skip);
   if (!skip.empty()) GTEST_SKIP() << skip;
-  ASSERT_EQ(frames.size(), 14u);
+  ASSERT_EQ(frames.size(), 251u);
   auto weight = [&](int f, const char* name) { return weight_at(frames, f, name); };
   int eye_by_eye = 0;
   for (int f = 7; f <= 13; ++f) {
@@ -166,6 +170,19 @@ TEST(RealClipExpression, OneEyeTurnedInOfLivePortraitD6) {
     eye_by_eye += frames[size_t(f)]["gaze"].is_object() && !frames[size_t(f)]["gaze"]["per_eye"].is_null();
   }
   EXPECT_GE(eye_by_eye, 6) << "frames 7-13 read eye by eye";
+  for (const int f : {78, 79, 80, 81, 244, 245, 246, 247, 248, 249, 250}) {
+    SCOPED_TRACE(f);
+    ASSERT_TRUE(frames[size_t(f)]["has_fit"].get<bool>());
+    EXPECT_GT(weight(f, "eyeLookInLeft"), 0.5);
+    EXPECT_GT(weight(f, "eyeLookInRight"), 0.5);
+    EXPECT_EQ(weight(f, "eyeLookOutLeft"), 0.0);
+    EXPECT_EQ(weight(f, "eyeLookOutRight"), 0.0);
+  }
+  // Where she looks ahead, no crossing is read.
+  for (int f = 0; f <= 5; ++f) {
+    SCOPED_TRACE(f);
+    EXPECT_LT(std::min(weight(f, "eyeLookInLeft"), weight(f, "eyeLookInRight")), 0.2);
+  }
 }
 
 }  // namespace

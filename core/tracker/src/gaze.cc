@@ -176,6 +176,8 @@ bool GazeOptions::IsValid(std::string* why) const {
     return fail("gaze: real_iris_check_above must be in [0, 1]");
   if (!(real_iris_disagreement >= 0 && real_iris_disagreement <= 2))
     return fail("gaze: real_iris_disagreement must be in [0, 2]");
+  if (!(real_iris_crossed_min_turn >= 0 && real_iris_crossed_min_turn <= 1))
+    return fail("gaze: real_iris_crossed_min_turn must be in [0, 1]");
   if (threads < 0) return fail("gaze: threads must be >= 0 (0: one per hardware thread)");
   return true;
 }
@@ -806,28 +808,51 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
     params->delta = fit.delta;
     return done("");
   };
+  // Each eye on its own with the real-sized iris (read_vergence's search and test): eyes crossed,
+  // which the conjugate reading reads as one glance to a side (GazeOptions::real_iris_crossed_min_turn).
+  auto real_iris_eyes = [&] {
+    GazeOptions with_vergence = options;
+    with_vergence.read_vergence = true;
+    return Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, with_vergence, real_iris_degrees_, first.region);
+  };
+  auto crossed = [&](const Pass& eyes) {
+    const double turn = options.real_iris_crossed_min_turn;  // the left eye to the right, the right eye to the left
+    return options.read_vergence && eyes.ok && eyes.vergent && eyes.per_eye[0] <= -turn && eyes.per_eye[1] >= turn;
+  };
+  auto take_real_eyes = [&](const Pass& eyes, const Pass& full) {
+    out.vergence_read = true;
+    out.per_eye = {static_cast<float>(eyes.per_eye[0]), static_cast<float>(eyes.per_eye[1])};
+    take_real(eyes, full);
+    for (const Weight& wt : WeightsForEyes(out.per_eye[0], out.per_eye[1], 0.f)) fit.delta[wt.index] = wt.value;
+    params->delta = fit.delta;
+    return done("");
+  };
   const bool check_real = options.real_iris_check && real_iris_degrees_ > 0;
   const bool clear = first.straight_energy - best.energy >= options.min_improvement * best.energy;
   if (check_real && clear && !best.vergent && std::abs(best.h) >= options.real_iris_check_above) {
     const Pass full =
         Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only, real_iris_degrees_, first.region);
     const Pass real = real_iris(full);
-    if (real.ok && std::abs(real.h - best.h) > options.real_iris_disagreement) return take_real(real, full);
+    if (real.ok && std::abs(real.h - best.h) > options.real_iris_disagreement) {
+      if (options.read_vergence)
+        if (const Pass eyes = real_iris_eyes(); crossed(eyes)) return take_real_eyes(eyes, full);
+      return take_real(real, full);
+    }
   }
   if (check_real && !clear) {
-    // Only a hard glance, clear by the same gate, with the eyes turned together: without each
-    // eye's own search (read_vergence's test) an actor crossing her eyes (d6, 246-250) was read
-    // as a conjugate glance.
+    // Only a hard glance, clear by the same gate, with the eyes turned together or crossed:
+    // without each eye's own search (read_vergence's test) an actor crossing her eyes (d6,
+    // 246-250) was read as a conjugate glance; eyes turned apart otherwise are not read. Not each
+    // eye's own reading wherever the conjugate one is unclear: gated by its own colour difference,
+    // it read d14's wide-open eyes looking ahead (67-78) and d0's at rest (0-3) as crossed.
     const Pass full =
         Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, conjugate_only, real_iris_degrees_, first.region);
     if (full.ok && std::abs(full.h) >= options.real_iris_check_above) {
       const Pass real = real_iris(full);
       if (real.ok && std::abs(real.h) >= options.real_iris_check_above &&
           full.straight_energy - real.energy >= options.min_improvement * real.energy) {
-        GazeOptions with_vergence = options;
-        with_vergence.read_vergence = true;
-        const Pass eyes =
-            Search(renderer, frame, fit, 0.f, 0.f, 0.0, 0.0, 1.0, with_vergence, real_iris_degrees_, first.region);
+        const Pass eyes = real_iris_eyes();
+        if (crossed(eyes)) return take_real_eyes(eyes, full);
         if (eyes.ok && !eyes.vergent) return take_real(real, full);
       }
     }

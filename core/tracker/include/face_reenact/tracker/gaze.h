@@ -115,9 +115,17 @@ struct GazeOptions {
   // the eyes turned together (read_vergence's test), is taken. On liveportrait_d14's 48
   // hand-judged frames the mean error went 0.226 -> 0.070, frames off by more than 0.5 10 -> 0
   // (docs/tracker.md, "Gaze").
+  // Wherever such a reading is taken, each eye is also read on its own with the real iris
+  // (read_vergence's search and test), and eyes crossed with each turned in by at least
+  // real_iris_crossed_min_turn are taken as crossed: the conjugate reading read an actor crossing
+  // her eyes (liveportrait_d6, 78-82 and 244-250) as a hard glance to one side, or not at all.
+  // Only crossed: the one reading of eyes turned apart this found on the shared clips was a
+  // glance through glasses' glare (liveportrait_d12, frame 88). And each eye turned in clearly: a
+  // glance with one eye read at 0.06 passed read_vergence's test (liveportrait_d0, frame 41).
   bool real_iris_check = true;
   double real_iris_check_above = 0.5;
   double real_iris_disagreement = 0.3;
+  double real_iris_crossed_min_turn = 0.2;
 
   // Threads for rendering the eye region (the model's evaluation, the set-up of its triangles)
   // and for costing the searches' candidates (0 = one per hardware thread, at most 8). The
