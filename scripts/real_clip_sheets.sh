@@ -187,7 +187,7 @@ fi
 # her eyes shut (150, 190) onto NASA's portrait (the demo's real face, from the scikit-image wheel `demo --fetch-only`
 # keeps in the cache), target above output around the eyes at frame 150 (portrait_lids.png). Measured 2026-12-04: the
 # closed lids are the skin's colour (208, 179, 154 against 208, 179, 159 between brow and lid) but flat, with no
-# crease or shading, a dotted lash line, and cover the brows' lower edge; the same with `--albedo-texture 0`.
+# shading across the lid and a dotted lash line (the crease and the brows stay); the same with `--albedo-texture 0`.
 WHEEL="$(ls "${XDG_CACHE_HOME:-$HOME/.cache}"/face-reenact/scikit_image-0.22.0-*.whl 2>/dev/null | head -n 1)"
 if [ -n "$WHEEL" ]; then
   mkdir -p "$OUT/portrait_lids"
