@@ -284,6 +284,7 @@ TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
     // A small turn may not stand out from looking ahead (GazeOptions::min_improvement).
     if (r.ok) {
       EXPECT_NEAR(read, h, 0.1);
+      EXPECT_FALSE(r.vergence_read);  // eyes turned together are not read as crossed
     } else {
       EXPECT_LE(std::abs(h), 0.2f) << r.message;
     }
@@ -291,6 +292,38 @@ TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
   }
   EXPECT_GT(worst_model_only, 0.5);  // what the second reading is for (0.2 read as 1.0)
 }
+
+// Eyes crossed hard (each turned fully in) showing an iris of a real size: the model's iris reads
+// no clear gaze, the real iris' conjugate reading one hard glance, and each eye read on its own
+// with the real iris finds them crossed (GazeOptions::real_iris_crossed_min_turn). Before, that
+// per-eye search only refused the glance and the eyes were left looking ahead. (Milder crossings
+// are not clear by the conjugate reading's gate on such renders and are not read.)
+TEST(Gaze, ReadsEyesCrossedHardWithARealSizedIris) {
+  const TrackerModel* model = testing::real_model();
+  if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
+  const TrackerModel small_iris = WithARealSizedIris(*model);
+  const CpuSolver small_iris_solver(small_iris);
+  const CpuSolver solver(*model);
+  const GazeEstimator gaze(*model);
+  for (const float distance : {0.45f, 0.6f}) {
+    SCOPED_TRACE(::testing::Message() << "at " << distance << " m");
+    gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f, distance);
+    for (const auto& w : gaze.WeightsForEyes(-1.f, 1.f, 0.f)) truth.delta[w.index] = w.value;
+    const InputFrame frame = RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+    gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f, distance);
+    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
+    ASSERT_TRUE(r.ok) << r.message;
+    EXPECT_TRUE(r.real_iris);
+    EXPECT_TRUE(r.vergence_read);
+    EXPECT_LE(r.per_eye[0], -0.6f);
+    EXPECT_GE(r.per_eye[1], 0.6f);
+    EXPECT_GT(weight(fit, "eyeLookInLeft"), 0.6f);
+    EXPECT_GT(weight(fit, "eyeLookInRight"), 0.6f);
+    EXPECT_EQ(weight(fit, "eyeLookOutLeft"), 0.f);
+    EXPECT_EQ(weight(fit, "eyeLookOutRight"), 0.f);
+  }
+}
+
 
 TEST(Gaze, ClosedEyesGiveNoReadingAndLeaveTheFit) {
   const TrackerModel* model = testing::real_model();
