@@ -309,7 +309,8 @@ TEST(Gaze, ReadsEyesCrossedHardWithARealSizedIris) {
     SCOPED_TRACE(::testing::Message() << "at " << distance << " m");
     gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f, distance);
     for (const auto& w : gaze.WeightsForEyes(-1.f, 1.f, 0.f)) truth.delta[w.index] = w.value;
-    const InputFrame frame = RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+    const InputFrame frame =
+        RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
     gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f, distance);
     const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
     ASSERT_TRUE(r.ok) << r.message;
