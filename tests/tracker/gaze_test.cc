@@ -258,24 +258,34 @@ TrackerModel WithARealSizedIris(const TrackerModel& model) {
   return small_iris;
 }
 
+// The renders of WithARealSizedIris and the model as built that reads them.
+struct RealSizedIrisScene {
+  explicit RealSizedIrisScene(const TrackerModel& model)
+      : small_iris(WithARealSizedIris(model)), small_iris_solver(small_iris), solver(model), gaze(model) {}
+  InputFrame Render(const gpu::FaceParameters& truth) const {
+    return RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+  }
+  const TrackerModel small_iris;
+  const CpuSolver small_iris_solver;
+  const CpuSolver solver;
+  const GazeEstimator gaze;
+};
+
 TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
-  const TrackerModel small_iris = WithARealSizedIris(*model);
-  const CpuSolver small_iris_solver(small_iris);
-  const CpuSolver solver(*model);
-  const GazeEstimator gaze(*model);
+  const RealSizedIrisScene scene(*model);
+  const GazeEstimator& gaze = scene.gaze;
   GazeOptions model_iris_only;
   model_iris_only.real_iris_check = false;
   double worst_model_only = 0;
   for (const float h : {0.f, 0.2f, -0.2f, 0.4f, -0.4f}) {
     SCOPED_TRACE(::testing::Message() << "h " << h);
     const gpu::FaceParameters truth = face_looking(*model, gaze, h, 0.f);
-    const InputFrame frame =
-        RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+    const InputFrame frame = scene.Render(truth);
     gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f), fit_model_only = fit;
-    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
-    const GazeReading m = gaze.Read(solver.renderer(), frame, &fit_model_only, model_iris_only);
+    const GazeReading r = gaze.Read(scene.solver.renderer(), frame, &fit, GazeOptions{});
+    const GazeReading m = gaze.Read(scene.solver.renderer(), frame, &fit_model_only, model_iris_only);
     // No reading leaves the eyes straight ahead.
     const double read = r.ok ? r.horizontal : 0.0, read_model_only = m.ok ? m.horizontal : 0.0;
     std::printf("h %.2f: read %.3f (%s), the model's iris alone %.3f (%s)\n", h, read,
@@ -301,18 +311,15 @@ TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
 TEST(Gaze, ReadsEyesCrossedHardWithARealSizedIris) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
-  const TrackerModel small_iris = WithARealSizedIris(*model);
-  const CpuSolver small_iris_solver(small_iris);
-  const CpuSolver solver(*model);
-  const GazeEstimator gaze(*model);
+  const RealSizedIrisScene scene(*model);
+  const GazeEstimator& gaze = scene.gaze;
   for (const float distance : {0.45f, 0.6f}) {
     SCOPED_TRACE(::testing::Message() << "at " << distance << " m");
     gpu::FaceParameters truth = face_looking(*model, gaze, 0.f, 0.f, distance);
     for (const auto& w : gaze.WeightsForEyes(-1.f, 1.f, 0.f)) truth.delta[w.index] = w.value;
-    const InputFrame frame =
-        RenderSyntheticFrame(small_iris_solver.renderer(), small_iris, truth, testing::test_camera());
+    const InputFrame frame = scene.Render(truth);
     gpu::FaceParameters fit = face_looking(*model, gaze, 0.f, 0.f, distance);
-    const GazeReading r = gaze.Read(solver.renderer(), frame, &fit, GazeOptions{});
+    const GazeReading r = gaze.Read(scene.solver.renderer(), frame, &fit, GazeOptions{});
     ASSERT_TRUE(r.ok) << r.message;
     EXPECT_TRUE(r.real_iris);
     EXPECT_TRUE(r.vergence_read);
