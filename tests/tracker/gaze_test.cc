@@ -225,11 +225,6 @@ TEST(Gaze, ReadsEyesTurnedTowardsEachOtherEyeByEye) {
   }
 }
 
-// The model's iris reaches about 33 degrees from the eye's axis, half as wide again as a real
-// one. An eye showing a real-sized iris (the model with its eyeballs' vertices beyond 22 degrees
-// of the axis coloured as their white, rendered, and read with the model as built) looking
-// nearly ahead was read as the model's iris turned hard into a corner; the second reading with an
-// iris of a real size (GazeOptions::real_iris_check) replaces it.
 // The model with an iris of a real size: its eyeballs' vertices beyond 22 degrees of the axis
 // take the white's colour (the vertex farthest round from the front).
 TrackerModel WithARealSizedIris(const TrackerModel& model) {
@@ -271,6 +266,11 @@ struct RealSizedIrisScene {
   const GazeEstimator gaze;
 };
 
+// The model's iris reaches about 33 degrees from the eye's axis, half as wide again as a real
+// one. An eye showing a real-sized iris (the model with its eyeballs' vertices beyond 22 degrees
+// of the axis coloured as their white, rendered, and read with the model as built) looking
+// nearly ahead was read as the model's iris turned hard into a corner; the second reading with an
+// iris of a real size (GazeOptions::real_iris_check) replaces it.
 TEST(Gaze, ReadsARealSizedIrisLookingNearlyAhead) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";
@@ -331,7 +331,6 @@ TEST(Gaze, ReadsEyesCrossedHardWithARealSizedIris) {
     EXPECT_EQ(weight(fit, "eyeLookOutRight"), 0.f);
   }
 }
-
 
 TEST(Gaze, ClosedEyesGiveNoReadingAndLeaveTheFit) {
   const TrackerModel* model = testing::real_model();

@@ -804,7 +804,9 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
     out.straight_energy = full.straight_energy;
     out.pixels = real.pixels;
     out.eyeball_pixels = real.rendered_pixels;
-    for (const Weight& wt : WeightsFor(out.horizontal, 0.f)) fit.delta[wt.index] = wt.value;
+    for (const Weight& wt : out.vergence_read ? WeightsForEyes(out.per_eye[0], out.per_eye[1], 0.f)
+                                              : WeightsFor(out.horizontal, 0.f))
+      fit.delta[wt.index] = wt.value;
     params->delta = fit.delta;
     return done("");
   };
@@ -822,10 +824,7 @@ GazeReading GazeEstimator::Read(const gpu::CpuRenderer& renderer, const InputFra
   auto take_real_eyes = [&](const Pass& eyes, const Pass& full) {
     out.vergence_read = true;
     out.per_eye = {static_cast<float>(eyes.per_eye[0]), static_cast<float>(eyes.per_eye[1])};
-    take_real(eyes, full);
-    for (const Weight& wt : WeightsForEyes(out.per_eye[0], out.per_eye[1], 0.f)) fit.delta[wt.index] = wt.value;
-    params->delta = fit.delta;
-    return done("");
+    return take_real(eyes, full);
   };
   const bool check_real = options.real_iris_check && real_iris_degrees_ > 0;
   const bool clear = first.straight_energy - best.energy >= options.min_improvement * best.energy;
