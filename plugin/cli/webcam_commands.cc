@@ -483,10 +483,16 @@ void add_webcam_command(CLI::App& app) {
   auto live_overlap = std::make_shared<bool>(false);
   bench_live->add_flag("--overlap", *live_overlap,
                        "Render frame n on a second thread while the worker tracks frame n+1 (LiveSession::Options::overlap_frames)");
+  auto live_marks = std::make_shared<std::string>("auto");
+  bench_live->add_option("--landmarks-ahead", *live_marks,
+                         "Detect frame n+1's landmarks on a thread of their own while frame n is fitted: auto (with a "
+                         "GPU solver), on or off (LiveSession::Options::landmarks_ahead)")
+      ->check(CLI::IsMember({"auto", "on", "off"}))
+      ->capture_default_str();
   bench_live->add_option("--warmup", *live_warmup,
                          "seconds after the first frame left out of the measurement (model load, calibration)")
       ->capture_default_str();
-  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap] {
+  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap, live_marks] {
     if (!(*live_seconds > 0) || *live_seconds > 3600) throw Error("--seconds must be in (0, 3600]");
     if (!(*live_warmup >= 0) || *live_warmup > 600) throw Error("--warmup must be in [0, 600]");
     live::LiveSession::Options o;
@@ -495,6 +501,8 @@ void add_webcam_command(CLI::App& app) {
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
     o.overlap_frames = *live_overlap;
+    o.landmarks_ahead = *live_marks == "on";
+    o.landmarks_ahead_on_gpu = *live_marks == "auto";
     apply_pipeline_args(*live_args, &o);
     if (!live::parse_output_mode(live_args->mode, &o.mode))
       throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, mirror, raw");
@@ -545,9 +553,10 @@ void add_webcam_command(CLI::App& app) {
     std::printf("  %s\n", status.Headline().c_str());
     if (status.stream_source)
       std::printf("  stream: %s\n", status.stream_statistics.Counts().c_str());
-    std::printf("  tracker solver: %s; renderer: %s; %s\n",
+    std::printf("  tracker solver: %s; renderer: %s; %s%s\n",
                 status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(), o.use_vulkan ? "vulkan" : "cpu",
-                status.frames_overlapped ? "render on its own thread" : "track and render on the worker");
+                status.frames_overlapped ? "render on its own thread" : "track and render on the worker",
+                status.landmarks_ahead ? "; landmarks on their own thread, a frame ahead" : "");
     std::printf("  output %.1f fps (%llu frames in %.1f s; target delivers %.1f fps), pipeline %.2f ms/frame, "
                 "capture-to-output latency mean %.2f ms, p95 %.2f ms\n",
                 double(last - first) / seconds, static_cast<unsigned long long>(last - first), seconds, status.target_fps,

@@ -788,8 +788,10 @@ TEST(LiveSessionTest, ReenactModeRunsThePipelineOnTheRecording) {
 // The worker's stage times and counts (bench live's table): every processed frame is counted once
 // as tracked, calibrating or unchanged, the named rows add up to no more than the frame's time, the
 // tracker's rows are there once it tracks, and ResetTimings starts a new measurement.
-// With overlap_frames the same holds, the render thread publishes, and it ends with the session.
-class LiveSessionTimingsTest : public ::testing::TestWithParam<bool> {};
+// With overlap_frames the same holds, the render thread publishes, and it ends with the session;
+// with landmarks_ahead too, the landmark stage prepares the frames (its thread ends likewise).
+enum class LiveThreads { kOne, kRenderApart, kRenderAndLandmarksApart };
+class LiveSessionTimingsTest : public ::testing::TestWithParam<LiveThreads> {};
 
 TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) {
   std::string why;
@@ -797,8 +799,10 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   const std::string dir = test::make_test_recording({"recording-320", 320, 240, 60, 7}, &why);
   if (dir.empty()) GTEST_SKIP() << "no test recording: " << why;
   const int threads_before = test::count_threads_with_prefix("fr-live-render");
+  const int marks_before = test::count_threads_with_prefix("fr-live-marks");
   LiveSession::Options options = pipeline_options(dir, OutputMode::kPassThrough);
-  options.overlap_frames = GetParam();
+  options.overlap_frames = GetParam() != LiveThreads::kOne;
+  options.landmarks_ahead = GetParam() == LiveThreads::kRenderAndLandmarksApart;
   LiveSession session(options);
   // The calibration's joint solve takes seconds here and minutes under the sanitizers.
   LiveStatus s = wait_status(session, 560s, [](const LiveStatus& st) {
@@ -832,12 +836,25 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   EXPECT_LE(named, t.sum.total_ms * 1.0001 + 1e-6);
   EXPECT_GT(t.sum.synthesis_ms + t.sum.analysis_ms, 0.0);  // the tracker ran
   EXPECT_GT(t.sum.render_ms + t.sum.composite_ms, 0.0);    // and the face was re-rendered
-  EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + (GetParam() ? 1 : 0));
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + (options.overlap_frames ? 1 : 0));
+  EXPECT_EQ(test::count_threads_with_prefix("fr-live-marks"), marks_before + (options.landmarks_ahead ? 1 : 0));
+  EXPECT_EQ(session.status().landmarks_ahead, options.landmarks_ahead);
   session.stop();
   EXPECT_EQ(test::settled_thread_count("fr-live-render", threads_before), threads_before);
+  EXPECT_EQ(test::settled_thread_count("fr-live-marks", marks_before), marks_before);
 }
 
-INSTANTIATE_TEST_SUITE_P(OneOrTwoThreads, LiveSessionTimingsTest, ::testing::Bool());
+INSTANTIATE_TEST_SUITE_P(OneTwoOrThreeThreads, LiveSessionTimingsTest,
+                         ::testing::Values(LiveThreads::kOne, LiveThreads::kRenderApart,
+                                           LiveThreads::kRenderAndLandmarksApart),
+                         [](const ::testing::TestParamInfo<LiveThreads>& info) -> std::string {
+                           switch (info.param) {
+                             case LiveThreads::kOne: return "TheWorker";
+                             case LiveThreads::kRenderApart: return "RenderApart";
+                             case LiveThreads::kRenderAndLandmarksApart: return "RenderAndLandmarksApart";
+                           }
+                           return "Unknown";
+                         });
 
 // A photo as the target (a still image, looped like a recording) is tracked and reenacted, and
 // the status never asks it to open its mouth wide for the teeth: a photo with its mouth closed
@@ -863,8 +880,9 @@ TEST(LiveSessionTest, APhotoAsTheTargetIsNeverAskedToOpenItsMouth) {
 }
 
 // A tracker solving on a GPU (here the Vulkan solver forced onto lavapipe) renders each frame on
-// a thread of its own once the pipeline has loaded, unless overlap_frames_on_gpu is off; the
-// status says which solver and whether the halves overlap.
+// a thread of its own once the pipeline has loaded, unless overlap_frames_on_gpu is off, and
+// detects the landmarks a frame ahead unless landmarks_ahead_on_gpu is off; the status says which
+// solver and whether the halves overlap.
 TEST(LiveSessionOverlapTest, ATrackerSolvingOnTheGpuRendersOnItsOwnThread) {
   REQUIRE_RECORDING(dir);
   for (const bool on_gpu : {true, false}) {
@@ -872,12 +890,14 @@ TEST(LiveSessionOverlapTest, ATrackerSolvingOnTheGpuRendersOnItsOwnThread) {
     LiveSession::Options options = pipeline_options(dir, OutputMode::kPassThrough);
     options.solver = "vulkan";
     options.overlap_frames_on_gpu = on_gpu;
+    options.landmarks_ahead_on_gpu = on_gpu;
     LiveSession session(options);
     LiveStatus s = wait_status(session, 300s, [](const LiveStatus& st) { return st.pipeline_ready && !st.solver.empty(); });
     ASSERT_TRUE(s.pipeline_ready) << s.Headline();
     EXPECT_EQ(s.solver.rfind("vulkan on ", 0), 0u) << s.solver;
     s = wait_status(session, 10s, [&](const LiveStatus& st) { return st.frames_overlapped == on_gpu; });
     EXPECT_EQ(s.frames_overlapped, on_gpu);
+    EXPECT_EQ(s.landmarks_ahead, on_gpu);
     EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + (on_gpu ? 1 : 0));
     session.stop();
     EXPECT_EQ(test::settled_thread_count("fr-live-render", threads_before), threads_before);

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <future>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -225,26 +226,53 @@ TEST(ReenactPipelineTest, TrackedStaticTargetIsStableFrameToFrame) {
 // after the other (Render keeps the appearance, the neutral of Eq. 15 travels with each frame, so
 // the overlap changes nothing), through a calibration, a moving head and a recalibration request
 // in the middle.
+// Eight frames of a turning head (calibration 0-1, tracking 2-4, recalibration 5-6, tracking 7),
+// a smile to transfer, and what Process gives frame by frame: what the split ways must equal.
+struct SplitPipelineCase {
+  std::vector<capture::RgbdFrame> frames;
+  SourceExpression smile;
+  std::vector<ReenactedFrame> expected;
+  int expected_frames = 0, expected_reenacted = 0;
+  static constexpr size_t kRecalibrateAt = 5;
+
+  SplitPipelineCase() {
+    const gpu::PinholeCamera cam = test_camera(160, 120);
+    for (int i = 0; i < 8; ++i) {
+      gpu::FaceParameters p = test_face(0.4f);
+      p.euler.y() += 0.02f * static_cast<float>(i);
+      frames.push_back(make_frame(p, cam, i));
+    }
+    smile.weights[arkit_blendshape_index("mouthSmileLeft")] = 0.7f;
+    smile.weights[kJawOpenIndex] = 0.3f;
+    ReenactmentPipeline sequential(*test_model(), recording_landmarks());
+    for (size_t i = 0; i < frames.size(); ++i) {
+      if (i == kRecalibrateAt) sequential.RequestCalibration();
+      expected.push_back(sequential.Process(frames[i], &smile));
+    }
+    expected_frames = sequential.summary().frames;
+    expected_reenacted = sequential.summary().reenacted_frames;
+  }
+
+  void ExpectSame(const std::vector<ReenactedFrame>& got, const ReenactmentPipeline& split) const {
+    ASSERT_EQ(got.size(), expected.size());
+    int reenacted = 0;
+    for (size_t i = 0; i < got.size(); ++i) {
+      EXPECT_EQ(got[i].status, expected[i].status) << "frame " << i;
+      EXPECT_EQ(got[i].reenacted, expected[i].reenacted) << "frame " << i;
+      reenacted += got[i].reenacted;
+      ASSERT_EQ(got[i].bgr.size(), expected[i].bgr.size());
+      EXPECT_EQ(cv::norm(got[i].bgr, expected[i].bgr, cv::NORM_INF), 0.0) << "frame " << i;
+    }
+    EXPECT_GE(reenacted, 3);
+    EXPECT_EQ(split.summary().frames, expected_frames);
+    EXPECT_EQ(split.summary().reenacted_frames, expected_reenacted);
+  }
+};
+
 TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames) {
   FR_REQUIRE_MODEL();
-  const gpu::PinholeCamera cam = test_camera(160, 120);
-  std::vector<capture::RgbdFrame> frames;
-  for (int i = 0; i < 8; ++i) {  // calibration 0-1, tracking 2-4, recalibration 5-6, tracking 7
-    gpu::FaceParameters p = test_face(0.4f);
-    p.euler.y() += 0.02f * static_cast<float>(i);
-    frames.push_back(make_frame(p, cam, i));
-  }
-  SourceExpression smile;
-  smile.weights[arkit_blendshape_index("mouthSmileLeft")] = 0.7f;
-  smile.weights[kJawOpenIndex] = 0.3f;
-
-  ReenactmentPipeline sequential(*test_model(), recording_landmarks());
-  std::vector<ReenactedFrame> expected;
-  for (size_t i = 0; i < frames.size(); ++i) {
-    if (i == 5) sequential.RequestCalibration();
-    expected.push_back(sequential.Process(frames[i], &smile));
-  }
-
+  const SplitPipelineCase c;
+  const auto& frames = c.frames;
   // The same frames through OverlappedRender (what `reenact` uses): each frame's Track
   // runs while the frame before renders on the helper's thread, and frames finish in order.
   ReenactmentPipeline split(*test_model(), recording_landmarks());
@@ -259,27 +287,54 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
       got.push_back(out);
     });
     for (size_t i = 0; i < frames.size(); ++i) {
-      if (i == 5) split.RequestCalibration();
-      overlap.Push(std::make_unique<Index>(Index{i}), split.Track(frames[i]), &smile);
+      if (i == c.kRecalibrateAt) split.RequestCalibration();
+      overlap.Push(std::make_unique<Index>(Index{i}), split.Track(frames[i]), &c.smile);
       EXPECT_EQ(got.size(), i) << "frame " << i << " renders while the next is tracked";
     }
     overlap.Drain();
   }
   ASSERT_EQ(finished.size(), frames.size());
   for (size_t i = 0; i < finished.size(); ++i) EXPECT_EQ(finished[i], i);
+  c.ExpectSame(got, split);
+}
 
-  ASSERT_EQ(got.size(), expected.size());
-  int reenacted = 0;
-  for (size_t i = 0; i < got.size(); ++i) {
-    EXPECT_EQ(got[i].status, expected[i].status) << "frame " << i;
-    EXPECT_EQ(got[i].reenacted, expected[i].reenacted) << "frame " << i;
-    reenacted += got[i].reenacted;
-    ASSERT_EQ(got[i].bgr.size(), expected[i].bgr.size());
-    EXPECT_EQ(cv::norm(got[i].bgr, expected[i].bgr, cv::NORM_INF), 0.0) << "frame " << i;
+// The live session's landmark stage (LiveSession::Options::landmarks_ahead): frame n+1 prepared on
+// another thread while frame n is tracked, a recalibration requested between. With the recording's
+// landmarks (no detector: the pose Track hands back is not read) every output equals Process's;
+// the sanitizer builds see the two threads share the pipeline.
+TEST(ReenactPipelineTest, FramesPreparedAheadOnAnotherThreadGiveProcessFrames) {
+  FR_REQUIRE_MODEL();
+  const SplitPipelineCase c;
+  ReenactmentPipeline ahead(*test_model(), recording_landmarks());
+  std::vector<ReenactedFrame> got;
+  auto prepare = [&](size_t i) {
+    return std::async(std::launch::async, [&ahead, &c, i] { return ahead.Prepare(c.frames[i]); });
+  };
+  std::future<PreparedTarget> next = prepare(0);
+  for (size_t i = 0; i < c.frames.size(); ++i) {
+    PreparedTarget prepared = next.get();
+    EXPECT_EQ(prepared.tracked.frame.frame_index, c.frames[i].index);
+    EXPECT_FALSE(prepared.tracked.finished) << "frame " << i;
+    if (i + 1 < c.frames.size()) next = prepare(i + 1);
+    if (i == c.kRecalibrateAt) ahead.RequestCalibration();
+    got.push_back(ahead.Render(ahead.Track(std::move(prepared)), &c.smile));
   }
-  EXPECT_GE(reenacted, 3);
-  EXPECT_EQ(split.summary().frames, sequential.summary().frames);
-  EXPECT_EQ(split.summary().reenacted_frames, sequential.summary().reenacted_frames);
+  c.ExpectSame(got, ahead);
+}
+
+// A frame Prepare refuses (no colour) is finished there, and Track passes it on unchanged.
+TEST(ReenactPipelineTest, AFramePrepareRefusesPassesThroughTrack) {
+  FR_REQUIRE_MODEL();
+  ReenactmentPipeline pipeline(*test_model(), recording_landmarks());
+  capture::RgbdFrame empty;
+  empty.camera = test_camera(160, 120);
+  PreparedTarget prepared = pipeline.Prepare(empty);
+  EXPECT_TRUE(prepared.tracked.finished);
+  const ReenactedFrame out = pipeline.Render(pipeline.Track(std::move(prepared)), nullptr);
+  EXPECT_EQ(out.status, TrackingStatus::kLost);
+  EXPECT_FALSE(out.reenacted);
+  EXPECT_NE(out.message.find("no colour image"), std::string::npos) << out.message;
+  EXPECT_EQ(out.bgr.size(), cv::Size(160, 120));
 }
 
 // A Render that throws (an invalid source expression: a caller's error) surfaces where its frame

@@ -43,6 +43,13 @@ struct StagedFrame {
   virtual ~StagedFrame() = default;
 };
 
+// A target frame's first part, before track(): the frame checked and its landmarks detected
+// (ReenactmentPipeline::Prepare). The session's landmark stage (Options::landmarks_ahead) makes it
+// on a thread of its own for frame n+1 while the worker tracks frame n.
+struct PreparedFrame {
+  virtual ~PreparedFrame() = default;
+};
+
 // Each frame runs in two halves so that consecutive frames overlap on two threads: track() on the
 // session's worker (the target's fit, and the source actor's), render() on its render thread (the
 // re-rendered face composited into the frame), while the worker tracks the next frame. Each half
@@ -54,6 +61,18 @@ class FrameProcessor {
   // (the session then passes the frame through and reports the message).
   virtual std::unique_ptr<StagedFrame> track(const capture::RgbdFrame& target, const ExpressionInput& input,
                                              ActorOutcome* actor) = 0;
+  // The same with the target's first part made already by prepare() (nullptr: made here). prepare()
+  // may run on another thread beside track() and render(), one frame ahead, in frame order.
+  virtual std::unique_ptr<StagedFrame> track_prepared(const capture::RgbdFrame& target, const ExpressionInput& input,
+                                                      ActorOutcome* actor, std::unique_ptr<PreparedFrame> prepared) {
+    (void)prepared;
+    return track(target, input, actor);
+  }
+  // nullptr where the processor has no first part worth a thread (the raw pass-through).
+  virtual std::unique_ptr<PreparedFrame> prepare(const capture::RgbdFrame& target) {
+    (void)target;
+    return nullptr;
+  }
   virtual ProcessedFrame render(std::unique_ptr<StagedFrame> staged) = 0;
   virtual void request_calibration() = 0;
   // The target tracker's solver in words (tracker::FaceTracker::solver_description), or "".

@@ -14,6 +14,8 @@
 #include <future>
 #include <optional>
 
+#include <opencv2/core/utility.hpp>
+
 #include "face_reenact/capture/media_file.h"
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/paths.h"
@@ -432,6 +434,88 @@ class RenderThread {
   std::thread thread_;  // last: started once the rest is constructed
 };
 
+// OpenCV's own helper threads (its cv::parallel_for_ pool, which a frame's conversion uses) start
+// on the first call that needs them, carry the name of the thread that made it and live as long
+// as the process. Started from the landmark stage they would still show as "fr-live-marks" once
+// the session has ended (the per-thread CPU tables, `top -H`), so the worker starts them first.
+void StartOpenCvThreads() {
+  cv::parallel_for_(cv::Range(0, std::max(2, cv::getNumThreads())), [](const cv::Range&) {});
+}
+
+// The landmark stage (Options::landmarks_ahead): a thread of its own ("fr-live-marks") takes each
+// newest target frame from the capture thread and runs the processor's first part on it (the frame
+// checked, the landmark detector) while the worker tracks the frame before. One slot, newest
+// first: a prepared frame the worker has not taken when the next is ready is dropped, as the
+// capture thread drops frames the pipeline is too slow for, so nothing queues and the latency
+// does not grow.
+class LandmarkStage {
+ public:
+  struct Job {
+    capture::RgbdFrame frame;
+    uint64_t sequence = 0;                 // the capture thread's
+    Clock::time_point captured, started;   // the capture thread had it / the stage took it
+    std::unique_ptr<PreparedFrame> prepared;
+    std::string failure;                   // why prepare() threw, or ""
+  };
+
+  LandmarkStage(FrameGrabber& target, std::shared_ptr<FrameProcessor> processor, uint64_t after)
+      : target_(target), processor_(std::move(processor)), after_(after), thread_([this] { run(); }) {}
+  ~LandmarkStage() {
+    {
+      std::lock_guard lock(mu_);
+      stopping_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  LandmarkStage(const LandmarkStage&) = delete;
+  LandmarkStage& operator=(const LandmarkStage&) = delete;
+
+  // The newest prepared frame not taken yet, waiting up to `timeout`; false when there is none.
+  bool Take(std::chrono::milliseconds timeout, Job* job) {
+    std::unique_lock lock(mu_);
+    if (!cv_.wait_for(lock, timeout, [&] { return slot_ != nullptr || stopping_; }) || !slot_) return false;
+    *job = std::move(*slot_);
+    slot_.reset();
+    return true;
+  }
+
+ private:
+  void run() {
+    pthread_setname_np(pthread_self(), "fr-live-marks");
+    uint64_t sequence = after_;
+    for (;;) {
+      {
+        std::lock_guard lock(mu_);
+        if (stopping_) return;
+      }
+      auto job = std::make_unique<Job>();
+      if (!target_.wait_newer(sequence, std::chrono::milliseconds(50), &job->frame, &sequence, &job->captured)) continue;
+      job->sequence = sequence;
+      job->started = Clock::now();
+      try {
+        job->prepared = processor_->prepare(job->frame);
+      } catch (const std::exception& e) {
+        job->failure = e.what();
+      }
+      {
+        std::lock_guard lock(mu_);
+        slot_ = std::move(job);  // a frame still there is dropped: this one is newer
+      }
+      cv_.notify_all();
+    }
+  }
+
+  FrameGrabber& target_;
+  std::shared_ptr<FrameProcessor> processor_;
+  const uint64_t after_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stopping_ = false;
+  std::unique_ptr<Job> slot_;
+  std::thread thread_;  // last: started once the rest is constructed
+};
+
 }  // namespace
 
 void LiveSession::run() {
@@ -600,7 +684,9 @@ void LiveSession::run() {
   // Declared after everything `publish` uses, so it is joined (its job in hand finished) first.
   std::optional<RenderThread> render;
   if (options_.overlap_frames) render.emplace(publish);
-  bool solver_checked = false;  // overlap_frames_on_gpu: decided once the pipeline has loaded
+  // After the capture thread (it reads from it) and the pipeline (it runs its first part).
+  std::optional<LandmarkStage> marks;
+  bool solver_checked = false;  // overlap_frames_on_gpu, landmarks_ahead_on_gpu: decided once the pipeline has loaded
   std::string solver;           // the tracker's solver in words, read then
 
   while (!stopping()) {
@@ -612,13 +698,25 @@ void LiveSession::run() {
     if (pipeline_ready && !solver_checked) {
       solver_checked = true;
       solver = processor->tracking_solver();
-      if (!render && options_.overlap_frames_on_gpu && processor->tracking_solves_on_gpu()) render.emplace(publish);
+      const bool on_gpu = processor->tracking_solves_on_gpu();
+      if (!render && options_.overlap_frames_on_gpu && on_gpu) render.emplace(publish);
+      if (options_.landmarks_ahead || (options_.landmarks_ahead_on_gpu && on_gpu)) {
+        StartOpenCvThreads();
+        marks.emplace(target, processor, target_seq);
+      }
     }
     if (source_spec_.kind == InputKind::kUdp && !receiver && now >= next_receiver_try) try_receiver();
     if (calibration_requested_.exchange(false)) processor->request_calibration();
 
     Clock::time_point captured{};
-    bool got = target.wait_newer(target_seq, std::chrono::milliseconds(50), &frame, &target_seq, &captured);
+    LandmarkStage::Job marked;  // with the landmark stage: the frame and its first part
+    bool got = marks ? marks->Take(std::chrono::milliseconds(50), &marked)
+                     : target.wait_newer(target_seq, std::chrono::milliseconds(50), &frame, &target_seq, &captured);
+    if (got && marks) {
+      frame = std::move(marked.frame);
+      target_seq = marked.sequence;
+      captured = marked.captured;
+    }
     stream::RemoteExpression remote;
     if (receiver) remote = receiver->sample();
     if (got) {
@@ -637,10 +735,11 @@ void LiveSession::run() {
         std::lock_guard lock(mu_);
         input_frames_ = std::max(input_frames_, job.input_sequence);
       }
-      job.started = Clock::now();
+      job.started = marks ? marked.started : Clock::now();
       ActorOutcome actor_outcome;
       try {
-        job.staged = processor->track(frame, input, &actor_outcome);
+        if (!marked.failure.empty()) throw Error(marked.failure);
+        job.staged = processor->track_prepared(frame, input, &actor_outcome, std::move(marked.prepared));
       } catch (const std::exception& e) {
         job.failure = e.what();
       }
@@ -701,6 +800,7 @@ void LiveSession::run() {
     s.pipeline_ready = pipeline_ready;
     s.solver = pipeline_ready ? solver : "";
     s.frames_overlapped = render.has_value();
+    s.landmarks_ahead = marks.has_value();
     s.tracking = pipeline_ready ? tracking : TrackingState::kOff;
     s.pipeline_message = pipeline_ready ? frame_message : pipeline_error;
     s.calibration_warning = pipeline_ready ? calibration_warning : "";

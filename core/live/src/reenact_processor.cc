@@ -98,15 +98,33 @@ class ReenactProcessor : public FrameProcessor {
     double actor_ms = 0;
   };
 
+  struct Prepared : PreparedFrame {
+    reenact::PreparedTarget target;
+  };
+
+  std::unique_ptr<PreparedFrame> prepare(const capture::RgbdFrame& target) override {
+    auto prepared = std::make_unique<Prepared>();
+    prepared->target = target_->Prepare(target);
+    return prepared;
+  }
+
   std::unique_ptr<StagedFrame> track(const capture::RgbdFrame& target, const ExpressionInput& input,
                                      ActorOutcome* actor_out) override {
+    return track_prepared(target, input, actor_out, nullptr);
+  }
+
+  std::unique_ptr<StagedFrame> track_prepared(const capture::RgbdFrame& target, const ExpressionInput& input,
+                                              ActorOutcome* actor_out, std::unique_ptr<PreparedFrame> prepared) override {
     auto staged = std::make_unique<Staged>();
     ActorOutcome actor_outcome;
     // The source actor's tracker is independent of the target's: it runs on a kept thread of its
     // own while the target is tracked (both cores work; `reenact` does the same), and the frame waits
     // for it only where it takes longer (ActorOutcome::ms).
     std::optional<reenact::ReenactedFrame> actor_result;
-    auto track_target = [&] { staged->target = target_->Track(target); };
+    auto track_target = [&] {
+      staged->target = prepared ? target_->Track(std::move(static_cast<Prepared&>(*prepared).target))
+                                : target_->Track(target);
+    };
     if (actor_ && input.actor_frame) {
       actor_result = RunBeside(*actor_thread_, [&] { return actor_->Process(*input.actor_frame, nullptr); },
                                track_target, &actor_outcome.ms);

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <future>
+#include <mutex>
 #include <sstream>
 
 #include <opencv2/imgproc.hpp>
@@ -135,6 +136,11 @@ struct ReenactmentPipeline::Impl {
   std::unique_ptr<VirtualMirror> mirror;  // ReenactMode::kMirror
   std::unique_ptr<tracker::FaceTracker> tracker;
   std::unique_ptr<tracker::RgbdInput> input;
+  // What Track tells the landmark detector for its next frame: the fitted pose and whether to start
+  // a fresh detection. Prepare applies it, on whichever thread runs Prepare (Track may run beside).
+  std::mutex input_feedback_mu;
+  gpu::FaceParameters input_pose;
+  bool input_pose_has_fit = false, input_pose_pending = false, input_reset_pending = false;
   TrackingStatus status = TrackingStatus::kCalibrating;
   gpu::FaceParameters neutral;
   AlbedoMap albedo;
@@ -175,6 +181,7 @@ struct ReenactmentPipeline::Impl {
   void MakeTracker() {
     tracker.reset();
     input.reset();
+    input_pose_pending = input_reset_pending = false;
     if (options.use_ground_truth_target) return;
     tracker = std::make_unique<tracker::FaceTracker>(model, options.tracker);
     input = std::make_unique<tracker::RgbdInput>(options.input);
@@ -435,18 +442,24 @@ ReenactedFrame ReenactmentPipeline::Process(const capture::RgbdFrame& target, co
   return Render(Track(target), source);
 }
 
-TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
+TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) { return Track(Prepare(target)); }
+
+PreparedTarget ReenactmentPipeline::Prepare(const capture::RgbdFrame& target) {
   Impl& im = *impl_;
-  TrackedTarget tt;
+  PreparedTarget p;
+  TrackedTarget& tt = p.tracked;
   tt.start = Clock::now();
   ReenactedFrame& out = tt.frame;
   out.frame_index = target.index;
-  auto pass_through = [&](TrackingStatus status, const std::string& message) -> TrackedTarget {
+  p.camera = target.camera;
+  auto pass_through = [&](TrackingStatus status, const std::string& message) -> PreparedTarget {
     out.status = status;
     out.message = message;
     out.reenacted = false;
     tt.finished = true;
-    return std::move(tt);
+    p.ms = ms_since(tt.start);
+    out.times.track_ms = p.ms;
+    return std::move(p);
   };
 
   // The output always has the input's size and type CV_8UC3, whatever arrives.
@@ -473,6 +486,40 @@ TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
   if (!target.depth.empty() && target.depth.type() == CV_32FC1 && target.depth.size() == color.size())
     out.depth = target.depth.clone();
 
+  if (im.options.use_ground_truth_target) {
+    if (!target.ground_truth.params) return pass_through(TrackingStatus::kLost, "no ground-truth parameters in the target frame");
+    p.ground_truth = *target.ground_truth.params;
+  } else if (im.input) {
+    {
+      // What the last finished Track asked of the detector (it may have run on another thread).
+      std::lock_guard lock(im.input_feedback_mu);
+      if (im.input_pose_pending) im.input->SetTrackedPose(im.input_pose, im.input_pose_has_fit);
+      if (im.input_reset_pending) im.input->Reset();  // after the pose: a reset forgets it too
+      im.input_pose_pending = im.input_reset_pending = false;
+    }
+    try {
+      p.input = im.input->Convert(target, &p.info);
+    } catch (const Error& e) {
+      return pass_through(TrackingStatus::kLost, std::string("bad input: ") + e.what());
+    }
+  }
+  p.ms = ms_since(tt.start);
+  return p;
+}
+
+TrackedTarget ReenactmentPipeline::Track(PreparedTarget prepared) {
+  Impl& im = *impl_;
+  TrackedTarget tt = std::move(prepared.tracked);
+  if (tt.finished) return tt;  // refused by Prepare: `frame` says why
+  ReenactedFrame& out = tt.frame;
+  auto pass_through = [&](TrackingStatus status, const std::string& message) -> TrackedTarget {
+    out.status = status;
+    out.message = message;
+    out.reenacted = false;
+    tt.finished = true;
+    return std::move(tt);
+  };
+
   if (calibration_requested_.exchange(false)) {
     if (im.tracker) im.tracker->RequestCalibration();
     tt.forget_actor = true;  // the appearance belongs to Render's side (another thread, maybe)
@@ -480,49 +527,47 @@ TrackedTarget ReenactmentPipeline::Track(const capture::RgbdFrame& target) {
 
   // --- track the target.
   auto t0 = Clock::now();
+  auto track_ms = [&] { return prepared.ms + ms_since(t0); };
   gpu::FaceParameters target_params;
-  gpu::PinholeCamera fit_camera = target.camera;  // the camera target_params are in
+  gpu::PinholeCamera fit_camera = prepared.camera;  // the camera target_params are in
   std::vector<tracker::InputLandmark> detected;  // the detector's, for the overlay
-  if (im.options.use_ground_truth_target) {
-    if (!target.ground_truth.params) {
-      out.times.track_ms = ms_since(t0);
-      return pass_through(TrackingStatus::kLost, "no ground-truth parameters in the target frame");
-    }
-    target_params = *target.ground_truth.params;
+  if (prepared.ground_truth) {
+    target_params = *prepared.ground_truth;
     im.neutral = target_params;
     im.neutral.delta = Eigen::VectorXf::Zero(im.model.num_expression());
     out.status = TrackingStatus::kTracking;
+  } else if (!im.tracker) {
+    out.times.track_ms = track_ms();
+    return pass_through(TrackingStatus::kLost, "the options changed between preparing and tracking the frame");
   } else {
-    tracker::RgbdInputInfo info;
-    tracker::InputFrame frame;
-    try {
-      frame = im.input->Convert(target, &info);
-    } catch (const Error& e) {
-      out.times.track_ms = ms_since(t0);
-      return pass_through(TrackingStatus::kLost, std::string("bad input: ") + e.what());
-    }
+    tracker::InputFrame& frame = prepared.input;
     if (im.options.mode == ReenactMode::kOverlay) detected = frame.landmarks;
     tt.eye_openings = EyeOpeningsFromLandmarks(frame.landmarks);
-    out.tracked = im.tracker->Track(frame, info.landmarks_ms);
+    out.tracked = im.tracker->Track(frame, prepared.info.landmarks_ms);
     if (out.tracked.new_face) tt.forget_actor = true;  // the learned appearance was the other face's
     const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
-    im.input->SetTrackedPose(out.tracked.params, has_fit);
     // A landmark track that keeps finding nothing is restarted from a fresh detection (measured:
     // once lost, the landmark tracker could stay empty on frames where a fresh one finds the face).
     im.frames_without_face = out.tracked.status == tracker::TrackingStatus::kNoFace ? im.frames_without_face + 1 : 0;
-    if (im.frames_without_face >= kLandmarkResetFrames) {
-      im.input->Reset();
-      im.frames_without_face = 0;
+    const bool reset_detector = im.frames_without_face >= kLandmarkResetFrames;
+    if (reset_detector) im.frames_without_face = 0;
+    {
+      // For the detector's next frame (Prepare, maybe on another thread).
+      std::lock_guard lock(im.input_feedback_mu);
+      im.input_pose = out.tracked.params;
+      im.input_pose_has_fit = has_fit;
+      im.input_pose_pending = true;
+      im.input_reset_pending = im.input_reset_pending || reset_detector;
     }
     out.status = coarse_status(out.tracked.status);
     if (im.tracker->calibrated()) im.neutral = im.tracker->neutral();
     if (out.status == TrackingStatus::kTracking && !has_fit) out.status = TrackingStatus::kLost;
     target_params = out.tracked.params;
     // The camera the fit is in: the frame's, or the tracker's estimate for a video (focal_length.h).
-    if (out.tracked.camera.width == target.camera.width && out.tracked.camera.height == target.camera.height)
+    if (out.tracked.camera.width == prepared.camera.width && out.tracked.camera.height == prepared.camera.height)
       fit_camera = out.tracked.camera;
   }
-  out.times.track_ms = ms_since(t0);
+  out.times.track_ms = track_ms();
   if (im.options.mode == ReenactMode::kOverlay && im.tracker) {
     // The fit over the input, whatever the status (a lost frame shows its landmarks and why).
     const auto to = Clock::now();

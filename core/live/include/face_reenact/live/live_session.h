@@ -9,7 +9,9 @@
 //     and composites it and publishes the result; with Options::overlap_frames it hands the
 //     second half to
 //   - a render thread ("fr-live-render"), which publishes while the worker already tracks the
-//     next frame (docs/real-time.md).
+//     next frame (docs/real-time.md);
+//   - with Options::landmarks_ahead, a landmark stage ("fr-live-marks") between the capture thread
+//     and the worker, which detects the next frame's landmarks while the worker fits this one.
 // Front-ends never wait on any of it: latest_frame() and status() copy under a short lock, and
 // Options::on_frame is called on the publishing thread with each output frame (OBS hands it to
 // obs_source_output_video there). Inputs that fail (camera unplugged, recording missing,
@@ -76,6 +78,7 @@ struct LiveStatus {
   bool pipeline_ready = false;    // the reenactment pipeline is loaded
   std::string solver;             // the target tracker's solver once loaded ("vulkan on NVIDIA H200 (discrete, auto)")
   bool frames_overlapped = false; // each frame's render half runs on "fr-live-render" (Options::overlap_frames)
+  bool landmarks_ahead = false;   // the landmark stage runs on "fr-live-marks" (Options::landmarks_ahead)
   std::string pipeline_message;   // why frames pass unchanged (model missing, no face), or ""
   bool calibration_pending = false;
   // Non-empty when the last calibration saw a face that was not at rest (smiling, talking): part
@@ -218,6 +221,13 @@ class LiveSession : public output::FrameSource {
     // two halves do not compete for cores and the tracking half is short. Measured on an H200
     // (docs/real-time.md, "On a GPU"): 22.1 -> 28.7 fps on a 30 fps camera, latency 60 -> 44 ms.
     bool overlap_frames_on_gpu = true;
+    // Detect frame n+1's landmarks on a thread of its own ("fr-live-marks", the landmark stage)
+    // while the worker fits frame n; the detector then starts from the pose fitted one frame
+    // earlier than one after the other. The stage prepares every frame the camera delivers (the
+    // newest waits for the worker; one it has not taken is dropped), so it wants a core of its own.
+    bool landmarks_ahead = false;
+    // ... and also whenever the tracker solves on a GPU (docs/real-time.md, "The landmark stage").
+    bool landmarks_ahead_on_gpu = true;
     // Called for each output frame on the thread that publishes it (the worker, or the render
     // thread with overlap_frames); must return quickly (no blocking).
     std::function<void(const LiveFrame&)> on_frame;

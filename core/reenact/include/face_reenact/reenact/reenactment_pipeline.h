@@ -18,6 +18,7 @@
 #include <atomic>
 #include <chrono>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -308,6 +309,17 @@ struct TrackedTarget {
   std::chrono::steady_clock::time_point start;  // Track's start (ReenactedFrame::times.total_ms)
 };
 
+// The first part of Track: the target frame checked and copied, its input made (the conversion
+// and the landmark detector's points), before any fitting. What Track(PreparedTarget) needs.
+struct PreparedTarget {
+  TrackedTarget tracked;         // the output's copy of the input; finished when the frame was refused
+  tracker::InputFrame input;     // the frame as the tracker reads it, with the detector's landmarks
+  tracker::RgbdInputInfo info;   // the conversion's and the detector's times and status
+  gpu::PinholeCamera camera;     // the frame's camera
+  std::optional<gpu::FaceParameters> ground_truth;  // use_ground_truth_target: the frame's own
+  double ms = 0;                 // the preparation's time (part of ReenactedFrame::times.track_ms)
+};
+
 class ReenactmentPipeline {
  public:
   // Throws face_reenact::Error on invalid options or model. The model must outlive the pipeline.
@@ -327,6 +339,13 @@ class ReenactmentPipeline {
   // thread while Track(n+1) runs; the same guarantees as Process.
   TrackedTarget Track(const capture::RgbdFrame& target);
   ReenactedFrame Render(TrackedTarget tracked, const SourceExpression* source);
+  // Track in two parts (Track(target) = Track(Prepare(target))): Prepare checks the frame and runs
+  // the landmark detector, Track fits. Prepare(n+1) may run on another thread while Track(n) runs
+  // (the live session's landmark stage, docs/real-time.md): the detector then starts from the pose
+  // of the last frame whose Track had finished, one frame older than one after the other. Each is
+  // called from one thread at a time, in frame order, and neither beside SetOptions.
+  PreparedTarget Prepare(const capture::RgbdFrame& target);
+  TrackedTarget Track(PreparedTarget prepared);
 
   // Thread-safe: the next Process() restarts the target's calibration (e.g. a new person sat down).
   void RequestCalibration();
