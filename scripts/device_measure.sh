@@ -11,6 +11,7 @@
 #                                               # the paper's whole schedule and the tracker's 3 %)
 #   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
 #   scripts/device_measure.sh udp CLIP ACTOR [S]  # bench live --mode reenact, ACTOR's expressions over UDP
+#   scripts/device_measure.sh ahead CLIP PARAMS [S]  # bench live, the landmark stage off and on (A B A B)
 #   scripts/device_measure.sh reenact SRC TGT [N] # reenact N frames, both actors tracked, each solver,
 #                                                 # with contact sheets in $OUT/sheets_<solver>
 set -uo pipefail
@@ -120,6 +121,38 @@ case "${1:-}" in
     kill "$sender"
     grep -E "tracker solver|Tracking|output .* fps|frames:|landmarks|synthesis|analysis|gaze|render  |composite|total  |cores busy" \
         "$OUT/live_udp.log"
+    ;;
+  ahead)
+    # The landmark stage (LiveSession::Options::landmarks_ahead) off and on, alternating, two rounds:
+    # bench live passthrough and reenact (PARAMS' expressions over UDP at 30 Hz) on CLIP; then
+    # reenact with the Vulkan renderer. Every run's output goes to $OUT/ahead.log.
+    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
+    export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
+    clip="$2" params="$3" seconds="${4:-10}"
+    fr keygen --out "$FR/key" >/dev/null
+    fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$params" --rate 30 --loop >/dev/null 2>&1 &
+    sender=$!
+    runs=()
+    for round in 1 2; do
+      for mode in passthrough reenact; do
+        for ahead in off on; do runs+=("$mode $ahead cpu $round"); done
+      done
+    done
+    runs+=("reenact on vulkan 3")
+    for run in "${runs[@]}"; do
+      set -- $run
+      source_args=()
+      [ "$1" = reenact ] && source_args=(--source udp://9123 --key "$FR/key")
+      echo "== bench live $1, landmarks ahead $2, renderer $3, round $4" | tee -a "$OUT/ahead.log"
+      fr bench live --target "$clip" --mode "$1" "${source_args[@]}" --landmarks-ahead "$2" --renderer "$3" \
+          --warmup 8 --seconds "$seconds" >"$OUT/run.log" 2>&1
+      echo "(rc $?)" | tee -a "$OUT/ahead.log"
+      cat "$OUT/run.log" >>"$OUT/ahead.log"
+      grep -E "tracker solver|output .* fps|frames:|landmarks  |synthesis|analysis|gaze|render  |composite|hand-off|total  |cores busy|fr-live" \
+          "$OUT/run.log"
+    done
+    rm -f "$OUT/run.log"
+    kill "$sender"
     ;;
   reenact)
     export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
