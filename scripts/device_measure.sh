@@ -129,7 +129,7 @@ case "${1:-}" in
     export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
     export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
     clip="$2" params="$3" seconds="${4:-10}"
-    fr keygen --out "$FR/key" >/dev/null
+    [ -f "$FR/key" ] || fr keygen --out "$FR/key" >/dev/null
     fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$params" --rate 30 --loop >/dev/null 2>&1 &
     sender=$!
     runs=()
@@ -143,8 +143,10 @@ case "${1:-}" in
       set -- $run
       source_args=()
       [ "$1" = reenact ] && source_args=(--source udp://9123 --key "$FR/key")
+      ahead_args=()
+      [ "$2" = on ] && ahead_args=(--landmarks-ahead)
       echo "== bench live $1, landmarks ahead $2, renderer $3, round $4" | tee -a "$OUT/ahead.log"
-      fr bench live --target "$clip" --mode "$1" "${source_args[@]}" --landmarks-ahead "$2" --renderer "$3" \
+      fr bench live --target "$clip" --mode "$1" "${source_args[@]}" "${ahead_args[@]}" --renderer "$3" \
           --warmup 8 --seconds "$seconds" >"$OUT/run.log" 2>&1
       echo "(rc $?)" | tee -a "$OUT/ahead.log"
       cat "$OUT/run.log" >>"$OUT/ahead.log"

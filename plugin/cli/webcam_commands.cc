@@ -483,12 +483,10 @@ void add_webcam_command(CLI::App& app) {
   auto live_overlap = std::make_shared<bool>(false);
   bench_live->add_flag("--overlap", *live_overlap,
                        "Render frame n on a second thread while the worker tracks frame n+1 (LiveSession::Options::overlap_frames)");
-  auto live_marks = std::make_shared<std::string>("auto");
-  bench_live->add_option("--landmarks-ahead", *live_marks,
-                         "Detect frame n+1's landmarks on a thread of their own while frame n is fitted: auto (with a "
-                         "GPU solver), on or off (LiveSession::Options::landmarks_ahead)")
-      ->check(CLI::IsMember({"auto", "on", "off"}))
-      ->capture_default_str();
+  auto live_marks = std::make_shared<bool>(false);
+  bench_live->add_flag("--landmarks-ahead", *live_marks,
+                       "Detect frame n+1's landmarks on a thread of their own while frame n is fitted "
+                       "(LiveSession::Options::landmarks_ahead)");
   bench_live->add_option("--warmup", *live_warmup,
                          "seconds after the first frame left out of the measurement (model load, calibration)")
       ->capture_default_str();
@@ -501,8 +499,7 @@ void add_webcam_command(CLI::App& app) {
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
     o.overlap_frames = *live_overlap;
-    o.landmarks_ahead = *live_marks == "on";
-    o.landmarks_ahead_on_gpu = *live_marks == "auto";
+    o.landmarks_ahead = *live_marks;
     apply_pipeline_args(*live_args, &o);
     if (!live::parse_output_mode(live_args->mode, &o.mode))
       throw Error("--mode '" + live_args->mode + "' is not one of reenact, passthrough, overlay, mirror, raw");

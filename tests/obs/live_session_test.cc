@@ -880,9 +880,8 @@ TEST(LiveSessionTest, APhotoAsTheTargetIsNeverAskedToOpenItsMouth) {
 }
 
 // A tracker solving on a GPU (here the Vulkan solver forced onto lavapipe) renders each frame on
-// a thread of its own once the pipeline has loaded, unless overlap_frames_on_gpu is off, and
-// detects the landmarks a frame ahead unless landmarks_ahead_on_gpu is off; the status says which
-// solver and whether the halves overlap.
+// a thread of its own once the pipeline has loaded, unless overlap_frames_on_gpu is off; the
+// status says which solver and whether the halves overlap.
 TEST(LiveSessionOverlapTest, ATrackerSolvingOnTheGpuRendersOnItsOwnThread) {
   REQUIRE_RECORDING(dir);
   for (const bool on_gpu : {true, false}) {
@@ -890,14 +889,12 @@ TEST(LiveSessionOverlapTest, ATrackerSolvingOnTheGpuRendersOnItsOwnThread) {
     LiveSession::Options options = pipeline_options(dir, OutputMode::kPassThrough);
     options.solver = "vulkan";
     options.overlap_frames_on_gpu = on_gpu;
-    options.landmarks_ahead_on_gpu = on_gpu;
     LiveSession session(options);
     LiveStatus s = wait_status(session, 300s, [](const LiveStatus& st) { return st.pipeline_ready && !st.solver.empty(); });
     ASSERT_TRUE(s.pipeline_ready) << s.Headline();
     EXPECT_EQ(s.solver.rfind("vulkan on ", 0), 0u) << s.solver;
     s = wait_status(session, 10s, [&](const LiveStatus& st) { return st.frames_overlapped == on_gpu; });
     EXPECT_EQ(s.frames_overlapped, on_gpu);
-    EXPECT_EQ(s.landmarks_ahead, on_gpu);
     EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + (on_gpu ? 1 : 0));
     session.stop();
     EXPECT_EQ(test::settled_thread_count("fr-live-render", threads_before), threads_before);

@@ -686,7 +686,7 @@ void LiveSession::run() {
   if (options_.overlap_frames) render.emplace(publish);
   // After the capture thread (it reads from it) and the pipeline (it runs its first part).
   std::optional<LandmarkStage> marks;
-  bool solver_checked = false;  // overlap_frames_on_gpu, landmarks_ahead_on_gpu: decided once the pipeline has loaded
+  bool solver_checked = false;  // overlap_frames_on_gpu: decided once the pipeline has loaded
   std::string solver;           // the tracker's solver in words, read then
 
   while (!stopping()) {
@@ -698,9 +698,8 @@ void LiveSession::run() {
     if (pipeline_ready && !solver_checked) {
       solver_checked = true;
       solver = processor->tracking_solver();
-      const bool on_gpu = processor->tracking_solves_on_gpu();
-      if (!render && options_.overlap_frames_on_gpu && on_gpu) render.emplace(publish);
-      if (options_.landmarks_ahead || (options_.landmarks_ahead_on_gpu && on_gpu)) {
+      if (!render && options_.overlap_frames_on_gpu && processor->tracking_solves_on_gpu()) render.emplace(publish);
+      if (options_.landmarks_ahead) {
         StartOpenCvThreads();
         marks.emplace(target, processor, target_seq);
       }

@@ -224,10 +224,12 @@ class LiveSession : public output::FrameSource {
     // Detect frame n+1's landmarks on a thread of its own ("fr-live-marks", the landmark stage)
     // while the worker fits frame n; the detector then starts from the pose fitted one frame
     // earlier than one after the other. The stage prepares every frame the camera delivers (the
-    // newest waits for the worker; one it has not taken is dropped), so it wants a core of its own.
+    // newest waits for the worker; one it has not taken is dropped). Off by default: measured
+    // (docs/real-time.md, "The landmark stage"), it gains only where the worker's tracking half
+    // is what holds the frame rate (passthrough from a 120 fps camera on an H200: 73 -> 88 fps);
+    // with a 60 fps camera the GPU machine shows every frame either way, reenacting is held by
+    // the render thread, and on 2 cores it gave about the same frames for 3 ms more latency.
     bool landmarks_ahead = false;
-    // ... and also whenever the tracker solves on a GPU (docs/real-time.md, "The landmark stage").
-    bool landmarks_ahead_on_gpu = true;
     // Called for each output frame on the thread that publishes it (the worker, or the render
     // thread with overlap_frames); must return quickly (no blocking).
     std::function<void(const LiveFrame&)> on_frame;
