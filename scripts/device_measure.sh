@@ -9,6 +9,7 @@
 #                                               # (and the baseline program's, when bundled)
 #   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track,
 #                                               # the paper's whole schedule and the tracker's 3 %)
+#   scripts/device_measure.sh render [FRAMES]   # bench reenact, this build against the baseline (A B A B)
 #   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
 #   scripts/device_measure.sh udp CLIP ACTOR [S]  # bench live --mode reenact, ACTOR's expressions over UDP
 #   scripts/device_measure.sh ahead CLIP PARAMS [S]  # bench live, the landmark stage off and on (A B A B)
@@ -89,6 +90,23 @@ case "${1:-}" in
     FR_TRACKER_PROFILE=1 timeout 120 "$FR/bin/face-reenact" bench track --model "$FR/bin/face-model.frm" --frames 3 \
         --vulkan matrix-free >"$OUT/track_profile.log" 2>&1
     grep "^tracker" "$OUT/track_profile.log" | tail -12
+    ;;
+  render)
+    # bench reenact (re-render, mouth, composite; the CPU and the Vulkan rasteriser) at 640x480
+    # and 1280x960, this build against the bundled baseline, alternating (A B A B).
+    frames="${2:-60}"
+    for size in 640x480 1280x960; do
+      for round in 1 2; do
+        for program in face-reenact face-reenact-baseline; do
+          "$FR/bin/$program" bench reenact --model "$FR/bin/face-model.frm" --size "$size" --frames "$frames" \
+              >"$OUT/run.log" 2>&1
+          echo "== $program, bench reenact $size, round $round (rc $?)" | tee -a "$OUT/render.log"
+          cat "$OUT/run.log" >>"$OUT/render.log"
+          grep -E "^(cpu|vulkan) " "$OUT/run.log"
+        done
+      done
+    done
+    rm -f "$OUT/run.log"
     ;;
   live)
     clip="$2"

@@ -386,7 +386,7 @@ TEST(CpuRendererTest, RasterizingIntoAReusedBufferLeavesNothingOfThePreviousImag
   }
 }
 
-// Drawing again into the same buffer clears only what the last draw drew (GBuffer::cpu_raster):
+// Drawing again into the same buffer clears only what the last draw drew (GBuffer::drawn):
 // a sequence of poses that move the face about, leave the image and come back, each drawn into
 // one buffer, equals each drawn into a fresh one; so does a draw after the buffer was moved, and
 // after Resize.
@@ -476,6 +476,85 @@ TEST_F(RendererTest, ReusedReadbackEqualsAFreshReadAfterALargerRender) {
   EXPECT_EQ(reused.color, fresh.color);
   EXPECT_GT(fresh.covered_count(), 0u);
   EXPECT_THROW(renderer.read_gbuffer(nullptr), face_reenact::Error);
+}
+
+// What the compositor reads per draw (face_compositor.cc): the box of the pixels the vertices
+// project to, into one kept buffer, across poses that move the face, take it off the image and
+// back, with the CPU rasteriser drawing into the same buffer between: each read equals a whole
+// read of the same render, bit for bit, with nothing left of the image before.
+TEST_F(RendererTest, ReadingTheProjectedBoxIntoAKeptBufferEqualsAWholeRead) {
+  const RenderModel model = testing::make_icosphere(kRadius, 3);
+  Renderer renderer(context(), model);
+  const CpuRenderer cpu(model);
+  const PinholeCamera cam;
+  std::vector<FaceParameters> poses;
+  for (float x : {0.05f, -0.06f, 0.0f}) {
+    FaceParameters p = frontal_pose(0.3f);
+    p.translation.x() = x;
+    poses.push_back(p);
+  }
+  FaceParameters away = frontal_pose(kDistance);
+  away.translation.x() = 5.0f;  // off the image: an empty box, nothing read
+  poses.push_back(away);
+  FaceParameters behind = frontal_pose(kDistance);
+  behind.translation.z() = -kDistance;  // behind the camera: no vertex in range
+  poses.push_back(behind);
+  poses.push_back(poses[1]);
+  GBuffer kept;
+  size_t read_pixels = 0, whole_pixels = 0;
+  for (size_t k = 0; k < poses.size(); ++k) {
+    SCOPED_TRACE("pose " + std::to_string(k));
+    const VertexState state = cpu.evaluate(poses[k]);
+    const PixelBox box = ProjectedBox(state, cam, 2);
+    EXPECT_EQ(box.empty(), k == 3 || k == 4);
+    renderer.render(poses[k], cam);
+    renderer.read_gbuffer(&kept, &box);
+    const GBuffer whole = renderer.read_gbuffer();
+    EXPECT_EQ(kept.triangle, whole.triangle);
+    EXPECT_EQ(kept.vertices, whole.vertices);
+    EXPECT_EQ(kept.position, whole.position);
+    EXPECT_EQ(kept.normal, whole.normal);
+    EXPECT_EQ(kept.barycentric, whole.barycentric);
+    EXPECT_EQ(kept.color, whole.color);
+    EXPECT_EQ(kept.covered_count() == 0, k == 3 || k == 4);
+    EXPECT_EQ(kept.drawn.triangle_data, kept.triangle.data());
+    if (!box.empty()) read_pixels += static_cast<size_t>(box.i1 - box.i0 + 1) * (box.j1 - box.j0 + 1);
+    whole_pixels += static_cast<size_t>(cam.width) * cam.height;
+    // The CPU rasteriser into the same buffer clears only what the read wrote.
+    if (k == 2) {
+      cpu.rasterize(cpu.evaluate(poses[0]), cam, RenderOptions(), &kept, 2);
+      const GBuffer fresh = cpu.rasterize(cpu.evaluate(poses[0]), cam, RenderOptions());
+      EXPECT_EQ(kept.triangle, fresh.triangle);
+      EXPECT_EQ(kept.color, fresh.color);
+    }
+  }
+  EXPECT_LT(read_pixels * 2, whole_pixels) << "the boxes are a part of the frames";
+}
+
+// The projected box: the vertices within the depth range, grown and clipped to the image.
+TEST(ImageFormationTest, ProjectedBoxBoundsTheVerticesInRange) {
+  PinholeCamera cam;  // fx 525, centre (319.5, 239.5), 640x480
+  VertexState s;
+  s.camera_positions.resize(9);
+  s.camera_positions << 0.0f, 0.0f, 1.0f,    // (319.5, 239.5)
+      0.1f, 0.05f, 0.5f,                      // (424.5, 292)
+      5.0f, 5.0f, 0.01f;                      // nearer than the near plane: not drawn, not counted
+  PixelBox b = ProjectedBox(s, cam, 2);
+  EXPECT_EQ(b.i0, 317);
+  EXPECT_EQ(b.i1, 427);
+  EXPECT_EQ(b.j0, 237);
+  EXPECT_EQ(b.j1, 294);
+  s.camera_positions[3] = -1.0f;  // now far to the left of the image: clipped at 0
+  b = ProjectedBox(s, cam, 2);
+  EXPECT_EQ(b.i0, 0);
+  EXPECT_EQ(b.i1, 322);
+  s.camera_positions << 0.0f, 0.0f, -1.0f, 0.1f, 0.05f, 60.0f, std::nanf(""), 0.0f, 1.0f;
+  EXPECT_TRUE(ProjectedBox(s, cam, 2).empty()) << "behind the camera, beyond the far plane, not a number";
+  s.camera_positions << 0.0f, 0.0f, -1.0f, 5.0f, 0.0f, 1.0f, 6.0f, 0.0f, 1.0f;
+  EXPECT_TRUE(ProjectedBox(s, cam, 2).empty()) << "beside the image";
+  s.camera_positions << 0.0f, 0.0f, -1.0f, 0.1f, 0.05f, 60.0f, std::nanf(""), 0.0f, 1.0f;
+  EXPECT_TRUE(ProjectedBox(s, cam, 2).empty()) << "behind the camera, beyond the far plane, not a number";
+  EXPECT_TRUE(ProjectedBox(VertexState(), cam, 2).empty());
 }
 
 TEST_F(RendererTest, TimingsAreReported) {

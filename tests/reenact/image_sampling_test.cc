@@ -20,7 +20,7 @@ cv::Rect covered_by_scanning_every_pixel(const gpu::GBuffer& g, int margin) {
   return grown_within(box, margin, g.width, g.height);
 }
 
-// covered_rect scans only the rectangle the CPU rasteriser says it drew (GBuffer::cpu_raster).
+// covered_rect scans only the rectangle the CPU rasteriser says it drew (GBuffer::drawn).
 // Drawn into one kept buffer, a sphere that moves about, half leaves the image, leaves it and
 // comes back has the rectangle every pixel's scan finds; so has a buffer whose trace Resize
 // forgot, with a pixel written outside the last draw's rectangle.
@@ -36,7 +36,7 @@ TEST(ImageSampling, TheCoveredRectangleIsEveryPixelsScanWithinTheRastersTrace) {
     gpu::FaceParameters p = gpu::frontal_pose(0.6f);
     p.translation = at;
     cpu.rasterize(cpu.evaluate(p), camera, gpu::RenderOptions{}, &g, 2);
-    ASSERT_EQ(g.cpu_raster.triangle_data, g.triangle.data());
+    ASSERT_EQ(g.drawn.triangle_data, g.triangle.data());
     for (int margin : {0, 2, 9}) {
       const cv::Rect expected = covered_by_scanning_every_pixel(g, margin);
       EXPECT_EQ(covered_rect(g, margin), expected) << "sphere at " << at.transpose() << ", margin " << margin;

@@ -301,7 +301,7 @@ TEST(ReenactPipelineTest, TrackAndRenderOverlappedOnTwoThreadsGiveProcessFrames)
 // The live session's landmark stage (LiveSession::Options::landmarks_ahead): frame n+1 prepared on
 // another thread while frame n is tracked, a recalibration requested between. With the recording's
 // landmarks (no detector: the pose Track hands back is not read) every output equals Process's;
-// the sanitizer builds see the two threads share the pipeline.
+// the sanitizer build runs both threads on the one pipeline under ASan.
 TEST(ReenactPipelineTest, FramesPreparedAheadOnAnotherThreadGiveProcessFrames) {
   FR_REQUIRE_MODEL();
   const SplitPipelineCase c;

@@ -217,21 +217,21 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   if (!camera.IsValid(&why)) throw Error("invalid camera: " + why);
   GBuffer& g = *out;
   // Sized here, cleared by the bands below (each its own rows): at 640x480 the G-buffer is 20 MB,
-  // and clearing it on one thread cost as much as rasterising the face. A buffer this rasteriser
-  // drew last time needs only the rectangle it drew cleared (GBuffer::cpu_raster).
+  // and clearing it on one thread cost as much as rasterising the face. A buffer whose last draw
+  // is known (GBuffer::drawn: this rasteriser's, or a GPU read-back's) needs only that cleared.
   const size_t num_pixels = static_cast<size_t>(camera.width) * camera.height;
   const bool same_size = g.width == camera.width && g.height == camera.height && g.triangle.size() == num_pixels &&
                          g.vertices.size() == 3 * num_pixels && g.color.size() == 3 * num_pixels &&
                          g.position.size() == 3 * num_pixels && g.normal.size() == 3 * num_pixels &&
                          g.barycentric.size() == 3 * num_pixels;
-  const GBuffer::CpuRasterTrace previous = g.cpu_raster;
+  const GBuffer::DrawnTrace previous = g.drawn;
   const bool previous_known = same_size && previous.triangle_data != nullptr && previous.triangle_data == g.triangle.data();
   g.width = camera.width;
   g.height = camera.height;
   for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric}) v->resize(3 * num_pixels);
   g.vertices.resize(3 * num_pixels);
   g.triangle.resize(num_pixels);
-  g.cpu_raster = GBuffer::CpuRasterTrace();  // nothing known until this draw is done
+  g.drawn = GBuffer::DrawnTrace();  // nothing known until this draw is done
   // The depth buffer is scratch: one per calling thread, kept, so a per-frame caller faults no
   // new pages. The bands below write disjoint rows of it.
   thread_local std::vector<float> depth_buffer;
@@ -342,7 +342,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   auto& band_triangles = band_triangles_scratch;  // the caller's, read by the pool's threads too
   band_triangles.resize(static_cast<size_t>(bands));
   for (auto& list : band_triangles) list.clear();
-  GBuffer::CpuRasterTrace drawn_box;
+  GBuffer::DrawnTrace drawn_box;
   drawn_box.i0 = camera.width, drawn_box.j0 = camera.height;
   for (const auto& list : setups) {
     for (const TriangleSetup& ts : list) {
@@ -477,7 +477,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
     }
   });
   drawn_box.triangle_data = g.triangle.data();
-  g.cpu_raster = drawn_box;
+  g.drawn = drawn_box;
 }
 
 }  // namespace face_reenact::gpu

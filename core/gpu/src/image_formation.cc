@@ -4,8 +4,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 #include "face_reenact/model/face_model.h"
 
 namespace face_reenact::gpu {
@@ -202,7 +204,53 @@ void GBuffer::Resize(int w, int h) {
   barycentric.assign(3 * n, 0.f);
   triangle.assign(n, -1);
   vertices.assign(3 * n, -1);
-  cpu_raster = CpuRasterTrace();
+  drawn = DrawnTrace();
+}
+
+void GBuffer::ClearForDraw(int w, int h, int threads) {
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  const bool known = width == w && height == h && triangle.size() == n && vertices.size() == 3 * n &&
+                     color.size() == 3 * n && position.size() == 3 * n && normal.size() == 3 * n &&
+                     barycentric.size() == 3 * n && drawn.triangle_data == triangle.data();
+  if (!known) {
+    Resize(w, h);
+    return;
+  }
+  const DrawnTrace previous = drawn;
+  drawn = DrawnTrace();
+  if (previous.i1 < previous.i0 || previous.j1 < previous.j0) return;
+  const size_t span = static_cast<size_t>(previous.i1 - previous.i0 + 1);
+  ParallelFor(previous.j1 - previous.j0 + 1, threads, [&](int row) {
+    const size_t p = static_cast<size_t>(previous.j0 + row) * static_cast<size_t>(w) + static_cast<size_t>(previous.i0);
+    for (auto* v : {&color, &position, &normal, &barycentric}) std::fill_n(v->begin() + 3 * p, 3 * span, 0.f);
+    std::fill_n(vertices.begin() + 3 * p, 3 * span, -1);
+    std::fill_n(triangle.begin() + p, span, -1);
+  });
+}
+
+PixelBox ProjectedBox(const VertexState& state, const PinholeCamera& camera, int margin) {
+  float u0 = std::numeric_limits<float>::infinity(), u1 = -u0, v0 = u0, v1 = -u0;
+  const Eigen::Index n = state.camera_positions.size() / 3;
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const float x = state.camera_positions[3 * k], y = state.camera_positions[3 * k + 1];
+    const float z = state.camera_positions[3 * k + 2];
+    if (!(z > camera.near_plane && z < camera.far_plane)) continue;
+    const float u = camera.fx * x / z + camera.cx, v = camera.fy * y / z + camera.cy;
+    if (!std::isfinite(u) || !std::isfinite(v)) continue;
+    u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+  }
+  PixelBox box;
+  if (!(u0 <= u1 && v0 <= v1)) return box;
+  const float m = static_cast<float>(margin);
+  const float i0 = std::floor(u0) - m, i1 = std::ceil(u1) + m, j0 = std::floor(v0) - m, j1 = std::ceil(v1) + m;
+  const float w = static_cast<float>(camera.width - 1), h = static_cast<float>(camera.height - 1);
+  if (i1 < 0.f || j1 < 0.f || i0 > w || j0 > h) return box;  // beside the image
+  // Clamped as floats: a vertex just past the near plane projects far outside the image.
+  box.i0 = static_cast<int>(std::max(i0, 0.f));
+  box.i1 = static_cast<int>(std::min(i1, w));
+  box.j0 = static_cast<int>(std::max(j0, 0.f));
+  box.j1 = static_cast<int>(std::min(j1, h));
+  return box;
 }
 
 size_t GBuffer::covered_count() const {

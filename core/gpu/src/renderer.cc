@@ -461,16 +461,35 @@ GBuffer Renderer::read_gbuffer() const {
   return g;
 }
 
-void Renderer::read_gbuffer(GBuffer* out) const {
+void Renderer::read_gbuffer(GBuffer* out, const PixelBox* box) const {
   if (!out) throw Error("GPU renderer: read_gbuffer needs an output");
   targets();  // throws when nothing was rendered
   GBufferTargets& t = *last_targets_;
-  const uint32_t w = t.color.width(), h = t.color.height();
-  const VkDeviceSize plane = static_cast<VkDeviceSize>(w) * h * 16;
+  const int w = static_cast<int>(t.color.width()), h = static_cast<int>(t.color.height());
+  PixelBox b{0, w - 1, 0, h - 1};
+  if (box) b = PixelBox{std::max(0, box->i0), std::min(w - 1, box->i1), std::max(0, box->j0), std::min(h - 1, box->j1)};
+  GBuffer& g = *out;
+  const int threads = ResolvedThreadCount(0);
+  const bool whole = b.i0 == 0 && b.j0 == 0 && b.i1 == w - 1 && b.j1 == h - 1;
+  if (whole) {
+    // Every pixel is written below: sized, not cleared.
+    const size_t n = static_cast<size_t>(w) * h;
+    g.width = w;
+    g.height = h;
+    for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric}) v->resize(3 * n);
+    g.vertices.resize(3 * n);
+    g.triangle.resize(n);
+  } else {
+    g.ClearForDraw(w, h, threads);
+  }
+  g.drawn = GBuffer::DrawnTrace{g.triangle.data(), b.i0, b.i1, b.j0, b.j1};
+  if (b.empty()) return;  // nothing the render covered: nothing to read
+  const uint32_t bw = static_cast<uint32_t>(b.i1 - b.i0 + 1), bh = static_cast<uint32_t>(b.j1 - b.j0 + 1);
+  const VkDeviceSize plane = static_cast<VkDeviceSize>(bw) * bh * 16;
   Image* images[] = {&t.color, &t.position, &t.normal, &t.barycentric, &t.ids};
   if (!readback_.valid() || readback_.size() < plane * 5)
-    readback_ = Buffer(context_, plane * 5, VK_BUFFER_USAGE_TRANSFER_DST_BIT, BufferDomain::Readback,
-                       "G-buffer readback");
+    readback_ = Buffer(context_, static_cast<VkDeviceSize>(w) * h * 16 * 5, VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                       BufferDomain::Readback, "G-buffer readback");
   context_.submit_and_wait(
       [&](VkCommandBuffer cmd) {
         CommandRecorder rec(context_, cmd);
@@ -481,7 +500,8 @@ void Renderer::read_gbuffer(GBuffer* out) const {
           VkBufferImageCopy region{};
           region.bufferOffset = plane * i;
           region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
-          region.imageExtent = {w, h, 1};
+          region.imageOffset = {b.i0, b.j0, 0};
+          region.imageExtent = {bw, bh, 1};
           vkCmdCopyImageToBuffer(cmd, images[i]->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, readback_.handle(), 1,
                                  &region);
         }
@@ -494,24 +514,23 @@ void Renderer::read_gbuffer(GBuffer* out) const {
       },
       "G-buffer readback");
   // Unpacked straight from the mapped readback (cached host memory where the device offers it).
-  const size_t n = static_cast<size_t>(w) * h;
-  const size_t stride = n * 4;  // floats per plane
+  const size_t stride = static_cast<size_t>(bw) * bh * 4;  // floats per plane
   const auto* floats = static_cast<const float*>(readback_.mapped_for_read());
   const auto* ids = reinterpret_cast<const uint32_t*>(floats + 4 * stride);  // the fifth plane
-  GBuffer& g = *out;
-  g.Resize(static_cast<int>(w), static_cast<int>(h));
   // Rows in parallel: one core does not keep up with reading ~25 MB per 640x480 frame.
-  ParallelFor(static_cast<int>(h), ResolvedThreadCount(0), [&](int row) {
-    for (size_t p = static_cast<size_t>(row) * w; p < static_cast<size_t>(row + 1) * w; ++p) {
+  ParallelFor(static_cast<int>(bh), threads, [&](int row) {
+    for (uint32_t col = 0; col < bw; ++col) {
+      const size_t q = static_cast<size_t>(row) * bw + col;  // in the box
+      const size_t p = static_cast<size_t>(b.j0 + row) * w + static_cast<size_t>(b.i0) + col;  // in the image
       for (int c = 0; c < 3; ++c) {
-        g.color[3 * p + c] = floats[0 * stride + 4 * p + c];
-        g.position[3 * p + c] = floats[1 * stride + 4 * p + c];
-        g.normal[3 * p + c] = floats[2 * stride + 4 * p + c];
-        g.barycentric[3 * p + c] = floats[3 * stride + 4 * p + c];
+        g.color[3 * p + c] = floats[0 * stride + 4 * q + c];
+        g.position[3 * p + c] = floats[1 * stride + 4 * q + c];
+        g.normal[3 * p + c] = floats[2 * stride + 4 * q + c];
+        g.barycentric[3 * p + c] = floats[3 * stride + 4 * q + c];
       }
-      const uint32_t tri = ids[4 * p];
+      const uint32_t tri = ids[4 * q];
       g.triangle[p] = tri == 0 ? -1 : static_cast<int32_t>(tri - 1);
-      for (int c = 0; c < 3; ++c) g.vertices[3 * p + c] = tri == 0 ? -1 : static_cast<int32_t>(ids[4 * p + 1 + c]);
+      for (int c = 0; c < 3; ++c) g.vertices[3 * p + c] = tri == 0 ? -1 : static_cast<int32_t>(ids[4 * q + 1 + c]);
     }
   });
 }

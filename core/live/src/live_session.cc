@@ -490,7 +490,8 @@ class LandmarkStage {
         if (stopping_) return;
       }
       auto job = std::make_unique<Job>();
-      if (!target_.wait_newer(sequence, std::chrono::milliseconds(50), &job->frame, &sequence, &job->captured)) continue;
+      if (!target_.wait_newer(sequence, std::chrono::milliseconds(50), &job->frame, &sequence, &job->captured))
+        continue;
       job->sequence = sequence;
       job->started = Clock::now();
       try {

@@ -114,7 +114,8 @@ class ReenactProcessor : public FrameProcessor {
   }
 
   std::unique_ptr<StagedFrame> track_prepared(const capture::RgbdFrame& target, const ExpressionInput& input,
-                                              ActorOutcome* actor_out, std::unique_ptr<PreparedFrame> prepared) override {
+                                              ActorOutcome* actor_out,
+                                              std::unique_ptr<PreparedFrame> prepared) override {
     auto staged = std::make_unique<Staged>();
     ActorOutcome actor_outcome;
     // The source actor's tracker is independent of the target's: it runs on a kept thread of its

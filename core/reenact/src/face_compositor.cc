@@ -679,18 +679,26 @@ struct FaceCompositor::Impl {
       renderer.rasterize(state, camera, ropt, out, threads());
       return;
     }
+    // Only the face's box comes back: `state` is the same evaluation the device makes of `params`,
+    // so its vertices bound every pixel drawn (2 pixels for the two evaluations' rounding).
+    const gpu::PixelBox box = gpu::ProjectedBox(state, camera, 2);
     vk->render(params, camera, ropt);
-    vk->read_gbuffer(out);
+    vk->read_gbuffer(out, &box);
     gpu::GBuffer& g = *out;
-    for (size_t p = 0; p < g.triangle.size(); ++p) {
-      if (g.triangle[p] < 0) continue;
-      for (int c = 0; c < 3; ++c) {
-        float v = 0.f;
-        for (int k = 0; k < 3; ++k)
-          v += g.barycentric[3 * p + static_cast<size_t>(k)] * state.colors[3 * g.vertices[3 * p + static_cast<size_t>(k)] + c];
-        g.color[3 * p + static_cast<size_t>(c)] = v;
+    if (box.empty()) return;
+    ParallelFor(box.j1 - box.j0 + 1, threads(), [&](int row) {
+      const size_t first = static_cast<size_t>(box.j0 + row) * static_cast<size_t>(g.width);
+      for (size_t p = first + box.i0; p <= first + box.i1; ++p) {
+        if (g.triangle[p] < 0) continue;
+        for (int c = 0; c < 3; ++c) {
+          float v = 0.f;
+          for (int k = 0; k < 3; ++k)
+            v += g.barycentric[3 * p + static_cast<size_t>(k)] *
+                 state.colors[3 * g.vertices[3 * p + static_cast<size_t>(k)] + c];
+          g.color[3 * p + static_cast<size_t>(c)] = v;
+        }
       }
-    }
+    });
   }
 
   // The albedo texture's colour of drawn pixels whose triangle it covers: the texture's albedo at

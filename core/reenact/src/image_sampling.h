@@ -76,13 +76,13 @@ inline cv::Rect grown_within(const cv::Rect& rect, int margin, int w, int h) {
 // The rectangle around a G-buffer's covered pixels, grown by `margin` on every side and kept
 // inside the image; empty when nothing is covered. Each row is scanned from both ends to its
 // first covered pixel (uniting a rectangle per pixel cost a tenth of a millisecond at 640x480),
-// and only within the rectangle the CPU rasteriser last drew when the buffer says it (outside it
-// nothing is covered: GBuffer::cpu_raster).
+// and only within the rectangle the last draw wrote when the buffer says it (outside it
+// nothing is covered: GBuffer::drawn).
 inline cv::Rect covered_rect(const gpu::GBuffer& g, int margin) {
   int scan_i0 = 0, scan_i1 = g.width - 1, scan_j0 = 0, scan_j1 = g.height - 1;
-  if (g.cpu_raster.triangle_data != nullptr && g.cpu_raster.triangle_data == g.triangle.data()) {
-    scan_i0 = std::max(scan_i0, g.cpu_raster.i0), scan_i1 = std::min(scan_i1, g.cpu_raster.i1);
-    scan_j0 = std::max(scan_j0, g.cpu_raster.j0), scan_j1 = std::min(scan_j1, g.cpu_raster.j1);
+  if (g.drawn.triangle_data != nullptr && g.drawn.triangle_data == g.triangle.data()) {
+    scan_i0 = std::max(scan_i0, g.drawn.i0), scan_i1 = std::min(scan_i1, g.drawn.i1);
+    scan_j0 = std::max(scan_j0, g.drawn.j0), scan_j1 = std::min(scan_j1, g.drawn.j1);
   }
   int i0 = g.width, i1 = -1, j0 = g.height, j1 = -1;
   for (int j = scan_j0; j <= scan_j1 && scan_i0 <= scan_i1; ++j) {

@@ -487,7 +487,8 @@ PreparedTarget ReenactmentPipeline::Prepare(const capture::RgbdFrame& target) {
     out.depth = target.depth.clone();
 
   if (im.options.use_ground_truth_target) {
-    if (!target.ground_truth.params) return pass_through(TrackingStatus::kLost, "no ground-truth parameters in the target frame");
+    if (!target.ground_truth.params)
+      return pass_through(TrackingStatus::kLost, "no ground-truth parameters in the target frame");
     p.ground_truth = *target.ground_truth.params;
   } else if (im.input) {
     {

@@ -299,9 +299,9 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   const bool follows_projection = ColorFollowsProjection(options, frame);
   lin.color_follows_projection = follows_projection;
   const int w = frame.width();
-  // A CPU draw says which rectangle it covered: room for that many samples at once, where they
+  // A draw that says which rectangle it covered: room for that many samples at once, where they
   // were reallocated as they grew.
-  const gpu::GBuffer::CpuRasterTrace& drawn = gbuffer.cpu_raster;
+  const gpu::GBuffer::DrawnTrace& drawn = gbuffer.drawn;
   if (drawn.triangle_data == gbuffer.triangle.data() && drawn.i0 <= drawn.i1 && drawn.j0 <= drawn.j1)
     lin.pixels.reserve(static_cast<size_t>(drawn.i1 - drawn.i0 + 1) * static_cast<size_t>(drawn.j1 - drawn.j0 + 1));
   for (int j = 0; j < frame.height(); ++j) {

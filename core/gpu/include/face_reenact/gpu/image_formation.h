@@ -179,23 +179,38 @@ struct GBuffer {
   std::vector<int32_t> triangle;   // 1 per pixel: model triangle index, -1 = not covered
   std::vector<int32_t> vertices;   // 3 per pixel: the triangle's vertex indices (-1 if none)
 
-  // What the CPU rasteriser last drew into this buffer: outside `i0..i1` x `j0..j1` (inclusive)
-  // every pixel is as Resize leaves it, so drawing into the same buffer again clears only that
-  // rectangle (at 640x480 the whole buffer is 20 MB, and clearing it cost as much as drawing the
-  // face). Valid only while `triangle` is the same allocation it names; Resize forgets it, so
-  // anything that rewrites the buffer through Resize (the GPU read-back) is safe. A caller that
-  // writes uncovered pixels in place must call Resize first.
-  struct CpuRasterTrace {
+  // What the last draw wrote into this buffer (the CPU rasteriser, or a GPU read-back of a box):
+  // outside `i0..i1` x `j0..j1` (inclusive) every pixel is as Resize leaves it, so drawing into the
+  // same buffer again clears only that rectangle (at 640x480 the whole buffer is 20 MB, and
+  // clearing it cost as much as drawing the face). Valid only while `triangle` is the same
+  // allocation it names; Resize forgets it. A caller that writes uncovered pixels in place must
+  // call Resize first.
+  struct DrawnTrace {
     const int32_t* triangle_data = nullptr;
     int i0 = 0, i1 = -1, j0 = 0, j1 = -1;
-  } cpu_raster;
+  } drawn;
 
   void Resize(int w, int h);
+  // Sizes the buffer to w x h with every pixel as Resize leaves it, clearing only the rectangle of
+  // the last draw where that is known (`drawn`, then forgotten until the caller's draw sets it).
+  void ClearForDraw(int w, int h, int threads);
   bool covered(int i, int j) const { return triangle[static_cast<size_t>(j) * width + i] >= 0; }
   size_t covered_count() const;
   // Camera-space depth z of a pixel, 0 when not covered.
   float depth(int i, int j) const { return position[(static_cast<size_t>(j) * width + i) * 3 + 2]; }
 };
+
+// Pixels i0..i1 x j0..j1, inclusive.
+struct PixelBox {
+  int i0 = 0, i1 = -1, j0 = 0, j1 = -1;
+  bool empty() const { return i1 < i0 || j1 < j0; }
+};
+
+struct VertexState;
+// The pixels the triangles of `state` can cover in `camera`'s image, grown by `margin` and clipped
+// to the image: the box of the projections of the vertices within the depth range (a triangle
+// with a vertex outside it is not drawn). Empty when no vertex is in range or the box misses the image.
+PixelBox ProjectedBox(const VertexState& state, const PinholeCamera& camera, int margin);
 
 // Per-vertex results of the model and lighting stages (for tests and the tracker's CPU paths).
 struct VertexState {

@@ -103,7 +103,10 @@ class Renderer {
   const PinholeCamera& last_camera() const { return last_camera_; }
   GBuffer read_gbuffer() const;
   // The same into `out`, reusing its storage (per-frame callers: no fresh 20 MB per 640x480 frame).
-  void read_gbuffer(GBuffer* out) const;
+  // With `box` (every pixel the last render covered, e.g. ProjectedBox of its vertices), only that
+  // rectangle is copied and unpacked, `out` is as Resize leaves it outside, and its `drawn` trace
+  // says so; at 640x480 a face's box is a fifth of the frame (docs/renderer.md).
+  void read_gbuffer(GBuffer* out, const PixelBox* box = nullptr) const;
   // Per-vertex results of the last render().
   VertexState read_vertex_state() const;
 
