@@ -1,6 +1,7 @@
 // The image formation model S(P) on the GPU against analytic results and against its CPU twin.
 #include <cmath>
 #include <random>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -20,6 +21,31 @@ constexpr float kRadius = 0.1f;
 constexpr float kDistance = 0.6f;
 
 class RendererTest : public ValidatedGpuTest {};
+
+// Faces that move across the image at 0.3 m, then one off the image (nothing drawn): what the
+// tests of buffers drawn into again and again draw.
+std::vector<FaceParameters> MovingFacesThenOneOffTheImage() {
+  std::vector<FaceParameters> poses;
+  for (float x : {0.05f, -0.06f, 0.0f}) {
+    FaceParameters p = frontal_pose(0.3f);
+    p.translation.x() = x;
+    poses.push_back(p);
+  }
+  FaceParameters away = frontal_pose(kDistance);
+  away.translation.x() = 5.0f;
+  poses.push_back(away);
+  return poses;
+}
+
+// Every channel of two G-buffers the same, bit for bit.
+void ExpectSameGBuffers(const GBuffer& got, const GBuffer& expected, const std::string& what) {
+  EXPECT_EQ(got.color, expected.color) << what;
+  EXPECT_EQ(got.position, expected.position) << what;
+  EXPECT_EQ(got.normal, expected.normal) << what;
+  EXPECT_EQ(got.barycentric, expected.barycentric) << what;
+  EXPECT_EQ(got.triangle, expected.triangle) << what;
+  EXPECT_EQ(got.vertices, expected.vertices) << what;
+}
 
 // A sphere of radius r centred at distance D on the optical axis projects to a disc of radius
 // f r / sqrt(D^2 - r^2) around the principal point; its nearest point is at depth D - r with
@@ -394,27 +420,13 @@ TEST(CpuRendererTest, DrawingIntoTheSameBufferAgainEqualsAFreshBuffer) {
   const RenderModel model = testing::make_icosphere(kRadius, 3);
   const CpuRenderer cpu(model);
   const RenderOptions options;
-  std::vector<FaceParameters> poses;
-  for (float x : {0.05f, -0.06f, 0.0f}) {
-    FaceParameters p = frontal_pose(0.3f);
-    p.translation.x() = x;
-    poses.push_back(p);
-  }
-  FaceParameters away = frontal_pose(kDistance);
-  away.translation.x() = 5.0f;  // off the image: nothing drawn
-  poses.push_back(away);
+  std::vector<FaceParameters> poses = MovingFacesThenOneOffTheImage();
   FaceParameters far = frontal_pose(kDistance);
   far.translation.y() = -0.08f;
   poses.push_back(far);
   poses.push_back(poses[0]);
   auto expect_fresh = [&](const GBuffer& buffer, const FaceParameters& p, size_t k) {
-    const GBuffer fresh = cpu.rasterize(cpu.evaluate(p), PinholeCamera{}, options);
-    EXPECT_EQ(buffer.color, fresh.color) << "pose " << k;
-    EXPECT_EQ(buffer.position, fresh.position) << "pose " << k;
-    EXPECT_EQ(buffer.normal, fresh.normal) << "pose " << k;
-    EXPECT_EQ(buffer.barycentric, fresh.barycentric) << "pose " << k;
-    EXPECT_EQ(buffer.triangle, fresh.triangle) << "pose " << k;
-    EXPECT_EQ(buffer.vertices, fresh.vertices) << "pose " << k;
+    ExpectSameGBuffers(buffer, cpu.rasterize(cpu.evaluate(p), PinholeCamera{}, options), "pose " + std::to_string(k));
   };
   GBuffer buffer;
   for (size_t k = 0; k < poses.size(); ++k) {
@@ -468,12 +480,7 @@ TEST_F(RendererTest, ReusedReadbackEqualsAFreshReadAfterALargerRender) {
   const GBuffer fresh = renderer.read_gbuffer();
   ASSERT_EQ(reused.width, 320);
   ASSERT_EQ(reused.height, 240);
-  EXPECT_EQ(reused.triangle, fresh.triangle);
-  EXPECT_EQ(reused.vertices, fresh.vertices);
-  EXPECT_EQ(reused.position, fresh.position);
-  EXPECT_EQ(reused.normal, fresh.normal);
-  EXPECT_EQ(reused.barycentric, fresh.barycentric);
-  EXPECT_EQ(reused.color, fresh.color);
+  ExpectSameGBuffers(reused, fresh, "the reused read");
   EXPECT_GT(fresh.covered_count(), 0u);
   EXPECT_THROW(renderer.read_gbuffer(nullptr), face_reenact::Error);
 }
@@ -487,15 +494,7 @@ TEST_F(RendererTest, ReadingTheProjectedBoxIntoAKeptBufferEqualsAWholeRead) {
   Renderer renderer(context(), model);
   const CpuRenderer cpu(model);
   const PinholeCamera cam;
-  std::vector<FaceParameters> poses;
-  for (float x : {0.05f, -0.06f, 0.0f}) {
-    FaceParameters p = frontal_pose(0.3f);
-    p.translation.x() = x;
-    poses.push_back(p);
-  }
-  FaceParameters away = frontal_pose(kDistance);
-  away.translation.x() = 5.0f;  // off the image: an empty box, nothing read
-  poses.push_back(away);
+  std::vector<FaceParameters> poses = MovingFacesThenOneOffTheImage();  // off the image: an empty box
   FaceParameters behind = frontal_pose(kDistance);
   behind.translation.z() = -kDistance;  // behind the camera: no vertex in range
   poses.push_back(behind);
@@ -509,13 +508,7 @@ TEST_F(RendererTest, ReadingTheProjectedBoxIntoAKeptBufferEqualsAWholeRead) {
     EXPECT_EQ(box.empty(), k == 3 || k == 4);
     renderer.render(poses[k], cam);
     renderer.read_gbuffer(&kept, &box);
-    const GBuffer whole = renderer.read_gbuffer();
-    EXPECT_EQ(kept.triangle, whole.triangle);
-    EXPECT_EQ(kept.vertices, whole.vertices);
-    EXPECT_EQ(kept.position, whole.position);
-    EXPECT_EQ(kept.normal, whole.normal);
-    EXPECT_EQ(kept.barycentric, whole.barycentric);
-    EXPECT_EQ(kept.color, whole.color);
+    ExpectSameGBuffers(kept, renderer.read_gbuffer(), "the box against the whole read");
     EXPECT_EQ(kept.covered_count() == 0, k == 3 || k == 4);
     EXPECT_EQ(kept.drawn.triangle_data, kept.triangle.data());
     if (!box.empty()) read_pixels += static_cast<size_t>(box.i1 - box.i0 + 1) * (box.j1 - box.j0 + 1);
@@ -523,9 +516,7 @@ TEST_F(RendererTest, ReadingTheProjectedBoxIntoAKeptBufferEqualsAWholeRead) {
     // The CPU rasteriser into the same buffer clears only what the read wrote.
     if (k == 2) {
       cpu.rasterize(cpu.evaluate(poses[0]), cam, RenderOptions(), &kept, 2);
-      const GBuffer fresh = cpu.rasterize(cpu.evaluate(poses[0]), cam, RenderOptions());
-      EXPECT_EQ(kept.triangle, fresh.triangle);
-      EXPECT_EQ(kept.color, fresh.color);
+      ExpectSameGBuffers(kept, cpu.rasterize(cpu.evaluate(poses[0]), cam, RenderOptions()), "the CPU's draw after");
     }
   }
   EXPECT_LT(read_pixels * 2, whole_pixels) << "the boxes are a part of the frames";
