@@ -9,6 +9,7 @@
 #                                               # (and the baseline program's, when bundled)
 #   scripts/device_measure.sh compare [FRAMES]  # this build against the bundled baseline (bench track,
 #                                               # the paper's whole schedule and the tracker's 3 %)
+#   scripts/device_measure.sh renderers CLIP PARAMS [S]  # bench live reenact, CPU against Vulkan renderer
 #   scripts/device_measure.sh render [FRAMES]   # bench reenact, this build against the baseline (A B A B)
 #   scripts/device_measure.sh live CLIP [S]     # bench live on CLIP: passthrough with each solver
 #   scripts/device_measure.sh udp CLIP ACTOR [S]  # bench live --mode reenact, ACTOR's expressions over UDP
@@ -90,6 +91,28 @@ case "${1:-}" in
     FR_TRACKER_PROFILE=1 timeout 120 "$FR/bin/face-reenact" bench track --model "$FR/bin/face-model.frm" --frames 3 \
         --vulkan matrix-free >"$OUT/track_profile.log" 2>&1
     grep "^tracker" "$OUT/track_profile.log" | tail -12
+    ;;
+  renderers)
+    # bench live --mode reenact (PARAMS' expressions over UDP at 30 Hz) on CLIP with the CPU and the
+    # Vulkan renderer, alternating (A B A B); every run's output goes to $OUT/renderers.log.
+    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
+    export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
+    clip="$2" params="$3" seconds="${4:-10}"
+    [ -f "$FR/key" ] || fr keygen --out "$FR/key" >/dev/null
+    fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$params" --rate 30 --loop >/dev/null 2>&1 &
+    sender=$!
+    for round in 1 2; do
+      for renderer in cpu vulkan; do
+        echo "== bench live reenact, renderer $renderer, round $round" | tee -a "$OUT/renderers.log"
+        fr bench live --target "$clip" --mode reenact --source udp://9123 --key "$FR/key" --renderer "$renderer" \
+            --warmup 8 --seconds "$seconds" >"$OUT/run.log" 2>&1
+        echo "(rc $?)" | tee -a "$OUT/renderers.log"
+        cat "$OUT/run.log" >>"$OUT/renderers.log"
+        grep -E "output .* fps|frames:|render  |composite|hand-off|total  |cores busy" "$OUT/run.log"
+      done
+    done
+    rm -f "$OUT/run.log"
+    kill "$sender"
     ;;
   render)
     # bench reenact (re-render, mouth, composite; the CPU and the Vulkan rasteriser) at 640x480
