@@ -220,12 +220,8 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   // and clearing it on one thread cost as much as rasterising the face. A buffer whose last draw
   // is known (GBuffer::drawn: this rasteriser's, or a GPU read-back's) needs only that cleared.
   const size_t num_pixels = static_cast<size_t>(camera.width) * camera.height;
-  const bool same_size = g.width == camera.width && g.height == camera.height && g.triangle.size() == num_pixels &&
-                         g.vertices.size() == 3 * num_pixels && g.color.size() == 3 * num_pixels &&
-                         g.position.size() == 3 * num_pixels && g.normal.size() == 3 * num_pixels &&
-                         g.barycentric.size() == 3 * num_pixels;
   const GBuffer::DrawnTrace previous = g.drawn;
-  const bool previous_known = same_size && previous.triangle_data != nullptr && previous.triangle_data == g.triangle.data();
+  const bool previous_known = g.DrawnIsKnown(camera.width, camera.height);
   g.width = camera.width;
   g.height = camera.height;
   for (auto* v : {&g.color, &g.position, &g.normal, &g.barycentric}) v->resize(3 * num_pixels);

@@ -207,12 +207,15 @@ void GBuffer::Resize(int w, int h) {
   drawn = DrawnTrace();
 }
 
-void GBuffer::ClearForDraw(int w, int h, int threads) {
+bool GBuffer::DrawnIsKnown(int w, int h) const {
   const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
-  const bool known = width == w && height == h && triangle.size() == n && vertices.size() == 3 * n &&
-                     color.size() == 3 * n && position.size() == 3 * n && normal.size() == 3 * n &&
-                     barycentric.size() == 3 * n && drawn.triangle_data == triangle.data();
-  if (!known) {
+  return width == w && height == h && triangle.size() == n && vertices.size() == 3 * n && color.size() == 3 * n &&
+         position.size() == 3 * n && normal.size() == 3 * n && barycentric.size() == 3 * n &&
+         drawn.triangle_data != nullptr && drawn.triangle_data == triangle.data();
+}
+
+void GBuffer::ClearForDraw(int w, int h, int threads) {
+  if (!DrawnIsKnown(w, h)) {
     Resize(w, h);
     return;
   }

@@ -191,6 +191,9 @@ struct GBuffer {
   } drawn;
 
   void Resize(int w, int h);
+  // Whether the buffer is w x h in every channel and `drawn` names its current allocation: then
+  // only that rectangle needs clearing before the next draw.
+  bool DrawnIsKnown(int w, int h) const;
   // Sizes the buffer to w x h with every pixel as Resize leaves it, clearing only the rectangle of
   // the last draw where that is known (`drawn`, then forgotten until the caller's draw sets it).
   void ClearForDraw(int w, int h, int threads);
