@@ -30,6 +30,33 @@ if [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
 fi
 fr() { "$FR/bin/face-reenact" "$@"; }
 
+# bench live runs on CLIP, PARAMS' expressions replayed over UDP at 30 Hz to the reenact runs; each
+# RUN is "MODE LANDMARKS_AHEAD(on|off) RENDERER ROUND". Every run's whole output goes to $OUT/LOG.
+live_runs() {
+  local log="$1" clip="$2" params="$3" seconds="$4"
+  shift 4
+  export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
+  export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
+  [ -f "$FR/key" ] || fr keygen --out "$FR/key" >/dev/null
+  fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$params" --rate 30 --loop >/dev/null 2>&1 &
+  local sender=$! run
+  for run in "$@"; do
+    set -- $run
+    local source_args=() ahead_args=()
+    [ "$1" = reenact ] && source_args=(--source udp://9123 --key "$FR/key")
+    [ "$2" = on ] && ahead_args=(--landmarks-ahead)
+    echo "== bench live $1, landmarks ahead $2, renderer $3, round $4" | tee -a "$OUT/$log"
+    fr bench live --target "$clip" --mode "$1" "${source_args[@]}" "${ahead_args[@]}" --renderer "$3" \
+        --warmup 8 --seconds "$seconds" >"$OUT/run.log" 2>&1
+    echo "(rc $?)" | tee -a "$OUT/$log"
+    cat "$OUT/run.log" >>"$OUT/$log"
+    grep -E "tracker solver|output .* fps|frames:|landmarks  |synthesis|analysis|gaze|render  |composite|hand-off|total  |cores busy|fr-live" \
+        "$OUT/run.log"
+  done
+  rm -f "$OUT/run.log"
+  kill "$sender"
+}
+
 case "${1:-}" in
   unpack)
     # The GL/EGL dispatch libraries the NVIDIA Vulkan driver loads itself (without them its ICD
@@ -93,26 +120,9 @@ case "${1:-}" in
     grep "^tracker" "$OUT/track_profile.log" | tail -12
     ;;
   renderers)
-    # bench live --mode reenact (PARAMS' expressions over UDP at 30 Hz) on CLIP with the CPU and the
-    # Vulkan renderer, alternating (A B A B); every run's output goes to $OUT/renderers.log.
-    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
-    export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
-    clip="$2" params="$3" seconds="${4:-10}"
-    [ -f "$FR/key" ] || fr keygen --out "$FR/key" >/dev/null
-    fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$params" --rate 30 --loop >/dev/null 2>&1 &
-    sender=$!
-    for round in 1 2; do
-      for renderer in cpu vulkan; do
-        echo "== bench live reenact, renderer $renderer, round $round" | tee -a "$OUT/renderers.log"
-        fr bench live --target "$clip" --mode reenact --source udp://9123 --key "$FR/key" --renderer "$renderer" \
-            --warmup 8 --seconds "$seconds" >"$OUT/run.log" 2>&1
-        echo "(rc $?)" | tee -a "$OUT/renderers.log"
-        cat "$OUT/run.log" >>"$OUT/renderers.log"
-        grep -E "output .* fps|frames:|render  |composite|hand-off|total  |cores busy" "$OUT/run.log"
-      done
-    done
-    rm -f "$OUT/run.log"
-    kill "$sender"
+    # bench live --mode reenact on CLIP with the CPU and the Vulkan renderer, alternating (A B A B).
+    live_runs renderers.log "$2" "$3" "${4:-10}" "reenact off cpu 1" "reenact off vulkan 1" "reenact off cpu 2" \
+        "reenact off vulkan 2"
     ;;
   render)
     # bench reenact (re-render, mouth, composite; the CPU and the Vulkan rasteriser) at 640x480
@@ -165,37 +175,14 @@ case "${1:-}" in
     ;;
   ahead)
     # The landmark stage (LiveSession::Options::landmarks_ahead) off and on, alternating, two rounds:
-    # bench live passthrough and reenact (PARAMS' expressions over UDP at 30 Hz) on CLIP; then
-    # reenact with the Vulkan renderer. Every run's output goes to $OUT/ahead.log.
-    export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
-    export FACE_REENACT_MODEL="$FR/bin/face-model.frm"
-    clip="$2" params="$3" seconds="${4:-10}"
-    [ -f "$FR/key" ] || fr keygen --out "$FR/key" >/dev/null
-    fr send --to 127.0.0.1:9123 --key "$FR/key" --replay "$params" --rate 30 --loop >/dev/null 2>&1 &
-    sender=$!
+    # bench live passthrough and reenact on CLIP; then reenact with the Vulkan renderer.
     runs=()
     for round in 1 2; do
       for mode in passthrough reenact; do
         for ahead in off on; do runs+=("$mode $ahead cpu $round"); done
       done
     done
-    runs+=("reenact on vulkan 3")
-    for run in "${runs[@]}"; do
-      set -- $run
-      source_args=()
-      [ "$1" = reenact ] && source_args=(--source udp://9123 --key "$FR/key")
-      ahead_args=()
-      [ "$2" = on ] && ahead_args=(--landmarks-ahead)
-      echo "== bench live $1, landmarks ahead $2, renderer $3, round $4" | tee -a "$OUT/ahead.log"
-      fr bench live --target "$clip" --mode "$1" "${source_args[@]}" "${ahead_args[@]}" --renderer "$3" \
-          --warmup 8 --seconds "$seconds" >"$OUT/run.log" 2>&1
-      echo "(rc $?)" | tee -a "$OUT/ahead.log"
-      cat "$OUT/run.log" >>"$OUT/ahead.log"
-      grep -E "tracker solver|output .* fps|frames:|landmarks  |synthesis|analysis|gaze|render  |composite|hand-off|total  |cores busy|fr-live" \
-          "$OUT/run.log"
-    done
-    rm -f "$OUT/run.log"
-    kill "$sender"
+    live_runs ahead.log "$2" "$3" "${4:-10}" "${runs[@]}" "reenact on vulkan 3"
     ;;
   reenact)
     export FACE_REENACT_SHAPE_PREDICTOR="$FR/shape_predictor_68_face_landmarks.dat"
