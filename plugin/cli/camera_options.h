@@ -87,6 +87,9 @@ inline nlohmann::json camera_json(const capture::RecordingInfo& info, const Came
                                 {"energy", json_number(e.energy)}, {"landmark_rms_px", json_number(e.landmark_error_px)},
                                 {"frames", e.frames},         {"ms", e.ms},
                                 {"message", e.message},       {"energy_by_fov", grid}};
+    // The fields of view the landmarks fit within their noise (null where the search stopped before).
+    j["focal_length_search"]["fov_interval_deg"] =
+        e.fov_high_deg > 0 ? nlohmann::json::array({e.fov_low_deg, e.fov_high_deg}) : nlohmann::json();
   }
   return j;
 }

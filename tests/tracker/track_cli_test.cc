@@ -736,6 +736,7 @@ TEST(TrackCli, VideoFilesAreTrackedWithoutDepth) {
   EXPECT_TRUE(searched["from"] == "estimated" || searched["from"] == "fallback") << searched;
   ASSERT_TRUE(searched.contains("focal_length_search")) << searched;
   EXPECT_FALSE(searched["focal_length_search"]["message"].get<std::string>().empty());
+  EXPECT_TRUE(searched["focal_length_search"].contains("fov_interval_deg")) << searched;
   EXPECT_NE(est.output.find("camera: "), std::string::npos) << est.output;
   const SubprocessResult fov = run_subprocess({cli(), "track", "--input", (out / "clip.avi").string(), "--out",
                                                (out / "f.jsonl").string(), "--report", (out / "f.json").string(),

@@ -23,8 +23,10 @@ bool FocalLengthOptions::IsValid(std::string* why) const {
   if (identity_components < 0) return fail_why(why, "focal length search: identity_components must be >= 0");
   if (!(w_identity >= 0 && w_landmarks > 0)) return fail_why(why, "focal length search: weights must be w_identity >= 0, w_landmarks > 0");
   if (!(fallback_fov_deg > 1 && fallback_fov_deg < 179)) return fail_why(why, "focal length search: fallback_fov_deg must be in (1, 179)");
-  if (!(min_relative_contrast >= 0) || !(min_landmark_confidence >= 0) || !(max_landmark_rms_px > 0))
-    return fail_why(why, "focal length search: min_relative_contrast, min_landmark_confidence >= 0 and max_landmark_rms_px > 0 needed");
+  if (!(min_landmark_confidence >= 0) || !(max_landmark_rms_px > 0))
+    return fail_why(why, "focal length search: min_landmark_confidence >= 0 and max_landmark_rms_px > 0 needed");
+  if (!(confidence_chi2 > 0) || !(max_relative_uncertainty > 0))
+    return fail_why(why, "focal length search: confidence_chi2 and max_relative_uncertainty must be > 0");
   return true;
 }
 
@@ -48,17 +50,20 @@ struct FrameLandmarks {
   std::vector<double> weight;         // confidence / sum of confidences
 };
 
-// The points the search fits: the inner points (eyes, nose, mouth) with their model vertex,
+// The points the search fits: the inner points of the eyes and nose with their model vertex,
 // except 33, which the model puts on the underside of the nose where detectors see the nose base
 // (docs/tracker.md): a bias in exactly the depth the search reads. The jaw line is left out: its
-// points slide along the occluding contour, which a fixed vertex does not.
+// points slide along the occluding contour, which a fixed vertex does not. The mouth (48-67) is
+// left out because it moves with speech and this fit has no expression: renders whose jaw opened
+// halfway in every other calibration frame read the end of the range (100 degrees) for lenses of
+// 45-85 degrees with the mouth in, 46-90 without it.
 FrameLandmarks collect(const TrackerModel& model, const InputFrame& frame, float min_confidence) {
   FrameLandmarks f;
   f.frame.camera = frame.camera;
   f.frame.landmarks = frame.landmarks;
   double sum = 0;
   for (const auto& in : frame.landmarks) {
-    if (!(in.confidence > min_confidence) || in.ibug_index == 33) continue;
+    if (!(in.confidence > min_confidence) || in.ibug_index == 33 || in.ibug_index >= 48) continue;
     if (!in.position.allFinite()) continue;
     for (const auto& l : model.landmarks) {
       if (l.ibug_index != in.ibug_index || !(l.flags & kLandmarkInner)) continue;
@@ -92,6 +97,13 @@ class LandmarkFit {
   LandmarkFit(const TrackerModel& model, std::vector<FrameLandmarks> frames, const FocalLengthOptions& options)
       : model_(model), frames_(std::move(frames)), options_(options),
         k_(std::min(options.identity_components, model.num_identity())) {}
+
+  // Residuals less unknowns: the degrees of freedom the energy's noise is spread over.
+  int DegreesOfFreedom() const {
+    int residuals = 0;
+    for (const FrameLandmarks& f : frames_) residuals += 2 * static_cast<int>(f.vertices.size());
+    return residuals - k_ - 6 * static_cast<int>(frames_.size());
+  }
 
   FitResult Solve(double fov_deg) const {
     const int nf = static_cast<int>(frames_.size());
@@ -246,8 +258,46 @@ class LandmarkFit {
   int k_;
 };
 
-
 }  // namespace
+
+FovInterval FieldsOfViewWithin(std::vector<std::pair<double, double>> samples, double bound) {
+  std::sort(samples.begin(), samples.end());
+  auto within = [&](size_t i) { return std::isfinite(samples[i].second) && samples[i].second <= bound; };
+  auto crossing = [&](size_t inside, size_t outside) {
+    const auto& [f_in, e_in] = samples[inside];
+    const auto& [f_out, e_out] = samples[outside];
+    if (!std::isfinite(e_out)) return f_out;
+    return f_in + (f_out - f_in) * (bound - e_in) / (e_out - e_in);
+  };
+  FovInterval u;
+  size_t lo = samples.size(), hi = 0;
+  for (size_t i = 0; i < samples.size(); ++i) {
+    if (!within(i)) continue;
+    lo = std::min(lo, i);
+    hi = i;
+  }
+  if (lo == samples.size()) return u;  // nothing within (cannot happen: the best is)
+  u.bounded = lo > 0 && hi + 1 < samples.size();
+  u.low = lo > 0 ? crossing(lo, lo - 1) : samples[lo].first;
+  u.high = hi + 1 < samples.size() ? crossing(hi, hi + 1) : samples[hi].first;
+  return u;
+}
+
+int SecondEnergyValley(const std::vector<std::pair<double, double>>& grid, int best, double bound) {
+  const int n = static_cast<int>(grid.size());
+  auto energy = [&](int i) {
+    const double e = grid[static_cast<size_t>(i)].second;
+    return std::isfinite(e) ? e : std::numeric_limits<double>::max();
+  };
+  for (const int dir : {1, -1}) {
+    int lowest = dir > 0 ? 0 : n - 1;
+    for (int i = lowest; i != best; i += dir) {
+      if (energy(i) < energy(lowest)) lowest = i;
+      if (energy(i) > energy(lowest) + bound) return lowest;
+    }
+  }
+  return -1;
+}
 
 FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::vector<InputFrame>& frames,
                                         const FocalLengthOptions& options) {
@@ -281,7 +331,7 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   const int g = options.grid_points;
   std::vector<FitResult> grid(g);
   int best = -1;
-  double e_min = std::numeric_limits<double>::infinity(), e_max = -e_min;
+  double e_min = std::numeric_limits<double>::infinity();
   auto grid_fov = [&](int i) { return options.min_fov_deg + (options.max_fov_deg - options.min_fov_deg) * i / (g - 1); };
   // The grid's fits are independent: side by side on the pool (the calibration waits for this
   // search, and the live session's calibration has the other core idle).
@@ -290,7 +340,6 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
     const double fov = grid_fov(i);
     out.energy_by_fov.emplace_back(fov, grid[i].energy);
     if (!std::isfinite(grid[i].energy)) continue;
-    e_max = std::max(e_max, grid[i].energy);
     if (grid[i].energy < e_min) {
       e_min = grid[i].energy;
       best = i;
@@ -301,12 +350,13 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   if (best == 0 || best == g - 1)
     return fallback(internal::format("focal length not estimated: the landmarks fit best at the end of the search range (%.0f degrees)",
                                options.min_fov_deg + step * best));
-  if (!(e_max - e_min > options.min_relative_contrast * e_min))
-    return fallback("focal length not estimated: the landmarks fit every field of view alike (a face too small or too still)");
   double a = options.min_fov_deg + step * (best - 1), b = options.min_fov_deg + step * (best + 1);
   const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
   double c = b - phi * (b - a), d = a + phi * (b - a);
   FitResult fc = fit.Solve(c), fd = fit.Solve(d);
+  std::vector<std::pair<double, double>> tried = out.energy_by_fov;  // (fov, energy), for the interval
+  tried.emplace_back(c, fc.energy);
+  tried.emplace_back(d, fd.energy);
   for (int it = 0; it < options.refine_iterations; ++it) {
     if (fc.energy < fd.energy) {
       b = d;
@@ -314,12 +364,14 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
       fd = fc;
       c = b - phi * (b - a);
       fc = fit.Solve(c);
+      tried.emplace_back(c, fc.energy);
     } else {
       a = c;
       c = d;
       fc = fd;
       d = a + phi * (b - a);
       fd = fit.Solve(d);
+      tried.emplace_back(d, fd.energy);
     }
   }
   FitResult chosen = grid[best];
@@ -331,10 +383,31 @@ FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::ve
   if (!(chosen.rms_px <= options.max_landmark_rms_px))
     return fallback(internal::format("focal length not estimated: the landmarks are %.1f px RMS from the best fit (%.0f degrees), "
                                "too noisy to read the lens", chosen.rms_px, fov));
+  // The landmarks' noise per degree of freedom (the landmark term the best fit leaves, spread over
+  // the residuals less the unknowns; at least 10, so that a frame or two with few points cannot make
+  // the bound a multiple of the energy), and the energy rise it allows (a profile likelihood's).
+  const double noise =
+      options.w_landmarks * chosen.rms_px * chosen.rms_px * out.frames / std::max(10, fit.DegreesOfFreedom());
+  const double bound = options.confidence_chi2 * noise;
+  const int hump = SecondEnergyValley(out.energy_by_fov, best, bound);
+  if (hump >= 0)
+    return fallback(internal::format("focal length not estimated: the landmark fits have two valleys, near %.0f and "
+                                     "%.0f degrees, with a rise beyond the landmarks' noise between them",
+                                     out.energy_by_fov[static_cast<size_t>(hump)].first, fov));
+  const FovInterval u = FieldsOfViewWithin(std::move(tried), chosen.energy + bound);
+  out.fov_low_deg = u.low;
+  out.fov_high_deg = u.high;
+  const double spread = std::max(fov - u.low, u.high - fov);
+  if (!u.bounded || spread > options.max_relative_uncertainty * fov)
+    return fallback(internal::format("focal length not estimated: the landmarks fit every field of view from %.0f to "
+                                     "%.0f degrees%s within their noise (best %.0f): they do not pin the lens down",
+                                     u.low, u.high, u.bounded ? "" : " (an end of the search range)", fov));
   out.estimated = true;
   out.horizontal_fov_deg = fov;
   out.ms = ms_since(t0);
-  out.message = internal::format("estimated %.1f degrees horizontal field of view", fov) + " from " + std::to_string(out.frames) +
+  out.message = internal::format("estimated %.1f degrees horizontal field of view (%.0f-%.0f within the landmarks' "
+                                 "noise)", fov, u.low, u.high) +
+                " from " + std::to_string(out.frames) +
                 internal::format(" calibration frames (landmarks %.2f px RMS, %.0f ms)", chosen.rms_px, out.ms);
   return out;
 }

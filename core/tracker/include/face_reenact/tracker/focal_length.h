@@ -49,10 +49,20 @@ struct FocalLengthOptions {
   double w_identity = 0.005;
   double w_landmarks = 0.125;
   // When the search cannot decide (no usable landmarks, the best at an end of the range, an energy
-  // that barely changes over it): this field of view, the common webcam's.
+  // that leaves the lens uncertain): this field of view, the common webcam's.
   double fallback_fov_deg = 60.0;
-  // An energy whose range over the grid is below this fraction of its minimum is "flat".
-  double min_relative_contrast = 0.02;
+  // How well the landmarks pin the lens down: the fields of view whose fit ends within the
+  // landmarks' own noise of the best (energy below the best's + confidence_chi2 x the best fit's
+  // landmark energy per degree of freedom, the residuals less the unknowns; 3.84: a profile
+  // likelihood's 95 % for one parameter) form an interval, and the grid must have one valley
+  // (SecondEnergyValley below, with the same bound). The interval must not
+  // reach an end of the range and must be at most max_relative_uncertainty x the estimate wide on
+  // either side. Renders with exact landmarks give intervals of +-2-7 %; with 1 px of landmark
+  // noise they span most of the range, where the checks before this one passed estimates 4-15 %
+  // off, and stretches of one real clip read 32-96 degrees (docs/tracking-pipeline.md, "Camera
+  // intrinsics for video").
+  double confidence_chi2 = 3.84;
+  double max_relative_uncertainty = 0.15;
   // Landmarks further from the best fit than this (RMS, pixels of a 640-wide image) are too noisy
   // to read the lens: the perspective the search reads is below a pixel (synthetic renders fit to
   // 0.07 px; dlib on the real clips to ~3 px, where the energy over the field of view had several
@@ -69,6 +79,9 @@ struct FocalLengthEstimate {
   double horizontal_fov_deg = 0;
   double energy = 0;               // the landmark fit's energy at horizontal_fov_deg
   double landmark_error_px = -1;   // its RMS landmark offset, pixels of a 640-wide image
+  // The fields of view the landmarks cannot tell from the best (FocalLengthOptions::confidence_chi2);
+  // an end of the search range where the energy never rose above the bound on that side.
+  double fov_low_deg = 0, fov_high_deg = 0;
   int frames = 0;                  // calibration frames with enough landmarks
   std::vector<std::pair<double, double>> energy_by_fov;  // the grid: (fov deg, energy)
   std::string message;
@@ -80,6 +93,26 @@ struct FocalLengthEstimate {
 // estimated false with the fallback and a message.
 FocalLengthEstimate EstimateFocalLength(const TrackerModel& model, const std::vector<InputFrame>& frames,
                                         const FocalLengthOptions& options);
+
+// How EstimateFocalLength reads its energy over the field of view (samples: (fov deg, energy)).
+//
+// The fields of view whose energy is at most `bound`: from the lowest such sample to the highest
+// (several valleys make one wide interval), each end where the line to its outer neighbour crosses
+// the bound; `bounded` false when a sample at an end of the range is within (that end is then the
+// interval's).
+struct FovInterval {
+  double low = 0, high = 0;
+  bool bounded = false;
+};
+FovInterval FieldsOfViewWithin(std::vector<std::pair<double, double>> samples, double bound);
+// A valley of the grid (ordered by fov) other than the one at `best`: walking from each end
+// towards `best`, the energy rises more than `bound` above the lowest point passed, a hump between
+// that point and the best. Returns that point's index, or -1 when the grid has one valley
+// (non-finite energies count as the highest). Renders with exact landmarks give one smooth valley;
+// on real clips fits that ended in different minima at neighbouring fields of view made steps of
+// 1-20 %, and a narrow dip between two of them passed for an estimate (68.5 degrees from one
+// stretch of a clip, 95.6 from the next).
+int SecondEnergyValley(const std::vector<std::pair<double, double>>& grid, int best, double bound);
 
 // `camera` with fx = fy set for the horizontal field of view `fov_deg` (principal point and size kept).
 gpu::PinholeCamera WithHorizontalFov(const gpu::PinholeCamera& camera, double fov_deg);
