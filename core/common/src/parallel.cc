@@ -234,7 +234,10 @@ void NamedThread::Loop() {
 
 int ResolvedThreadCount(int requested) {
   if (requested > 0) return requested;
-  return static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 8u));
+  // Asked once: glibc answers hardware_concurrency by reading /sys on every call (an open, a read
+  // and a close), and a live frame asks dozens of times (1 % of the worker's time).
+  static const int hardware = static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 8u));
+  return hardware;
 }
 
 }  // namespace face_reenact
