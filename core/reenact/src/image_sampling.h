@@ -80,7 +80,7 @@ inline cv::Rect grown_within(const cv::Rect& rect, int margin, int w, int h) {
 // nothing is covered: GBuffer::drawn).
 inline cv::Rect covered_rect(const gpu::GBuffer& g, int margin) {
   int scan_i0 = 0, scan_i1 = g.width - 1, scan_j0 = 0, scan_j1 = g.height - 1;
-  if (g.drawn.triangle_data != nullptr && g.drawn.triangle_data == g.triangle.data()) {
+  if (g.DrawnIsKnown(g.width, g.height)) {
     scan_i0 = std::max(scan_i0, g.drawn.i0), scan_i1 = std::min(scan_i1, g.drawn.i1);
     scan_j0 = std::max(scan_j0, g.drawn.j0), scan_j1 = std::min(scan_j1, g.drawn.j1);
   }

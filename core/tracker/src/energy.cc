@@ -302,7 +302,7 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   // A draw that says which rectangle it covered: room for that many samples at once, where they
   // were reallocated as they grew.
   const gpu::GBuffer::DrawnTrace& drawn = gbuffer.drawn;
-  if (drawn.triangle_data == gbuffer.triangle.data() && drawn.i0 <= drawn.i1 && drawn.j0 <= drawn.j1)
+  if (gbuffer.DrawnIsKnown(gbuffer.width, gbuffer.height) && drawn.i0 <= drawn.i1 && drawn.j0 <= drawn.j1)
     lin.pixels.reserve(static_cast<size_t>(drawn.i1 - drawn.i0 + 1) * static_cast<size_t>(drawn.j1 - drawn.j0 + 1));
   for (int j = 0; j < frame.height(); ++j) {
     for (int i = 0; i < w; ++i) {

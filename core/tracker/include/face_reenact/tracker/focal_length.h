@@ -55,12 +55,11 @@ struct FocalLengthOptions {
   // landmarks' own noise of the best (energy below the best's + confidence_chi2 x the best fit's
   // landmark energy per degree of freedom, the residuals less the unknowns; 3.84: a profile
   // likelihood's 95 % for one parameter) form an interval, and the grid must have one valley
-  // (SecondEnergyValley below, with the same bound). The interval must not
-  // reach an end of the range and must be at most max_relative_uncertainty x the estimate wide on
-  // either side. Renders with exact landmarks give intervals of +-2-7 %; with 1 px of landmark
-  // noise they span most of the range, where the checks before this one passed estimates 4-15 %
-  // off, and stretches of one real clip read 32-96 degrees (docs/tracking-pipeline.md, "Camera
-  // intrinsics for video").
+  // (SecondEnergyValley below, with the same bound). The interval must not reach an end of the
+  // range and must be at most max_relative_uncertainty x the estimate wide on either side. Renders
+  // with exact landmarks give intervals of +-2-7 %; with 1 px of landmark noise they span most of
+  // the range, where the checks before this one passed estimates 4-15 % off, and stretches of one
+  // real clip read 32-96 degrees (docs/tracking-pipeline.md, "Camera intrinsics for video").
   double confidence_chi2 = 3.84;
   double max_relative_uncertainty = 0.15;
   // Landmarks further from the best fit than this (RMS, pixels of a 640-wide image) are too noisy
