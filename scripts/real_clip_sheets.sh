@@ -183,11 +183,12 @@ if [ -f "$STILL" ]; then
          -filter_complex "[0]crop=260:320:600:120[a];[1]crop=260:320:600:120[b];[2]crop=260:320:600:120[c];[a][b][c]hstack=3" \
          "$OUT/still_crop.png"
 fi
-# Lids the output closes on a face that never blinks (issue #28, not solved): d14 blinking (output frame 66) and with
-# her eyes shut (150, 190) onto NASA's portrait (the demo's real face, from the scikit-image wheel `demo --fetch-only`
-# keeps in the cache), target above output around the eyes at frame 150 (portrait_lids.png). Measured 2026-12-04: the
-# closed lids are the skin's colour (208, 179, 154 against 208, 179, 159 between brow and lid) but flat, with no
-# shading across the lid and a dotted lash line (the crease and the brows stay); the same with `--albedo-texture 0`.
+# Lids the output closes on a face that never blinks (issue #28, partly solved): d14 blinking (output frame 66) and
+# with her eyes shut (150, 190) onto NASA's portrait (the demo's real face, from the scikit-image wheel `demo
+# --fetch-only` keeps in the cache), target above output around the eyes at frame 150 (portrait_lids.png). Measured
+# 2026-12-04: the closed lids are the skin's colour (208, 179, 154 against 208, 179, 159 between brow and lid) but
+# flat, with no shading across the lid (the crease and the brows stay); the same with `--albedo-texture 0`. The
+# dotted lash line is an unbroken one in her lashes' colour since that evening (docs/reenactment.md).
 WHEEL="$(ls "${XDG_CACHE_HOME:-$HOME/.cache}"/face-reenact/scikit_image-0.22.0-*.whl 2>/dev/null | head -n 1)"
 if [ -n "$WHEEL" ]; then
   mkdir -p "$OUT/portrait_lids"

@@ -1152,6 +1152,80 @@ TEST(ReenactCompositorTest, LidsTheOutputLowersKeepTheFramesLashLine) {
   EXPECT_LT(white, dark / 3) << "a light rim must not come along as the dark line does";
 }
 
+// Lids the output shuts over eyes the target holds open (a target that never blinks: NASA's
+// portrait under d14's shut eyes). No frame of such a target shows its closed margin, and the
+// frame texture drew it from the frame's own lash line only where a dark sample landed near it: a
+// dotted line. Here a dark 3 px lash line is painted along the target's upper lid margins: with
+// the eyes shut, points along the middle of the output's closed margins must each have a dark
+// pixel within a pixel or two, in the lash's grey; a margin painted light draws no dark line.
+TEST(ReenactCompositorTest, LidsTheOutputShutsShowTheTargetsLashLineUnbroken) {
+  FR_REQUIRE_MODEL();
+  const FaceModel& model = *test_model();
+  const gpu::PinholeCamera cam = test_camera(640, 480);
+  const gpu::FaceParameters target = test_face(0.4f);
+  gpu::FaceParameters shut = target;
+  shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
+  shut.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
+  const FaceCompositor fc(model, ReenactmentOptions{});
+  const gpu::CpuRenderer& renderer = testing::test_renderer();
+  const gpu::VertexState target_state = renderer.evaluate(target), shut_state = renderer.evaluate(shut);
+  cv::Mat margins = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  for (int first : {36, 42})
+    cv::polylines(margins,
+                  std::vector<std::vector<cv::Point>>{
+                      project_vertices(target_state, cam, landmark_vertices(model, first, first + 3))},
+                  false, cv::Scalar(255), 3);
+  const cv::Mat plain = render_target(target, cam);
+  AlbedoMap albedo;
+  fc.ObserveAlbedo(plain, cam, target, &albedo);
+  // Of the points a pixel apart along the middle 60 % of each closed upper margin (corner, two lid
+  // points, corner), the share with a dark pixel (`dark`) within 2 px.
+  auto share_near = [&](const cv::Mat& bgr, const std::function<bool(const cv::Vec3b&)>& dark) {
+    int points = 0, near = 0;
+    for (int first : {36, 42}) {
+      const std::vector<cv::Point> c = project_vertices(shut_state, cam, landmark_vertices(model, first, first + 3));
+      EXPECT_EQ(c.size(), 4u);
+      double length = 0;
+      for (size_t i = 0; i + 1 < c.size(); ++i) length += cv::norm(c[i + 1] - c[i]);
+      for (double at = 0.2 * length; at <= 0.8 * length; at += 1.0) {
+        double left = at;
+        size_t i = 0;
+        while (i + 2 < c.size() && left > cv::norm(c[i + 1] - c[i])) left -= cv::norm(c[i + 1] - c[i]), ++i;
+        const double segment = std::max(1e-9, cv::norm(c[i + 1] - c[i]));
+        const cv::Point2d p = cv::Point2d(c[i]) + (left / segment) * cv::Point2d(c[i + 1] - c[i]);
+        bool found = false;
+        for (int dj = -2; dj <= 2 && !found; ++dj)
+          for (int di = -1; di <= 1 && !found; ++di) {
+            const int x = static_cast<int>(std::lround(p.x)) + di, y = static_cast<int>(std::lround(p.y)) + dj;
+            found = x >= 0 && y >= 0 && x < bgr.cols && y < bgr.rows && dark(bgr.at<cv::Vec3b>(y, x));
+          }
+        ++points;
+        near += found;
+      }
+    }
+    return points > 0 ? static_cast<double>(near) / points : 0.0;
+  };
+  const auto is_dark = [](const cv::Vec3b& px) { return std::max({px[0], px[1], px[2]}) < 80; };
+  cv::Mat frame = plain.clone();
+  frame.setTo(cv::Scalar(30, 30, 30), margins);
+  const CompositeResult c = fc.Compose(frame, cam, target, shut, &albedo);
+  ASSERT_TRUE(c.drawn);
+  const double dark = share_near(c.bgr, is_dark);
+  // In the lash's grey: no channel far from the others.
+  const double grey = share_near(c.bgr, [&](const cv::Vec3b& px) {
+    return is_dark(px) && std::max({px[0], px[1], px[2]}) - std::min({px[0], px[1], px[2]}) < 25;
+  });
+  frame = plain.clone();
+  frame.setTo(cv::Scalar(255, 255, 255), margins);
+  const double dark_from_white = share_near(fc.Compose(frame, cam, target, shut, &albedo).bgr, is_dark);
+  RecordProperty("dark_points_along_the_shut_margins", std::to_string(dark));
+  RecordProperty("grey_dark_points", std::to_string(grey));
+  RecordProperty("dark_points_with_a_light_margin", std::to_string(dark_from_white));
+  EXPECT_GE(dark, 0.9) << "the shut lids' margins should show the target's lash line unbroken";
+  EXPECT_GE(grey, 0.9 * dark) << "in the lash's own colour";
+  EXPECT_LE(dark_from_white, 0.1) << "a light margin draws no dark line";
+}
+
 // A gaze turned away from the nose moves the eyeball's samples toward the inner corner, where
 // the frame shows the caruncle: pink flesh that does not turn with the eye, inside the model's
 // eyeball (its lids are fitted to the corners' landmarks). Carried onto the white, it drew a pink

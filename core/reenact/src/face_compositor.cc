@@ -462,6 +462,124 @@ struct FaceCompositor::Impl {
     return std::clamp((expression_weight(output.delta, b) - expression_weight(target.delta, b)) / kLidCloseSpan, 0.0f, 1.0f);
   }
 
+  // The lash line of the lids the output shuts over eyes the target holds open. No frame of such
+  // a target shows its closed margin, and the frame texture draws it from the frame's own lash
+  // line only where a dark sample lands near it: a dotted, stair-stepped line (NASA's portrait,
+  // which never blinks, under d14's shut eyes; the webcam clip under her blinks). A shut eye's
+  // margin is one unbroken dark line. It is drawn here along the output's upper lid margin (a
+  // Catmull-Rom curve through the corners and the two upper lid points), in the colour of the
+  // target's own lash line: the darkest eighth (by the brightest channel, so a red lid rim does not
+  // pass for lashes) of the frame at and up to 2 px above its upper margin, where an open eye's
+  // upper lashes are (on the webcam clip a red-brown, his lashes' colour in that camera; on the
+  // portrait her dark brown). kLashLineWidth of the eye's width wide (the portrait's 17 px eye:
+  // 1.2 px), thinning out towards the inner corner, as strong as the output closes the lid further
+  // than the target's (LidClosing) once the lid is nearly down (eyeBlink kLashLineFrom ->
+  // kLashLineFull). Only darker: a target whose margin is not darker than the shut lid gets none.
+  // `rendered`: display BGR (0..255), drawn where `face_mask` is. Cost: one model evaluation on the
+  // frames that shut an eye the target holds open.
+  static constexpr float kLashLineFrom = 0.5f, kLashLineFull = 0.8f;
+  static constexpr float kLashLineWidth = 0.07f;  // of the eye's width (corner to corner)
+  static constexpr float kLashLineOpacity = 0.9f;
+  void DrawClosedLashLines(const cv::Mat& target_bgr, const gpu::PinholeCamera& camera,
+                           const gpu::FaceParameters& target, const gpu::FaceParameters& output,
+                           const gpu::VertexState& out_state, const cv::Mat& face_mask, cv::Mat* rendered) const {
+    std::vector<std::pair<size_t, float>> lines;  // (lid contour, strength)
+    for (size_t k = 0; k < lid_contours.size(); ++k) {
+      if (lid_contours[k].size() != 6) continue;
+      const int b = lid_blink_index[k];
+      const float shut =
+          std::clamp((expression_weight(output.delta, b) - kLashLineFrom) / (kLashLineFull - kLashLineFrom), 0.f, 1.f);
+      const float strength = shut * LidClosing(target, output, b);
+      if (strength > 0.f) lines.push_back({k, strength});
+    }
+    if (lines.empty()) return;
+    const gpu::VertexState ts = renderer.evaluate(target, nullptr, threads());
+    const int w = camera.width, h = camera.height;
+    // The upper margin of contour k (its first four points: corner, two upper lid points, corner)
+    // in `state`, as points about a quarter pixel apart, each with its share of the way from the
+    // first corner; empty when a point is behind the camera.
+    auto margin = [&](size_t k, const gpu::VertexState& state, std::vector<float>* along) {
+      std::array<Eigen::Vector2f, 4> c;
+      for (size_t i = 0; i < 4; ++i) {
+        const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * lid_contours[k][i]);
+        if (!(x.z() > camera.near_plane)) return std::vector<Eigen::Vector2f>{};
+        c[i] = project(camera, x);
+      }
+      std::vector<Eigen::Vector2f> points;
+      along->clear();
+      for (int s = 0; s < 3; ++s) {
+        const Eigen::Vector2f p0 = c[static_cast<size_t>(std::max(s - 1, 0))], p1 = c[static_cast<size_t>(s)],
+                              p2 = c[static_cast<size_t>(s + 1)], p3 = c[static_cast<size_t>(std::min(s + 2, 3))];
+        const int steps = std::max(1, static_cast<int>(std::ceil(4.f * (p2 - p1).norm())));
+        for (int q = 0; q < steps; ++q) {
+          const float t = static_cast<float>(q) / static_cast<float>(steps), t2 = t * t, t3 = t2 * t;
+          points.push_back(0.5f * (2.f * p1 + (p2 - p0) * t + (2.f * p0 - 5.f * p1 + 4.f * p2 - p3) * t2 +
+                                   (3.f * p1 - p0 - 3.f * p2 + p3) * t3));
+          along->push_back((static_cast<float>(s) + t) / 3.f);
+        }
+      }
+      points.push_back(c[3]);
+      along->push_back(1.f);
+      return points;
+    };
+    for (const auto& [k, strength] : lines) {
+      // The target's lash colour (linear RGB).
+      std::vector<float> along;
+      const std::vector<Eigen::Vector2f> frame_margin = margin(k, ts, &along);
+      std::vector<std::pair<float, Eigen::Vector3f>> seen;  // (brightest channel, colour)
+      for (const Eigen::Vector2f& p : frame_margin)
+        for (float dy : {-2.f, -1.f, 0.f}) {
+          const float u = p.x(), v = p.y() + dy;
+          if (!(u >= 0.f && v >= 0.f && u <= static_cast<float>(w - 1) && v <= static_cast<float>(h - 1))) continue;
+          const Eigen::Vector3f c = sample_linear(target_bgr, u, v);
+          seen.push_back({c.maxCoeff(), c});
+        }
+      const size_t darkest = seen.size() / 8;
+      if (darkest < 4) continue;
+      std::nth_element(seen.begin(), seen.begin() + static_cast<std::ptrdiff_t>(darkest), seen.end(),
+                       [](const auto& a, const auto& b) { return a.first < b.first; });
+      Eigen::Vector3f lash = Eigen::Vector3f::Zero();
+      for (size_t q = 0; q < darkest; ++q) lash += seen[q].second;
+      lash /= static_cast<float>(darkest);
+      // The output's closed margin, and the line's half width.
+      const std::vector<Eigen::Vector2f> line = margin(k, out_state, &along);
+      if (line.size() < 2) continue;
+      const float eye_width = (line.front() - line.back()).norm();
+      const float half = std::max(0.5f, 0.5f * kLashLineWidth * eye_width);
+      // Which end is the inner corner: iBUG 39 ends the right eye's contour (36-41), 42 starts the left's.
+      const bool inner_last = lid_opening[k] == 0;
+      cv::Rect box;
+      for (const Eigen::Vector2f& p : line)
+        box |= cv::Rect(static_cast<int>(std::floor(p.x() - half - 1.f)),
+                        static_cast<int>(std::floor(p.y() - half - 1.f)), static_cast<int>(2.f * half) + 3,
+                        static_cast<int>(2.f * half) + 3);
+      box &= cv::Rect(0, 0, w, h);
+      for (int j = box.y; j < box.y + box.height; ++j)
+        for (int i = box.x; i < box.x + box.width; ++i) {
+          if (!face_mask.at<uchar>(j, i)) continue;
+          float best = std::numeric_limits<float>::infinity(), at = 0.f;
+          for (size_t q = 0; q < line.size(); ++q) {
+            const float d = (line[q] - Eigen::Vector2f(static_cast<float>(i), static_cast<float>(j))).squaredNorm();
+            if (d < best) best = d, at = along[q];
+          }
+          // Covered as a line of width 2 * half would cover the pixel (a pixel's fade at its edge).
+          const float cover = std::clamp(half + 0.5f - std::sqrt(best), 0.f, 1.f);
+          if (!(cover > 0.f)) continue;
+          // Lashes thin out towards the inner corner and end at both.
+          const float from_inner = inner_last ? 1.f - at : at;
+          const float taper =
+              std::clamp(from_inner / 0.3f, 0.f, 1.f) * std::clamp((1.f - from_inner) / 0.05f, 0.f, 1.f);
+          const float alpha = kLashLineOpacity * strength * cover * taper;
+          if (!(alpha > 0.f)) continue;
+          cv::Vec3f& px = rendered->at<cv::Vec3f>(j, i);
+          Eigen::Vector3f now;  // linear RGB of the pixel
+          for (int c = 0; c < 3; ++c) now[c] = srgb_decode(std::clamp(px[2 - c] / 255.f, 0.f, 1.f));
+          if (!(luminance(lash) < luminance(now))) continue;
+          px = display_bgr((1.f - alpha) * now + alpha * lash);
+        }
+    }
+  }
+
   // Per vertex, how far the face at `params` (identity and expression) unfolds its surface
   // (kFoldedLid): 0 where it shows it folded, 1 where unfolded or where a blink stretches nothing.
   std::vector<float> LidUnfolding(const gpu::FaceParameters& params) const {
@@ -1963,6 +2081,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // --- the source's folds and wrinkles on the re-rendered skin (Sec. 7.3; the mouth pass
   // below draws over the opening).
   if (detail) result.detail = detail->Apply(g, camera, result.face_mask, &rendered);
+  // The lash line of lids the output shuts over eyes the target holds open (the frame shows none).
+  im.DrawClosedLashLines(target_bgr, camera, target, output, state, result.face_mask, &rendered);
 
   // --- mouth (Sec. 7.3): inside the lip opening, teeth and tongue (already placed by the
   // jawOpen / tongueOut blendshapes) lit through the opening (darker the deeper and the narrower
