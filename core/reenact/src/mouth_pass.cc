@@ -311,7 +311,14 @@ MouthPassResult DrawMouth(const MouthPassInput& in, cv::Mat* rendered_bgr, cv::M
   for (int j = zone.y; j < zone.y + zone.height; ++j) {
     const uchar* orow = opening.ptr<uchar>(j);
     for (int i = zone.x; i < zone.x + zone.width; ++i) {
-      const bool lip = lips.at<uchar>(j - zone.y, i - zone.x) != 0;
+      // Over a barely opened mouth the opening's own coverage decides, not the lips the rasteriser
+      // drew across it: the model's inner lip edges wander a pixel above and below the polygon
+      // through the landmarks, and where they covered it the slit was skipped (or left to a strip
+      // that gives way only to lighter colours), a dark line broken into dashes that crawled from
+      // frame to frame (d14 onto the webcam clip, output frames 34-40, openings 0.6-1.6 px high
+      // on average). Inside the polygon the slit is drawn at its coverage: one thin line, fainter
+      // where the opening is thinner.
+      const bool lip = lips.at<uchar>(j - zone.y, i - zone.x) != 0 && !(barely_open && orow[i] > 0);
       const bool strip = lip && solid_lips.at<uchar>(j - zone.y, i - zone.x) == 0 &&
                          near_lips.at<uchar>(j - zone.y, i - zone.x) != 0;
       if (lip && !strip) continue;
