@@ -1025,6 +1025,25 @@ TEST(ReenactCompositorTest, AGazeTurnDrawsTheEyeballWithinTheOpeningTheFrameShow
   EXPECT_EQ(cv::norm(ignored.bgr, without.bgr, cv::NORM_INF), 0.0);
 }
 
+// `p` with both eyes' eyeBlink at `blink`.
+gpu::FaceParameters with_blink(gpu::FaceParameters p, float blink) {
+  p.delta[arkit_blendshape_index("eyeBlinkLeft")] = blink;
+  p.delta[arkit_blendshape_index("eyeBlinkRight")] = blink;
+  return p;
+}
+
+// The upper lid margins (iBUG 36-39, 42-45) of the face at `p`, drawn 3 px wide.
+cv::Mat upper_lid_margins(const FaceModel& model, const gpu::FaceParameters& p, const gpu::PinholeCamera& cam) {
+  cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
+  const gpu::VertexState state = testing::test_renderer().evaluate(p);
+  for (int first : {36, 42})
+    cv::polylines(mask,
+                  std::vector<std::vector<cv::Point>>{
+                      project_vertices(state, cam, landmark_vertices(model, first, first + 3))},
+                  false, cv::Scalar(255), 3);
+  return mask;
+}
+
 // Lids the output closes over eyes the target holds open. The frame shows that lid skin only as
 // a band squeezed under the brow, and the skin nearest the closed lid line across it is the lower
 // lid's: stretched over the closed lid, or filled in from below the line, either drew the closed
@@ -1037,10 +1056,7 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
   FR_REQUIRE_MODEL();
   const FaceModel& model = *test_model();
   const gpu::PinholeCamera cam = test_camera(320, 240);
-  const gpu::FaceParameters target = test_face(0.4f);
-  gpu::FaceParameters closed = target;
-  closed.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
-  closed.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
+  const gpu::FaceParameters target = test_face(0.4f), closed = with_blink(target, 1.0f);
   const FaceCompositor fc(model, ReenactmentOptions{});
   const gpu::CpuRenderer renderer(gpu::RenderModel::FromFaceModel(model));
   const cv::Mat openings = eye_openings(model, renderer.evaluate(target), cam);
@@ -1076,9 +1092,7 @@ TEST(ReenactCompositorTest, ClosedLidsTakeNeitherTheSqueezedLidNorTheSkinBelowTh
 // over at least `factor` times its area in `p` (2: the upper lids a resting eye folds away under
 // the brow).
 std::vector<int> folded_lid_vertices(const FaceModel& model, const gpu::FaceParameters& p, double factor = 2.0) {
-  gpu::FaceParameters shut = p;
-  shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
-  shut.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
+  const gpu::FaceParameters shut = with_blink(p, 1.0f);
   const Eigen::VectorXf now = model.shape(p.alpha, p.delta), closed = model.shape(shut.alpha, shut.delta);
   std::vector<double> area_now(static_cast<size_t>(model.num_vertices()), 0.0), area_closed = area_now;
   for (const auto& t : model.triangles) {
@@ -1107,10 +1121,7 @@ TEST(ReenactCompositorTest, TheAlbedoMapLearnsTheUpperLidsOnlyFromABlink) {
   FR_REQUIRE_MODEL();
   const FaceModel& model = *test_model();
   const gpu::PinholeCamera cam = test_camera(640, 480);
-  const gpu::FaceParameters target = test_face(0.3f);
-  gpu::FaceParameters blink = target;
-  blink.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.8f;
-  blink.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.8f;
+  const gpu::FaceParameters target = test_face(0.3f), blink = with_blink(target, 0.8f);
   const std::vector<int> folded = folded_lid_vertices(model, target);
   ASSERT_GE(folded.size(), 10u);
   const FaceCompositor fc(model, ReenactmentOptions{});
@@ -1162,20 +1173,9 @@ TEST(ReenactCompositorTest, LidsTheOutputLowersKeepTheFramesLashLine) {
   const FaceModel& model = *test_model();
   const gpu::PinholeCamera cam = test_camera(640, 480);
   const gpu::FaceParameters target = test_face(0.4f);
-  gpu::FaceParameters lowered = target;
-  lowered.delta[arkit_blendshape_index("eyeBlinkLeft")] = 0.35f;
-  lowered.delta[arkit_blendshape_index("eyeBlinkRight")] = 0.35f;
+  gpu::FaceParameters lowered = with_blink(target, 0.35f);
   const FaceCompositor fc(model, ReenactmentOptions{});
-  const gpu::CpuRenderer& renderer = testing::test_renderer();
-  // The upper lid margins (iBUG 36-39, 42-45), drawn 3 px wide.
-  auto margins = [&](const gpu::FaceParameters& p) {
-    cv::Mat mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
-    const gpu::VertexState state = renderer.evaluate(p);
-    for (int first : {36, 42})
-      cv::polylines(mask, std::vector<std::vector<cv::Point>>{project_vertices(state, cam, landmark_vertices(model, first, first + 3))},
-                    false, cv::Scalar(255), 3);
-    return mask;
-  };
+  auto margins = [&](const gpu::FaceParameters& p) { return upper_lid_margins(model, p, cam); };
   const cv::Mat plain = render_target(target, cam);
   AlbedoMap albedo;
   fc.ObserveAlbedo(plain, cam, target, &albedo);
@@ -1226,19 +1226,10 @@ TEST(ReenactCompositorTest, LidsTheOutputShutsShowTheTargetsLashLineUnbroken) {
   FR_REQUIRE_MODEL();
   const FaceModel& model = *test_model();
   const gpu::PinholeCamera cam = test_camera(640, 480);
-  const gpu::FaceParameters target = test_face(0.4f);
-  gpu::FaceParameters shut = target;
-  shut.delta[arkit_blendshape_index("eyeBlinkLeft")] = 1.0f;
-  shut.delta[arkit_blendshape_index("eyeBlinkRight")] = 1.0f;
+  const gpu::FaceParameters target = test_face(0.4f), shut = with_blink(target, 1.0f);
   const FaceCompositor fc(model, ReenactmentOptions{});
-  const gpu::CpuRenderer& renderer = testing::test_renderer();
-  const gpu::VertexState target_state = renderer.evaluate(target), shut_state = renderer.evaluate(shut);
-  cv::Mat margins = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
-  for (int first : {36, 42})
-    cv::polylines(margins,
-                  std::vector<std::vector<cv::Point>>{
-                      project_vertices(target_state, cam, landmark_vertices(model, first, first + 3))},
-                  false, cv::Scalar(255), 3);
+  const gpu::VertexState shut_state = testing::test_renderer().evaluate(shut);
+  const cv::Mat margins = upper_lid_margins(model, target, cam);
   const cv::Mat plain = render_target(target, cam);
   AlbedoMap albedo;
   fc.ObserveAlbedo(plain, cam, target, &albedo);
