@@ -64,6 +64,25 @@ ffmpeg -loglevel error -y -i "$OUT/lids/row75.png" -i "$OUT/lids/row89.png" -i "
        -filter_complex vstack=3 "$OUT/lids_rows.png"
 "$FR" reenact --source "$src" --target "$VIDEOS/liveportrait_d12.mp4" --frames 130 --out "$OUT/lids/d12.mp4" --quiet \
       --sheets "$OUT/lids/d12" --sheet-frames 125
+# Thin dark lines drawn whole (docs/reenactment.md, "The lids a blink shows", "The slit of a barely parted mouth,
+# unbroken"): d14's shut eyes at output frames 69-71, the eyes 3x, target above output (lash_line.png: one lash line
+# in his lashes' red-brown, no dots), and her barely parted lips at 34, 36, 38 and 40, the mouth 3x (slit.png: one thin
+# line between the lips, not dashes that move from frame to frame).
+crops_row() {  # crops_row CROP OUT.png FRAME... : the target's frames above the output's
+  local crop="$1" png="$2" inputs=() filter="" k=0
+  shift 2
+  for f in "$@"; do inputs+=(-i "$OUT/lids/webcam/$(printf frame_%06d.png "$f")"); done
+  local select
+  select="$(printf "+eq(n\\,%d)" "$@")"
+  filter="[0]select='${select#+}',$crop,tile=$#x1[a];"
+  for f in "$@"; do k=$((k + 1)); filter+="[$k]$crop[b$k];"; done
+  for k in $(seq 1 $#); do filter+="[b$k]"; done
+  ffmpeg -loglevel error -y -i "$tgt" "${inputs[@]}" -filter_complex "${filter}hstack=$#[b];[a][b]vstack" \
+         -frames:v 1 "$png"
+}
+crops_row "crop=140:40:230:190,scale=420:120:flags=neighbor" "$OUT/lash_line.png" 69 70 71
+crops_row "crop=100:50:200:275,scale=300:150:flags=neighbor" "$OUT/slit.png" 34 36 38 40
+
 # A mouth the output opens less than the target's (docs/reenactment.md): d6 baring clenched teeth onto d12's wide-open
 # mouth, output frame 125 (the sheet's mouth zoom; before, a grey-green band of the map's teeth along the lower lip).
 mkdir -p "$OUT/mouth_less"
