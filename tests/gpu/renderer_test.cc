@@ -363,7 +363,12 @@ TEST_F(RendererTest, OffScreenAndBehindCameraGiveAnEmptyMask) {
                                          {0, 0, -kDistance},      // behind the camera
                                          {0, 0, 0.0f},            // around the camera centre
                                          {0, 0, 100.0f},          // beyond the far plane
-                                         {1e30f, 1e30f, 1e30f}};  // absurd but finite
+                                         {1e30f, 1e30f, 1e30f},   // absurd but finite
+                                         // In the depth range but billions of pixels aside: the CPU
+                                         // rasteriser's box overflowed its ints and crashed.
+                                         {1e7f, 0, kDistance},
+                                         {-1e7f, 0, kDistance},
+                                         {0, 1e7f, kDistance}};
   for (const auto& t : places) {
     FaceParameters p = frontal_pose(kDistance);
     p.translation = t;

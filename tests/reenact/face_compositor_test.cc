@@ -1677,6 +1677,14 @@ TEST(ReenactCompositorTest, FaceOutsideTheFrameLeavesTheTargetUntouched) {
   gpu::FaceParameters behind = test_face(0.5f);
   behind.translation.z() = -1.0f;
   EXPECT_FALSE(fc.Compose(target, cam, behind, behind).drawn);
+  // Eyes the output shuts (the lash line's pass) on a face half out of the frame, and on one so far
+  // beyond it that its projection overflows any pixel coordinate: drawn or not, nothing breaks.
+  gpu::FaceParameters edge = test_face(0.5f);
+  edge.translation.x() = 0.1f;
+  EXPECT_NO_THROW(fc.Compose(target, cam, edge, with_blink(edge, 1.0f)));
+  gpu::FaceParameters beyond = with_blink(away, 1.0f);
+  beyond.translation.x() = 1e7f;
+  EXPECT_FALSE(fc.Compose(target, cam, away, beyond).drawn);
 }
 
 TEST(ReenactCompositorTest, RejectsBadInputsWithErrors) {

@@ -290,10 +290,16 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       // Most triangles of a small level cover no pixel centre: their bounding box is empty.
       const double min_x = std::min({sx[0], sx[1], sx[2]}), max_x = std::max({sx[0], sx[1], sx[2]});
       const double min_y = std::min({sy[0], sy[1], sy[2]}), max_y = std::max({sy[0], sy[1], sy[2]});
-      ts.i0 = static_cast<int>(std::max(0.0, std::ceil(min_x - 0.5)));
-      ts.i1 = static_cast<int>(std::min(camera.width - 1.0, std::floor(max_x - 0.5)));
-      ts.j0 = static_cast<int>(std::max(0.0, std::ceil(min_y - 0.5)));
-      ts.j1 = static_cast<int>(std::min(camera.height - 1.0, std::floor(max_y - 0.5)));
+      // Clamped on both sides before the casts: a vertex projecting billions of pixels away (a fit
+      // far off, just in front of the near plane) overflowed the int, and the box it gave reached
+      // outside the buffers (a crash filling the depth buffer).
+      // (A NaN takes the low end.)
+      auto pixel = [](double v, double lo, double hi) { return static_cast<int>(v >= lo ? (v <= hi ? v : hi) : lo); };
+      const double w_px = camera.width, h_px = camera.height;
+      ts.i0 = pixel(std::ceil(min_x - 0.5), 0.0, w_px);
+      ts.i1 = pixel(std::floor(max_x - 0.5), -1.0, w_px - 1.0);
+      ts.j0 = pixel(std::ceil(min_y - 0.5), 0.0, h_px);
+      ts.j1 = pixel(std::floor(max_y - 0.5), -1.0, h_px - 1.0);
       if (ts.i0 > ts.i1 || ts.j0 > ts.j1) continue;
       double area2 = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
       if (area2 == 0.0 || !std::isfinite(area2)) continue;

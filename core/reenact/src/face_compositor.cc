@@ -504,6 +504,8 @@ struct FaceCompositor::Impl {
         const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * lid_contours[k][i]);
         if (!(x.z() > camera.near_plane)) return std::vector<Eigen::Vector2f>{};
         c[i] = project(camera, x);
+        // Far outside the frame or not finite: no line to draw (and no box to cast to pixels).
+        if (!(c[i].cwiseAbs().maxCoeff() < 1e6f)) return std::vector<Eigen::Vector2f>{};
       }
       std::vector<Eigen::Vector2f> points;
       along->clear();
