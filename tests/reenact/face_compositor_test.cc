@@ -1685,6 +1685,12 @@ TEST(ReenactCompositorTest, FaceOutsideTheFrameLeavesTheTargetUntouched) {
   gpu::FaceParameters beyond = with_blink(away, 1.0f);
   beyond.translation.x() = 1e7f;
   EXPECT_FALSE(fc.Compose(target, cam, away, beyond).drawn);
+  // And the other way round: a tracked face that far off (its zones, contours and openings cast to
+  // pixels) under an output in the frame with its mouth open and eyes shut.
+  gpu::FaceParameters in_frame = with_blink(test_face(0.5f), 1.0f);
+  in_frame.delta[kJawOpenIndex] = 0.5f;
+  beyond.delta[kJawOpenIndex] = 0.f;
+  EXPECT_NO_THROW(fc.Compose(target, cam, with_blink(beyond, 0.f), in_frame));
 }
 
 TEST(ReenactCompositorTest, RejectsBadInputsWithErrors) {

@@ -89,7 +89,7 @@ std::vector<cv::Point> EyeAperture::PixelOutline(Which which) const {
   const std::vector<Eigen::Vector2f>& c = which == Which::kFrame ? frame_ : output_;
   std::vector<cv::Point> out;
   out.reserve(c.size());
-  for (const Eigen::Vector2f& q : c) out.emplace_back(static_cast<int>(std::lround(q.x())), static_cast<int>(std::lround(q.y())));
+  for (const Eigen::Vector2f& q : c) out.emplace_back(pixel_round(q.x()), pixel_round(q.y()));
   return out;
 }
 

@@ -43,6 +43,8 @@ using internal::rendering_lighting;
 using internal::display_bgr;
 using internal::copy_pixel;
 using internal::covered_rect;
+using internal::pixel_floor;
+using internal::pixel_round;
 using internal::grown_within;
 using internal::kEyeParts;
 using internal::kMouthParts;
@@ -930,7 +932,7 @@ struct FaceCompositor::Impl {
       const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
       if (!(x.z() > camera.near_plane)) return {};
       const Eigen::Vector2f uv = project(camera, x);
-      line.emplace_back(static_cast<int>(std::lround(uv.x())) - origin.x, static_cast<int>(std::lround(uv.y())) - origin.y);
+      line.emplace_back(pixel_round(uv.x()) - origin.x, pixel_round(uv.y()) - origin.y);
     }
     return line;
   }
@@ -1065,7 +1067,7 @@ struct FaceCompositor::Impl {
           const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
           if (!(x.z() > camera.near_plane)) continue;
           const Eigen::Vector2f uv = project(camera, x);
-          mouth_zone |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
+          mouth_zone |= cv::Rect(pixel_floor(uv.x()), pixel_floor(uv.y()), 2, 2);
         }
         mouth_zone = mouth_zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin);
       }
@@ -1084,7 +1086,7 @@ struct FaceCompositor::Impl {
           const Eigen::Vector3f x = ts.camera_positions.segment<3>(3 * v);
           if (!(x.z() > camera.near_plane)) continue;
           const Eigen::Vector2f uv = project(camera, x);
-          zone |= cv::Rect(static_cast<int>(std::floor(uv.x())), static_cast<int>(std::floor(uv.y())), 2, 2);
+          zone |= cv::Rect(pixel_floor(uv.x()), pixel_floor(uv.y()), 2, 2);
         }
         if (zone.empty()) continue;
         closing_lids.push_back({zone + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin), closing});
@@ -1743,7 +1745,7 @@ struct FaceCompositor::Impl {
     constexpr int kStrayMouthPartsPx = 16;
     std::vector<cv::Point> polygon;
     for (const Eigen::Vector2f& uv : opening)
-      polygon.emplace_back(static_cast<int>(std::lround(uv.x())), static_cast<int>(std::lround(uv.y())));
+      polygon.emplace_back(pixel_round(uv.x()), pixel_round(uv.y()));
     const int w = g->width, h = g->height;
     const cv::Rect zone = grown_within(cv::boundingRect(polygon), kStrayMouthPartsPx + 1, w, h);
     cv::Mat opening_mask = cv::Mat::zeros(std::max(1, zone.height), std::max(1, zone.width), CV_8UC1);
@@ -2180,7 +2182,7 @@ void FaceCompositor::ObserveAlbedo(const cv::Mat& frame_bgr, const gpu::PinholeC
     const Eigen::Vector3f x = state.camera_positions.segment<3>(3 * v);
     if (!(x.z() > camera.near_plane)) continue;
     const Eigen::Vector2f uv = project(camera, x);
-    const int i = static_cast<int>(std::lround(uv.x())), j = static_cast<int>(std::lround(uv.y()));
+    const int i = pixel_round(uv.x()), j = pixel_round(uv.y());
     if (i < 1 || j < 1 || i >= camera.width - 1 || j >= camera.height - 1) continue;
     if (!g.covered(i, j) || std::abs(g.depth(i, j) - x.z()) > kAlbedoDepthToleranceM) continue;  // hidden
     if (boundary_px.empty() || !(boundary_px.at<float>(j - roi.y, i - roi.x) >= kAlbedoBoundaryClearancePx)) continue;

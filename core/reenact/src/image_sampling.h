@@ -2,6 +2,7 @@
 // Pixel-level helpers of the re-rendering (internal to fr_reenact): sub-pixel sampling, shared by
 // the compositor's frame texture and the mouth interior's warp, and the composite's pixel encoding.
 #include <algorithm>
+#include <cmath>
 
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
@@ -26,6 +27,16 @@ struct Bilinear {
   }
   float mix(float a, float b, float c, float d) const { return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d); }
 };
+
+// A projected coordinate as a pixel index, rounded down or to the nearest: clamped to +-2^24 first,
+// so a point projecting far outside any image (a fit far off, just in front of the near plane)
+// cannot overflow the int (a NaN takes the low end). Such a pixel lies outside every image.
+inline float within_pixel_range(float v) {
+  constexpr float kFar = 16777216.f;
+  return v >= -kFar ? (v <= kFar ? v : kFar) : -kFar;
+}
+inline int pixel_floor(float v) { return static_cast<int>(std::floor(within_pixel_range(v))); }
+inline int pixel_round(float v) { return static_cast<int>(std::lround(within_pixel_range(v))); }
 
 // `m` (CV_32FC1) at the sub-pixel position (x, y), bilinear, clamped to its border.
 inline float sample_float(const cv::Mat& m, float x, float y) {
