@@ -290,10 +290,9 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       // Most triangles of a small level cover no pixel centre: their bounding box is empty.
       const double min_x = std::min({sx[0], sx[1], sx[2]}), max_x = std::max({sx[0], sx[1], sx[2]});
       const double min_y = std::min({sy[0], sy[1], sy[2]}), max_y = std::max({sy[0], sy[1], sy[2]});
-      // Clamped on both sides before the casts: a vertex projecting billions of pixels away (a fit
-      // far off, just in front of the near plane) overflowed the int, and the box it gave reached
-      // outside the buffers (a crash filling the depth buffer).
-      // (A NaN takes the low end.)
+      // Clamped on both sides before the casts (a NaN takes the low end): a vertex projecting
+      // billions of pixels away (a fit far off, just in front of the near plane) overflowed the
+      // int, and the box it gave reached outside the buffers (a crash filling the depth buffer).
       auto pixel = [](double v, double lo, double hi) { return static_cast<int>(v >= lo ? (v <= hi ? v : hi) : lo); };
       const double w_px = camera.width, h_px = camera.height;
       ts.i0 = pixel(std::ceil(min_x - 0.5), 0.0, w_px);

@@ -545,6 +545,7 @@ struct FaceCompositor::Impl {
       Eigen::Vector3f lash = Eigen::Vector3f::Zero();
       for (size_t q = 0; q < darkest; ++q) lash += seen[q].second;
       lash /= static_cast<float>(darkest);
+      const float lash_luminance = luminance(lash);
       // The output's closed margin, and the line's half width.
       const std::vector<Eigen::Vector2f> line = margin(k, out_state, &along);
       if (line.size() < 2) continue;
@@ -578,7 +579,7 @@ struct FaceCompositor::Impl {
           cv::Vec3f& px = rendered->at<cv::Vec3f>(j, i);
           Eigen::Vector3f now;  // linear RGB of the pixel
           for (int c = 0; c < 3; ++c) now[c] = srgb_decode(std::clamp(px[2 - c] / 255.f, 0.f, 1.f));
-          if (!(luminance(lash) < luminance(now))) continue;
+          if (!(lash_luminance < luminance(now))) continue;
           px = display_bgr((1.f - alpha) * now + alpha * lash);
         }
     }
