@@ -33,13 +33,15 @@ layout(push_constant) uniform Push {
   float max_point_distance, min_normal_dot;
   float color_robust_threshold;  // EnergyOptions::color_robust_threshold (0 = off)
   uint color_parts;              // EnergyOptions::color_parts (bit per FacePart)
-  uint pixel_sampling;           // EnergyOptions::pixel_sampling: 2 = the checkerboard (i + j) even
+  uint pixel_sampling;           // EnergyOptions::pixel_sampling: 2 = (i + j) even, 4 = (i + 2j) % 4 == 0
 } pc;
 
 void main() {
   const uint p = gl_GlobalInvocationID.x;
   if (p >= pc.width * pc.height) return;
-  if (pc.pixel_sampling == 2u && (((p % pc.width) + (p / pc.width)) & 1u) != 0u) return;  // energy.h: SampledPixel
+  // energy.h: SampledPixel
+  if (pc.pixel_sampling == 2u && (((p % pc.width) + (p / pc.width)) & 1u) != 0u) return;
+  if (pc.pixel_sampling == 4u && (((p % pc.width) + 2u * (p / pc.width)) & 3u) != 0u) return;
   const uvec4 ids = g_ids[p];
   if (ids.x == 0u) return;
   const vec4 input_point = input_data[kInputVec4sPerPixel * p];

@@ -237,6 +237,7 @@ struct TrackArgs {
   std::string calibration_start = "neutral";
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
+  int calibration_sparse_face_width = TrackerOptions{}.calibration_sparse_face_width_px;  // 0: never sparser
   int max_face_width = TrackerOptions{}.max_face_width_px;
   CameraArgs camera;  // --fov / --intrinsics: none = estimated for videos and webcams
   double tracking_tolerance = -1;  // < 0: TrackerOptions' default
@@ -279,6 +280,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
     throw Error("track: --calibration-start must be neutral, per-frame-fits or lower-energy");
   o.min_face_width_px = a.min_face_width;
   o.calibration_min_face_width_px = a.calibration_min_face_width;
+  o.calibration_sparse_face_width_px = a.calibration_sparse_face_width;
   o.max_face_width_px = a.max_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   if (a.no_agreement_check) {
@@ -622,7 +624,10 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_window_frames"] = tracker.options().calibration_window_frames;
   j["all_inner_landmarks"] = tracker.options().tracking_solver.energy.all_inner_landmarks;
   j["pixel_sampling"] = tracker.options().tracking_solver.energy.pixel_sampling;  // 2: every other pixel
-  j["calibration_pixel_sampling"] = tracker.options().calibration_solver.energy.pixel_sampling;
+  // What the calibration's solve ran with (every fourth pixel for a large face), else the option's.
+  j["calibration_pixel_sampling"] = tracker.calibrated() ? tracker.calibration_start_report().pixel_sampling
+                                                         : tracker.options().calibration_solver.energy.pixel_sampling;
+  j["calibration_sparse_face_width_px"] = tracker.options().calibration_sparse_face_width_px;
   j["eye_corner_landmarks"] = tracker.options().tracking_solver.energy.eye_corner_landmarks;
   j["brow_landmarks"] = tracker.options().tracking_solver.energy.use_brow_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
@@ -819,7 +824,8 @@ void add_tracker_commands(CLI::App& app) {
   tc->add_flag("--every-pixel", targs->every_pixel,
                "Fit the dense terms (colour, depth) on every pixel the face covers, as the paper does, in the "
                "calibration and in each frame's solve (default: every other pixel, in a checkerboard, at 0.45-0.75 "
-               "of the cost and the same accuracy)");
+               "of the cost and the same accuracy; a large face's calibration every fourth, see "
+               "--calibration-sparse-face-width)");
   tc->add_flag("--no-gaze", targs->no_gaze,
                "Do not read the gaze and the lids from the colour around the eyes (the eyeLook and eyeBlink weights "
                "are then the solver's, which cannot see the iris turn or, without the eye landmarks, a lid close)");
@@ -842,6 +848,11 @@ void add_tracker_commands(CLI::App& app) {
                      std::to_string(TrackerOptions{}.calibration_min_face_width_px) +
                      ", -1 = --min-face-width, 0 = its schedule's level 2)")
       ->check(CLI::Range(-1, 4096));
+  tc->add_option("--calibration-sparse-face-width", targs->calibration_sparse_face_width,
+                 "Calibrate a face wider than this on the calibration's level on every fourth pixel instead of every "
+                 "other one (px; default " +
+                     std::to_string(TrackerOptions{}.calibration_sparse_face_width_px) + ", 0 = never)")
+      ->check(CLI::Range(0, 4096));
   add_camera_options(tc, &targs->camera);
   tc->add_flag("--no-agreement-check", targs->no_agreement_check,
               "Keep fits that disagree with the landmarks (pose beyond 15 degrees of the landmarks', inner points "

@@ -274,7 +274,7 @@ TEST(TrackerEnergy, OptionsValidation) {
   o.expression_sparsity_epsilon = 0;
   EXPECT_FALSE(o.IsValid(&why));
   EXPECT_NE(why.find("epsilon"), std::string::npos);
-  for (int sampling : {0, 3}) {
+  for (int sampling : {0, 3, 8}) {
     o = EnergyOptions{};
     o.pixel_sampling = sampling;
     EXPECT_FALSE(o.IsValid(&why)) << sampling;
@@ -421,47 +421,54 @@ TEST(TrackerEnergy, DataTermsVanishAtTheTruthAndGrowAwayFromIt) {
   EXPECT_NEAR(at_truth[Term::kRegularizer], eo.w_reg_expression * reg, 1e-6);
 }
 
-// EnergyOptions::pixel_sampling 2: the dense terms on the checkerboard ((i + j) even) of the
-// pixels every pixel's linearisation takes, about half of them, each term normalised by its own
-// count, so its energy off the truth stays that of every pixel within 10 % (the face's
-// residuals change smoothly from pixel to pixel); the landmarks and the prior are untouched.
-TEST(TrackerEnergy, EveryOtherPixelIsTheCheckerboardOfEveryPixelAtTheSameEnergy) {
+// EnergyOptions::pixel_sampling 2 and 4: the dense terms on the checkerboard ((i + j) even) or on
+// the lattice ((i + 2j) divisible by 4) of the pixels every pixel's linearisation takes, about a
+// half or a quarter of them, each term normalised by its own count, so its energy off the truth
+// stays that of every pixel within 10 % (the face's residuals change smoothly from pixel to
+// pixel); the landmarks and the prior are untouched.
+TEST(TrackerEnergy, SampledPixelsAreALatticeOfEveryPixelAtTheSameEnergy) {
   const SphereScene s;
   const EnergyOptions every;
-  EnergyOptions half;
-  half.pixel_sampling = 2;
   gpu::FaceParameters off = s.truth;
   off.translation += Eigen::Vector3f(0.004f, -0.002f, 0.003f);
   off.gamma[0] += 0.2f;
   const Linearization all = s.solver.LinearizeAt(s.frame, s.layout, every, off);
-  const Linearization some = s.solver.LinearizeAt(s.frame, s.layout, half, off);
-  std::set<std::pair<int, int>> taken;
-  size_t even = 0;
-  for (const PixelSample& p : all.pixels) {
-    taken.insert({p.i, p.j});
-    even += (p.i + p.j) % 2 == 0;
-  }
-  for (const PixelSample& p : some.pixels) {
-    EXPECT_EQ((p.i + p.j) % 2, 0) << p.i << ", " << p.j;
-    EXPECT_TRUE(taken.count({p.i, p.j})) << p.i << ", " << p.j;
-  }
-  EXPECT_EQ(some.pixels.size(), even);
-  ASSERT_GT(all.num_color, 1000);
-  for (const auto& [n_all, n_some] : {std::pair{all.num_point, some.num_point}, {all.num_plane, some.num_plane},
-                                      {all.num_color, some.num_color}}) {
-    EXPECT_NEAR(n_some, 0.5 * n_all, 0.02 * n_all);
-  }
-  EXPECT_EQ(some.landmarks.size(), all.landmarks.size());
-  EXPECT_EQ(some.num_regularizer, all.num_regularizer);
   const TermEnergies e_all = s.solver.Energy(s.frame, s.layout, every, off);
-  const TermEnergies e_some = s.solver.Energy(s.frame, s.layout, half, off);
-  for (Term t : {Term::kPoint, Term::kPlane, Term::kColor}) {
-    std::cout << term_name(t) << ": every pixel " << e_all[t] << ", every other " << e_some[t] << "\n";
-    ASSERT_GT(e_all[t], 0) << term_name(t);
-    EXPECT_NEAR(e_some[t], e_all[t], 0.1 * e_all[t]) << term_name(t);  // 0.5 if a count were left whole
+  ASSERT_GT(all.num_color, 1000);
+  for (const int sampling : {2, 4}) {
+    SCOPED_TRACE(sampling);
+    EnergyOptions sparse;
+    sparse.pixel_sampling = sampling;
+    const auto on_lattice = [sampling](const PixelSample& p) {
+      return sampling == 2 ? (p.i + p.j) % 2 == 0 : (p.i + 2 * p.j) % 4 == 0;
+    };
+    const Linearization some = s.solver.LinearizeAt(s.frame, s.layout, sparse, off);
+    std::set<std::pair<int, int>> taken;
+    size_t lattice = 0;
+    for (const PixelSample& p : all.pixels) {
+      taken.insert({p.i, p.j});
+      lattice += on_lattice(p);
+    }
+    for (const PixelSample& p : some.pixels) {
+      EXPECT_TRUE(on_lattice(p)) << p.i << ", " << p.j;
+      EXPECT_TRUE(taken.count({p.i, p.j})) << p.i << ", " << p.j;
+    }
+    EXPECT_EQ(some.pixels.size(), lattice);
+    for (const auto& [n_all, n_some] : {std::pair{all.num_point, some.num_point}, {all.num_plane, some.num_plane},
+                                        {all.num_color, some.num_color}}) {
+      EXPECT_NEAR(n_some, n_all / static_cast<double>(sampling), 0.02 * n_all);
+    }
+    EXPECT_EQ(some.landmarks.size(), all.landmarks.size());
+    EXPECT_EQ(some.num_regularizer, all.num_regularizer);
+    const TermEnergies e_some = s.solver.Energy(s.frame, s.layout, sparse, off);
+    for (Term t : {Term::kPoint, Term::kPlane, Term::kColor}) {
+      std::cout << term_name(t) << ": every pixel " << e_all[t] << ", 1 in " << sampling << " " << e_some[t] << "\n";
+      ASSERT_GT(e_all[t], 0) << term_name(t);
+      EXPECT_NEAR(e_some[t], e_all[t], 0.1 * e_all[t]) << term_name(t);  // a half / quarter if a count were left whole
+    }
+    EXPECT_EQ(e_some[Term::kLandmark], e_all[Term::kLandmark]);
+    EXPECT_EQ(e_some[Term::kRegularizer], e_all[Term::kRegularizer]);
   }
-  EXPECT_EQ(e_some[Term::kLandmark], e_all[Term::kLandmark]);
-  EXPECT_EQ(e_some[Term::kRegularizer], e_all[Term::kRegularizer]);
 }
 
 // The expression rows of E_reg: Eq. 11 with w_reg_expression, plus the reweighted L1 prior whose

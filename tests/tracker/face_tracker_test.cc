@@ -219,6 +219,43 @@ TEST(FaceTrackerOptions, ALargeFaceIsSolvedOnCoarserLevels) {
   EXPECT_NE(why.find("max_face_width_px"), std::string::npos) << why;
 }
 
+// The calibration of a large face: on every fourth pixel where its finest level holds the face
+// wider than the bound, the rest of its options as they were.
+TEST(FaceTrackerOptions, ALargeFaceIsCalibratedOnEveryFourthPixel) {
+  const TrackerOptions defaults;
+  const SolverOptions& calibration = defaults.calibration_solver;  // level 2, every other pixel
+  ASSERT_EQ(calibration.energy.pixel_sampling, 2);
+  const int min_width = defaults.ResolvedCalibrationMinFaceWidth();  // 40
+  const int bound = defaults.calibration_sparse_face_width_px;       // 56
+  const auto sampling = [&](double face_width_px, int bound_px) {
+    return SparserSamplingForLargeFace(AdaptScheduleToFaceSize(calibration, face_width_px, min_width), face_width_px,
+                                       bound_px)
+        .energy.pixel_sampling;
+  };
+  // A 640x480 webcam's face (80 px): 40 on level 1, every other pixel.
+  EXPECT_EQ(sampling(80, bound), 2);
+  // 110 px: 55 on level 1, within the bound.
+  EXPECT_EQ(sampling(110, bound), 2);
+  // A 512x512 portrait's (250 px): 62 on level 2, every fourth pixel.
+  EXPECT_EQ(sampling(250, bound), 4);
+  // 1000 px: 250 on level 2, the calibration's coarsest: every fourth pixel too.
+  EXPECT_EQ(sampling(1000, bound), 4);
+  // Off, no face size known, or every pixel asked for: as given.
+  EXPECT_EQ(sampling(250, 0), 2);
+  EXPECT_EQ(sampling(0, bound), 2);
+  SolverOptions every = calibration;
+  every.energy.pixel_sampling = 1;
+  EXPECT_EQ(SparserSamplingForLargeFace(every, 250, bound).energy.pixel_sampling, 1);
+  const SolverOptions sparse = SparserSamplingForLargeFace(calibration, 250, bound);
+  EXPECT_EQ(sparse.schedule[0].level, calibration.schedule[0].level);
+  EXPECT_EQ(sparse.schedule[0].gauss_newton_iterations, calibration.schedule[0].gauss_newton_iterations);
+  TrackerOptions o;
+  std::string why;
+  o.calibration_sparse_face_width_px = -1;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("calibration_sparse_face_width_px"), std::string::npos) << why;
+}
+
 TEST(PoseFromLandmarks, RecoversATurnedHeadWithAndWithoutDepth) {
   const TrackerModel* model = testing::real_model();
   if (!model) GTEST_SKIP() << "no face model built yet (FR_MODEL)";

@@ -296,19 +296,25 @@ TEST(TrackCli, EarlyTerminationRunsFewerIterationsAndFitsAsWell) {
 
 // The dense terms on every other pixel (EnergyOptions::pixel_sampling 2, the default of the
 // calibration and the per-frame solves) fit the same frames as well as every pixel (--every-pixel,
-// the paper's, for both); the report says which ran.
-TEST(TrackCli, EveryOtherPixelFitsAsWellAsEveryPixel) {
+// the paper's, for both), and a calibration on every fourth pixel (a large face's, here asked for
+// on this one, 50 px on the calibration's level) as well as on every other; the report says which
+// ran.
+TEST(TrackCli, SampledPixelsFitAsWellAsEveryPixel) {
   REQUIRE_FIXTURE();
   const fs::path out = fx.dir / "sampling";
   fs::create_directories(out);
   const nlohmann::json half = track_report(fx, out, "half", {});
   const nlohmann::json every = track_report(fx, out, "every", {"--every-pixel"});
+  const nlohmann::json quarter = track_report(fx, out, "quarter", {"--calibration-sparse-face-width", "30"});
   ASSERT_TRUE(half.contains("pixel_sampling"));
   EXPECT_EQ(half["pixel_sampling"], 2);
   EXPECT_EQ(every["pixel_sampling"], 1);
-  EXPECT_EQ(half["calibration_pixel_sampling"], 2);
+  EXPECT_EQ(quarter["pixel_sampling"], 2);
+  EXPECT_EQ(half["calibration_pixel_sampling"], 2);  // under the default 56 px
   EXPECT_EQ(every["calibration_pixel_sampling"], 1);
+  EXPECT_EQ(quarter["calibration_pixel_sampling"], 4);
   ExpectFitsAsWell(half, every);
+  ExpectFitsAsWell(quarter, half);
 }
 
 // --calibration-frame-stride: the calibration frames are taken that many frames apart, so two of

@@ -185,23 +185,27 @@ TEST_F(VulkanSolverTest, ColourOnlyFrameMatchesTheCpu) {
   EXPECT_LT(relative(g.normal_product, jd.transpose() * (jd * v)), 1e-4);
 }
 
-// EnergyOptions::pixel_sampling 2 (the tracker's per-frame solves): the device takes the CPU's
-// checkerboard of pixels, so the same rows, on an RGB-D frame (every dense term).
-TEST_F(VulkanSolverTest, EveryOtherPixelGivesTheCpusRows) {
+// EnergyOptions::pixel_sampling 2 (the tracker's solves) and 4 (the calibration of a large face):
+// the device takes the CPU's lattice of pixels, so the same rows, on an RGB-D frame (every dense
+// term).
+TEST_F(VulkanSolverTest, SampledPixelsGiveTheCpusRows) {
   const TrackerModel& model = model_for_tests();
   const gpu::FaceParameters truth = truth_for_tests();
   const InputFrame frame = RenderSyntheticFrame(cpu().renderer(), model, truth, test_camera(160, 120));
   const ParameterLayout layout = ParameterLayout::Tracking(model.num_expression());
   const gpu::FaceParameters start = start_for_tests(truth);
-  EnergyOptions energy;
-  energy.pixel_sampling = 2;
   const Eigen::VectorXd v = Eigen::VectorXd::Ones(layout.num_parameters());
-  const VulkanLinearSystem g = solver().Inspect(frame, layout, energy, start, v);
-  const auto [lin, r, j, e] = CpuSystemOnTheDevicesRender(model, layout, start, g, frame, energy);
-  const Linearization every = Linearize(model, layout, start, g.vertex_state, g.gbuffer, frame, EnergyOptions{});
-  ASSERT_GT(lin.num_point, 100);
-  EXPECT_NEAR(lin.num_color, 0.5 * every.num_color, 0.02 * every.num_color);
-  ExpectTheCpusRowsPerTerm(g, lin, r, j, e);
+  for (const int sampling : {2, 4}) {
+    SCOPED_TRACE(sampling);
+    EnergyOptions energy;
+    energy.pixel_sampling = sampling;
+    const VulkanLinearSystem g = solver().Inspect(frame, layout, energy, start, v);
+    const auto [lin, r, j, e] = CpuSystemOnTheDevicesRender(model, layout, start, g, frame, energy);
+    const Linearization every = Linearize(model, layout, start, g.vertex_state, g.gbuffer, frame, EnergyOptions{});
+    ASSERT_GT(lin.num_point, 50);
+    EXPECT_NEAR(lin.num_color, every.num_color / static_cast<double>(sampling), 0.02 * every.num_color);
+    ExpectTheCpusRowsPerTerm(g, lin, r, j, e);
+  }
 }
 
 // A full coarse-to-fine solve lands where the CPU solver lands, with either strategy.

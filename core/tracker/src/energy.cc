@@ -227,8 +227,8 @@ bool EnergyOptions::IsValid(std::string* why) const {
   if (!(landmark_occlusion_m > 0) || !std::isfinite(landmark_occlusion_m)) {
     return fail_why(why, "energy: landmark_occlusion_m must be positive");
   }
-  if (pixel_sampling != 1 && pixel_sampling != 2) {
-    return fail_why(why, "energy: pixel_sampling must be 1 (every pixel) or 2 (every other pixel)");
+  if (pixel_sampling != 1 && pixel_sampling != 2 && pixel_sampling != 4) {
+    return fail_why(why, "energy: pixel_sampling must be 1 (every pixel), 2 (every other pixel) or 4 (every fourth)");
   }
   if (!use_point && !use_plane && !use_color && !use_landmarks && !use_regularizer) {
     return fail_why(why, "energy: every term is switched off");

@@ -226,6 +226,19 @@ SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_
   return out;
 }
 
+SolverOptions SparserSamplingForLargeFace(const SolverOptions& options, double face_width_px,
+                                          int sparse_face_width_px) {
+  if (sparse_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty() ||
+      options.energy.pixel_sampling != 2)
+    return options;
+  int finest = options.schedule.front().level;
+  for (const auto& l : options.schedule) finest = std::min(finest, l.level);
+  if (face_width_px / static_cast<double>(1 << finest) <= sparse_face_width_px) return options;
+  SolverOptions out = options;
+  out.energy.pixel_sampling = 4;
+  return out;
+}
+
 int LargeFaceCoarsening(const SolverOptions& options, double face_width_px, int max_face_width_px,
                         int min_face_width_px, int current) {
   if (max_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty()) return 0;
@@ -420,6 +433,8 @@ bool TrackerOptions::IsValid(std::string* why) const {
   if (max_face_width_px < 0 || max_face_width_px > 4096) return fail_why(why, "tracker: max_face_width_px must be 0..4096");
   if (calibration_min_face_width_px < -1 || calibration_min_face_width_px > 4096)
     return fail_why(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
+  if (calibration_sparse_face_width_px < 0 || calibration_sparse_face_width_px > 4096)
+    return fail_why(why, "tracker: calibration_sparse_face_width_px must be 0..4096 (0: never sparser)");
   if (!(rest_warning_weight >= 0.f && rest_warning_weight <= 1.f))
     return fail_why(why, "tracker: rest_warning_weight must be in [0, 1] (0: no check)");
   if (!(default_face_distance_m > 0.1f && default_face_distance_m < 20.f)) {
@@ -1029,7 +1044,10 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
   const SolverOptions so = WithStop(
-      AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()), stop);
+      SparserSamplingForLargeFace(
+          AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()),
+          face_width, options_.calibration_sparse_face_width_px),
+      stop);
   // One joint solve from the per-frame fits' expressions or from neutral, into `*p`.
   auto solve_from = [&](CalibrationStart start, std::vector<gpu::FaceParameters>* p) {
     *p = starts;
@@ -1045,6 +1063,7 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   CalibrationStartReport& report = o->report;
   report.kept = options_.calibration_start == CalibrationStart::kPerFrameFits ? CalibrationStart::kPerFrameFits
                                                                              : CalibrationStart::kNeutral;
+  report.pixel_sampling = so.energy.pixel_sampling;
   std::vector<gpu::FaceParameters>& params = o->params;
   const auto t0 = Clock::now();
   SolverSummary& summary = o->summary;

@@ -144,21 +144,25 @@ struct EnergyOptions {
   // "Landmark visibility").
   double landmark_occlusion_m = 0.01;
   // Which of the rendered pixels carry the dense terms (E_point, E_plane, E_col): 1 = every one
-  // (the paper), 2 = every other one, in a checkerboard ((i + j) even on the level). The dense
-  // terms are normalised by their pixel counts, so half the pixels keep each term's weight
-  // against the landmarks and the prior; the linearisation, J and every PCG product cost half.
+  // (the paper), 2 = every other one, in a checkerboard ((i + j) even on the level), 4 = every
+  // fourth, on the lattice (i + 2j) divisible by 4 (every fourth pixel of a row, the next row's
+  // shifted by two). The dense terms are normalised by their pixel counts, so a fraction of the
+  // pixels keeps each term's weight against the landmarks and the prior; the linearisation, J and
+  // every PCG product cost that fraction.
   // A face at the tracking levels covers thousands of pixels whose colours and depths change
   // smoothly, so a checkerboard of them constrains the 85 per-frame unknowns as well as all of
-  // them do: the per-frame solves take 2 (FaceTracker), the calibration, which fits the
-  // identity and albedo to these frames once, keeps every pixel (docs/real-time.md, "Every
-  // other pixel").
+  // them do: the per-frame solves and the calibration take 2 (FaceTracker), the calibration 4
+  // where the face is large on its level (TrackerOptions::calibration_sparse_face_width_px;
+  // docs/real-time.md, "Every other pixel").
   int pixel_sampling = 1;
 
   bool IsValid(std::string* why) const;
 };
 
 // EnergyOptions::pixel_sampling's rule: whether pixel (i, j) of a level may carry the dense terms.
-inline bool SampledPixel(int pixel_sampling, int i, int j) { return pixel_sampling == 1 || ((i + j) & 1) == 0; }
+inline bool SampledPixel(int pixel_sampling, int i, int j) {
+  return pixel_sampling == 1 || (pixel_sampling == 2 ? ((i + j) & 1) == 0 : ((i + 2 * j) & 3) == 0);
+}
 
 // The inner points EnergyOptions::all_inner_landmarks adds: the eyes (iBUG 36-47) and 33.
 inline bool LeftOutUnlessAllInner(int ibug_index) { return ibug_index == 33 || (ibug_index >= 36 && ibug_index <= 47); }

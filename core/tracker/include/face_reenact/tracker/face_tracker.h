@@ -266,6 +266,16 @@ struct TrackerOptions {
   int max_face_width_px = 96;
   // The same rule for the calibration solve; -1 takes min_face_width_px.
   int calibration_min_face_width_px = 40;
+  // Where the calibration's finest level holds the face wider than this, its dense terms take
+  // every fourth pixel instead of every other one (EnergyOptions::pixel_sampling 4 for 2), so a
+  // large face costs about what one 40-56 px wide does. Level k holds a face at 1/2^k of its
+  // width, so the calibration level holds any face up to 320 px wide at 40-80 px
+  // (calibration_min_face_width_px): a 512x512 portrait's at 56-64, twice and a half the pixels
+  // of a 640x480 webcam's at 40, and its calibration took 2.5-3 times as long (0.8-1.0 against
+  // 0.3 s), the wait before a reenactment's first frame; on every fourth pixel 0.67-0.72 of that,
+  // every tracker target still met. 0 keeps every other pixel for any face (docs/real-time.md,
+  // "The calibration of a large face").
+  int calibration_sparse_face_width_px = 56;
   LossDetectionOptions loss;
   // Gaze (gaze.h): after each per-frame solve that passed its checks, the eyeLook weights are
   // read from the full-resolution colour around the eyes, which the solve cannot do. On
@@ -453,6 +463,7 @@ class FaceTracker {
     CalibrationStart kept = CalibrationStart::kNeutral;  // kNeutral or kPerFrameFits
     double neutral_energy = std::numeric_limits<double>::quiet_NaN();  // NaN: not solved
     double per_frame_fits_energy = std::numeric_limits<double>::quiet_NaN();
+    int pixel_sampling = 0;  // the dense terms' EnergyOptions::pixel_sampling in its solve (0: none ran)
   };
   const CalibrationStartReport& calibration_start_report() const { return calibration_start_report_; }
   // Non-empty when the last calibration's neutral expression says the actor was not at rest
@@ -680,6 +691,12 @@ SolverOptions AdaptScheduleToFaceSize(const SolverOptions& options, double face_
 // coarsest solved level holds it under `min_face_width_px`. 0 when the bound is 0.
 int LargeFaceCoarsening(const SolverOptions& options, double face_width_px, int max_face_width_px,
                         int min_face_width_px, int current);
+// `options` with its dense terms on every fourth pixel instead of every other one when a face
+// `face_width_px` wide (level-0 pixels) is wider than `sparse_face_width_px` on its schedule's
+// finest level (TrackerOptions::calibration_sparse_face_width_px; 0: never); any other sampling
+// stays.
+SolverOptions SparserSamplingForLargeFace(const SolverOptions& options, double face_width_px,
+                                          int sparse_face_width_px);
 // `options` solved `levels` pyramid levels coarser (its pyramid deep enough for them).
 SolverOptions CoarsenSchedule(const SolverOptions& options, int levels);
 // Width (pixels) of the box around the frame's landmarks with confidence > min_confidence; 0
