@@ -271,7 +271,7 @@ struct TrackerOptions {
   // large face costs about what one 40-56 px wide does. Level k holds a face at 1/2^k of its
   // width, so the calibration level holds any face up to 320 px wide at 40-80 px
   // (calibration_min_face_width_px): a 512x512 portrait's at 56-64, twice and a half the pixels
-  // of a 640x480 webcam's at 40, and its calibration took 2.5-3 times as long (0.8-1.0 against
+  // of a 640x480 webcam's at 40, and its calibration took 2.5-3.2 times as long (0.8-1.0 against
   // 0.3 s), the wait before a reenactment's first frame; on every fourth pixel 0.67-0.72 of that,
   // every tracker target still met. 0 keeps every other pixel for any face (docs/real-time.md,
   // "The calibration of a large face").
