@@ -886,6 +886,10 @@ TEST(TrackCli, BadArgumentsFailCleanly) {
   EXPECT_NE(r.output.find("--calibration-start"), std::string::npos) << r.output;
   r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(), "--calibration-frames", "0"});
   EXPECT_NE(r.exit_code, 0);
+  r = run({"--input", (tmp / "empty_dir").string(), "--out", (tmp / "p.jsonl").string(),
+           "--calibration-sparse-face-width", "-1"});
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--calibration-sparse-face-width"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(tmp / "p.jsonl"));  // nothing half-written
 }
 
