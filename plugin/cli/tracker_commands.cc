@@ -238,6 +238,7 @@ struct TrackArgs {
   int min_face_width = TrackerOptions{}.min_face_width_px;
   int calibration_min_face_width = TrackerOptions{}.calibration_min_face_width_px;  // -1: --min-face-width
   int calibration_sparse_face_width = TrackerOptions{}.calibration_sparse_face_width_px;  // 0: never sparser
+  int calibration_max_face_width = TrackerOptions{}.calibration_max_face_width_px;  // 0: never coarser
   int max_face_width = TrackerOptions{}.max_face_width_px;
   CameraArgs camera;  // --fov / --intrinsics: none = estimated for videos and webcams
   double tracking_tolerance = -1;  // < 0: TrackerOptions' default
@@ -281,6 +282,7 @@ TrackerOptions track_options(const TrackArgs& a, const EnergyConfig& config, boo
   o.min_face_width_px = a.min_face_width;
   o.calibration_min_face_width_px = a.calibration_min_face_width;
   o.calibration_sparse_face_width_px = a.calibration_sparse_face_width;
+  o.calibration_max_face_width_px = a.calibration_max_face_width;
   o.max_face_width_px = a.max_face_width;
   o.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   if (a.no_agreement_check) {
@@ -628,6 +630,8 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   j["calibration_pixel_sampling"] = tracker.calibrated() ? tracker.calibration_start_report().pixel_sampling
                                                          : tracker.options().calibration_solver.energy.pixel_sampling;
   j["calibration_sparse_face_width_px"] = tracker.options().calibration_sparse_face_width_px;
+  j["calibration_max_face_width_px"] = tracker.options().calibration_max_face_width_px;
+  j["calibration_level"] = tracker.calibrated() ? tracker.calibration_start_report().level : -1;
   j["eye_corner_landmarks"] = tracker.options().tracking_solver.energy.eye_corner_landmarks;
   j["brow_landmarks"] = tracker.options().tracking_solver.energy.use_brow_landmarks;
   j["gaze"] = tracker.options().gaze.enabled;
@@ -852,6 +856,10 @@ void add_tracker_commands(CLI::App& app) {
                  "Calibrate a face wider than this on the calibration's level on every fourth pixel instead of every "
                  "other one (px; default " +
                      std::to_string(TrackerOptions{}.calibration_sparse_face_width_px) + ", 0 = never)")
+      ->check(CLI::Range(0, 4096));
+  tc->add_option("--calibration-max-face-width", targs->calibration_max_face_width,
+                 "Calibrate a face wider than this on the calibration's level on coarser levels (px; default " +
+                     std::to_string(TrackerOptions{}.calibration_max_face_width_px) + ", 0 = never)")
       ->check(CLI::Range(0, 4096));
   add_camera_options(tc, &targs->camera);
   tc->add_flag("--no-agreement-check", targs->no_agreement_check,

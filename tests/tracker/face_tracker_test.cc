@@ -254,6 +254,10 @@ TEST(FaceTrackerOptions, ALargeFaceIsCalibratedOnEveryFourthPixel) {
   o.calibration_sparse_face_width_px = -1;
   EXPECT_FALSE(o.IsValid(&why));
   EXPECT_NE(why.find("calibration_sparse_face_width_px"), std::string::npos) << why;
+  o = TrackerOptions();
+  o.calibration_max_face_width_px = 5000;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("calibration_max_face_width_px"), std::string::npos) << why;
 }
 
 TEST(PoseFromLandmarks, RecoversATurnedHeadWithAndWithoutDepth) {

@@ -317,6 +317,30 @@ TEST(TrackCli, SampledPixelsFitAsWellAsEveryPixel) {
   ExpectFitsAsWell(quarter, half);
 }
 
+// A face wider than --calibration-max-face-width on the calibration's level (default 80; a HD
+// camera's close face) is calibrated on a coarser level, one that still holds it
+// --calibration-min-face-width wide; 0 keeps the schedule's level 2. This fixture's face, 40-80 px
+// wide (the default calibrates it on level 0), is 10-20 px on level 2: with bounds of 5 and 8 px it
+// goes to level 3; the report says which.
+TEST(TrackCli, AVeryLargeFaceIsCalibratedOnACoarserLevel) {
+  REQUIRE_FIXTURE();
+  const fs::path out = fx.dir / "coarser";
+  fs::create_directories(out);
+  const std::vector<std::string> small_bounds = {"--calibration-min-face-width", "5", "--frames", "5"};
+  auto with = [&](std::vector<std::string> extra) {
+    extra.insert(extra.end(), small_bounds.begin(), small_bounds.end());
+    return extra;
+  };
+  const nlohmann::json coarser = track_report(fx, out, "coarser", with({"--calibration-max-face-width", "8"}));
+  const nlohmann::json as_scheduled = track_report(fx, out, "scheduled", with({"--calibration-max-face-width", "0"}));
+  ASSERT_EQ(coarser["calibrated"], true) << coarser.dump();
+  ASSERT_EQ(as_scheduled["calibrated"], true) << as_scheduled.dump();
+  EXPECT_EQ(coarser["calibration_level"], 3);
+  EXPECT_EQ(as_scheduled["calibration_level"], 2);
+  EXPECT_EQ(coarser["calibration_max_face_width_px"], 8);
+  EXPECT_EQ(track_report(fx, out, "default", {"--frames", "5"})["calibration_level"], 0);
+}
+
 // --calibration-frame-stride: the calibration frames are taken that many frames apart, so two of
 // them with stride 3 are frames 0 and 3, and the calibration happens on frame 3 (1 when consecutive).
 TEST(TrackCli, CalibrationFramesAreTakenStrideApart) {

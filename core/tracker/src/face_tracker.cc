@@ -435,6 +435,8 @@ bool TrackerOptions::IsValid(std::string* why) const {
     return fail_why(why, "tracker: calibration_min_face_width_px must be -1..4096 (-1: min_face_width_px)");
   if (calibration_sparse_face_width_px < 0 || calibration_sparse_face_width_px > 4096)
     return fail_why(why, "tracker: calibration_sparse_face_width_px must be 0..4096 (0: never sparser)");
+  if (calibration_max_face_width_px < 0 || calibration_max_face_width_px > 4096)
+    return fail_why(why, "tracker: calibration_max_face_width_px must be 0..4096 (0: never coarser)");
   if (!(rest_warning_weight >= 0.f && rest_warning_weight <= 1.f))
     return fail_why(why, "tracker: rest_warning_weight must be in [0, 1] (0: no check)");
   if (!(default_face_distance_m > 0.1f && default_face_distance_m < 20.f)) {
@@ -1043,9 +1045,14 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   const std::vector<gpu::FaceParameters>& starts = o->starts;
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
+  // The calibration's level holds the face at 40-80 px (finer for a small face, coarser for a
+  // very large one), and a face over calibration_sparse_face_width_px there on every fourth pixel.
+  const int min_width = options_.ResolvedCalibrationMinFaceWidth();
+  const SolverOptions sized = AdaptScheduleToFaceSize(options_.calibration_solver, face_width, min_width);
   const SolverOptions so = WithStop(
       SparserSamplingForLargeFace(
-          AdaptScheduleToFaceSize(options_.calibration_solver, face_width, options_.ResolvedCalibrationMinFaceWidth()),
+          CoarsenSchedule(sized, LargeFaceCoarsening(sized, face_width, options_.calibration_max_face_width_px,
+                                                     min_width, 0)),
           face_width, options_.calibration_sparse_face_width_px),
       stop);
   // One joint solve from the per-frame fits' expressions or from neutral, into `*p`.
@@ -1064,6 +1071,8 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   report.kept = options_.calibration_start == CalibrationStart::kPerFrameFits ? CalibrationStart::kPerFrameFits
                                                                              : CalibrationStart::kNeutral;
   report.pixel_sampling = so.energy.pixel_sampling;
+  report.level = so.schedule.empty() ? -1 : so.schedule.front().level;
+  for (const auto& l : so.schedule) report.level = std::min(report.level, l.level);
   std::vector<gpu::FaceParameters>& params = o->params;
   const auto t0 = Clock::now();
   SolverSummary& summary = o->summary;

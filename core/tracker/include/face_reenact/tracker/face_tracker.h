@@ -269,13 +269,21 @@ struct TrackerOptions {
   // Where the calibration's finest level holds the face wider than this, its dense terms take
   // every fourth pixel instead of every other one (EnergyOptions::pixel_sampling 4 for 2), so a
   // large face costs about what one 40-56 px wide does. Level k holds a face at 1/2^k of its
-  // width, so the calibration level holds any face up to 320 px wide at 40-80 px
-  // (calibration_min_face_width_px): a 512x512 portrait's at 56-64, twice and a half the pixels
+  // width, so the calibration level holds any face at 40-80 px (calibration_min_face_width_px,
+  // calibration_max_face_width_px): a 512x512 portrait's at 56-64, twice and a half the pixels
   // of a 640x480 webcam's at 40, and its calibration took 2.5-3.2 times as long (0.8-1.0 against
   // 0.3 s), the wait before a reenactment's first frame; on every fourth pixel 0.67-0.72 of that,
   // every tracker target still met. 0 keeps every other pixel for any face (docs/real-time.md,
   // "The calibration of a large face").
   int calibration_sparse_face_width_px = 56;
+  // And a face wider than this on the calibration's level (a HD camera's, close: over 320 px
+  // at level 0) is calibrated on coarser levels, as max_face_width_px does for the per-frame
+  // solves (the pyramid built deeper to match), never so coarse that it is under
+  // calibration_min_face_width_px there: the calibration's level holds any face at 40-80 px, and
+  // with the rule above the joint solve's pixels stay within twice a 640x480 webcam face's,
+  // whatever the camera. 0 keeps the schedule's level 2 for any large face (docs/real-time.md,
+  // "The calibration of a large face").
+  int calibration_max_face_width_px = 80;
   LossDetectionOptions loss;
   // Gaze (gaze.h): after each per-frame solve that passed its checks, the eyeLook weights are
   // read from the full-resolution colour around the eyes, which the solve cannot do. On
@@ -464,6 +472,7 @@ class FaceTracker {
     double neutral_energy = std::numeric_limits<double>::quiet_NaN();  // NaN: not solved
     double per_frame_fits_energy = std::numeric_limits<double>::quiet_NaN();
     int pixel_sampling = 0;  // the dense terms' EnergyOptions::pixel_sampling in its solve (0: none ran)
+    int level = -1;          // the pyramid level it solved on (the finest of its schedule; -1: none ran)
   };
   const CalibrationStartReport& calibration_start_report() const { return calibration_start_report_; }
   // Non-empty when the last calibration's neutral expression says the actor was not at rest
