@@ -36,9 +36,9 @@ struct PhotoFitOptions {
   // because the paper's 38 points have none; a photo has no previous frame to hold the face, and
   // on faces-68 the eyes came 0.077 -> 0.022 eye distances from the annotation with their points,
   // the brows 0.100 -> 0.036 with theirs (docs/tracking-pipeline.md, "A yardstick on real photos").
-  // The calibration's dense terms on every pixel, on the level that holds the face at least 40 px
-  // wide however large it is: a photo is fitted once, with nobody waiting for a first frame, and
-  // its colour is all the evidence there is besides the landmarks.
+  // The calibration's dense terms on every pixel, on the schedule's level however large the face
+  // (no calibration_max_face_width_px): a photo is fitted once, with nobody waiting for a first
+  // frame, and its colour is all the evidence there is besides the landmarks.
   TrackerOptions tracker = [] {
     TrackerOptions t;
     t.calibration_frames = 1;
