@@ -225,12 +225,11 @@ TEST(FaceTrackerOptions, ALargeFaceIsCalibratedOnEveryFourthPixel) {
   const TrackerOptions defaults;
   const SolverOptions& calibration = defaults.calibration_solver;  // level 2, every other pixel
   ASSERT_EQ(calibration.energy.pixel_sampling, 2);
-  const int min_width = defaults.ResolvedCalibrationMinFaceWidth();  // 40
-  const int bound = defaults.calibration_sparse_face_width_px;       // 56
+  const int bound = defaults.calibration_sparse_face_width_px;  // 56; the minimum 40, the maximum 80
   const auto sampling = [&](double face_width_px, int bound_px) {
-    return SparserSamplingForLargeFace(AdaptScheduleToFaceSize(calibration, face_width_px, min_width), face_width_px,
-                                       bound_px)
-        .energy.pixel_sampling;
+    TrackerOptions o;
+    o.calibration_sparse_face_width_px = bound_px;
+    return CalibrationSolverForFace(o, face_width_px).energy.pixel_sampling;
   };
   // A 640x480 webcam's face (80 px): 40 on level 1, every other pixel.
   EXPECT_EQ(sampling(80, bound), 2);
@@ -238,8 +237,11 @@ TEST(FaceTrackerOptions, ALargeFaceIsCalibratedOnEveryFourthPixel) {
   EXPECT_EQ(sampling(110, bound), 2);
   // A 512x512 portrait's (250 px): 62 on level 2, every fourth pixel.
   EXPECT_EQ(sampling(250, bound), 4);
-  // 1000 px: 250 on level 2, the calibration's coarsest: every fourth pixel too.
+  // 1000 px: 62 on level 4, two levels coarser than the schedule's (at most 80 px): every fourth
+  // pixel too.
   EXPECT_EQ(sampling(1000, bound), 4);
+  EXPECT_EQ(FinestScheduledLevel(CalibrationSolverForFace(defaults, 1000)), 4);
+  EXPECT_EQ(FinestScheduledLevel(CalibrationSolverForFace(defaults, 250)), 2);
   // Off, no face size known, or every pixel asked for: as given.
   EXPECT_EQ(sampling(250, 0), 2);
   EXPECT_EQ(sampling(0, bound), 2);

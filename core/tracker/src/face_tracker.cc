@@ -231,22 +231,33 @@ SolverOptions SparserSamplingForLargeFace(const SolverOptions& options, double f
   if (sparse_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty() ||
       options.energy.pixel_sampling != 2)
     return options;
-  int finest = options.schedule.front().level;
-  for (const auto& l : options.schedule) finest = std::min(finest, l.level);
-  if (face_width_px / static_cast<double>(1 << finest) <= sparse_face_width_px) return options;
+  if (face_width_px / static_cast<double>(1 << FinestScheduledLevel(options)) <= sparse_face_width_px) return options;
   SolverOptions out = options;
   out.energy.pixel_sampling = 4;
   return out;
 }
 
+int FinestScheduledLevel(const SolverOptions& options) {
+  if (options.schedule.empty()) return 0;
+  int finest = options.schedule.front().level;
+  for (const auto& l : options.schedule) finest = std::min(finest, l.level);
+  return finest;
+}
+
+SolverOptions CalibrationSolverForFace(const TrackerOptions& options, double face_width_px) {
+  const int min_width = options.ResolvedCalibrationMinFaceWidth();
+  const SolverOptions sized = AdaptScheduleToFaceSize(options.calibration_solver, face_width_px, min_width);
+  const int coarser = LargeFaceCoarsening(sized, face_width_px, options.calibration_max_face_width_px, min_width, 0);
+  return SparserSamplingForLargeFace(CoarsenSchedule(sized, coarser), face_width_px,
+                                     options.calibration_sparse_face_width_px);
+}
+
 int LargeFaceCoarsening(const SolverOptions& options, double face_width_px, int max_face_width_px,
                         int min_face_width_px, int current) {
   if (max_face_width_px <= 0 || !(face_width_px > 0) || options.schedule.empty()) return 0;
-  int finest = options.schedule.front().level, coarsest = finest;
-  for (const auto& l : options.schedule) {
-    finest = std::min(finest, l.level);
-    coarsest = std::max(coarsest, l.level);
-  }
+  const int finest = FinestScheduledLevel(options);
+  int coarsest = finest;
+  for (const auto& l : options.schedule) coarsest = std::max(coarsest, l.level);
   // Level k holds the face at face_width_px / 2^k. Never so coarse that the coarsest solved level
   // holds it under min_face_width_px (nor more than 8 levels: a 256x smaller frame).
   int limit = 0;
@@ -1045,16 +1056,7 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   const std::vector<gpu::FaceParameters>& starts = o->starts;
   double face_width = std::numeric_limits<double>::infinity();
   for (const auto& f : inputs) face_width = std::min(face_width, LandmarkExtentPx(f, options_.loss.min_landmark_confidence));
-  // The calibration's level holds the face at 40-80 px (finer for a small face, coarser for a
-  // very large one), and a face over calibration_sparse_face_width_px there on every fourth pixel.
-  const int min_width = options_.ResolvedCalibrationMinFaceWidth();
-  const SolverOptions sized = AdaptScheduleToFaceSize(options_.calibration_solver, face_width, min_width);
-  const SolverOptions so = WithStop(
-      SparserSamplingForLargeFace(
-          CoarsenSchedule(sized, LargeFaceCoarsening(sized, face_width, options_.calibration_max_face_width_px,
-                                                     min_width, 0)),
-          face_width, options_.calibration_sparse_face_width_px),
-      stop);
+  const SolverOptions so = WithStop(CalibrationSolverForFace(options_, face_width), stop);
   // One joint solve from the per-frame fits' expressions or from neutral, into `*p`.
   auto solve_from = [&](CalibrationStart start, std::vector<gpu::FaceParameters>* p) {
     *p = starts;
@@ -1071,8 +1073,7 @@ void FaceTracker::SolveCalibration(CalibrationOutcome* o, const std::stop_token&
   report.kept = options_.calibration_start == CalibrationStart::kPerFrameFits ? CalibrationStart::kPerFrameFits
                                                                              : CalibrationStart::kNeutral;
   report.pixel_sampling = so.energy.pixel_sampling;
-  report.level = so.schedule.empty() ? -1 : so.schedule.front().level;
-  for (const auto& l : so.schedule) report.level = std::min(report.level, l.level);
+  report.level = so.schedule.empty() ? -1 : FinestScheduledLevel(so);
   std::vector<gpu::FaceParameters>& params = o->params;
   const auto t0 = Clock::now();
   SolverSummary& summary = o->summary;

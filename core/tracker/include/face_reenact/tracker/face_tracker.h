@@ -706,6 +706,14 @@ int LargeFaceCoarsening(const SolverOptions& options, double face_width_px, int 
 // stays.
 SolverOptions SparserSamplingForLargeFace(const SolverOptions& options, double face_width_px,
                                           int sparse_face_width_px);
+// The calibration's solve for a face `face_width_px` wide (level-0 pixels), as FaceTracker runs
+// it: `options.calibration_solver` on the level that holds the face at least
+// calibration_min_face_width_px and at most calibration_max_face_width_px wide (AdaptScheduleToFaceSize,
+// then LargeFaceCoarsening), on every fourth pixel where it is wider than
+// calibration_sparse_face_width_px there (SparserSamplingForLargeFace).
+SolverOptions CalibrationSolverForFace(const TrackerOptions& options, double face_width_px);
+// The finest pyramid level `options`' schedule solves on (0 for an empty schedule).
+int FinestScheduledLevel(const SolverOptions& options);
 // `options` solved `levels` pyramid levels coarser (its pyramid deep enough for them).
 SolverOptions CoarsenSchedule(const SolverOptions& options, int levels);
 // Width (pixels) of the box around the frame's landmarks with confidence > min_confidence; 0
