@@ -483,6 +483,10 @@ void add_webcam_command(CLI::App& app) {
   auto live_overlap = std::make_shared<bool>(false);
   bench_live->add_flag("--overlap", *live_overlap,
                        "Render frame n on a second thread while the worker tracks frame n+1 (LiveSession::Options::overlap_frames)");
+  auto live_when_behind = std::make_shared<bool>(true);
+  bench_live->add_flag("--overlap-when-behind,!--no-overlap-when-behind", *live_when_behind,
+                       "Render on a second thread while one thread falls behind the input (the default; "
+                       "LiveSession::Options::overlap_frames_when_behind)");
   auto live_marks = std::make_shared<bool>(false);
   bench_live->add_flag("--landmarks-ahead", *live_marks,
                        "Detect frame n+1's landmarks on a thread of their own while frame n is fitted "
@@ -490,7 +494,7 @@ void add_webcam_command(CLI::App& app) {
   bench_live->add_option("--warmup", *live_warmup,
                          "seconds after the first frame left out of the measurement (model load, calibration)")
       ->capture_default_str();
-  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap, live_marks] {
+  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap, live_when_behind, live_marks] {
     if (!(*live_seconds > 0) || *live_seconds > 3600) throw Error("--seconds must be in (0, 3600]");
     if (!(*live_warmup >= 0) || *live_warmup > 600) throw Error("--warmup must be in [0, 600]");
     live::LiveSession::Options o;
@@ -499,6 +503,7 @@ void add_webcam_command(CLI::App& app) {
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
     o.overlap_frames = *live_overlap;
+    o.overlap_frames_when_behind = *live_when_behind;
     o.landmarks_ahead = *live_marks;
     apply_pipeline_args(*live_args, &o);
     if (!live::parse_output_mode(live_args->mode, &o.mode))
@@ -550,10 +555,18 @@ void add_webcam_command(CLI::App& app) {
     std::printf("  %s\n", status.Headline().c_str());
     if (status.stream_source)
       std::printf("  stream: %s\n", status.stream_statistics.Counts().c_str());
+    // Where each frame was rendered: on the worker, on the render thread, or some of each (two
+    // threads while one fell behind the input).
+    std::string where_rendered = t.overlapped == 0           ? "track and render on the worker"
+                          : t.overlapped == t.frames ? "render on its own thread"
+                                                     : "render on its own thread for " + std::to_string(t.overlapped) +
+                                                           " of " + std::to_string(t.frames) + " frames (while behind)";
+    if (t.overlap_changes > 0)
+      where_rendered += ", " + std::to_string(t.overlap_changes) + " change" + (t.overlap_changes > 1 ? "s" : "") +
+                        " between one thread and two";
     std::printf("  tracker solver: %s; renderer: %s; %s%s\n",
                 status.solver.empty() ? "(pipeline not loaded)" : status.solver.c_str(), o.use_vulkan ? "vulkan" : "cpu",
-                status.frames_overlapped ? "render on its own thread" : "track and render on the worker",
-                status.landmarks_ahead ? "; landmarks on their own thread, a frame ahead" : "");
+                where_rendered.c_str(), status.landmarks_ahead ? "; landmarks on their own thread, a frame ahead" : "");
     std::printf("  output %.1f fps (%llu frames in %.1f s; target delivers %.1f fps), pipeline %.2f ms/frame, "
                 "capture-to-output latency mean %.2f ms, p95 %.2f ms\n",
                 double(last - first) / seconds, static_cast<unsigned long long>(last - first), seconds, status.target_fps,

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <limits>
 #include <mutex>
@@ -18,6 +19,7 @@
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/live/frame_overlap.h"
 #include "face_reenact/live/input_spec.h"
 #include "face_reenact/live/live_session.h"
 #include "face_reenact/model/face_model.h"
@@ -802,6 +804,7 @@ TEST_P(LiveSessionTimingsTest, TimingsCountEveryFrameAndSplitItsTimeIntoStages) 
   const int marks_before = test::count_threads_with_prefix("fr-live-marks");
   LiveSession::Options options = pipeline_options(dir, OutputMode::kPassThrough);
   options.overlap_frames = GetParam() != LiveThreads::kOne;
+  options.overlap_frames_when_behind = false;  // one thread or two throughout (a loaded machine falls behind)
   options.landmarks_ahead = GetParam() == LiveThreads::kRenderAndLandmarksApart;
   LiveSession session(options);
   // The calibration's joint solve takes seconds here and minutes under the sanitizers.
@@ -896,6 +899,228 @@ TEST(LiveSessionOverlapTest, ATrackerSolvingOnTheGpuRendersOnItsOwnThread) {
     s = wait_status(session, 10s, [&](const LiveStatus& st) { return st.frames_overlapped == on_gpu; });
     EXPECT_EQ(s.frames_overlapped, on_gpu);
     EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + (on_gpu ? 1 : 0));
+    session.stop();
+    EXPECT_EQ(test::settled_thread_count("fr-live-render", threads_before), threads_before);
+  }
+}
+
+// FrameOverlapPolicy on a made-up clock: an input at `fps` from `from_s` for `seconds` (after t0),
+// of which the worker takes one frame in `take_every(overlapped)` (the others dropped at the
+// input), all tracked. Returns the times (seconds from t0) at which the decision changed.
+std::vector<double> run_policy(FrameOverlapPolicy& policy, Clock::time_point t0, double from_s, double seconds,
+                               double fps, const std::function<int(bool)>& take_every) {
+  std::vector<double> changes;
+  int64_t next = static_cast<int64_t>(std::ceil(from_s * fps));
+  for (int64_t k = next; k < static_cast<int64_t>((from_s + seconds) * fps); ++k) {
+    if (k < next) continue;
+    const bool before = policy.overlapped();
+    const double t = k / fps;
+    const auto at = t0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(t));
+    if (policy.Update(at, k, true) != before) changes.push_back(t);
+    next = k + take_every(policy.overlapped());
+  }
+  return changes;
+}
+auto every(int n) {
+  return [n](bool) { return n; };
+}
+auto one_or_two(int one, int two) {
+  return [one, two](bool overlapped) { return overlapped ? two : one; };
+}
+
+TEST(FrameOverlapPolicyTest, OneThreadWhileTheWorkerKeepsUp) {
+  FrameOverlapPolicy policy;
+  const Clock::time_point t0 = Clock::now();
+  EXPECT_TRUE(run_policy(policy, t0, 0, 60, 30, every(1)).empty());
+  EXPECT_FALSE(policy.overlapped());
+  EXPECT_DOUBLE_EQ(policy.last_dropped_share(), 0.0);
+  // A few frames dropped now and then (under 5 % of a window) are no reason either: 2 of each 60.
+  FrameOverlapPolicy few;
+  for (int64_t k = 0; k < 30 * 60; ++k) {
+    if (k % 60 == 17 || k % 60 == 41) continue;
+    few.Update(t0 + std::chrono::milliseconds(k * 1000 / 30), k, true);
+  }
+  EXPECT_FALSE(few.overlapped());
+  EXPECT_EQ(few.switches(), 0);
+  EXPECT_NEAR(few.last_dropped_share(), 2.0 / 60, 0.02);
+}
+
+TEST(FrameOverlapPolicyTest, TwoThreadsOnceBehindAndOneAgainAfterTheHold) {
+  FrameOverlapPolicy policy;  // windows of 2 s, 5 %, a gain of 10 %, held 20 s
+  const Clock::time_point t0 = Clock::now();
+  // A 120 fps input: one thread takes 30 fps of it, two threads 40: two after the first window,
+  // kept after their own.
+  std::vector<double> changes = run_policy(policy, t0, 0, 6, 120, one_or_two(4, 3));
+  ASSERT_EQ(changes.size(), 1u);
+  EXPECT_NEAR(changes[0], 2.0, 0.1);
+  EXPECT_TRUE(policy.overlapped());
+  EXPECT_NEAR(policy.last_dropped_share(), 2.0 / 3, 0.05);
+  // The input slows to what one thread keeps up with: two threads held, then one thread tried
+  // again at the first window's end after 20 s, and kept.
+  changes = run_policy(policy, t0, 6, 60, 30, every(1));
+  ASSERT_EQ(changes.size(), 1u);
+  EXPECT_GE(changes[0], 22.0 - 0.1);
+  EXPECT_LE(changes[0], 24.0 + 0.1);
+  EXPECT_FALSE(policy.overlapped());
+  EXPECT_EQ(policy.switches(), 2);
+}
+
+TEST(FrameOverlapPolicyTest, ATryOfOneThreadThatFallsBehindAtOnceDoublesTheHold) {
+  FrameOverlapPolicy::Options o;
+  o.first_hold = 10s;
+  o.max_hold = 40s;
+  FrameOverlapPolicy policy(o);
+  const Clock::time_point t0 = Clock::now();
+  // Behind all along, two threads worth it: on after 2 s, one thread tried after holds of 10, 20,
+  // 40, 40 s, each try lasting one window.
+  const std::vector<double> changes = run_policy(policy, t0, 0, 140, 120, one_or_two(4, 3));
+  ASSERT_GE(changes.size(), 8u);
+  std::vector<double> holds;
+  for (size_t k = 0; k + 1 < changes.size(); k += 2) holds.push_back(changes[k + 1] - changes[k]);
+  EXPECT_NEAR(holds[0], 10, 2.1);
+  EXPECT_NEAR(holds[1], 20, 2.1);
+  EXPECT_NEAR(holds[2], 40, 2.1);
+  EXPECT_NEAR(holds[3], 40, 2.1);
+  for (size_t k = 1; k + 1 < changes.size(); k += 2) EXPECT_NEAR(changes[k + 1] - changes[k], 2.0, 0.1) << k;
+  // A try that keeps up resets the hold: behind again later is held 10 s.
+  FrameOverlapPolicy reset(o);
+  const std::vector<double> c = run_policy(reset, t0, 0, 3, 120, one_or_two(4, 3));     // on at 2 s
+  const std::vector<double> c2 = run_policy(reset, t0, 3, 20, 30, every(1));            // off after the hold, kept
+  const std::vector<double> c3 = run_policy(reset, t0, 23, 30, 120, one_or_two(4, 3));  // behind: on, 10 s, off
+  ASSERT_EQ(c.size() + c2.size(), 2u);
+  ASSERT_GE(c3.size(), 2u);
+  EXPECT_NEAR(c3[1] - c3[0], 10, 2.1);
+}
+
+// Behind, but two threads take no more frames than one (another program has the cores): one
+// thread again after their first window, and two not tried again for 20 s, then 40 s, ...
+TEST(FrameOverlapPolicyTest, TwoThreadsThatGainTooLittleAreLeft) {
+  FrameOverlapPolicy policy;
+  const Clock::time_point t0 = Clock::now();
+  const std::vector<double> changes = run_policy(policy, t0, 0, 100, 120, every(4));
+  ASSERT_GE(changes.size(), 6u);
+  EXPECT_NEAR(changes[0], 2.0, 0.1);
+  EXPECT_NEAR(changes[1], 4.0, 0.1);  // two threads' window: no gain
+  EXPECT_NEAR(changes[2] - changes[1], 20, 2.1);
+  EXPECT_NEAR(changes[3] - changes[2], 2.0, 0.1);
+  EXPECT_NEAR(changes[4] - changes[3], 40, 2.1);
+  // A gain of 5 % is not enough, one of 15 % is (10 % asked): 40 -> 42 and 40 -> 46 fps.
+  for (const auto& [two, kept] : {std::pair{42, false}, std::pair{46, true}}) {
+    FrameOverlapPolicy p;
+    const std::vector<double> c = run_policy(p, t0, 0, 7, 120 * 42, one_or_two(42 * 3, 120 * 42 / two));
+    ASSERT_GE(c.size(), 1u) << two;
+    EXPECT_EQ(c.size(), kept ? 1u : 2u) << two;
+  }
+}
+
+TEST(FrameOverlapPolicyTest, FramesNotTrackedStartTheWindowAgain) {
+  FrameOverlapPolicy policy;
+  const Clock::time_point t0 = Clock::now();
+  // Behind, but a frame not tracked (calibrating, no face) every second: no window ever ends.
+  for (int64_t k = 0; k < 30 * 30; k += 2)
+    policy.Update(t0 + std::chrono::milliseconds(k * 1000 / 30), k, k % 30 != 0);
+  EXPECT_FALSE(policy.overlapped());
+  EXPECT_EQ(policy.switches(), 0);
+  // An input that starts counting again (reopened) starts a window too, without a decision.
+  FrameOverlapPolicy reopened;
+  reopened.Update(t0, 500, true);
+  EXPECT_FALSE(reopened.Update(t0 + 3s, 3, true));
+  EXPECT_EQ(reopened.switches(), 0);
+}
+
+TEST(FrameOverlapPolicyTest, InvalidOptionsAreRefused) {
+  std::string why;
+  EXPECT_TRUE(FrameOverlapPolicy::Options().IsValid(&why)) << why;
+  auto refused = [](auto change) {
+    FrameOverlapPolicy::Options o;
+    change(o);
+    std::string w;
+    EXPECT_FALSE(o.IsValid(&w));
+    EXPECT_FALSE(w.empty());
+    EXPECT_THROW(FrameOverlapPolicy{o}, Error);
+  };
+  refused([](FrameOverlapPolicy::Options& o) { o.window = 0ms; });
+  refused([](FrameOverlapPolicy::Options& o) { o.behind_share = 0; });
+  refused([](FrameOverlapPolicy::Options& o) { o.behind_share = 1; });
+  refused([](FrameOverlapPolicy::Options& o) { o.behind_share = std::nan(""); });
+  refused([](FrameOverlapPolicy::Options& o) { o.min_gain = -1.5; });
+  refused([](FrameOverlapPolicy::Options& o) { o.first_hold = 1s; });  // shorter than a window
+  refused([](FrameOverlapPolicy::Options& o) { o.max_hold = 10s; });   // shorter than first_hold
+  LiveSession::Options session;
+  session.target = "/nonexistent-recording";
+  session.overlap_policy.behind_share = 2;
+  EXPECT_FALSE(session.IsValid(&why));
+  EXPECT_NE(why.find("overlap policy"), std::string::npos) << why;
+}
+
+// A copy of `dir` (a synthetic recording) whose frames are `speed` times closer in time: played at
+// its own rate it delivers `speed` times as many frames per second.
+std::string faster_copy(const std::string& dir, double speed, const fs::path& out) {
+  fs::create_directories(out);
+  for (const char* sub : {"color", "depth"}) fs::create_directory_symlink(fs::absolute(fs::path(dir) / sub), out / sub);
+  nlohmann::json info = nlohmann::json::parse(std::ifstream(fs::path(dir) / "recording.json"));
+  info["fps"] = info["fps"].get<double>() * speed;
+  std::ofstream(out / "recording.json") << info.dump();
+  std::ifstream in(fs::path(dir) / "frames.jsonl");
+  std::ofstream frames(out / "frames.jsonl");
+  for (std::string line; std::getline(in, line);) {
+    if (line.empty()) continue;
+    nlohmann::json f = nlohmann::json::parse(line);
+    f["timestamp"] = f["timestamp"].get<double>() / speed;
+    frames << f.dump() << "\n";
+  }
+  return out.string();
+}
+
+// A worker slower than its input (the test recording played 8 times as fast: 240 fps) renders on a
+// second thread while it tracks the next frame (overlap_frames_when_behind), which the status and
+// the timings say, and every frame is still published once, in order; without the option it never
+// does. The decision itself: FrameOverlapPolicyTest.
+TEST(LiveSessionOverlapTest, AWorkerBehindItsInputRendersOnASecondThread) {
+  std::string why;
+  const std::string dir = test::make_test_recording({"recording-320", 320, 240, 60, 7}, &why);
+  if (dir.empty()) GTEST_SKIP() << "no test recording: " << why;
+  const face_reenact::testing::TempDir tmp("fr-overlap");
+  const std::string fast = faster_copy(dir, 8, tmp / "fast");
+  for (const bool when_behind : {true, false}) {
+    const int threads_before = test::count_threads_with_prefix("fr-live-render");
+    LiveSession::Options options = pipeline_options(fast, OutputMode::kPassThrough);
+    options.overlap_frames_when_behind = when_behind;
+    options.overlap_policy.window = 500ms;
+    options.overlap_policy.min_gain = -1;     // kept on a machine that other tests load too
+    options.overlap_policy.first_hold = 60s;  // no try of one thread within the test
+    options.overlap_policy.max_hold = 60s;
+    LiveSession session(options);
+    LiveStatus s = wait_status(session, 560s, [](const LiveStatus& st) {
+      return st.pipeline_ready && st.tracking == TrackingState::kTracking;
+    });
+    ASSERT_EQ(s.tracking, TrackingState::kTracking) << s.Headline();
+    if (when_behind) {
+      s = wait_status(session, 60s, [](const LiveStatus& st) { return st.frames_overlapped; });
+      ASSERT_TRUE(s.frames_overlapped) << s.Headline();
+      EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before + 1);
+    }
+    session.ResetTimings();
+    LiveFrame frame;
+    uint64_t last = 0;
+    std::vector<uint64_t> sequences;
+    for (int k = 0; k < 40 && session.timings().frames < 10 && session.wait_frame(last, 10s, &frame); ++k) {
+      sequences.push_back(frame.sequence);
+      last = frame.sequence;
+    }
+    const LiveTimings t = session.timings();
+    ASSERT_GE(t.frames, 10);
+    EXPECT_GT(t.dropped_at_input, 0);  // behind indeed
+    EXPECT_EQ(t.overlap_changes, 0);  // the change came before the measurement, and held
+    EXPECT_TRUE(std::is_sorted(sequences.begin(), sequences.end()));
+    EXPECT_EQ(std::adjacent_find(sequences.begin(), sequences.end()), sequences.end());
+    if (when_behind) {
+      EXPECT_EQ(t.overlapped, t.frames);
+    } else {
+      EXPECT_EQ(t.overlapped, 0);
+      EXPECT_FALSE(session.status().frames_overlapped);
+      EXPECT_EQ(test::count_threads_with_prefix("fr-live-render"), threads_before);
+    }
     session.stop();
     EXPECT_EQ(test::settled_thread_count("fr-live-render", threads_before), threads_before);
   }

@@ -21,6 +21,7 @@
 #include "face_reenact/common/paths.h"
 #include "face_reenact/common/timing.h"
 #include "face_reenact/live/frame_grabber.h"
+#include "face_reenact/live/frame_overlap.h"
 #include "face_reenact/stream/receiver.h"
 #include "face_reenact/stream/stream_key.h"
 #include "face_reenact/stream/udp.h"
@@ -213,6 +214,8 @@ bool LiveSession::Options::IsValid(std::string* why) const {
     return fail("reopen interval must be in (0, 10 min]");
   if (thread_name.empty() || thread_name.size() > 15) return fail("thread name must have 1..15 characters");
   if (worker_nice < 0 || worker_nice > 19) return fail("worker nice increment must be in 0..19");
+  std::string overlap_why;
+  if (!overlap_policy.IsValid(&overlap_why)) return fail("overlap policy: " + overlap_why);
   tracker::SolverBackend backend;
   if (!tracker::parse_solver_backend(solver, &backend)) return fail("solver must be auto, cpu or vulkan (got '" + solver + "')");
   if (mode == OutputMode::kMirror && mirror_texture.empty() && mirror_light.empty())
@@ -359,6 +362,7 @@ struct RenderJob {
   int source_index = 0;
   int64_t input_sequence = 0;                 // the target input's count when it delivered this frame
   float source_weight = 0;                    // the streamed expression's cross-fade weight (LiveFrame)
+  bool overlapped = false;                    // rendered on the render thread
   Clock::time_point captured, started;        // the capture thread had it / the worker took it
 };
 
@@ -666,6 +670,7 @@ void LiveSession::run() {
       // measurement before it: counting it after made more frames than inputs.
       if (job.input_sequence > timings_input_base_) {
         ++timings_.frames;
+        timings_.overlapped += job.overlapped;
         timings_.tracked += out.tracking == TrackingState::kTracking;
         timings_.calibrating += out.tracking == TrackingState::kCalibrating;
         timings_.unchanged +=
@@ -689,6 +694,8 @@ void LiveSession::run() {
   std::optional<LandmarkStage> marks;
   bool solver_checked = false;  // overlap_frames_on_gpu: decided once the pipeline has loaded
   std::string solver;           // the tracker's solver in words, read then
+  // overlap_frames_when_behind: whether `render` runs, decided frame by frame (CPU solver only).
+  std::optional<FrameOverlapPolicy> overlap_policy;
 
   while (!stopping()) {
     Clock::time_point now = Clock::now();
@@ -700,6 +707,8 @@ void LiveSession::run() {
       solver_checked = true;
       solver = processor->tracking_solver();
       if (!render && options_.overlap_frames_on_gpu && processor->tracking_solves_on_gpu()) render.emplace(publish);
+      if (!render && options_.overlap_frames_when_behind && !processor->tracking_solves_on_gpu())
+        overlap_policy.emplace(options_.overlap_policy);
       if (options_.landmarks_ahead) {
         StartOpenCvThreads();
         marks.emplace(target, processor, target_seq);
@@ -752,11 +761,27 @@ void LiveSession::run() {
         actor_last_tracked = Clock::now();
         actor_tracked_times.push_back(actor_last_tracked);
       }
+      const int64_t input_sequence = job.input_sequence;
       if (render) {
+        job.overlapped = true;
         render->Submit(std::move(job), stopping);
       } else {
         ProcessedFrame out = RenderThread::Finish(job);
         publish(job, out);
+      }
+      if (overlap_policy) {
+        bool tracked;
+        {
+          std::lock_guard lock(mu_);
+          tracked = shown.tracking == TrackingState::kTracking;
+        }
+        // Stopping the render thread finishes the frame in its hands first, so frames stay in order.
+        if (overlap_policy->Update(Clock::now(), input_sequence, tracked) != render.has_value()) {
+          if (render) render.reset();
+          else render.emplace(publish);
+          std::lock_guard lock(mu_);
+          ++timings_.overlap_changes;
+        }
       }
     }
 

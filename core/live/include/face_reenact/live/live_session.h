@@ -6,8 +6,8 @@
 //   - a capture thread per picture input (FrameGrabber): keeps only the newest frame;
 //   - the UDP receiver's thread (stream::ExpressionReceiver) when the source is a stream;
 //   - the worker ("fr-live"), which loads the model, tracks the newest target frame, re-renders
-//     and composites it and publishes the result; with Options::overlap_frames it hands the
-//     second half to
+//     and composites it and publishes the result; with Options::overlap_frames (or while it falls
+//     behind the input, overlap_frames_when_behind) it hands the second half to
 //   - a render thread ("fr-live-render"), which publishes while the worker already tracks the
 //     next frame (docs/real-time.md);
 //   - with Options::landmarks_ahead, a landmark stage ("fr-live-marks") between the capture thread
@@ -30,6 +30,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "face_reenact/live/frame_overlap.h"
 #include "face_reenact/live/input_spec.h"
 #include "face_reenact/output/frame_source.h"
 #include "face_reenact/stream/stream_state.h"
@@ -77,7 +78,7 @@ struct LiveStatus {
   TrackingState tracking = TrackingState::kOff;
   bool pipeline_ready = false;    // the reenactment pipeline is loaded
   std::string solver;             // the target tracker's solver once loaded ("vulkan on NVIDIA H200 (discrete, auto)")
-  bool frames_overlapped = false; // each frame's render half runs on "fr-live-render" (Options::overlap_frames)
+  bool frames_overlapped = false; // each frame's render half runs on "fr-live-render" now (Options::overlap_frames*)
   bool landmarks_ahead = false;   // the landmark stage runs on "fr-live-marks" (Options::landmarks_ahead)
   std::string pipeline_message;   // why frames pass unchanged (model missing, no face), or ""
   bool calibration_pending = false;
@@ -174,6 +175,8 @@ struct LiveTimings {
   // Frames the input delivered that the worker never took: the capture thread keeps only the
   // newest frame, so a worker slower than the input drops frames here instead of queueing them.
   int64_t dropped_at_input = 0;
+  int64_t overlapped = 0;      // frames rendered on the render thread while the worker tracked the next
+  int64_t overlap_changes = 0; // times the worker started or stopped that thread (overlap_frames_when_behind)
   LiveStageTimes sum;          // summed over `frames`
   double seconds = 0;          // wall time covered
 };
@@ -213,10 +216,17 @@ class LiveSession : public output::FrameSource {
     // The worker's nice increment (0..19): the pipeline yields the CPU to the front-end's own
     // threads (OBS's render thread, the webcam's pacing thread) when the machine is saturated.
     int worker_nice = 5;
-    // Render frame n on a thread of its own ("fr-live-render") while the worker tracks frame n+1.
-    // Measured on 2 cores (docs/real-time.md): 13-25 % more frames per second, but 5-24 ms more
-    // latency (the two halves slow each other down), so it is off by default.
+    // Render frame n on a thread of its own ("fr-live-render") while the worker tracks frame n+1,
+    // always. Measured on 2 cores (docs/real-time.md): about a fifth more frames per second where
+    // one thread cannot keep up with the input, but 7-20 ms more latency (the two halves slow each
+    // other down), so by default only while one thread falls behind (below).
     bool overlap_frames = false;
+    // ... and, with the tracker on the CPU, while one thread falls behind the input
+    // (FrameOverlapPolicy: more than 5 % of the input's frames dropped over 2 s; one thread tried
+    // again after 20 s and more). Measured on 2 cores (docs/real-time.md, "Two threads when
+    // behind"): ... .
+    bool overlap_frames_when_behind = true;
+    FrameOverlapPolicy::Options overlap_policy;  // what "behind" is, and how long two threads are held
     // ... and also whenever the tracker solves on a GPU (Options::solver picked Vulkan): there the
     // two halves do not compete for cores and the tracking half is short. Measured on an H200
     // (docs/real-time.md, "On a GPU"): 22.1 -> 28.7 fps on a 30 fps camera, latency 60 -> 44 ms.
