@@ -906,9 +906,11 @@ TEST(LiveSessionOverlapTest, ATrackerSolvingOnTheGpuRendersOnItsOwnThread) {
 
 // FrameOverlapPolicy on a made-up clock: an input at `fps` from `from_s` for `seconds` (after t0),
 // of which the worker takes one frame in `take_every(overlapped)` (the others dropped at the
-// input), all tracked. Returns the times (seconds from t0) at which the decision changed.
+// input), all tracked, each published `latency_ms(overlapped)` after its capture (30 ms unless
+// given). Returns the times (seconds from t0) at which the decision changed.
 std::vector<double> run_policy(FrameOverlapPolicy& policy, Clock::time_point t0, double from_s, double seconds,
-                               double fps, const std::function<int(bool)>& take_every) {
+                               double fps, const std::function<int(bool)>& take_every,
+                               const std::function<double(bool)>& latency_ms = [](bool) { return 30.0; }) {
   std::vector<double> changes;
   int64_t next = static_cast<int64_t>(std::ceil(from_s * fps));
   for (int64_t k = next; k < static_cast<int64_t>((from_s + seconds) * fps); ++k) {
@@ -916,7 +918,7 @@ std::vector<double> run_policy(FrameOverlapPolicy& policy, Clock::time_point t0,
     const bool before = policy.overlapped();
     const double t = k / fps;
     const auto at = t0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(t));
-    if (policy.Update(at, k, true) != before) changes.push_back(t);
+    if (policy.Update(at, k, true, latency_ms(before)) != before) changes.push_back(t);
     next = k + take_every(policy.overlapped());
   }
   return changes;
@@ -938,7 +940,7 @@ TEST(FrameOverlapPolicyTest, OneThreadWhileTheWorkerKeepsUp) {
   FrameOverlapPolicy few;
   for (int64_t k = 0; k < 30 * 60; ++k) {
     if (k % 60 == 17 || k % 60 == 41) continue;
-    few.Update(t0 + std::chrono::milliseconds(k * 1000 / 30), k, true);
+    few.Update(t0 + std::chrono::milliseconds(k * 1000 / 30), k, true, 30);
   }
   EXPECT_FALSE(few.overlapped());
   EXPECT_EQ(few.switches(), 0);
@@ -1013,18 +1015,39 @@ TEST(FrameOverlapPolicyTest, TwoThreadsThatGainTooLittleAreLeft) {
   }
 }
 
+// Two threads that take more frames but publish them later than max_latency_ms (70) on average
+// are left too, at the first window that is late; a latency no frame reports is no reason.
+TEST(FrameOverlapPolicyTest, TwoThreadsThatAreTooLateAreLeft) {
+  const Clock::time_point t0 = Clock::now();
+  for (const double two_latency : {65.0, 75.0}) {
+    FrameOverlapPolicy policy;
+    const std::vector<double> c = run_policy(policy, t0, 0, 15, 120, one_or_two(4, 3),
+                                             [&](bool overlapped) { return overlapped ? two_latency : 50.0; });
+    ASSERT_GE(c.size(), 1u);
+    EXPECT_EQ(c.size(), two_latency > 70 ? 2u : 1u) << two_latency;
+    if (c.size() == 2) EXPECT_NEAR(c[1] - c[0], 2.0, 0.1);
+    EXPECT_NEAR(policy.last_latency_ms(), two_latency > 70 ? 50.0 : two_latency, 1e-9);
+  }
+  FrameOverlapPolicy::Options unbounded;
+  unbounded.max_latency_ms = 0;
+  FrameOverlapPolicy policy(unbounded);
+  EXPECT_EQ(run_policy(policy, t0, 0, 15, 120, one_or_two(4, 3), [](bool) { return 500.0; }).size(), 1u);
+  FrameOverlapPolicy unknown;
+  EXPECT_EQ(run_policy(unknown, t0, 0, 15, 120, one_or_two(4, 3), [](bool) { return std::nan(""); }).size(), 1u);
+}
+
 TEST(FrameOverlapPolicyTest, FramesNotTrackedStartTheWindowAgain) {
   FrameOverlapPolicy policy;
   const Clock::time_point t0 = Clock::now();
   // Behind, but a frame not tracked (calibrating, no face) every second: no window ever ends.
   for (int64_t k = 0; k < 30 * 30; k += 2)
-    policy.Update(t0 + std::chrono::milliseconds(k * 1000 / 30), k, k % 30 != 0);
+    policy.Update(t0 + std::chrono::milliseconds(k * 1000 / 30), k, k % 30 != 0, 30);
   EXPECT_FALSE(policy.overlapped());
   EXPECT_EQ(policy.switches(), 0);
   // An input that starts counting again (reopened) starts a window too, without a decision.
   FrameOverlapPolicy reopened;
-  reopened.Update(t0, 500, true);
-  EXPECT_FALSE(reopened.Update(t0 + 3s, 3, true));
+  reopened.Update(t0, 500, true, 30);
+  EXPECT_FALSE(reopened.Update(t0 + 3s, 3, true, 30));
   EXPECT_EQ(reopened.switches(), 0);
 }
 
@@ -1044,6 +1067,7 @@ TEST(FrameOverlapPolicyTest, InvalidOptionsAreRefused) {
   refused([](FrameOverlapPolicy::Options& o) { o.behind_share = 1; });
   refused([](FrameOverlapPolicy::Options& o) { o.behind_share = std::nan(""); });
   refused([](FrameOverlapPolicy::Options& o) { o.min_gain = -1.5; });
+  refused([](FrameOverlapPolicy::Options& o) { o.max_latency_ms = -1; });
   refused([](FrameOverlapPolicy::Options& o) { o.first_hold = 1s; });  // shorter than a window
   refused([](FrameOverlapPolicy::Options& o) { o.max_hold = 10s; });   // shorter than first_hold
   LiveSession::Options session;
@@ -1088,6 +1112,7 @@ TEST(LiveSessionOverlapTest, AWorkerBehindItsInputRendersOnASecondThread) {
     options.overlap_frames_when_behind = when_behind;
     options.overlap_policy.window = 500ms;
     options.overlap_policy.min_gain = -1;     // kept on a machine that other tests load too
+    options.overlap_policy.max_latency_ms = 0;
     options.overlap_policy.first_hold = 60s;  // no try of one thread within the test
     options.overlap_policy.max_hold = 60s;
     LiveSession session(options);

@@ -771,12 +771,14 @@ void LiveSession::run() {
       }
       if (overlap_policy) {
         bool tracked;
+        double latency_ms = std::nan("");
         {
           std::lock_guard lock(mu_);
           tracked = shown.tracking == TrackingState::kTracking;
+          if (latest_.sequence > 0) latency_ms = ms_since(latest_.captured, latest_.produced);
         }
         // Stopping the render thread finishes the frame in its hands first, so frames stay in order.
-        if (overlap_policy->Update(Clock::now(), input_sequence, tracked) != render.has_value()) {
+        if (overlap_policy->Update(Clock::now(), input_sequence, tracked, latency_ms) != render.has_value()) {
           if (render) render.reset();
           else render.emplace(publish);
           std::lock_guard lock(mu_);
