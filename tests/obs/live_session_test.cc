@@ -209,6 +209,26 @@ TEST(LiveStatusTest, HeadlineAsksForANewCalibrationWhenTheFaceWasNotAtRest) {
   EXPECT_EQ(s.Headline().find("not at rest"), std::string::npos) << s.Headline();
 }
 
+// A machine too busy for every frame of the camera (issue #27's starved machine): the line says how
+// many of the input's frames per second are shown and that the rest are dropped, while tracking;
+// within a tenth of the input's rate, while calibrating (frames pass unchanged) or with the
+// input's rate unknown, only the output's rate. The state line (logged on change) never says it.
+TEST(LiveStatusTest, HeadlineSaysWhenTheMachineCannotKeepUpWithTheCamera) {
+  LiveStatus s = tracking_at_30_fps();
+  s.target_fps = 30;
+  s.output_fps = 18;
+  EXPECT_EQ(s.Headline(), "Tracking | 18.0 of 30 fps (the machine cannot keep up: frames dropped)");
+  EXPECT_EQ(s.StateLine(), "Tracking");
+  s.output_fps = 27.5;
+  EXPECT_EQ(s.Headline(), "Tracking | 27.5 fps");
+  s.output_fps = 18;
+  s.target_fps = 0;
+  EXPECT_EQ(s.Headline(), "Tracking | 18.0 fps");
+  s.target_fps = 30;
+  s.tracking = TrackingState::kCalibrating;
+  EXPECT_EQ(s.Headline().find("cannot keep up"), std::string::npos) << s.Headline();
+}
+
 // Tracking without a still of the target's own open mouth yet (reenact/mouth_interior.h): the line
 // asks for one, before any calibration warning (the request goes away once the mouth opened);
 // the state line (logged on change) says it too, so the log shows when the still was taken.

@@ -119,6 +119,10 @@ const char* source_state_name(SourceState state) {
 
 namespace {
 
+// Below this share of the input's frame rate, the status line says the output is behind (the
+// two rates are each counted over a second, so a frame more or less moves them by 3 % at 30 fps).
+constexpr double kShownBehindShare = 0.9;
+
 // LiveStatus::Headline (numbers true) and StateLine (false): one wording in one place.
 std::string status_line(const LiveStatus& s, bool numbers) {
   if (!s.target_open) {
@@ -176,7 +180,14 @@ std::string status_line(const LiveStatus& s, bool numbers) {
     case SourceState::kLost: line += " | " + what + " lost" + (s.source_error.empty() ? "" : ": " + s.source_error); break;
     case SourceState::kError: line += " | " + what + " error: " + s.source_error; break;
   }
-  if (numbers) line += " | " + fixed(s.output_fps, 1) + " fps";
+  if (numbers) {
+    // A machine too busy for every frame the camera delivers drops the rest (never queues them):
+    // said, so that the lower rate is not taken for the camera's own.
+    const bool behind = s.pipeline_ready && s.tracking == TrackingState::kTracking && s.target_fps > 0 &&
+                        s.output_fps > 0 && s.output_fps < kShownBehindShare * s.target_fps;
+    line += " | " + fixed(s.output_fps, 1) +
+            (behind ? " of " + fixed(s.target_fps, 0) + " fps (the machine cannot keep up: frames dropped)" : " fps");
+  }
   return line;
 }
 
