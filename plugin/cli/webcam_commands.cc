@@ -62,6 +62,7 @@ struct WebcamArgs {
   float mirror_opacity = 1.0f;
   std::string detail = "transient";  // the source actor's folds (LiveSession::Options::detail)
   std::string mouth = "auto";        // an opened mouth's interior (LiveSession::Options::mouth)
+  bool overlap_when_behind = true;   // LiveSession::Options::overlap_frames_when_behind
 };
 
 // The pipeline choices a live session takes from the command line (webcam --target, bench live).
@@ -75,6 +76,7 @@ void apply_pipeline_args(const WebcamArgs& args, live::LiveSession::Options* o) 
   o->mirror_light = args.mirror_light;
   o->detail = args.detail;
   o->mouth = args.mouth;
+  o->overlap_frames_when_behind = args.overlap_when_behind;
 }
 
 void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
@@ -96,6 +98,10 @@ void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
                   "an opened mouth's interior: auto (the target's own open mouth once seen; until then the source actor's own "
                   "where it is a camera or recording here, else the model's teeth), target (the target's own only) or model")
       ->capture_default_str();
+  cmd->add_flag("--overlap-when-behind,!--no-overlap-when-behind", args->overlap_when_behind,
+                "render each frame on a second thread while the tracker works on the CPU and one thread falls behind the "
+                "camera (the default: more frames for 10-20 ms more latency, only where that gains frames); "
+                "--no-overlap-when-behind keeps one thread");
 }
 
 // What `bench soak` adds to a webcam run: the frames may go nowhere (every frame is still
@@ -489,10 +495,6 @@ void add_webcam_command(CLI::App& app) {
   auto live_overlap = std::make_shared<bool>(false);
   bench_live->add_flag("--overlap", *live_overlap,
                        "Render frame n on a second thread while the worker tracks frame n+1 (LiveSession::Options::overlap_frames)");
-  auto live_when_behind = std::make_shared<bool>(true);
-  bench_live->add_flag("--overlap-when-behind,!--no-overlap-when-behind", *live_when_behind,
-                       "Render on a second thread while one thread falls behind the input (the default; "
-                       "LiveSession::Options::overlap_frames_when_behind)");
   auto live_marks = std::make_shared<bool>(false);
   bench_live->add_flag("--landmarks-ahead", *live_marks,
                        "Detect frame n+1's landmarks on a thread of their own while frame n is fitted "
@@ -500,7 +502,7 @@ void add_webcam_command(CLI::App& app) {
   bench_live->add_option("--warmup", *live_warmup,
                          "seconds after the first frame left out of the measurement (model load, calibration)")
       ->capture_default_str();
-  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap, live_when_behind, live_marks] {
+  bench_live->callback([live_args, live_seconds, live_warmup, live_overlap, live_marks] {
     if (!(*live_seconds > 0) || *live_seconds > 3600) throw Error("--seconds must be in (0, 3600]");
     if (!(*live_warmup >= 0) || *live_warmup > 600) throw Error("--warmup must be in [0, 600]");
     live::LiveSession::Options o;
@@ -509,7 +511,6 @@ void add_webcam_command(CLI::App& app) {
     o.key_file = live_args->key_file;
     o.model_path = live_args->model;
     o.overlap_frames = *live_overlap;
-    o.overlap_frames_when_behind = *live_when_behind;
     o.landmarks_ahead = *live_marks;
     apply_pipeline_args(*live_args, &o);
     if (!live::parse_output_mode(live_args->mode, &o.mode))
