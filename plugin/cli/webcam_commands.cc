@@ -294,8 +294,9 @@ void run_soak(const SoakArgs& a) {
     std::string error;
     if (!ReadProcessResources(&sample.resources, &error)) throw Error("bench soak: " + error);
     // The live session's render thread comes and goes with the load (a second thread while one
-    // falls behind the input: LiveSession::Options::overlap_frames_when_behind), so one of it is
-    // not counted: a run that starts on one thread and ends on two has not grown. A second would be.
+    // falls behind the input: LiveSession::Options::overlap_frames_when_behind), so one such
+    // thread is not counted: a run that starts on one thread and ends on two has not grown. A
+    // second one would count.
     int render_threads = 0;
     for (const ThreadInfo& t : ProcessThreads()) render_threads += t.name == "fr-live-render";
     sample.resources.threads -= std::min(1, render_threads);
@@ -564,10 +565,11 @@ void add_webcam_command(CLI::App& app) {
       std::printf("  stream: %s\n", status.stream_statistics.Counts().c_str());
     // Where each frame was rendered: on the worker, on the render thread, or some of each (two
     // threads while one fell behind the input).
-    std::string where_rendered = t.overlapped == 0           ? "track and render on the worker"
-                          : t.overlapped == t.frames ? "render on its own thread"
-                                                     : "render on its own thread for " + std::to_string(t.overlapped) +
-                                                           " of " + std::to_string(t.frames) + " frames (while behind)";
+    std::string where_rendered = "track and render on the worker";
+    if (t.overlapped > 0 && t.overlapped == t.frames) where_rendered = "render on its own thread";
+    else if (t.overlapped > 0)
+      where_rendered = "render on its own thread for " + std::to_string(t.overlapped) + " of " +
+                       std::to_string(t.frames) + " frames (while behind)";
     if (t.overlap_changes > 0)
       where_rendered += ", " + std::to_string(t.overlap_changes) + " change" + (t.overlap_changes > 1 ? "s" : "") +
                         " between one thread and two";

@@ -27,14 +27,14 @@ class FrameOverlapPolicy {
     // second than one thread's last (a 27 fps thread: 30 fps); otherwise one thread again. -1
     // keeps them whatever they take.
     double min_gain = 0.1;
-    // Two threads are held this long before one thread is tried again; a try that falls behind
-    // at once doubles the hold, up to max_hold (a machine that stays busy pays one window of the
-    // slower rate every few minutes, not every 20 s). Two threads that gained too little are not
-    // tried again for as long, doubling likewise.
     // ... and while the mean capture-to-output latency of their frames over a window stays within
     // this (the live target of docs/real-time.md; 0: no bound). Under a foreign load two threads
     // took 28 fps for 71 ms where one took 23 for 57.
     double max_latency_ms = 70;
+    // Two threads are held this long before one thread is tried again; a try that falls behind
+    // at once doubles the hold, up to max_hold (a machine that stays busy pays one window of the
+    // slower rate every few minutes, not every 20 s). Two threads that gained too little, or came
+    // too late, are not tried again for as long, doubling likewise.
     std::chrono::milliseconds first_hold{20000};
     std::chrono::milliseconds max_hold{160000};
 
