@@ -75,7 +75,7 @@ bool FrameOverlapPolicy::Update(Clock::time_point now, int64_t input_sequence, b
       checking_two_ = true;
     }
     trying_one_ = false;
-  } else if (too_late || (checking_two_ && rate < one_rate_ * (1.0 + options_.min_gain))) {
+  } else if (too_late || (checking_two_ && behind && rate < one_rate_ * (1.0 + options_.min_gain))) {
     // Not worth their latency (the cores are taken by something else): one thread, for a while.
     checking_two_ = false;
     change(false);
