@@ -99,9 +99,9 @@ void add_pipeline_options(CLI::App* cmd, WebcamArgs* args) {
                   "where it is a camera or recording here, else the model's teeth), target (the target's own only) or model")
       ->capture_default_str();
   cmd->add_flag("--overlap-when-behind,!--no-overlap-when-behind", args->overlap_when_behind,
-                "render each frame on a second thread while the tracker works on the CPU and one thread falls behind the "
-                "camera (the default: more frames for 10-20 ms more latency, only where that gains frames); "
-                "--no-overlap-when-behind keeps one thread");
+                "render each frame on a second thread while the tracker works on the CPU and one thread falls "
+                "behind the camera (the default: more frames for 10-20 ms more latency, only where that gains "
+                "frames); --no-overlap-when-behind keeps one thread");
 }
 
 // What `bench soak` adds to a webcam run: the frames may go nowhere (every frame is still
