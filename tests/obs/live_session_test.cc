@@ -932,14 +932,12 @@ std::vector<double> run_policy(FrameOverlapPolicy& policy, Clock::time_point t0,
                                double fps, const std::function<int(bool)>& take_every,
                                const std::function<double(bool)>& latency_ms = [](bool) { return 30.0; }) {
   std::vector<double> changes;
-  int64_t next = static_cast<int64_t>(std::ceil(from_s * fps));
-  for (int64_t k = next; k < static_cast<int64_t>((from_s + seconds) * fps); ++k) {
-    if (k < next) continue;
+  const int64_t end = static_cast<int64_t>((from_s + seconds) * fps);
+  for (int64_t k = static_cast<int64_t>(std::ceil(from_s * fps)); k < end; k += take_every(policy.overlapped())) {
     const bool before = policy.overlapped();
     const double t = k / fps;
     const auto at = t0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(t));
     if (policy.Update(at, k, true, latency_ms(before)) != before) changes.push_back(t);
-    next = k + take_every(policy.overlapped());
   }
   return changes;
 }

@@ -48,8 +48,8 @@ bool FrameOverlapPolicy::Update(Clock::time_point now, int64_t input_sequence, b
     window_latency_ms_ += latency_ms;
     ++window_latencies_;
   }
-  const double seconds = std::chrono::duration<double>(now - window_start_).count();
   if (now - window_start_ < options_.window) return overlapped_;
+  const double seconds = std::chrono::duration<double>(now - window_start_).count();
   const int64_t delivered = input_sequence - window_first_sequence_;
   last_dropped_share_ = delivered > 0 ? std::max(0.0, 1.0 - static_cast<double>(window_taken_) / delivered) : 0.0;
   const double rate = window_taken_ / seconds;

@@ -97,9 +97,9 @@ PhotoFit PhotoFitter::Fit(const cv::Mat& bgr, landmarks::LandmarkDetector* detec
   const TrackerModel& model = tracker_->model();
   out.params = out.tracked.params;
   if (options_.contour_rounds > 0) {
-    SolverOptions so = AdaptScheduleToFaceSize(options_.tracker.calibration_solver,
-                                               LandmarkExtentPx(input, options_.tracker.loss.min_landmark_confidence),
-                                               options_.tracker.ResolvedCalibrationMinFaceWidth());
+    // The calibration's solve for this face (its level and sampling), with the jaw line's rounds.
+    SolverOptions so = CalibrationSolverForFace(
+        options_.tracker, LandmarkExtentPx(input, options_.tracker.loss.min_landmark_confidence));
     so.energy.inner_landmarks_only = false;  // the jaw line (and the brows) too
     so.schedule.resize(1);
     so.schedule[0].gauss_newton_iterations = options_.contour_iterations;
