@@ -337,6 +337,11 @@ void run_reenact(const ReenactArgs& a) {
   // The options are checked before anything is opened (a bad --calibration-window says so at once).
   std::string why;
   if (!ro.IsValid(&why)) throw Error("reenact: " + why);
+  // The set-up (the inputs opened, the face model read, each actor's tracker and the compositor made)
+  // is timed apart from the frames: the summary says both.
+  const auto setup_start = Clock::now();
+  // The landmark model's read, the longest part of the set-up below, on a thread of its own.
+  tracker::PreloadLandmarkModel(ro.input);
   const capture::VideoReader::Options video = video_options(a.camera, "reenact");
   std::unique_ptr<capture::FrameSource> target = live::open_offline_source(a.target, "--target", video);
   std::unique_ptr<capture::FrameSource> source_rec;
@@ -374,15 +379,20 @@ void run_reenact(const ReenactArgs& a) {
   ro.teeth_texture = reenact::LoadDefaultTeethTexture(model_path, nullptr);
   // Each actor's focal length is estimated when its camera is an assumption (a video, a webcam).
   ro.tracker.focal_length.estimate = estimate_focal_length(a.camera, target->info());
-  reenact::ReenactmentPipeline pipeline(model, ro);
+  std::optional<reenact::ReenactmentPipeline> target_pipeline;
   std::unique_ptr<TrackedSource> source_tracker;
   std::unique_ptr<NamedThread> source_thread;  // the source's tracking, beside the target's
   if (source_rec) {
     tracker::TrackerOptions so = ro.tracker;
     so.focal_length.estimate = estimate_focal_length(a.camera, source_rec->info());
-    source_tracker = std::make_unique<TrackedSource>(model, so, ro.input);
     source_thread = std::make_unique<NamedThread>("fr-source-track");
+    // The two actors' set-ups side by side too (each tracker's model, the device probe).
+    source_tracker = RunBeside(*source_thread, [&] { return std::make_unique<TrackedSource>(model, so, ro.input); },
+                               [&] { target_pipeline.emplace(model, ro); });
+  } else {
+    target_pipeline.emplace(model, ro);
   }
+  reenact::ReenactmentPipeline& pipeline = *target_pipeline;
   SourceByTime source_by_time(source_rec.get());
 
   const capture::RecordingInfo& info = target->info();
@@ -421,6 +431,7 @@ void run_reenact(const ReenactArgs& a) {
   ProgressBar bar(total, !a.quiet);
 
   const auto start = Clock::now();
+  const double setup_s = std::chrono::duration<double>(start - setup_start).count();
   int done = 0, started = 0;  // frames output, frames read and tracked (one more while one renders)
   double target_first_s = std::numeric_limits<double>::quiet_NaN();
   bool source_rest_requested = false, target_rest_requested = false;
@@ -597,8 +608,9 @@ void run_reenact(const ReenactArgs& a) {
                     first_reenacted_frame, from_s);
     reenacting_words = words;
   }
-  std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s (%.1f fps%s)\n", a.out.c_str(), writer.codec().c_str(), done,
-              info.camera.width, info.camera.height, seconds, output_fps, reenacting_words.c_str());
+  std::printf("wrote %s (%s): %d frames of %dx%d in %.1f s (%.1f fps%s), after %.2f s of set-up\n", a.out.c_str(),
+              writer.codec().c_str(), done, info.camera.width, info.camera.height, seconds, output_fps,
+              reenacting_words.c_str(), setup_s);
   std::printf("%s\n", s.BriefReport().c_str());
   std::printf("%s\n", stage_report(s, source_ms).c_str());
   std::printf("mouth interior: %s\n", s.mouth_interior.c_str());
@@ -660,6 +672,7 @@ void run_reenact(const ReenactArgs& a) {
         {"frames", done},
         {"fps", fps},
         {"wall_s", seconds},
+        {"setup_s", setup_s},
         {"output_fps", output_fps},
         {"reenacting", reenacting},
         {"statuses", {{"reenacted", s.reenacted_frames}, {"calibrating", s.calibrating_frames}, {"lost", s.lost_frames},

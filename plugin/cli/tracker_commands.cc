@@ -430,12 +430,13 @@ nlohmann::json run_track(const TrackArgs& a, const FaceModel& face_model, const 
   RgbdInputOptions io;
   io.landmark_source = a.landmarks == "recording" ? LandmarkSourceChoice::kRecording : LandmarkSourceChoice::kDetector;
   io.use_depth = depth && config.depth;
-  RgbdInput input(io);
+  PreloadLandmarkModel(io);  // read while the tracker is made
   TrackerOptions to = track_options(a, config, depth);
   to.focal_length.estimate = estimate_focal_length(a.camera, info);
   if (!parse_solver_backend(a.solver, &to.solver)) throw Error("track: --solver must be auto, cpu or vulkan");
   to.solver_device = a.device;
   FaceTracker tracker(model, to);
+  RgbdInput input(io);
   const gpu::CpuRenderer renderer(model.render);
 
   std::ofstream params_file;

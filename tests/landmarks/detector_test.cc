@@ -8,10 +8,12 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <thread>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/landmarks/evaluation.h"
 #include "dlib_backend.h"
+#include "landmark_internal.h"
 #include "face_reenact/landmarks/landmark_tracker.h"
 #include "test_data.h"
 
@@ -302,6 +304,64 @@ TEST(DetectorModelTest, MissingOrCorruptModelIsAClearError) {
   o.shape_predictor_path = corrupt;
   EXPECT_THROW(LandmarkDetector{o}, Error);
   std::filesystem::remove(corrupt);
+}
+
+// A model read ahead (PreloadShapeModel) is the one every detector made meanwhile takes, read once
+// even when two threads ask at once, and the read holds no reference of its own: the model goes
+// with its last detector, as one read by a detector does.
+TEST(ShapeModelPreloadTest, DetectorsTakeTheModelReadAheadWhichGoesWithTheirs) {
+  FR_REQUIRE_MODEL();
+  const std::string path = internal::default_shape_predictor_path();
+  if (detail::shape_model_in_memory(path))  // (CTest runs each test in a process of its own)
+    GTEST_SKIP() << "another test of this process holds the model already";
+  PreloadShapeModel();
+  PreloadShapeModel();  // while it reads: nothing more
+  std::shared_ptr<const detail::ShapeModel> here, there;
+  std::thread other([&] { there = detail::load_shape_model(path); });
+  here = detail::load_shape_model(path);
+  other.join();
+  ASSERT_TRUE(here && there);
+  EXPECT_EQ(here.get(), there.get());
+  PreloadShapeModel();  // in memory: nothing
+  {
+    LandmarkDetector detector;
+    cv::Mat noise(240, 320, CV_8UC3);
+    cv::randu(noise, 0, 256);
+    const LandmarkResult r = detector.Detect(view_of(noise, PixelFormat::kBGR8));
+    EXPECT_FALSE(r.reason.empty());
+  }
+  const std::weak_ptr<const detail::ShapeModel> weak = here;
+  here.reset();
+  there.reset();
+  // The read's thread lets its copy go as it ends, a moment after handing the model over.
+  for (int i = 0; i < 500 && !weak.expired(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  EXPECT_TRUE(weak.expired()) << "the preload kept the model";
+  EXPECT_FALSE(detail::shape_model_in_memory(path));
+}
+
+// A model that cannot be read ahead (missing, not a model) fails in the detector made next, with
+// the error it gives without the preload, and again in the one after.
+TEST(ShapeModelPreloadTest, AReadAheadThatFailsFailsInTheDetector) {
+  DetectorOptions o;
+  o.shape_predictor_path = "/nonexistent/preloaded_sp.dat";
+  PreloadShapeModel(o);
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    try {
+      LandmarkDetector d(o);
+      FAIL() << "no error";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("/nonexistent/preloaded_sp.dat"), std::string::npos) << e.what();
+    }
+  }
+  const ::face_reenact::testing::TempDir dir("fr-landmarks-preload-test");
+  const std::string corrupt = dir / "corrupt_sp.dat";
+  std::ofstream(corrupt, std::ios::binary) << "this is not a dlib model, just some bytes";
+  o.shape_predictor_path = corrupt;
+  PreloadShapeModel(o);
+  EXPECT_THROW(LandmarkDetector{o}, Error);
+  o.detection_width = -5;  // options the detector refuses: no read started, the detector says why
+  PreloadShapeModel(o);
+  EXPECT_THROW(LandmarkDetector{o}, Error);
 }
 
 // The face detector embedded at build time (its serialisation, read in 2 ms) is dlib's own,

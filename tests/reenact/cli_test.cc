@@ -170,6 +170,9 @@ TEST(ReenactCliTest, DemoAndReenactEndToEnd) {
   EXPECT_GE(from.at("frames").get<int>(), report.at("statuses").at("reenacted").get<int>()) << from.dump();
   EXPECT_GT(from.at("from_s").get<double>(), 0.0);
   EXPECT_LT(from.at("from_s").get<double>(), report.at("wall_s").get<double>());
+  // The set-up apart from the frames' time (it is not in wall_s).
+  EXPECT_GT(report.at("setup_s").get<double>(), 0.0);
+  EXPECT_NE(r.output.find(" s of set-up"), std::string::npos) << r.output;
   EXPECT_GT(from.at("fps").get<double>(), 0.0) << from.dump();
   EXPECT_NE(r.output.find("fps from the first reenacted frame on"), std::string::npos) << r.output;
   // The albedo texture's views (frame, yaw, texels seen), each saying whether it is the closed-eyes view.

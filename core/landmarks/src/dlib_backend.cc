@@ -6,18 +6,22 @@
 #include <dlib/revision.h>
 
 #include <malloc.h>
+#include <pthread.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <bit>
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <map>
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "face_reenact/common/byte_io.h"
@@ -343,18 +347,121 @@ std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path, cons
   return model;
 }
 
-std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path) {
-  static std::mutex mutex;
-  static std::map<std::string, std::weak_ptr<const ShapeModel>> cache;
+namespace {
+
+using ModelRead = std::shared_future<std::shared_ptr<const ShapeModel>>;
+
+// The process' models by canonical path: those in memory (weak: a model no detector holds is
+// freed), and those a preload_shape_model() is reading, with its thread.
+struct ShapeModelRegistry {
+  std::mutex mutex;
+  std::map<std::string, std::weak_ptr<const ShapeModel>> loaded;
+  struct InFlight {
+    ModelRead read;
+    uint64_t id = 0;  // which read: only its own waiters take it off the list
+  };
+  std::map<std::string, InFlight> reading;
+  uint64_t next_read_id = 0;
+  // The reads' threads, joined once done (not holding the read's result: that would keep a model
+  // its detectors let go of), and at exit.
+  struct Reader {
+    std::thread thread;
+    std::shared_ptr<std::atomic<bool>> done;
+  };
+  std::vector<Reader> readers;
+
+  static ShapeModelRegistry& Instance() {
+    static ShapeModelRegistry registry;
+    return registry;
+  }
+  ~ShapeModelRegistry() {
+    for (auto& reader : readers) reader.thread.join();
+  }
+};
+
+std::string registry_key(const std::string& path) {
   std::error_code ec;
-  const std::string key = std::filesystem::weakly_canonical(path, ec).string();
-  std::lock_guard<std::mutex> lock(mutex);
-  if (auto it = cache.find(key); it != cache.end()) {
+  return std::filesystem::weakly_canonical(path, ec).string();
+}
+
+}  // namespace
+
+std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path) {
+  ShapeModelRegistry& r = ShapeModelRegistry::Instance();
+  const std::string key = registry_key(path);
+  std::unique_lock<std::mutex> lock(r.mutex);
+  if (auto it = r.loaded.find(key); it != r.loaded.end()) {
     if (auto model = it->second.lock()) return model;
   }
-  auto model = read_shape_model(path, {.cache_dir = user_cache_dir()});
-  cache[key] = model;
+  // A read in flight (a preload's, or another detector's on another thread) is waited for; else
+  // this thread reads, listed as in flight so others wait for it. Without the lock either way:
+  // another path's detector, or a preload, need not wait for this read.
+  ShapeModelRegistry::InFlight in_flight;
+  std::packaged_task<std::shared_ptr<const ShapeModel>()> own_read;
+  if (auto it = r.reading.find(key); it != r.reading.end()) {
+    in_flight = it->second;
+  } else {
+    own_read = std::packaged_task<std::shared_ptr<const ShapeModel>()>(
+        [&path] { return read_shape_model(path, {.cache_dir = user_cache_dir()}); });
+    in_flight = {own_read.get_future().share(), ++r.next_read_id};
+    r.reading[key] = in_flight;
+  }
+  lock.unlock();
+  if (own_read.valid()) own_read();
+  // Taken off the list once over (the first to get here): a preload then holds no reference, so
+  // the model is freed like any other once its detectors are gone. A failed read throws to each
+  // detector that waited for it, as it would have without the preload; the next one reads again.
+  auto take_off_list = [&] {
+    if (auto it = r.reading.find(key); it != r.reading.end() && it->second.id == in_flight.id) r.reading.erase(it);
+  };
+  std::shared_ptr<const ShapeModel> model;
+  try {
+    model = in_flight.read.get();
+  } catch (...) {
+    lock.lock();
+    take_off_list();
+    throw;
+  }
+  lock.lock();
+  r.loaded[key] = model;
+  take_off_list();
   return model;
+}
+
+std::shared_ptr<const ShapeModel> shape_model_in_memory(const std::string& path) {
+  ShapeModelRegistry& r = ShapeModelRegistry::Instance();
+  const std::string key = registry_key(path);
+  std::lock_guard<std::mutex> lock(r.mutex);
+  const auto it = r.loaded.find(key);
+  return it == r.loaded.end() ? nullptr : it->second.lock();
+}
+
+void preload_shape_model(const std::string& path) {
+  ShapeModelRegistry& r = ShapeModelRegistry::Instance();
+  const std::string key = registry_key(path);
+  std::lock_guard<std::mutex> lock(r.mutex);
+  // Threads whose read is over (taken or not) are joined here, so a long-lived process (OBS,
+  // its sources made again and again) keeps none.
+  for (auto it = r.readers.begin(); it != r.readers.end();) {
+    if (!it->done->load()) {
+      ++it;
+      continue;
+    }
+    it->thread.join();
+    it = r.readers.erase(it);
+  }
+  if (r.reading.count(key)) return;
+  if (auto it = r.loaded.find(key); it != r.loaded.end() && !it->second.expired()) return;
+  std::packaged_task<std::shared_ptr<const ShapeModel>()> task(
+      [path] { return read_shape_model(path, {.cache_dir = user_cache_dir()}); });
+  r.reading[key] = {task.get_future().share(), ++r.next_read_id};
+  auto done = std::make_shared<std::atomic<bool>>(false);
+  std::thread thread([task = std::move(task), done]() mutable {
+    pthread_setname_np(pthread_self(), "fr-shape-load");
+    task();
+    done->store(true);
+  });
+  r.readers.push_back({std::move(thread), std::move(done)});
 }
 
 // Written at build time by fr_embed_face_detector (embedded_face_detector.cc in the build tree).

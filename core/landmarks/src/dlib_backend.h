@@ -56,8 +56,13 @@ class ShapeModel {
 std::shared_ptr<const ShapeModel> read_shape_model(const std::string& path, const ShapeModelReadOptions& options);
 
 // read_shape_model() with the user's cache folder (user_cache_dir()), once per model path: a
-// model already in memory is shared.
+// model already in memory is shared, one preload_shape_model() is reading is waited for.
 std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path);
+// Starts that read on a thread of its own ("fr-shape-load") and returns; nothing where the model
+// is in memory or being read already. The next load_shape_model() of the path takes it.
+void preload_shape_model(const std::string& path);
+// The model of `path` some detector of this process holds; null where none does (the tests).
+std::shared_ptr<const ShapeModel> shape_model_in_memory(const std::string& path);
 
 // dlib's frontal face detector in dlib's serialisation: as embedded at build time
 // (tools/embed_face_detector.cc), and as dlib's get_frontal_face_detector() decodes it at run time

@@ -392,6 +392,13 @@ struct LandmarkDetector::Impl {
   }
 };
 
+void PreloadShapeModel(const DetectorOptions& options) {
+  std::string error;
+  if (!options.IsValid(&error)) return;  // the detector's constructor says why
+  detail::preload_shape_model(options.shape_predictor_path.empty() ? internal::default_shape_predictor_path()
+                                                                   : options.shape_predictor_path);
+}
+
 LandmarkDetector::LandmarkDetector(const DetectorOptions& options) {
   std::string error;
   if (!options.IsValid(&error)) throw Error(error);

@@ -28,15 +28,17 @@ bool TrackedSourceOptions::IsValid(std::string* why) const {
 }
 
 namespace {
-const TrackedSourceOptions& validated(const TrackedSourceOptions& options) {
+// The options, checked, with the landmark model's read started: it runs while the tracker is made.
+const TrackedSourceOptions& validated_and_preloading(const TrackedSourceOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) throw Error("tracked expression source: " + why);
+  tracker::PreloadLandmarkModel(options.input);
   return options;
 }
 }  // namespace
 
 TrackedExpressionSource::TrackedExpressionSource(const FaceModel& model, TrackedSourceOptions options)
-    : options_(validated(options)),
+    : options_(validated_and_preloading(options)),
       tracker_(model, options_.tracker),
       input_(options_.input) {
   if (options_.grabber.input.kind == InputKind::kRecording) {

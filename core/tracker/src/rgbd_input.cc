@@ -138,6 +138,11 @@ InputFrame MakeInputFrame(const capture::RgbdFrame& frame, const RgbdInputOption
   return in;
 }
 
+void PreloadLandmarkModel(const RgbdInputOptions& options) {
+  if (options.landmark_source == LandmarkSourceChoice::kDetector)
+    landmarks::PreloadShapeModel(options.detector.detector);
+}
+
 RgbdInput::RgbdInput(const RgbdInputOptions& options) : options_(options) {
   std::string why;
   if (!options_.IsValid(&why)) throw Error(why);

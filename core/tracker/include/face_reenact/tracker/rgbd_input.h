@@ -63,6 +63,10 @@ InputFrame MakeInputFrame(const capture::RgbdFrame& frame, const RgbdInputOption
                           landmarks::LandmarkTracker* detector, RgbdInputInfo* info = nullptr,
                           const landmarks::HeadPose* pose = nullptr);
 
+// Starts reading the landmark model an RgbdInput with `options` will load (kDetector only), in the
+// background (landmarks::PreloadShapeModel): a pipeline calls it before its other set-up.
+void PreloadLandmarkModel(const RgbdInputOptions& options);
+
 // The adapter with its own landmark tracker (created only for kDetector; creating it loads the
 // dlib model and throws face_reenact::Error when that is missing). Feed it the tracker's
 // output with SetTrackedPose so the landmark detector can prune far-side points.
