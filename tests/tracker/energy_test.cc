@@ -767,5 +767,43 @@ TEST(TrackerEnergy, FixedModelPartsGiveTheSameBits) {
   }
 }
 
+// A calibration's frames share one set of parts made for the step's own identity and albedo
+// (ComputeFixedModelPartsAt, which the CPU solver makes once per step for all frames): r and J
+// are the same bits as each evaluation computing them vertex by vertex, at the linearisation
+// point and away from it (a trial step).
+TEST(TrackerEnergy, PartsMadeAtXServeALayoutThatSolvesTheIdentity) {
+  const TrackerModel* real = real_model();
+  const TrackerModel model = real ? *real : sphere_model();
+  const ParameterLayout layout = ParameterLayout::Calibration(4, 3, model.num_expression());
+  const Linearised s = linearised(model, layout, EnergyOptions{}, test_camera(320, 240), 0.5f, 29);
+  Eigen::VectorXd away = s.x;
+  for (int k = 0; k < layout.num_identity; ++k) away[layout.offset(Block::kIdentity) + k] += 0.3 * (k + 1);
+  for (int k = 0; k < layout.num_albedo; ++k) away[layout.offset(Block::kAlbedo) + k] -= 0.2 * (k + 1);
+  for (const Eigen::VectorXd& x : {s.x, away}) {
+    Eigen::VectorXd r0;
+    JacobianMatrix j0;
+    EvaluateResiduals(model, s.lin, EnergyOptions{}, x, &r0, &j0, nullptr, 1);
+    Linearization with = s.lin;
+    with.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model, s.lin, x, 2));
+    ASSERT_EQ(with.fixed->alpha.size(), model.num_identity());
+    EXPECT_EQ(with.fixed->alpha[0], x[layout.offset(Block::kIdentity)]);  // x's identity, not the base's
+    for (int threads : {1, 2}) {
+      Eigen::VectorXd r;
+      JacobianMatrix j;
+      EvaluateResiduals(model, with, EnergyOptions{}, x, &r, &j, nullptr, threads);
+      EXPECT_TRUE((r.array() == r0.array()).all()) << threads << " threads";
+      EXPECT_TRUE((j.array() == j0.array()).all()) << threads << " threads";
+    }
+    if (&x == &away) {
+      // Parts made at the linearisation point do not serve another identity: the same bits too.
+      Linearization stale = s.lin;
+      stale.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model, s.lin, s.x, 1));
+      Eigen::VectorXd r;
+      EvaluateResiduals(model, stale, EnergyOptions{}, x, &r, nullptr, nullptr, 1);
+      EXPECT_TRUE((r.array() == r0.array()).all());
+    }
+  }
+}
+
 }  // namespace
 }  // namespace face_reenact::tracker

@@ -13,6 +13,7 @@
 #include "tracker_internal.h"
 
 namespace face_reenact::tracker {
+using internal::padded;
 using internal::same_coefficients;
 namespace {
 bool weight_ok(double w) { return std::isfinite(w) && w >= 0; }
@@ -28,13 +29,6 @@ struct Coefficients {
   std::array<double, gpu::kNumShParameters> gamma{};
   Eigen::Vector3d euler, translation;
 };
-
-Eigen::VectorXd padded(const Eigen::VectorXf& v, int n) {
-  Eigen::VectorXd out = Eigen::VectorXd::Zero(n);
-  const int k = std::min<int>(n, static_cast<int>(v.size()));
-  out.head(k) = v.head(k).cast<double>();
-  return out;
-}
 
 Coefficients coefficients(const TrackerModel& model, const Linearization& lin, const Eigen::VectorXd& x) {
   const ParameterLayout& l = lin.layout;
@@ -168,12 +162,12 @@ class VertexCache {
 
 }  // namespace
 
-FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params, int threads) {
+namespace {
+// The parts for full coefficient vectors (model-length, double).
+FixedModelParts MakeFixedModelParts(const TrackerModel& model, Eigen::VectorXd alpha, Eigen::VectorXd beta, int threads) {
   FixedModelParts out;
-  out.alpha = params.alpha;
-  out.beta = params.beta;
-  const Eigen::VectorXd alpha = padded(params.alpha, model.num_identity());
-  const Eigen::VectorXd beta = padded(params.beta, model.num_albedo());
+  out.alpha = std::move(alpha);
+  out.beta = std::move(beta);
   const int n = model.num_vertices();
   out.shape.resize(static_cast<size_t>(n));
   out.albedo.resize(static_cast<size_t>(n));
@@ -181,11 +175,23 @@ FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::Fac
   ParallelFor((n + kVerticesPerItem - 1) / kVerticesPerItem, threads, [&](int item) {
     Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor> block;
     for (int v = item * kVerticesPerItem; v < std::min(n, (item + 1) * kVerticesPerItem); ++v) {
-      out.shape[static_cast<size_t>(v)] = identity_shape(model.render, v, alpha, &block);
-      out.albedo[static_cast<size_t>(v)] = vertex_albedo(model.render, v, beta, &block);
+      out.shape[static_cast<size_t>(v)] = identity_shape(model.render, v, out.alpha, &block);
+      out.albedo[static_cast<size_t>(v)] = vertex_albedo(model.render, v, out.beta, &block);
     }
   });
   return out;
+}
+}  // namespace
+
+FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::FaceParameters& params, int threads) {
+  return MakeFixedModelParts(model, padded(params.alpha, model.num_identity()), padded(params.beta, model.num_albedo()),
+                             threads);
+}
+
+FixedModelParts ComputeFixedModelPartsAt(const TrackerModel& model, const Linearization& lin, const Eigen::VectorXd& x,
+                                         int threads) {
+  Coefficients c = coefficients(model, lin, x);
+  return MakeFixedModelParts(model, std::move(c.alpha), std::move(c.beta), threads);
 }
 
 const char* term_name(Term t) {
@@ -395,13 +401,11 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   const Coefficients c = coefficients(model, lin, x);
   const internal::RotationWithDerivatives rot = internal::rotation_with_derivatives(c.euler);
   const Eigen::Matrix3d& R = rot.r;
-  // The precomputed identity shapes / albedos, when this layout does not solve that block and
-  // they were computed for the base's coefficients.
+  // The precomputed identity shapes / albedos, when they were computed for the coefficients
+  // evaluated here (the same arithmetic, so the same bits as computing them vertex by vertex).
   const FixedModelParts* fixed = lin.fixed.get();
-  const std::vector<Eigen::Vector3d>* fixed_shape =
-      fixed && layout.num_identity == 0 && same_coefficients(fixed->alpha, lin.base.alpha) ? &fixed->shape : nullptr;
-  const std::vector<Eigen::Vector3d>* fixed_albedo =
-      fixed && layout.num_albedo == 0 && same_coefficients(fixed->beta, lin.base.beta) ? &fixed->albedo : nullptr;
+  const std::vector<Eigen::Vector3d>* fixed_shape = fixed && same_coefficients(fixed->alpha, c.alpha) ? &fixed->shape : nullptr;
+  const std::vector<Eigen::Vector3d>* fixed_albedo = fixed && same_coefficients(fixed->beta, c.beta) ? &fixed->albedo : nullptr;
   VertexCache cache(model, c, fixed_shape, fixed_albedo);
   const auto& rm = model.render;
   const int k_id = layout.num_identity, k_alb = layout.num_albedo, k_exp = layout.num_expression;

@@ -19,8 +19,16 @@ constexpr double kRadToDeg = 57.29577951308232;
 
 // The same coefficients, value for value (identity or albedo: what decides whether parts made for
 // one may serve another).
-inline bool same_coefficients(const Eigen::VectorXf& a, const Eigen::VectorXf& b) {
+template <class A, class B>
+bool same_coefficients(const Eigen::MatrixBase<A>& a, const Eigen::MatrixBase<B>& b) {
   return a.size() == b.size() && (a.array() == b.array()).all();
+}
+// `v` in double, zero-padded (or cut) to `n`: a parameter vector as the model's full coefficients.
+inline Eigen::VectorXd padded(const Eigen::VectorXf& v, int n) {
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(n);
+  const int k = std::min<int>(n, static_cast<int>(v.size()));
+  out.head(k) = v.head(k).cast<double>();
+  return out;
 }
 
 // printf into a string (messages of a few hundred characters at most).

@@ -226,12 +226,14 @@ struct LandmarkSample {
   double confidence = 1.0;
 };
 
-// The per-vertex parts of the model that a solve without identity and albedo unknowns (tracking)
-// does not change: the identity's shape (mean + E_id alpha) and the albedo (mean + E_alb beta),
-// in double, for the alpha and beta they were computed from. With them a vertex's position costs
-// the 52 expression columns instead of all 132 basis columns.
+// The per-vertex parts of the model that depend on the identity alone: its shape (mean + E_id
+// alpha) and its albedo (mean + E_alb beta), in double, for the alpha and beta they were computed
+// from (the model's full coefficient vectors). With them a vertex's position costs the 52
+// expression columns instead of all 132 basis columns. A tracking solve keeps one per identity;
+// a calibration's frames share one identity, and one set made for the step's coefficients serves
+// all of them (each frame's evaluation made its own, vertex by vertex).
 struct FixedModelParts {
-  Eigen::VectorXf alpha, beta;
+  Eigen::VectorXd alpha, beta;
   std::vector<Eigen::Vector3d> shape, albedo;
 };
 // Vertices are split over up to `threads` threads (the same values for any count).
@@ -255,13 +257,18 @@ struct Linearization {
   bool regularize_shared = true;
   // First row of each term in r / J; term_rows[kNumTerms] is the number of residuals.
   std::array<Eigen::Index, kNumTerms + 1> term_rows{};
-  // Optional (the solver sets it; Linearize does not): used by EvaluateResiduals for the blocks
-  // the layout does not solve when its alpha/beta are base's. Results are bit-identical with and
-  // without it.
+  // Optional (the solver sets it; Linearize does not): used by EvaluateResiduals where its
+  // alpha / beta are those it evaluates at (the base's for a block the layout does not solve, x's
+  // for one it does). Results are bit-identical with and without it.
   std::shared_ptr<const FixedModelParts> fixed;
 
   Eigen::Index num_residuals() const { return term_rows[kNumTerms]; }
 };
+
+// The parts for the identity and albedo that EvaluateResiduals(model, lin, ..., x) evaluates at
+// (x's where the layout solves them): the frames of a calibration, which share them, take one set.
+FixedModelParts ComputeFixedModelPartsAt(const TrackerModel& model, const Linearization& lin, const Eigen::VectorXd& x,
+                                         int threads = 1);
 
 // E_reg's rows for a layout: identity and albedo (unless another frame of a joint solve carries
 // them: Linearization::regularize_shared false), then the expression.
