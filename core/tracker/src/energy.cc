@@ -164,7 +164,8 @@ class VertexCache {
 
 namespace {
 // The parts for full coefficient vectors (model-length, double).
-FixedModelParts MakeFixedModelParts(const TrackerModel& model, Eigen::VectorXd alpha, Eigen::VectorXd beta, int threads) {
+FixedModelParts MakeFixedModelParts(const TrackerModel& model, Eigen::VectorXd alpha, Eigen::VectorXd beta,
+                                    int threads) {
   FixedModelParts out;
   out.alpha = std::move(alpha);
   out.beta = std::move(beta);
@@ -404,8 +405,10 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
   // The precomputed identity shapes / albedos, when they were computed for the coefficients
   // evaluated here (the same arithmetic, so the same bits as computing them vertex by vertex).
   const FixedModelParts* fixed = lin.fixed.get();
-  const std::vector<Eigen::Vector3d>* fixed_shape = fixed && same_coefficients(fixed->alpha, c.alpha) ? &fixed->shape : nullptr;
-  const std::vector<Eigen::Vector3d>* fixed_albedo = fixed && same_coefficients(fixed->beta, c.beta) ? &fixed->albedo : nullptr;
+  const std::vector<Eigen::Vector3d>* fixed_shape =
+      fixed && same_coefficients(fixed->alpha, c.alpha) ? &fixed->shape : nullptr;
+  const std::vector<Eigen::Vector3d>* fixed_albedo =
+      fixed && same_coefficients(fixed->beta, c.beta) ? &fixed->albedo : nullptr;
   VertexCache cache(model, c, fixed_shape, fixed_albedo);
   const auto& rm = model.render;
   const int k_id = layout.num_identity, k_alb = layout.num_albedo, k_exp = layout.num_expression;
