@@ -79,8 +79,10 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
         if (!fixed_[f]) fixed_[f] = fixed_parts_->For(model_, bases_[f], threads_);
         st.lin.fixed = fixed_[f];
       } else if (SharesIdentity()) {
-        if (f == 0)
-          shared_parts_ = std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model_, st.lin, xf, threads_));
+        if (f == 0) {
+          shared_parts_ =
+              std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model_, st.lin, xf, threads_));
+        }
         st.lin.fixed = shared_parts_;
       }
       const auto t2 = Clock::now();
