@@ -737,7 +737,8 @@ TEST(TrackerEnergy, EveryInnerLandmarkOfAFrontalFaceCounts) {
 // Tracking's precomputed identity shapes and albedos (Linearization::fixed) change nothing but
 // the time: r and J are bit-identical with and without them, on one and two threads (and with
 // parts made on several threads). Parts made
-// for another identity or albedo are not used, and a layout that solves a block ignores them.
+// for another identity or albedo are not used; a layout that solves a block uses them only where
+// x's coefficients are those they were made for.
 TEST(TrackerEnergy, FixedModelPartsGiveTheSameBits) {
   const TrackerModel* real = real_model();
   const TrackerModel model = real ? *real : sphere_model();
