@@ -374,6 +374,14 @@ struct ShapeModelRegistry {
     static ShapeModelRegistry registry;
     return registry;
   }
+  // A read of `path` listed as in flight under `key` (the caller holds the mutex); the caller runs
+  // the task, here or on a thread.
+  std::packaged_task<std::shared_ptr<const ShapeModel>()> StartRead(const std::string& key, const std::string& path) {
+    std::packaged_task<std::shared_ptr<const ShapeModel>()> task(
+        [path] { return read_shape_model(path, {.cache_dir = user_cache_dir()}); });
+    reading[key] = {task.get_future().share(), ++next_read_id};
+    return task;
+  }
   ~ShapeModelRegistry() {
     for (auto& reader : readers) reader.thread.join();
   }
@@ -396,16 +404,9 @@ std::shared_ptr<const ShapeModel> load_shape_model(const std::string& path) {
   // A read in flight (a preload's, or another detector's on another thread) is waited for; else
   // this thread reads, listed as in flight so others wait for it. Without the lock either way:
   // another path's detector, or a preload, need not wait for this read.
-  ShapeModelRegistry::InFlight in_flight;
   std::packaged_task<std::shared_ptr<const ShapeModel>()> own_read;
-  if (auto it = r.reading.find(key); it != r.reading.end()) {
-    in_flight = it->second;
-  } else {
-    own_read = std::packaged_task<std::shared_ptr<const ShapeModel>()>(
-        [&path] { return read_shape_model(path, {.cache_dir = user_cache_dir()}); });
-    in_flight = {own_read.get_future().share(), ++r.next_read_id};
-    r.reading[key] = in_flight;
-  }
+  if (!r.reading.count(key)) own_read = r.StartRead(key, path);
+  const ShapeModelRegistry::InFlight in_flight = r.reading.at(key);
   lock.unlock();
   if (own_read.valid()) own_read();
   // Taken off the list once over (the first to get here): a preload then holds no reference, so
@@ -452,9 +453,7 @@ void preload_shape_model(const std::string& path) {
   }
   if (r.reading.count(key)) return;
   if (auto it = r.loaded.find(key); it != r.loaded.end() && !it->second.expired()) return;
-  std::packaged_task<std::shared_ptr<const ShapeModel>()> task(
-      [path] { return read_shape_model(path, {.cache_dir = user_cache_dir()}); });
-  r.reading[key] = {task.get_future().share(), ++r.next_read_id};
+  std::packaged_task<std::shared_ptr<const ShapeModel>()> task = r.StartRead(key, path);
   auto done = std::make_shared<std::atomic<bool>>(false);
   std::thread thread([task = std::move(task), done]() mutable {
     pthread_setname_np(pthread_self(), "fr-shape-load");
