@@ -769,7 +769,7 @@ TEST(TrackerEnergy, FixedModelPartsGiveTheSameBits) {
 }
 
 // A calibration's frames share one set of parts made for the step's own identity and albedo
-// (ComputeFixedModelPartsAt, which the CPU solver makes once per step for all frames): r and J
+// (FixedModelPartsAt, which the CPU solver makes once per step for all frames): r and J
 // are the same bits as each evaluation computing them vertex by vertex, at the linearisation
 // point and away from it (a trial step).
 TEST(TrackerEnergy, PartsMadeAtXServeALayoutThatSolvesTheIdentity) {
@@ -780,14 +780,19 @@ TEST(TrackerEnergy, PartsMadeAtXServeALayoutThatSolvesTheIdentity) {
   Eigen::VectorXd away = s.x;
   for (int k = 0; k < layout.num_identity; ++k) away[layout.offset(Block::kIdentity) + k] += 0.3 * (k + 1);
   for (int k = 0; k < layout.num_albedo; ++k) away[layout.offset(Block::kAlbedo) + k] -= 0.2 * (k + 1);
-  for (const Eigen::VectorXd& x : {s.x, away}) {
+  for (const Eigen::VectorXd* at : {&s.x, static_cast<const Eigen::VectorXd*>(&away)}) {
+    const Eigen::VectorXd& x = *at;
+    const Eigen::VectorXd& other = at == &away ? s.x : away;
     Eigen::VectorXd r0;
     JacobianMatrix j0;
     EvaluateResiduals(model, s.lin, EnergyOptions{}, x, &r0, &j0, nullptr, 1);
     Linearization with = s.lin;
-    with.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model, s.lin, x, 2));
+    with.fixed = FixedModelPartsAt(model, s.lin, x, nullptr, 2);
     ASSERT_EQ(with.fixed->alpha.size(), model.num_identity());
     EXPECT_EQ(with.fixed->alpha[0], x[layout.offset(Block::kIdentity)]);  // x's identity, not the base's
+    // Kept where they were made for x (a step linearised at its accepted trial x), not elsewhere.
+    EXPECT_EQ(FixedModelPartsAt(model, s.lin, x, with.fixed).get(), with.fixed.get());
+    EXPECT_NE(FixedModelPartsAt(model, s.lin, other, with.fixed).get(), with.fixed.get());
     for (int threads : {1, 2}) {
       Eigen::VectorXd r;
       JacobianMatrix j;
@@ -795,10 +800,10 @@ TEST(TrackerEnergy, PartsMadeAtXServeALayoutThatSolvesTheIdentity) {
       EXPECT_TRUE((r.array() == r0.array()).all()) << threads << " threads";
       EXPECT_TRUE((j.array() == j0.array()).all()) << threads << " threads";
     }
-    if (&x == &away) {
+    if (at == &away) {
       // Parts made at the linearisation point do not serve another identity: the same bits too.
       Linearization stale = s.lin;
-      stale.fixed = std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model, s.lin, s.x, 1));
+      stale.fixed = FixedModelPartsAt(model, s.lin, s.x);
       Eigen::VectorXd r;
       EvaluateResiduals(model, stale, EnergyOptions{}, x, &r, nullptr, nullptr, 1);
       EXPECT_TRUE((r.array() == r0.array()).all());

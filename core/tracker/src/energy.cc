@@ -189,10 +189,13 @@ FixedModelParts ComputeFixedModelParts(const TrackerModel& model, const gpu::Fac
                              threads);
 }
 
-FixedModelParts ComputeFixedModelPartsAt(const TrackerModel& model, const Linearization& lin, const Eigen::VectorXd& x,
-                                         int threads) {
+std::shared_ptr<const FixedModelParts> FixedModelPartsAt(const TrackerModel& model, const Linearization& lin,
+                                                         const Eigen::VectorXd& x,
+                                                         std::shared_ptr<const FixedModelParts> kept, int threads) {
   Coefficients c = coefficients(model, lin, x);
-  return MakeFixedModelParts(model, std::move(c.alpha), std::move(c.beta), threads);
+  if (kept && same_coefficients(kept->alpha, c.alpha) && same_coefficients(kept->beta, c.beta)) return kept;
+  return std::make_shared<const FixedModelParts>(
+      MakeFixedModelParts(model, std::move(c.alpha), std::move(c.beta), threads));
 }
 
 const char* term_name(Term t) {

@@ -79,10 +79,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
         if (!fixed_[f]) fixed_[f] = fixed_parts_->For(model_, bases_[f], threads_);
         st.lin.fixed = fixed_[f];
       } else if (SharesIdentity()) {
-        if (f == 0) {
-          shared_parts_ =
-              std::make_shared<const FixedModelParts>(ComputeFixedModelPartsAt(model_, st.lin, xf, threads_));
-        }
+        if (f == 0) shared_parts_ = FixedModelPartsAt(model_, st.lin, xf, shared_parts_, threads_);
         st.lin.fixed = shared_parts_;
       }
       const auto t2 = Clock::now();
@@ -136,9 +133,10 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
 
   double TrialEnergy(int /*halving*/, const Eigen::VectorXd& x_try) override {
     if (SharesIdentity()) {
-      // The trial identity's parts, once for every frame (the next linearisation makes its own).
-      shared_parts_ = std::make_shared<const FixedModelParts>(
-          ComputeFixedModelPartsAt(model_, states_[0].lin, unknowns_.FrameX(x_try, 0), threads_));
+      // The trial identity's parts, once for every frame (and the next linearisation's, where the
+      // step is taken).
+      shared_parts_ =
+          FixedModelPartsAt(model_, states_[0].lin, unknowns_.FrameX(x_try, 0), shared_parts_, threads_);
       for (FrameState& st : states_) st.lin.fixed = shared_parts_;
     }
     double total = 0;

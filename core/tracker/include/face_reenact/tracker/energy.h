@@ -267,8 +267,12 @@ struct Linearization {
 
 // The parts for the identity and albedo that EvaluateResiduals(model, lin, ..., x) evaluates at
 // (x's where the layout solves them): the frames of a calibration, which share them, take one set.
-FixedModelParts ComputeFixedModelPartsAt(const TrackerModel& model, const Linearization& lin, const Eigen::VectorXd& x,
-                                         int threads = 1);
+// `kept` itself where it was made for those very coefficients (a step accepted at its trial x
+// is linearised at the same x), else new ones.
+std::shared_ptr<const FixedModelParts> FixedModelPartsAt(const TrackerModel& model, const Linearization& lin,
+                                                         const Eigen::VectorXd& x,
+                                                         std::shared_ptr<const FixedModelParts> kept = nullptr,
+                                                         int threads = 1);
 
 // E_reg's rows for a layout: identity and albedo (unless another frame of a joint solve carries
 // them: Linearization::regularize_shared false), then the expression.
