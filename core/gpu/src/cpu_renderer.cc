@@ -189,6 +189,16 @@ struct ProjectedVertex {
   bool in_depth_range;
 };
 
+// The pixel centres a vertex's snapped position lies beyond, per axis, clamped to the buffer:
+// a triangle's pixel bounding box is the least lo and the greatest hi of its corners (ceil, floor
+// and the clamps are monotonic, so taking them per vertex gives the box the corners' extremes
+// give). Most triangles of a tracking level cover no pixel centre; this compact copy (20 bytes
+// against ProjectedVertex's 56) lets the set-up pass drop them before reading anything else.
+struct VertexPixelRange {
+  int32_t x_lo, x_hi, y_lo, y_hi;
+  bool in_depth_range;
+};
+
 // A triangle that passed culling and covers at least one pixel centre's bounding box, with what
 // its pixels need: made once, then rasterised band by band.
 struct TriangleSetup {
@@ -247,14 +257,23 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   // Each vertex projected once (a vertex is a corner of about six triangles).
   const int num_vertices = model_.num_vertices();
   thread_local std::vector<ProjectedVertex> projected_scratch;
+  thread_local std::vector<VertexPixelRange> ranges_scratch;
   auto& projected = projected_scratch;  // the caller's, filled and read by the pool's threads too
+  auto& ranges = ranges_scratch;
   projected.resize(static_cast<size_t>(num_vertices));
+  ranges.resize(static_cast<size_t>(num_vertices));
+  // Clamped on both sides before the casts (a NaN takes the low end): a vertex projecting
+  // billions of pixels away (a fit far off, just in front of the near plane) overflowed the int,
+  // and the box it gave reached outside the buffers (a crash filling the depth buffer).
+  auto pixel = [](double v, double lo, double hi) { return static_cast<int32_t>(v >= lo ? (v <= hi ? v : hi) : lo); };
+  const double w_px = camera.width, h_px = camera.height;
   ParallelFor(items_for(num_vertices, kVerticesPerItem), threads, [&](int item) {
     const int end = std::min(num_vertices, (item + 1) * kVerticesPerItem);
     for (int v = item * kVerticesPerItem; v < end; ++v) {
       const Eigen::Vector3f p = state.camera_positions.segment<3>(3 * v);
       ProjectedVertex& pv = projected[static_cast<size_t>(v)];
-      pv.in_depth_range = p.z() > camera.near_plane && p.z() < camera.far_plane;
+      VertexPixelRange& r = ranges[static_cast<size_t>(v)];
+      pv.in_depth_range = r.in_depth_range = p.z() > camera.near_plane && p.z() < camera.far_plane;
       if (!pv.in_depth_range) continue;
       // Framebuffer coordinates: the centre of pixel i is at i + 0.5.
       const double z = p.z();
@@ -264,6 +283,10 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       pv.sx = snap(pv.ux);
       pv.sy = snap(pv.uy);
       pv.d = far * (z - near) / ((far - near) * z);
+      r.x_lo = pixel(std::ceil(pv.sx - 0.5), 0.0, w_px);
+      r.x_hi = pixel(std::floor(pv.sx - 0.5), -1.0, w_px - 1.0);
+      r.y_lo = pixel(std::ceil(pv.sy - 0.5), 0.0, h_px);
+      r.y_hi = pixel(std::floor(pv.sy - 0.5), -1.0, h_px - 1.0);
     }
   });
   ParallelFor(setup_items, threads, [&](int item) {
@@ -273,37 +296,34 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
     for (size_t q = begin; q < end; ++q) {
       const int32_t t = drawn[q];
       const auto& tri = model_.triangles[t];
+      const VertexPixelRange* r[3] = {&ranges[static_cast<size_t>(tri[0])], &ranges[static_cast<size_t>(tri[1])],
+                                      &ranges[static_cast<size_t>(tri[2])]};
+      if (!r[0]->in_depth_range || !r[1]->in_depth_range || !r[2]->in_depth_range) continue;
+      // Most triangles of a small level cover no pixel centre: their bounding box is empty.
+      const int i0 = std::min({r[0]->x_lo, r[1]->x_lo, r[2]->x_lo}), i1 = std::max({r[0]->x_hi, r[1]->x_hi, r[2]->x_hi});
+      if (i0 > i1) continue;
+      const int j0 = std::min({r[0]->y_lo, r[1]->y_lo, r[2]->y_lo}), j1 = std::max({r[0]->y_hi, r[1]->y_hi, r[2]->y_hi});
+      if (j0 > j1) continue;
       const ProjectedVertex* pv[3] = {&projected[static_cast<size_t>(tri[0])], &projected[static_cast<size_t>(tri[1])],
                                       &projected[static_cast<size_t>(tri[2])]};
-      if (!pv[0]->in_depth_range || !pv[1]->in_depth_range || !pv[2]->in_depth_range) continue;
-      TriangleSetup ts;
-      ts.triangle = t;
       double sx[3], sy[3];
       for (int k = 0; k < 3; ++k) {
-        ts.z[k] = pv[k]->z;
-        ts.ux[k] = pv[k]->ux;
-        ts.uy[k] = pv[k]->uy;
         sx[k] = pv[k]->sx;
         sy[k] = pv[k]->sy;
-        ts.d[k] = pv[k]->d;
       }
-      // Most triangles of a small level cover no pixel centre: their bounding box is empty.
-      const double min_x = std::min({sx[0], sx[1], sx[2]}), max_x = std::max({sx[0], sx[1], sx[2]});
-      const double min_y = std::min({sy[0], sy[1], sy[2]}), max_y = std::max({sy[0], sy[1], sy[2]});
-      // Clamped on both sides before the casts (a NaN takes the low end): a vertex projecting
-      // billions of pixels away (a fit far off, just in front of the near plane) overflowed the
-      // int, and the box it gave reached outside the buffers (a crash filling the depth buffer).
-      auto pixel = [](double v, double lo, double hi) { return static_cast<int>(v >= lo ? (v <= hi ? v : hi) : lo); };
-      const double w_px = camera.width, h_px = camera.height;
-      ts.i0 = pixel(std::ceil(min_x - 0.5), 0.0, w_px);
-      ts.i1 = pixel(std::floor(max_x - 0.5), -1.0, w_px - 1.0);
-      ts.j0 = pixel(std::ceil(min_y - 0.5), 0.0, h_px);
-      ts.j1 = pixel(std::floor(max_y - 0.5), -1.0, h_px - 1.0);
-      if (ts.i0 > ts.i1 || ts.j0 > ts.j1) continue;
       double area2 = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
       if (area2 == 0.0 || !std::isfinite(area2)) continue;
       // Front-facing triangles (counter-clockwise from outside) have area2 < 0 in this y-down frame.
       if (options.cull_back_faces && area2 > 0.0) continue;
+      TriangleSetup& ts = list.emplace_back();  // built in place: it is drawn
+      ts.triangle = t;
+      ts.i0 = i0, ts.i1 = i1, ts.j0 = j0, ts.j1 = j1;
+      for (int k = 0; k < 3; ++k) {
+        ts.z[k] = pv[k]->z;
+        ts.ux[k] = pv[k]->ux;
+        ts.uy[k] = pv[k]->uy;
+        ts.d[k] = pv[k]->d;
+      }
       // Work on a copy ordered so that area2 > 0 (interior: every edge function positive).
       ts.order[0] = 0;
       ts.order[1] = 1;
@@ -331,7 +351,6 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
         const double dx = ts.ox[b] - ts.ox[a], dy = ts.oy[b] - ts.oy[a];
         ts.top_left[e] = (dy == 0.0 && dx > 0.0) || dy < 0.0;
       }
-      list.push_back(ts);
     }
   });
 
