@@ -183,9 +183,9 @@ TEST(RowKernels, TheAvx2VariantGivesTheBaselinesBits) {
     Eigen::VectorXd x(n);
     for (Eigen::Index k = 0; k < n; ++k) x[k] = static_cast<double>(normal(rng));
     Eigen::VectorXd base = Eigen::VectorXd::Constant(n, 0.25), avx2 = base, chosen = base;
-    internal::AddNormalRowsBaseline(j.data(), stride, rows, n, x.data(), base.data());
-    internal::AddNormalRowsAvx2(j.data(), stride, rows, n, x.data(), avx2.data());
-    internal::AddNormalRows(j.data(), stride, rows, n, x.data(), chosen.data());
+    internal::AddNormalRowsBaseline(j.data(), stride, rows, n, nullptr, x.data(), base.data());
+    internal::AddNormalRowsAvx2(j.data(), stride, rows, n, nullptr, x.data(), avx2.data());
+    internal::AddNormalRows(j.data(), stride, rows, n, nullptr, x.data(), chosen.data());
     for (Eigen::Index k = 0; k < n; ++k) {
       ASSERT_EQ(base[k], avx2[k]) << "n " << n << ", column " << k;
       ASSERT_EQ(base[k], chosen[k]) << "n " << n << ", column " << k;
@@ -195,14 +195,84 @@ TEST(RowKernels, TheAvx2VariantGivesTheBaselinesBits) {
     for (Eigen::Index i = 0; i < rows; ++i) v[i] = static_cast<double>(normal(rng));
     Eigen::VectorXd acc_base = Eigen::VectorXd::Zero(n), sq_base = Eigen::VectorXd::Zero(n);
     Eigen::VectorXd acc_avx2 = acc_base, sq_avx2 = sq_base, acc_chosen = acc_base, sq_chosen = sq_base;
-    internal::AddScaledRowsAndSquaresBaseline(j.data(), stride, rows, n, v.data(), acc_base.data(), sq_base.data());
-    internal::AddScaledRowsAndSquaresAvx2(j.data(), stride, rows, n, v.data(), acc_avx2.data(), sq_avx2.data());
-    internal::AddScaledRowsAndSquares(j.data(), stride, rows, n, v.data(), acc_chosen.data(), sq_chosen.data());
+    internal::AddScaledRowsAndSquaresBaseline(j.data(), stride, rows, n, v.data(), acc_base.data(), sq_base.data(),
+                                              nullptr);
+    internal::AddScaledRowsAndSquaresAvx2(j.data(), stride, rows, n, v.data(), acc_avx2.data(), sq_avx2.data(), nullptr);
+    internal::AddScaledRowsAndSquares(j.data(), stride, rows, n, v.data(), acc_chosen.data(), sq_chosen.data(),
+                                      nullptr);
     for (Eigen::Index k = 0; k < n; ++k) {
       ASSERT_EQ(acc_base[k], acc_avx2[k]) << "J^T v, n " << n << ", column " << k;
       ASSERT_EQ(sq_base[k], sq_avx2[k]) << "diag(J^T J), n " << n << ", column " << k;
       ASSERT_EQ(acc_base[k], acc_chosen[k]);
       ASSERT_EQ(sq_base[k], sq_chosen[k]);
+    }
+  }
+}
+
+// The products over each row's nonzero groups of four columns only (RowMask) give the bits of
+// the products over whole rows, on rows as sparse as a tracking Jacobian's (most groups zero,
+// some holding a -0 or a single nonzero, a row all zeros), in both variants; the masks name
+// exactly the groups with a nonzero, and a NaN counts as one.
+TEST(RowKernels, TheMaskedProductsGiveTheWholeRowsBits) {
+  std::mt19937 rng(11);
+  std::normal_distribution<float> normal(0.f, 1.f);
+  for (const Eigen::Index n : {Eigen::Index{3}, Eigen::Index{85}, Eigen::Index{175}, internal::kMaxMaskedColumns}) {
+    const Eigen::Index rows = 300, stride = n + 1, groups = n / 4;
+    std::vector<float> j(static_cast<size_t>(rows * stride), 0.f);
+    std::vector<internal::RowMask> expected(static_cast<size_t>(rows), 0);
+    for (Eigen::Index i = 1; i < rows; ++i) {  // row 0 stays all zeros
+      float* row = j.data() + i * stride;
+      for (Eigen::Index g = 0; g < groups; ++g) {
+        const uint32_t kind = rng() % 8;
+        if (kind == 0) {
+          row[4 * g + rng() % 4] = -0.f;
+        } else if (kind == 1) {
+          row[4 * g + rng() % 4] = normal(rng);
+          expected[static_cast<size_t>(i)] |= internal::RowMask{1} << g;
+        } else if (kind == 2) {
+          for (int l = 0; l < 4; ++l) row[4 * g + l] = normal(rng);
+          expected[static_cast<size_t>(i)] |= internal::RowMask{1} << g;
+        }
+      }
+      for (Eigen::Index k = 4 * groups; k < n; ++k) row[k] = rng() % 2 ? normal(rng) : 0.f;
+    }
+    if (groups > 0) {
+      j[static_cast<size_t>(5 * stride)] = std::numeric_limits<float>::quiet_NaN();
+      expected[5] |= 1;
+    }
+    Eigen::VectorXd x(n), v(rows);
+    for (Eigen::Index k = 0; k < n; ++k) x[k] = static_cast<double>(normal(rng));
+    for (Eigen::Index i = 0; i < rows; ++i) v[i] = static_cast<double>(normal(rng));
+    using Squares = void (*)(const float*, Eigen::Index, Eigen::Index, Eigen::Index, const double*, double*, double*,
+                             internal::RowMask*);
+    using Normal = void (*)(const float*, Eigen::Index, Eigen::Index, Eigen::Index, const internal::RowMask*,
+                            const double*, double*);
+    std::vector<std::pair<Squares, Normal>> variants = {
+        {internal::AddScaledRowsAndSquaresBaseline, internal::AddNormalRowsBaseline},
+        {internal::AddScaledRowsAndSquares, internal::AddNormalRows}};
+    if (internal::HasAvx2()) variants.push_back({internal::AddScaledRowsAndSquaresAvx2, internal::AddNormalRowsAvx2});
+    // Whole rows; the NaN row left out of J^T J p (it makes every sum NaN) by starting past it.
+    const Eigen::Index from = 6;
+    Eigen::VectorXd acc_whole = Eigen::VectorXd::Zero(n), sq_whole = acc_whole, normal_whole = acc_whole;
+    internal::AddScaledRowsAndSquaresBaseline(j.data(), stride, rows, n, v.data(), acc_whole.data(), sq_whole.data(),
+                                              nullptr);
+    internal::AddNormalRowsBaseline(j.data() + from * stride, stride, rows - from, n, nullptr, x.data(),
+                                    normal_whole.data());
+    for (const auto& [squares, normal_rows] : variants) {
+      std::vector<internal::RowMask> masks(static_cast<size_t>(rows), ~internal::RowMask{0});
+      Eigen::VectorXd acc = Eigen::VectorXd::Zero(n), sq = acc, product = acc;
+      squares(j.data(), stride, rows, n, v.data(), acc.data(), sq.data(), masks.data());
+      normal_rows(j.data() + from * stride, stride, rows - from, n, masks.data() + from, x.data(), product.data());
+      for (Eigen::Index i = 0; i < rows; ++i) ASSERT_EQ(masks[static_cast<size_t>(i)], expected[static_cast<size_t>(i)]) << i;
+      for (Eigen::Index k = 0; k < n; ++k) {
+        if (std::isnan(acc_whole[k])) {
+          ASSERT_TRUE(std::isnan(acc[k]) && std::isnan(sq[k])) << "n " << n << ", column " << k;
+        } else {
+          ASSERT_EQ(acc[k], acc_whole[k]) << "J^T v, n " << n << ", column " << k;
+          ASSERT_EQ(sq[k], sq_whole[k]) << "diag(J^T J), n " << n << ", column " << k;
+        }
+        ASSERT_EQ(product[k], normal_whole[k]) << "J^T J p, n " << n << ", column " << k;
+      }
     }
   }
 }

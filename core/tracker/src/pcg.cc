@@ -42,6 +42,7 @@ void StackedJacobian::AddFrame(const JacobianMatrix& block) {
   local_x_.emplace_back();
   rows_ += block.rows();
   partials_.resize(chunks_.size());
+  masks_.resize(chunks_.size());
 }
 
 const Eigen::VectorXd& StackedJacobian::gather(const Eigen::VectorXd& x, int frame) const {
@@ -96,9 +97,11 @@ void StackedJacobian::MultiplyNormal(const Eigen::VectorXd& x, Eigen::VectorXd* 
       [&](const RowChunk& c, Eigen::VectorXd* partial) {
         const JacobianMatrix& j = *blocks_[c.frame];
         const Eigen::VectorXd& xl = own_ == 0 ? x : local_x_[static_cast<size_t>(c.frame)];
+        const std::vector<uint64_t>& masks = masks_[static_cast<size_t>(&c - chunks_.data())];
         if (c.end > c.begin)
-          internal::AddNormalRows(j.row(c.begin).data(), j.outerStride(), c.end - c.begin, j.cols(), xl.data(),
-                                  partial->data());
+          internal::AddNormalRows(j.row(c.begin).data(), j.outerStride(), c.end - c.begin, j.cols(),
+                                  masks.size() == static_cast<size_t>(c.end - c.begin) ? masks.data() : nullptr,
+                                  xl.data(), partial->data());
       },
       y);
 }
@@ -130,9 +133,11 @@ void StackedJacobian::MultiplyTransposedWithColumnSquaredNorms(const Eigen::Vect
     partial.setZero(2 * local);
     const JacobianMatrix& j = *blocks_[c.frame];
     double* norms = partial.data() + local;
+    std::vector<uint64_t>& masks = masks_[static_cast<size_t>(k)];
+    masks.resize(local <= internal::kMaxMaskedColumns ? static_cast<size_t>(c.end - c.begin) : 0);
     if (c.end > c.begin)
       internal::AddScaledRowsAndSquares(j.row(c.begin).data(), j.outerStride(), c.end - c.begin, local, v.data() + c.first,
-                                        partial.data(), norms);
+                                        partial.data(), norms, masks.empty() ? nullptr : masks.data());
   });
   y->setZero(cols());
   column_squared_norms->setZero(cols());

@@ -5,6 +5,7 @@
 // twice per iteration (matrix-free, the paper's Sec. 6.2) or with J^T J assembled once. The
 // preconditioner is Jacobi: the inverse of diag(J^T J + D). Nothing allocates inside Pcg().
 #include <Eigen/Core>
+#include <cstdint>
 #include <functional>
 #include <string>
 #include <vector>
@@ -70,6 +71,10 @@ class StackedJacobian {
   std::vector<const JacobianMatrix*> blocks_;
   std::vector<RowChunk> chunks_;
   mutable std::vector<Eigen::VectorXd> local_x_, partials_;
+  // Per chunk, which groups of four columns of each row hold a nonzero (row_kernels.h, RowMask),
+  // written by MultiplyTransposedWithColumnSquaredNorms, the pass every Gauss-Newton step starts
+  // with, and read by MultiplyNormal, which then visits only those (empty: every column).
+  mutable std::vector<std::vector<uint64_t>> masks_;
 };
 
 class NormalOperator {
