@@ -197,7 +197,8 @@ TEST(RowKernels, TheAvx2VariantGivesTheBaselinesBits) {
     Eigen::VectorXd acc_avx2 = acc_base, sq_avx2 = sq_base, acc_chosen = acc_base, sq_chosen = sq_base;
     internal::AddScaledRowsAndSquaresBaseline(j.data(), stride, rows, n, v.data(), acc_base.data(), sq_base.data(),
                                               nullptr);
-    internal::AddScaledRowsAndSquaresAvx2(j.data(), stride, rows, n, v.data(), acc_avx2.data(), sq_avx2.data(), nullptr);
+    internal::AddScaledRowsAndSquaresAvx2(j.data(), stride, rows, n, v.data(), acc_avx2.data(), sq_avx2.data(),
+                                          nullptr);
     internal::AddScaledRowsAndSquares(j.data(), stride, rows, n, v.data(), acc_chosen.data(), sq_chosen.data(),
                                       nullptr);
     for (Eigen::Index k = 0; k < n; ++k) {
@@ -263,7 +264,7 @@ TEST(RowKernels, TheMaskedProductsGiveTheWholeRowsBits) {
       Eigen::VectorXd acc = Eigen::VectorXd::Zero(n), sq = acc, product = acc;
       squares(j.data(), stride, rows, n, v.data(), acc.data(), sq.data(), masks.data());
       normal_rows(j.data() + from * stride, stride, rows - from, n, masks.data() + from, x.data(), product.data());
-      for (Eigen::Index i = 0; i < rows; ++i) ASSERT_EQ(masks[static_cast<size_t>(i)], expected[static_cast<size_t>(i)]) << i;
+      for (size_t i = 0; i < masks.size(); ++i) ASSERT_EQ(masks[i], expected[i]) << "row " << i;
       for (Eigen::Index k = 0; k < n; ++k) {
         if (std::isnan(acc_whole[k])) {
           ASSERT_TRUE(std::isnan(acc[k]) && std::isnan(sq[k])) << "n " << n << ", column " << k;

@@ -300,9 +300,11 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
                                       &ranges[static_cast<size_t>(tri[2])]};
       if (!r[0]->in_depth_range || !r[1]->in_depth_range || !r[2]->in_depth_range) continue;
       // Most triangles of a small level cover no pixel centre: their bounding box is empty.
-      const int i0 = std::min({r[0]->x_lo, r[1]->x_lo, r[2]->x_lo}), i1 = std::max({r[0]->x_hi, r[1]->x_hi, r[2]->x_hi});
+      const int i0 = std::min({r[0]->x_lo, r[1]->x_lo, r[2]->x_lo});
+      const int i1 = std::max({r[0]->x_hi, r[1]->x_hi, r[2]->x_hi});
       if (i0 > i1) continue;
-      const int j0 = std::min({r[0]->y_lo, r[1]->y_lo, r[2]->y_lo}), j1 = std::max({r[0]->y_hi, r[1]->y_hi, r[2]->y_hi});
+      const int j0 = std::min({r[0]->y_lo, r[1]->y_lo, r[2]->y_lo});
+      const int j1 = std::max({r[0]->y_hi, r[1]->y_hi, r[2]->y_hi});
       if (j0 > j1) continue;
       const ProjectedVertex* pv[3] = {&projected[static_cast<size_t>(tri[0])], &projected[static_cast<size_t>(tri[1])],
                                       &projected[static_cast<size_t>(tri[2])]};
