@@ -440,14 +440,20 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
     Eigen::MatrixXd e_id(3, k_id), e_exp(3, k_exp);
     for (size_t p = begin; p < end; ++p) {
       const PixelSample& s = lin.pixels[p];
-      Eigen::Vector3d v_bar = Eigen::Vector3d::Zero(), n_bar = Eigen::Vector3d::Zero();
-      for (int k = 0; k < 3; ++k) {
-        v_bar += s.bary[k] * vertices.position(s.vertex[k]);
-        n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
-      }
-      const Eigen::Vector3d xs = R * v_bar + c.translation;
       const bool color_moves = s.color && lin.color_follows_projection;
-      if (jacobian && (s.point || s.plane || color_moves)) {
+      // The surface point only where a term reads it: a colour term on RGB video does not (it is
+      // not differentiated through the projection), and the vertex positions were 2 % of a
+      // reenactment's time.
+      const bool geometry = s.point || s.plane || color_moves;
+      Eigen::Vector3d v_bar = Eigen::Vector3d::Zero(), n_bar = Eigen::Vector3d::Zero(), xs = Eigen::Vector3d::Zero();
+      if (geometry) {
+        for (int k = 0; k < 3; ++k) {
+          v_bar += s.bary[k] * vertices.position(s.vertex[k]);
+          n_bar += s.bary[k] * lin.model_normals.segment<3>(3 * s.vertex[k]);
+        }
+        xs = R * v_bar + c.translation;
+      }
+      if (jacobian && geometry) {
         if (k_id > 0) {
           e_id.setZero();
           for (int k = 0; k < 3; ++k) e_id += s.bary[k] * rm.identity_basis.block(3 * s.vertex[k], 0, 3, k_id).cast<double>();
@@ -495,7 +501,17 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
       if (s.color) {
         // C_c = sum_k b_k a_kc sum_j gamma_cj y_j(R n_k)
         Eigen::Vector3d color = Eigen::Vector3d::Zero();
-        if (jacobian) d_col.setZero();
+        // Unless the colour follows the projection, a colour row holds its channel's lighting,
+        // the albedo and the rotation only: those blocks are made and written, the rest of J's
+        // row set to zero (made and scaled in full, a calibration's 3 x 175 doubles per pixel
+        // were most of the rows' time).
+        if (jacobian && color_moves) {
+          d_col.setZero();
+        } else if (jacobian) {
+          for (int ch = 0; ch < 3; ++ch) d_col.block<1, 9>(ch, o_gam + ch * 9).setZero();
+          d_col.middleCols(o_alb, k_alb).setZero();
+          d_col.middleCols<3>(o_rot).setZero();
+        }
         for (int k = 0; k < 3; ++k) {
           const int v = s.vertex[k];
           const VertexCache::Shading& shading =
@@ -531,7 +547,17 @@ void EvaluateResiduals(const TrackerModel& model, const Linearization& lin, cons
         }
         const double wsq = std::sqrt(s.color_weight);
         r.segment<3>(row_col) = wsq * s_col * (color - s.input_color);
-        if (jacobian) jacobian->middleRows(row_col, 3) = (wsq * d_col).cast<float>();
+        if (jacobian && color_moves) {
+          jacobian->middleRows(row_col, 3) = (wsq * d_col).cast<float>();
+        } else if (jacobian) {
+          for (int ch = 0; ch < 3; ++ch) {
+            auto row = jacobian->row(row_col + ch);
+            row.setZero();
+            row.segment<9>(o_gam + ch * 9) = (wsq * d_col.block<1, 9>(ch, o_gam + ch * 9)).cast<float>();
+            row.segment(o_alb, k_alb) = (wsq * d_col.row(ch).segment(o_alb, k_alb)).cast<float>();
+            row.segment<3>(o_rot) = (wsq * d_col.row(ch).segment<3>(o_rot)).cast<float>();
+          }
+        }
         row_col += 3;
       }
     }
