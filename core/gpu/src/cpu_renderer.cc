@@ -90,7 +90,8 @@ std::shared_ptr<const CpuRenderer::IdentityParts> CpuRenderer::identity_parts(co
   return parts;
 }
 
-VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* times, int threads) const {
+VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* times, int threads,
+                                  VertexColors colors) const {
   std::string why;
   if (!params.IsValid(&why, static_cast<int>(model_.identity_basis.cols()), static_cast<int>(model_.expression_basis.cols()),
                       static_cast<int>(model_.albedo_basis.cols()))) {
@@ -137,7 +138,12 @@ VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* 
   const Eigen::Matrix3f rotation = rotation_from_euler(params.euler);
   s.camera_positions.resize(3 * n);
   s.camera_normals.resize(3 * n);
-  s.colors.resize(3 * n);
+  const bool shade = colors == VertexColors::kShaded;
+  if (shade) {
+    s.colors.resize(3 * n);
+  } else {
+    s.colors.setZero(3 * n);
+  }
   ParallelFor(items_for(n, kVerticesPerItem), threads, [&](int item) {
     const int end = std::min(n, (item + 1) * kVerticesPerItem);
     for (int v = item * kVerticesPerItem; v < end; ++v) {
@@ -149,6 +155,7 @@ VertexState CpuRenderer::evaluate(const FaceParameters& params, CpuRenderTimes* 
       const Eigen::Vector3f cam_normal = rotation * normal;
       s.camera_positions.segment<3>(3 * v) = rotation * pos(v) + params.translation;
       s.camera_normals.segment<3>(3 * v) = cam_normal;
+      if (!shade) continue;
       const auto basis = sh_basis(cam_normal);
       for (int c = 0; c < 3; ++c) {
         float irradiance = 0.f;

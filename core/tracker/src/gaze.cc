@@ -264,7 +264,7 @@ GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& 
   EyeRegion out;
   const int w = frame.width(), h = frame.height();
   try {
-    out.state = renderer.evaluate(at, nullptr, threads);
+    out.state = renderer.evaluate(at, nullptr, threads, gpu::VertexColors::kNone);  // read: geometry and albedo
   } catch (const std::exception& e) {
     out.message = std::string("the fit cannot be rendered: ") + e.what();
     return out;

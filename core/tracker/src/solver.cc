@@ -65,7 +65,12 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       const Eigen::VectorXd xf = unknowns_.FrameX(x, static_cast<int>(f));
       const auto t0 = Clock::now();
       const gpu::FaceParameters p = layout_.Unpack(xf, bases_[f]);
-      const gpu::VertexState vs = renderer_.evaluate(p, nullptr, threads_);
+      // The synthesis' colours serve the robust colour weight alone, read where the colour follows
+      // the projection (RGB-D: Linearize).
+      const gpu::VertexState vs =
+          renderer_.evaluate(p, nullptr, threads_,
+                             ColorFollowsProjection(options_.energy, frame) ? gpu::VertexColors::kShaded
+                                                                             : gpu::VertexColors::kNone);
       FrameState& st = states_[f];
       // The synthesis' normals serve the depth terms alone (Linearize).
       gpu::RenderOptions render = options_.render;

@@ -22,6 +22,11 @@ struct CpuRenderTimes {
   double raster_ms = 0;  // rasterisation into the G-buffer
 };
 
+// Whether CpuRenderer::evaluate shades the vertices (VertexState::colors). A caller that reads
+// only the geometry (the tracker's synthesis on RGB video, the gaze's eye renders) saves each
+// vertex its SH basis and irradiance, most of the shading pass; its colours are then zero.
+enum class VertexColors { kShaded, kNone };
+
 // Indices (into the model's triangle list) of the triangles drawn with `options`.
 std::vector<int32_t> drawn_triangles(const RenderModel& model, const RenderOptions& options);
 
@@ -36,7 +41,8 @@ class CpuRenderer {
 
   // Model evaluation, normals and shading, on up to `threads` threads (bit-identical for any
   // count). Throws face_reenact::Error on invalid parameters.
-  VertexState evaluate(const FaceParameters& params, CpuRenderTimes* times = nullptr, int threads = 1) const;
+  VertexState evaluate(const FaceParameters& params, CpuRenderTimes* times = nullptr, int threads = 1,
+                       VertexColors colors = VertexColors::kShaded) const;
   GBuffer render(const FaceParameters& params, const PinholeCamera& camera, const RenderOptions& options = {},
                  CpuRenderTimes* times = nullptr) const;
   // Rasterises already evaluated vertices.
