@@ -217,6 +217,48 @@ TEST_F(TrackerSolverTest, KeptIdentityPartsFollowTheIdentity) {
   EXPECT_EQ(changed->albedo, made.albedo);
 }
 
+// The solver keeps its syntheses' G-buffers from one solve to the next (CpuSolver::SynthesisBuffers),
+// one per pyramid level, each clearing only what its last draw covered. After solves of another
+// face (nearer, turned and aside, so its draws covered other pixels) and of a smaller image, a
+// solve gives the bits a fresh solver gives.
+TEST_F(TrackerSolverTest, KeptSynthesisBuffersChangeNoSolve) {
+  SolverOptions o;
+  auto solve = [&](const CpuSolver& solver, const InputFrame& frame, gpu::FaceParameters start) {
+    const SolverSummary s = solver.Solve(frame, tracking(), o, &start);
+    return std::pair{start, s.final_energy.total()};
+  };
+  gpu::FaceParameters near = truth_;
+  near.translation += Eigen::Vector3f(0.05f, 0.f, -0.15f);
+  near.euler.y() += 0.3f;
+  const InputFrame near_frame = RenderSyntheticFrame(solver_->renderer(), *model_, near, camera_);
+  const InputFrame small_frame = RenderSyntheticFrame(solver_->renderer(), *model_, truth_, test_camera(320, 240));
+  solve(*solver_, near_frame, perturbed_start(near));
+  solve(*solver_, small_frame, perturbed_start(truth_));
+  solve(*solver_, near_frame, perturbed_start(near));
+  const auto [kept, kept_energy] = solve(*solver_, frame_, perturbed_start(truth_));
+  const CpuSolver fresh(*model_);
+  const auto [made, made_energy] = solve(fresh, frame_, perturbed_start(truth_));
+  EXPECT_EQ(kept_energy, made_energy);
+  EXPECT_EQ(kept.euler, made.euler);
+  EXPECT_EQ(kept.translation, made.translation);
+  EXPECT_EQ(kept.delta, made.delta);
+  EXPECT_EQ(kept.gamma, made.gamma);
+
+  // The set itself: one is kept, and a solve running beside another (which took it) takes none.
+  CpuSolver::SynthesisBuffers buffers;
+  EXPECT_TRUE(buffers.Take().empty());
+  std::vector<gpu::GBuffer> levels(2);
+  levels[1].width = 7;
+  buffers.Give(std::move(levels));
+  std::vector<gpu::GBuffer> taken = buffers.Take();
+  ASSERT_EQ(taken.size(), 2u);
+  EXPECT_EQ(taken[1].width, 7);
+  EXPECT_TRUE(buffers.Take().empty());
+  buffers.Give(std::move(taken));
+  buffers.Give(std::vector<gpu::GBuffer>(1));  // the later one is dropped
+  EXPECT_EQ(buffers.Take().size(), 2u);
+}
+
 // A camera sees the eyeballs (and teeth in an open mouth), so the tracker must draw them: with
 // the skin alone, the eye pixels match the eye sockets ~2 cm behind the measured eyes, and the
 // truth is no longer the minimum of the geometric terms (a calibration of the demo's target

@@ -29,7 +29,9 @@ struct FrameState {
   JacobianMatrix j;
   bool has_jacobian = false;  // J is evaluated only when the loop says a step follows
   TermEnergies energy;
-  gpu::GBuffer gbuffer;  // kept: every synthesis of this frame reuses its memory
+  // Per pyramid level, kept: every synthesis of this frame on a level reuses its memory and
+  // clears only what the last one drew there (CpuSolver::SynthesisBuffers).
+  std::vector<gpu::GBuffer> gbuffers;
 };
 
 // The Gauss-Newton loop's work on the CPU, for one frame or several frames solved jointly
@@ -38,7 +40,8 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
  public:
   CpuGaussNewton(const TrackerModel& model, const gpu::CpuRenderer& renderer, const ParameterLayout& layout,
                  const SolverOptions& options, const std::vector<const std::vector<InputFrame>*>& pyramids,
-                 const std::vector<gpu::FaceParameters>& bases, CpuSolver::FixedPartsCache* fixed_parts)
+                 const std::vector<gpu::FaceParameters>& bases, CpuSolver::FixedPartsCache* fixed_parts,
+                 CpuSolver::SynthesisBuffers* buffers)
       : model_(model),
         renderer_(renderer),
         layout_(layout),
@@ -48,11 +51,18 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
         unknowns_(layout, static_cast<int>(pyramids.size())),
         threads_(options.ResolvedThreads()),
         fixed_parts_(fixed_parts),
+        buffers_(buffers),
         states_(pyramids.size()),
         fixed_(pyramids.size()) {
     scratch_.Resize(unknowns_.size());
     b_.resize(unknowns_.size());
+    if (!states_.empty()) states_[0].gbuffers = buffers_->Take();
   }
+  ~CpuGaussNewton() override {
+    if (!states_.empty()) buffers_->Give(std::move(states_[0].gbuffers));
+  }
+  CpuGaussNewton(const CpuGaussNewton&) = delete;
+  CpuGaussNewton& operator=(const CpuGaussNewton&) = delete;
 
   // When a step follows, r and J are evaluated in one pass here (the step's time, booked by
   // SolveStep), not r now and r with J again for the step.
@@ -75,10 +85,14 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       // The synthesis' normals serve the depth terms alone (Linearize).
       gpu::RenderOptions render = options_.render;
       render.normals = UsesDepthTerms(options_.energy, frame);
-      renderer_.rasterize(vs, frame.camera, render, &st.gbuffer, threads_);
+      const size_t level_index = static_cast<size_t>(level.level);
+      if (st.gbuffers.size() <= level_index) st.gbuffers.resize(level_index + 1);
+      gpu::GBuffer& gbuffer = st.gbuffers[level_index];
+      renderer_.rasterize(vs, frame.camera, render, &gbuffer, threads_);
       *synthesis_ms += ms_since(t0);
       const auto t1 = Clock::now();
-      st.lin = tracker::Linearize(model_, layout_, p, vs, st.gbuffer, frame, options_.energy, /*regularize_shared=*/f == 0);
+      st.lin = tracker::Linearize(model_, layout_, p, vs, gbuffer, frame, options_.energy,
+                                  /*regularize_shared=*/f == 0);
       if (layout_.num_identity == 0 && layout_.num_albedo == 0) {
         // Tracking: the identity shape and albedo stay the base's for the whole solve.
         if (!fixed_[f]) fixed_[f] = fixed_parts_->For(model_, bases_[f], threads_);
@@ -194,6 +208,7 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
   const internal::JointUnknowns unknowns_;
   const int threads_;
   CpuSolver::FixedPartsCache* fixed_parts_;
+  CpuSolver::SynthesisBuffers* buffers_;
   std::vector<FrameState> states_;
   // Per frame, taken on its first linearisation when the layout solves neither identity nor albedo
   // (the solver keeps the last identity's: CpuSolver::FixedPartsCache).
@@ -279,6 +294,16 @@ std::shared_ptr<const FixedModelParts> CpuSolver::FixedPartsCache::For(const Tra
   return parts;
 }
 
+std::vector<gpu::GBuffer> CpuSolver::SynthesisBuffers::Take() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::exchange(kept_, {});
+}
+
+void CpuSolver::SynthesisBuffers::Give(std::vector<gpu::GBuffer> levels) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (kept_.empty()) kept_ = std::move(levels);  // else a solve beside this one kept its own
+}
+
 CpuSolver::CpuSolver(TrackerModel model) : model_(std::move(model)), renderer_(model_.render) {
   std::string why;
   if (!model_.IsValid(&why)) throw Error("tracker: " + why);
@@ -349,7 +374,7 @@ SolverSummary CpuSolver::SolvePyramids(const std::vector<const std::vector<Input
   const internal::JointUnknowns unknowns(layout, static_cast<int>(pyramids.size()));
   const std::vector<gpu::FaceParameters> bases = *params;
   Eigen::VectorXd x = unknowns.Pack(bases);
-  CpuGaussNewton backend(model_, renderer_, layout, options, pyramids, bases, &fixed_parts_);
+  CpuGaussNewton backend(model_, renderer_, layout, options, pyramids, bases, &fixed_parts_, &synthesis_buffers_);
   SolverSummary summary = internal::RunGaussNewton(options, unknowns.ExpressionSpans(), unknowns.frames(), &backend, &x);
   for (int f = 0; f < unknowns.frames(); ++f) (*params)[f] = layout.Unpack(unknowns.FrameX(x, f), bases[f]);
   summary.total_ms = ms_since(start);
