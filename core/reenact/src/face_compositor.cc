@@ -1024,7 +1024,8 @@ struct FaceCompositor::Impl {
     gpu::VertexState target_state;
     gpu::GBuffer& target_g = scratch_gbuffer(1);
     if (!same) {
-      target_state = renderer.evaluate(target, nullptr, threads());
+      // Its colours are never read (the irradiance below is the compositor's own).
+      target_state = renderer.evaluate(target, nullptr, threads(), gpu::VertexColors::kNone);
       gpu::RenderOptions tracked_ropt = ropt;
       tracked_ropt.normals = false;  // read below: which surface, its vertices and depth
       rasterize(target_state, target, camera, tracked_ropt, &target_g);
@@ -1959,7 +1960,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
 
   // --- re-render (Sec. 7.4): the target's identity, pose and lighting with the output expression.
   auto start = Clock::now();
-  gpu::VertexState state = im.renderer.evaluate(output, nullptr, im.threads());
+  // Unshaded: the colours are the compositor's own (below, every vertex's).
+  gpu::VertexState state = im.renderer.evaluate(output, nullptr, im.threads(), gpu::VertexColors::kNone);
   const int n = im.model.num_vertices();
   const Gamma light = rendering_lighting(output.gamma);
   const bool use_map = albedo && albedo->albedo.size() == 3 * n;
