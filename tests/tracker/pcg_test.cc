@@ -126,6 +126,32 @@ TEST(TrackerPcg, ThreadedProductsOverSeveralChunksAreBitIdentical) {
   }
 }
 
+// The pass that starts a Gauss-Newton step writes each row's mask of nonzero groups (RowMask),
+// and J^T J p then visits only those, chunk by chunk: on frame blocks of several chunks whose rows
+// are zero in groups that differ from row to row, the product after that pass has the bits of the
+// product before it (every column visited), for any thread count.
+TEST(TrackerPcg, TheProductOverTheRowsMasksIsTheWholeRowsProduct) {
+  const int shared = 9, own = 14, frames = 2;
+  std::vector<JacobianMatrix> blocks{random_jacobian(9000, shared + own, 31), random_jacobian(4500, shared + own, 32)};
+  for (JacobianMatrix& b : blocks)
+    for (Eigen::Index i = 0; i < b.rows(); ++i)
+      for (Eigen::Index k = 0; k + 4 <= b.cols(); k += 4)
+        if ((i + k / 4) % 3 != 0) b.row(i).segment(k, 4).setZero();
+  const Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(shared + frames * own, -1, 2);
+  Eigen::VectorXd v(9000 + 4500);
+  for (Eigen::Index i = 0; i < v.size(); ++i) v[i] = std::sin(0.37 * static_cast<double>(i));
+  for (int threads : {1, 2, 3}) {
+    StackedJacobian stacked(shared, own);
+    for (const auto& b : blocks) stacked.AddFrame(b);
+    stacked.SetThreads(threads);
+    Eigen::VectorXd whole, masked, transposed, diagonal;
+    stacked.MultiplyNormal(x, &whole);
+    stacked.MultiplyTransposedWithColumnSquaredNorms(v, &transposed, &diagonal);
+    stacked.MultiplyNormal(x, &masked);
+    EXPECT_TRUE((masked.array() == whole.array()).all()) << threads << " threads";
+  }
+}
+
 TEST(TrackerPcg, ConvergesToTheDirectSolution) {
   const JacobianMatrix j = random_jacobian(500, 60, 2);
   const AssembledNormalOperator a(j, 0.0);

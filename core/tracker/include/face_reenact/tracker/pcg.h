@@ -73,7 +73,8 @@ class StackedJacobian {
   mutable std::vector<Eigen::VectorXd> local_x_, partials_;
   // Per chunk, which groups of four columns of each row hold a nonzero (row_kernels.h, RowMask),
   // written by MultiplyTransposedWithColumnSquaredNorms, the pass every Gauss-Newton step starts
-  // with, and read by MultiplyNormal, which then visits only those (empty: every column).
+  // with, and read by MultiplyNormal, which then visits only those (empty: every column). The
+  // blocks are the caller's and must not change while this view of them lives (as everywhere).
   mutable std::vector<std::vector<uint64_t>> masks_;
 };
 
