@@ -30,9 +30,10 @@ namespace face_reenact::tracker::internal {
 }
 
 // Which groups of four columns of a row hold a nonzero: bit g stands for columns 4g .. 4g + 3 (the
-// columns past the last whole group are always visited). A tracking row is mostly zeros: a colour
-// row has its channel's 9 lighting columns and the rotation's 3 (the colour is not differentiated
-// through the projection; on the shared clips 14-22 % of the groups hold a nonzero), so the
+// columns past the last whole group are always visited). A tracking row is mostly zeros: on RGB
+// video a colour row has its channel's 9 lighting columns and the rotation's 3, and a
+// calibration's the albedo's 10 (the colour is differentiated through the projection on RGB-D
+// only; on the shared clips 14-22 % of the groups hold a nonzero), so the
 // products visit only the groups a row's mask names. Skipping a zero adds nothing that is not
 // zero to a partial sum, and RowDot's four sums keep their columns, so the bits are the ones the
 // full rows give (for finite x). Rows of up to kMaxMaskedColumns columns have masks.
