@@ -188,19 +188,19 @@ GBuffer CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& ca
 
 namespace {
 
-// A vertex in framebuffer coordinates, exact and snapped, with its depths.
+// A vertex in framebuffer coordinates, exact and snapped, with its depths (set where its
+// VertexPixelRange is in the depth range).
 struct ProjectedVertex {
   double ux, uy, sx, sy;
   double z;  // camera-space depth (perspective correction)
   double d;  // depth-buffer value
-  bool in_depth_range;
 };
 
 // The pixel centres a vertex's snapped position lies beyond, per axis, clamped to the buffer:
 // a triangle's pixel bounding box is the least lo and the greatest hi of its corners (ceil, floor
 // and the clamps are monotonic, so taking them per vertex gives the box the corners' extremes
 // give). Most triangles of a tracking level cover no pixel centre; this compact copy (20 bytes
-// against ProjectedVertex's 56) lets the set-up pass drop them before reading anything else.
+// against ProjectedVertex's 48) lets the set-up pass drop them before reading anything else.
 struct VertexPixelRange {
   int32_t x_lo, x_hi, y_lo, y_hi;
   bool in_depth_range;
@@ -280,8 +280,8 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       const Eigen::Vector3f p = state.camera_positions.segment<3>(3 * v);
       ProjectedVertex& pv = projected[static_cast<size_t>(v)];
       VertexPixelRange& r = ranges[static_cast<size_t>(v)];
-      pv.in_depth_range = r.in_depth_range = p.z() > camera.near_plane && p.z() < camera.far_plane;
-      if (!pv.in_depth_range) continue;
+      r.in_depth_range = p.z() > camera.near_plane && p.z() < camera.far_plane;
+      if (!r.in_depth_range) continue;
       // Framebuffer coordinates: the centre of pixel i is at i + 0.5.
       const double z = p.z();
       pv.z = z;
