@@ -149,8 +149,9 @@ struct TrackedSource {
     tracker::TrackedFrame tf;
     try {
       tracker::RgbdInputInfo info;
-      const tracker::InputFrame in = input->Convert(frame, &info);
+      tracker::InputFrame in = input->Convert(frame, &info);
       tf = tracker->Track(in, info.landmarks_ms);
+      input->Recycle(std::move(in));
       input->SetTrackedPose(tf.params, tf.has_parameters && tracker::tracking_status_has_fit(tf.status));
       // As the pipeline does: restart a landmark track that keeps finding nothing.
       frames_without_face = tf.status == tracker::TrackingStatus::kNoFace ? frames_without_face + 1 : 0;

@@ -87,7 +87,7 @@ TEST_F(CliTest, BenchRenderReportsEveryLevelForGpuAndCpu) {
     EXPECT_GT(level["gpu"]["wall_ms"].get<double>(), 0.0);
     EXPECT_GE(level["gpu"]["raster_ms"].get<double>(), 0.0);
     EXPECT_GT(level["cpu"]["total_ms"].get<double>(), 0.0);
-    EXPECT_GT(level["cpu"]["raster_no_normals_ms"].get<double>(), 0.0);
+    EXPECT_GT(level["cpu"]["raster_geometry_ms"].get<double>(), 0.0);
     EXPECT_GT(level["gpu_cpu_ratio"].get<double>(), 0.0);
   }
 }

@@ -114,6 +114,39 @@ TEST(CpuRendererNormals, ADrawWithoutNormalsGivesTheSameOtherFieldsAndZeroNormal
   }
 }
 
+// A draw without colours (RenderOptions::colors; the tracker's synthesis on colour-only input, the
+// gaze's eye renders, the frame texture's tracked geometry) writes the same bits into every other
+// field and zero colours, also into a kept buffer whose last draw had them.
+TEST(CpuRendererColors, ADrawWithoutColoursGivesTheSameOtherFieldsAndZeroColours) {
+  if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
+  const CpuRenderer cpu(RenderModel::FromFaceModel(face_model()));
+  std::mt19937 rng(78);
+  GBuffer kept;
+  for (int trial = 0; trial < 3; ++trial) {
+    const VertexState state = cpu.evaluate(random_face_parameters(face_model(), rng));
+    const PinholeCamera camera = PinholeCamera{}.Downsampled(trial % 2);
+    GBuffer with;
+    cpu.rasterize(state, camera, RenderOptions{}, &with, 2);
+    ASSERT_GT(with.covered_count(), 100u);
+    ASSERT_NE(with.color, std::vector<float>(with.color.size(), 0.f));
+    RenderOptions no_colors;
+    no_colors.colors = false;
+    for (GBuffer* without : {&kept, static_cast<GBuffer*>(nullptr)}) {
+      GBuffer fresh;
+      GBuffer& g = without ? *without : fresh;
+      cpu.rasterize(state, camera, no_colors, &g, 2);
+      EXPECT_EQ(g.normal, with.normal) << "trial " << trial;
+      EXPECT_EQ(g.position, with.position);
+      EXPECT_EQ(g.barycentric, with.barycentric);
+      EXPECT_EQ(g.triangle, with.triangle);
+      EXPECT_EQ(g.vertices, with.vertices);
+      EXPECT_EQ(g.color, std::vector<float>(with.color.size(), 0.f));
+    }
+    cpu.rasterize(state, camera, RenderOptions{}, &kept, 2);
+    EXPECT_EQ(kept.color, with.color);
+  }
+}
+
 // The CPU renderer sums each vertex's expression over the blendshapes that move it
 // (RenderModel::expression_columns): the same positions as the dense product, and the index is
 // the real model's sparsity (a vertex moved by most of the 52 would make it no faster).

@@ -84,6 +84,33 @@ TEST(ReenactLaplacianBlendTest, NoStepAtTheMaskBoundary) {
   EXPECT_NEAR(out.at<cv::Vec3b>(h / 2, w - 1)[0], 200, 1);
 }
 
+// The blend's passes run on the pool (LaplacianBlendOptions::threads): the same bits for any
+// thread count, on a face-sized mask whose rows and levels split unevenly into the pool's items.
+TEST(ReenactLaplacianBlendTest, TheSameBitsOnAnyThreadCount) {
+  const cv::Mat target = noise_image(333, 257, 11), rendered = noise_image(333, 257, 12);
+  cv::Mat mask = cv::Mat::zeros(257, 333, CV_32FC1);
+  cv::ellipse(mask, cv::Point(170, 121), cv::Size(61, 83), 0, 0, 360, cv::Scalar(1.0), cv::FILLED);
+  cv::GaussianBlur(mask, mask, cv::Size(0, 0), 3.0);
+  LaplacianBlendOptions one;
+  one.threads = 1;
+  LaplacianBlendSummary s1;
+  const cv::Mat reference = LaplacianBlend(target, rendered, mask, one, &s1);
+  cv::Mat float_target, float_rendered;
+  target.convertTo(float_target, CV_32FC3);
+  rendered.convertTo(float_rendered, CV_32FC3);
+  const cv::Mat float_reference = LaplacianBlend(float_target, float_rendered, mask, one);
+  for (int threads : {2, 3, 8}) {
+    LaplacianBlendOptions o;
+    o.threads = threads;
+    LaplacianBlendSummary s;
+    EXPECT_EQ(cv::norm(LaplacianBlend(target, rendered, mask, o, &s), reference, cv::NORM_INF), 0.0) << threads;
+    EXPECT_EQ(s.blend_region, s1.blend_region);
+    const cv::Mat f = LaplacianBlend(float_target, float_rendered, mask, o);
+    EXPECT_EQ(cv::countNonZero(f.reshape(1) != float_reference.reshape(1)), 0) << threads;
+  }
+  EXPECT_THROW(LaplacianBlend(target, rendered, mask, LaplacianBlendOptions{5, 0}), Error);
+}
+
 TEST(ReenactLaplacianBlendTest, FloatImagesAndTinyImages) {
   cv::Mat t(5, 7, CV_32FC3, cv::Scalar(10, 10, 10)), r(5, 7, CV_32FC3, cv::Scalar(20, 20, 20));
   cv::Mat m = cv::Mat::zeros(5, 7, CV_32FC1);

@@ -48,6 +48,38 @@ TEST(RgbdInput, ConvertsColourToLinearRgbAndKeepsDepth) {
   EXPECT_FALSE(rgb_only.has_depth());
 }
 
+// A recycled frame's buffers (RgbdInput::Recycle) are written over in full: the next frame converts
+// to what a fresh conversion gives, whether the recycled one was of another size, had depth the
+// next one lacks, or the other way round; and the recycled buffer is used, not a new one.
+TEST(RgbdInput, ARecycledFrameConvertsAsAFreshOne) {
+  RgbdInputOptions o;
+  o.landmark_source = LandmarkSourceChoice::kRecording;
+  o.use_depth = true;
+  RgbdInput input(o);
+  auto expect_as_fresh = [&](const capture::RgbdFrame& f, const char* what) {
+    const InputFrame fresh = MakeInputFrameNoLandmarks(f, true);
+    InputFrame got = input.Convert(f);
+    EXPECT_EQ(got.color, fresh.color) << what;
+    EXPECT_EQ(got.depth, fresh.depth) << what;
+    EXPECT_EQ(got.has_depth(), fresh.has_depth()) << what;
+    return got;
+  };
+  capture::RgbdFrame a = small_frame(), b = small_frame(12, 9), no_depth = small_frame();
+  b.color.setTo(cv::Scalar(200, 30, 5));
+  b.depth.setTo(cv::Scalar(1.5f));
+  no_depth.depth = cv::Mat();
+  InputFrame first = expect_as_fresh(a, "first");
+  const float* buffer = first.color.data();
+  input.Recycle(std::move(first));
+  InputFrame same = expect_as_fresh(a, "same size, recycled");
+  EXPECT_EQ(same.color.data(), buffer) << "the recycled buffer, not a new one";
+  input.Recycle(std::move(same));
+  input.Recycle(expect_as_fresh(b, "larger"));
+  input.Recycle(expect_as_fresh(a, "smaller"));
+  input.Recycle(expect_as_fresh(no_depth, "no depth after depth"));
+  expect_as_fresh(a, "depth after none");
+}
+
 TEST(RgbdInput, RejectsImagesThatDoNotMatchTheCamera) {
   capture::RgbdFrame f = small_frame();
   f.color = cv::Mat(6, 7, CV_8UC3, cv::Scalar(0, 0, 0));

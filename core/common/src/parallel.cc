@@ -232,6 +232,11 @@ void NamedThread::Loop() {
   }
 }
 
+void ParallelInvoke(int threads, std::initializer_list<std::function<void()>> tasks) {
+  const std::function<void()>* first = tasks.begin();
+  ParallelFor(static_cast<int>(tasks.size()), threads, [first](int k) { first[k](); });
+}
+
 int ResolvedThreadCount(int requested) {
   if (requested > 0) return requested;
   // Asked once: glibc answers hardware_concurrency by reading /sys on every call (an open, a read

@@ -441,7 +441,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
       for (int k = 0; k < 3; ++k) {
         corner_x[k] = state.camera_positions.segment<3>(3 * tri[k]).cast<double>();
         if (options.normals) corner_n[k] = state.camera_normals.segment<3>(3 * tri[k]).cast<double>();
-        corner_c[k] = state.colors.segment<3>(3 * tri[k]).cast<double>();
+        if (options.colors) corner_c[k] = state.colors.segment<3>(3 * tri[k]).cast<double>();
       }
       for (int j = std::max(ts.j0, band_j0); j <= std::min(ts.j1, band_j1); ++j) {
         const double py = j + 0.5;
@@ -482,11 +482,13 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
           }
           const double inv_sum = 1.0 / sum;
           for (int k = 0; k < 3; ++k) b[k] *= inv_sum;
-          Eigen::Vector3d x = Eigen::Vector3d::Zero(), col = Eigen::Vector3d::Zero();
-          for (int k = 0; k < 3; ++k) {
-            x += b[k] * corner_x[k];
-            col += b[k] * corner_c[k];
-          }
+          Eigen::Vector3d x = Eigen::Vector3d::Zero();
+          for (int k = 0; k < 3; ++k) x += b[k] * corner_x[k];
+          if (options.colors) {
+            Eigen::Vector3d col = Eigen::Vector3d::Zero();
+            for (int k = 0; k < 3; ++k) col += b[k] * corner_c[k];
+            for (int c = 0; c < 3; ++c) g.color[3 * pix + c] = static_cast<float>(col[c]);
+          }  // else zero, as the band's clear above left it
           if (options.normals) {
             Eigen::Vector3d nrm = Eigen::Vector3d::Zero();
             for (int k = 0; k < 3; ++k) nrm += b[k] * corner_n[k];
@@ -495,7 +497,6 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
             for (int c = 0; c < 3; ++c) g.normal[3 * pix + c] = static_cast<float>(nrm[c]);
           }  // else zero, as the band's clear above left it
           for (int c = 0; c < 3; ++c) {
-            g.color[3 * pix + c] = static_cast<float>(col[c]);
             g.position[3 * pix + c] = static_cast<float>(x[c]);
             g.barycentric[3 * pix + c] = static_cast<float>(b[c]);
             g.vertices[3 * pix + c] = tri[c];

@@ -126,8 +126,9 @@ stream::ExpressionFrameSource::Status TrackedExpressionSource::next(stream::Expr
   tracker::TrackedFrame tracked;
   try {
     tracker::RgbdInputInfo info;
-    const tracker::InputFrame input = input_.Convert(rgbd, &info);
+    tracker::InputFrame input = input_.Convert(rgbd, &info);
     tracked = tracker_.Track(input, info.landmarks_ms);
+    input_.Recycle(std::move(input));
     input_.SetTrackedPose(tracked.params, tracker::tracking_status_has_fit(tracked.status));
   } catch (const Error& e) {
     // A frame the adapter cannot convert (a source delivering broken images) is an input

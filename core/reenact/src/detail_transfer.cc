@@ -350,6 +350,7 @@ struct DetailTransfer::Impl {
     ropt.parts = internal::part_bit(FacePart::Face);
     ropt.cull_back_faces = true;
     ropt.normals = false;  // read below: coverage and depth (the normals come from `state`)
+    ropt.colors = false;
     renderer.rasterize(state, crop, ropt, &scratch, threads());
     f.depth = cv::Mat::zeros(crop.height, crop.width, CV_32FC1);
     cv::Mat covered = cv::Mat::zeros(crop.height, crop.width, CV_8UC1);

@@ -1014,7 +1014,10 @@ struct FaceCompositor::Impl {
                          const EyeExemplar* open_eyes = nullptr, bool* eyes_drawn = nullptr,
                          const EyeOpenings* openings = nullptr, const Eigen::VectorXf* map_weight = nullptr) const {
     const int w = camera.width, h = camera.height, n = model.num_vertices();
-    if (shown) *shown = cv::Mat::zeros(h, w, CV_32FC1);
+    if (shown) {
+      shown->create(h, w, CV_32FC1);
+      shown->setTo(0.0f);
+    }
     if (eyes_drawn) *eyes_drawn = false;
 
     const cv::Rect box = covered_rect(*g, 2);  // the drawn pixels to texture
@@ -1028,6 +1031,7 @@ struct FaceCompositor::Impl {
       target_state = renderer.evaluate(target, nullptr, threads(), gpu::VertexColors::kNone);
       gpu::RenderOptions tracked_ropt = ropt;
       tracked_ropt.normals = false;  // read below: which surface, its vertices and depth
+      tracked_ropt.colors = false;
       rasterize(target_state, target, camera, tracked_ropt, &target_g);
     }
     const gpu::VertexState& ts = same ? out_state : target_state;
@@ -1276,12 +1280,14 @@ struct FaceCompositor::Impl {
     constexpr double kShadingSmoothSigmaPx = 1.0;
     if (!same) {
       cv::Mat shown_mask(box.size(), CV_32FC1);
-      for (int bj = 0; bj < box.height; ++bj)
+      ForRowsOf(box, [&](int bj) {
         for (int bi = 0; bi < box.width; ++bi)
           shown_mask.at<float>(bj, bi) = std::isnan(sampled_at.at<cv::Vec2f>(bj, bi)[0]) ? 0.f : 1.f;
+      });
       cv::Mat ratio_sum, mask_sum;
-      cv::GaussianBlur(ratio_at, ratio_sum, cv::Size(0, 0), kShadingSmoothSigmaPx);
-      cv::GaussianBlur(shown_mask, mask_sum, cv::Size(0, 0), kShadingSmoothSigmaPx);
+      const cv::Size auto_size(0, 0);  // the kernel from sigma
+      ParallelInvoke(threads(), {[&] { cv::GaussianBlur(ratio_at, ratio_sum, auto_size, kShadingSmoothSigmaPx); },
+                                 [&] { cv::GaussianBlur(shown_mask, mask_sum, auto_size, kShadingSmoothSigmaPx); }});
       ForRowsOf(box, [&](int bj) {
         for (int bi = 0; bi < box.width; ++bi) {
           if (!(shown_mask.at<float>(bj, bi) > 0.f)) continue;
@@ -1472,33 +1478,46 @@ struct FaceCompositor::Impl {
       return d.norm() > 0.f ? Eigen::Vector3f(d.normalized()) : d;
     };
     cv::Mat skin_weight = cv::Mat::zeros(box.size(), CV_32FC1), weighted_texture = cv::Mat::zeros(box.size(), CV_32FC3);
-    for (int bj = 0; bj < box.height; ++bj)
+    auto sample_weight = [&](int bj, int bi, size_t p, FacePart* part) {
+      if (!(covered.at<float>(bj, bi) > 0.f)) return 0.f;
+      *part = part_of(g->vertices[3 * p]);
+      return weight.at<float>(bj, bi);
+    };
+    ForRowsOf(box, [&](int bj) {
       for (int bi = 0; bi < box.width; ++bi) {
+        FacePart part;
         const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
-        if (!(covered.at<float>(bj, bi) > 0.f)) continue;
-        const FacePart part = part_of(g->vertices[3 * p]);
-        const float wt = weight.at<float>(bj, bi);
-        if (!(wt > 0.f)) continue;
-        if (part == FacePart::Face) {
-          skin_weight.at<float>(bj, bi) = wt;
-          weighted_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
-        } else if (kEyeParts & part_bit(part)) {
+        const float wt = sample_weight(bj, bi, p, &part);
+        if (!(wt > 0.f) || part != FacePart::Face) continue;
+        skin_weight.at<float>(bj, bi) = wt;
+        weighted_texture.at<cv::Vec3f>(bj, bi) = texture.at<cv::Vec3f>(bj, bi) * wt;
+      }
+    });
+    // The eyes' samples in row order, on one thread (each eye's fill sums them in that order).
+    if (eye_fill[0] || eye_fill[1])
+      for (int bj = 0; bj < box.height; ++bj)
+        for (int bi = 0; bi < box.width; ++bi) {
+          const size_t p = static_cast<size_t>(bj + box.y) * w + static_cast<size_t>(bi + box.x);
+          FacePart part;
+          const float wt = sample_weight(bj, bi, p, &part);
+          if (!(wt > 0.f) || !(kEyeParts & part_bit(part))) continue;
           auto& fill = eye_fill[static_cast<size_t>(EyeSlot(part))];
           const cv::Vec3f t = texture.at<cv::Vec3f>(bj, bi);
           if (fill) fill->Add(eyeball_place_at(p), Eigen::Vector3f(t[0], t[1], t[2]), wt);
         }
-      }
     // A normalised convolution: the weighted samples, their weights and the drawn pixels they
-    // share with, each blurred at one kernel.
+    // share with, each blurred at one kernel; and every drawn pixel's own trust, for the other
+    // parts (teeth, tongue). Four images filtered at once.
     struct Fill {
       cv::Mat sums, weights, coverage;
-      Fill(const cv::Mat& weighted, const cv::Mat& weight, const cv::Mat& drawn, float sigma) {
-        cv::GaussianBlur(weighted, sums, cv::Size(0, 0), sigma);
-        cv::GaussianBlur(weight, weights, cv::Size(0, 0), sigma);
-        cv::GaussianBlur(drawn, coverage, cv::Size(0, 0), sigma);
-      }
-    };
-    const Fill skin(weighted_texture, skin_weight, covered, kFillSigmaPx);
+    } skin;
+    cv::Mat ws;
+    ParallelInvoke(threads(), {[&] { cv::GaussianBlur(weighted_texture, skin.sums, cv::Size(0, 0), kFillSigmaPx); },
+                               [&] {
+                                 cv::GaussianBlur(skin_weight, skin.weights, cv::Size(0, 0), kFillSigmaPx);
+                                 cv::GaussianBlur(covered, skin.coverage, cv::Size(0, 0), kFillSigmaPx);
+                               },
+                               [&] { cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx); }});
     // The output's lid margins: distrusted skin this close to one takes the map, not its
     // neighbours' samples. The fill is spatial, and across a lid the output closes the nearest
     // trusted skin is the lower lid's, the shadowed skin under the eye: it drew a grey-blue band
@@ -1559,9 +1578,6 @@ struct FaceCompositor::Impl {
         cv::GaussianBlur(closing_lid, closing_lid, cv::Size(0, 0), kFillSigmaPx);
       }
     }
-    // Every drawn pixel's own trust, for the other parts (teeth, tongue).
-    cv::Mat ws;
-    cv::GaussianBlur(weight, ws, cv::Size(0, 0), kFillSigmaPx);
     // Each pixel writes only its own colour: rows on the pool's threads.
     ForRowsOf(box, [&](int bj) {
       for (int bi = 0; bi < box.width; ++bi) {
@@ -1802,6 +1818,16 @@ struct FaceCompositor::Impl {
     thread_local std::array<gpu::GBuffer, 5> buffers;
     return buffers[static_cast<size_t>(which)];
   }
+  // Frame-sized images Compose fills every frame, kept per thread like the G-buffers: made anew,
+  // each was a fresh mapping whose pages the kernel faulted in and zeroed before the pass wrote
+  // them (at 1280x720, 18 MB a frame). `create` keeps a buffer of the same size and type.
+  enum ScratchImage { kRendered, kBlendMask, kFrameShown, kScratchImages };
+  static cv::Mat& scratch_image(ScratchImage which, int w, int h, int type) {
+    thread_local std::array<cv::Mat, kScratchImages> images;
+    cv::Mat& m = images[static_cast<size_t>(which)];
+    m.create(h, w, type);
+    return m;
+  }
 
   gpu::PartMask drawn_parts() const {
     gpu::PartMask parts = options.face_only ? part_bit(FacePart::Face) : gpu::kSkinParts;
@@ -2023,6 +2049,7 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // a frame's teeth must still hide the wall behind them.
   gpu::RenderOptions output_ropt = ropt;
   if (!mouth_pass) output_ropt.parts &= ~kMouthParts;
+  output_ropt.normals = detail != nullptr;  // read by the detail transfer alone
   gpu::GBuffer& g = Impl::scratch_gbuffer(0);
   im.rasterize(state, output, camera, output_ropt, &g);
   im.DrawSkinOverStrayMouthParts(state, output, camera, output_ropt, &g);
@@ -2044,14 +2071,17 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
           ? std::clamp((out_jaw - target_jaw - opt.mouth_open_threshold) / kMouthFadeJaw, 0.0f, 1.0f)
           : 1.0f;
   // Frame texture with a mouth pass: the frame's trust in its own sample of each drawn pixel.
-  cv::Mat frame_shown;
+  cv::Mat frame_shown;  // (empty unless the mouth pass reads it)
+  if (opt.appearance == Appearance::kFrameTexture && mouth_pass)
+    frame_shown = Impl::scratch_image(Impl::kFrameShown, w, h, CV_32FC1);
   if (opt.appearance == Appearance::kFrameTexture)
     im.ApplyFrameTexture(target_bgr, camera, target, output, state, irradiance_out, light, ropt,
                          mouth_pass ? mouth_alpha : 0.0f, texture_shading, &g, mouth_pass ? &frame_shown : nullptr, eyes,
                          &result.eyes_from_exemplar, openings,
                          use_map && albedo->weight.size() == n ? &albedo->weight : nullptr);
 
-  cv::Mat rendered;  // float BGR 0..255, the target where nothing is drawn
+  // Float BGR 0..255, the target where nothing is drawn.
+  cv::Mat& rendered = Impl::scratch_image(Impl::kRendered, w, h, CV_32FC3);
   target_bgr.convertTo(rendered, CV_32FC3);
   result.face_mask = cv::Mat::zeros(h, w, CV_8UC1);
   result.mouth_mask = cv::Mat::zeros(h, w, CV_8UC1);
@@ -2136,7 +2166,8 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   const int erosion_k = opt.mask_erosion_px > 0.f ? 2 * static_cast<int>(std::ceil(opt.mask_erosion_px)) + 1 : 0;
   const int mask_reach = erosion_k + 4 * static_cast<int>(std::ceil(opt.mask_feather_px)) + 2;
   const cv::Rect mask_box = grown_within(cv::boundingRect(result.face_mask), mask_reach, w, h);
-  cv::Mat mask = cv::Mat::zeros(h, w, CV_32FC1);
+  cv::Mat& mask = Impl::scratch_image(Impl::kBlendMask, w, h, CV_32FC1);
+  mask.setTo(0.0f);
   cv::Mat mask_in_box = mask(mask_box);
   result.face_mask(mask_box).convertTo(mask_in_box, CV_32FC1, 1.0 / 255.0);
   if (erosion_k > 0) cv::erode(mask_in_box, mask_in_box, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(erosion_k, erosion_k)));
@@ -2145,8 +2176,15 @@ CompositeResult FaceCompositor::Compose(const cv::Mat& target_bgr, const gpu::Pi
   // mask may extend there without effect.
   LaplacianBlendOptions bopt;
   bopt.levels = opt.blend_levels;
+  bopt.threads = im.threads();
   result.bgr = LaplacianBlend(target_bgr, rendered, mask, bopt);
-  rendered.convertTo(result.rendered_bgr, CV_8UC3);
+  // The target's own bytes beyond the face's box (`rendered` holds them converted to float and
+  // back: the same values), the float image converted within it.
+  result.rendered_bgr = target_bgr.clone();
+  {
+    cv::Mat face_part = result.rendered_bgr(mask_box);
+    rendered(mask_box).convertTo(face_part, CV_8UC3);
+  }
   result.composite_ms = ms_since(start);
   return result;
 }

@@ -2,17 +2,23 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
 
 #include "face_reenact/common/error.h"
+#include "face_reenact/common/parallel.h"
 
 namespace face_reenact::reenact {
 
 bool LaplacianBlendOptions::IsValid(std::string* why) const {
   if (levels < 1 || levels > 10) {
     if (why) *why = "Laplacian blend: levels must be in [1, 10]";
+    return false;
+  }
+  if (threads < 1) {
+    if (why) *why = "Laplacian blend: threads must be at least 1";
     return false;
   }
   return true;
@@ -74,24 +80,50 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   const int pad = radius + (1 << options.levels);
   const cv::Rect image_rect(0, 0, target.cols, target.rows);
   const cv::Rect roi = cv::Rect(box.x - pad, box.y - pad, box.width + 2 * pad, box.height + 2 * pad) & image_rect;
-
-  const cv::Mat t = to_float3(target(roi));
-  const cv::Mat r = to_float3(rendered(roi));
-  cv::Mat diff = r - t;
-  cv::Mat m = to_float_mask(mask(roi));
-  const cv::Mat nonzero = m > 0.0f;
-
   int levels = 1;
   while (levels < options.levels && std::min(roi.width, roi.height) >> levels >= 2) ++levels;
   summary->levels_used = levels;
 
+  // Two independent chains at a time on the pool's threads (the difference's and the mask's, the
+  // blended bands' and the difference's next level up), and the per-pixel passes by rows: every
+  // value is computed as one thread would, so the result is the same bits for any thread count.
+  // On one thread the blend was most of a frame's serial work at 1280x720 (docs/real-time.md).
+  const int threads = options.threads;
+  constexpr int kRowsPerItem = 16;
+  auto by_rows = [threads](int rows, const std::function<void(int y)>& row) {
+    ParallelFor((rows + kRowsPerItem - 1) / kRowsPerItem, threads, [&](int item) {
+      for (int y = item * kRowsPerItem; y < std::min(rows, (item + 1) * kRowsPerItem); ++y) row(y);
+    });
+  };
+
+  cv::Mat t;
   std::vector<cv::Mat> gd(static_cast<size_t>(levels)), gm(static_cast<size_t>(levels));
-  gd[0] = diff;
-  gm[0] = m;
-  for (int l = 1; l < levels; ++l) {
-    cv::pyrDown(gd[static_cast<size_t>(l - 1)], gd[static_cast<size_t>(l)]);
-    cv::pyrDown(gm[static_cast<size_t>(l - 1)], gm[static_cast<size_t>(l)]);
-  }
+  cv::Mat window;  // the blend region's weight, below
+  // The pyramids on one thread, the blend region's distance transform (as long as both) on another.
+  auto pyramids = [&] {
+    t = to_float3(target(roi));
+    const cv::Mat r = to_float3(rendered(roi));
+    gd[0] = r - t;
+    gm[0] = to_float_mask(mask(roi));
+    for (int l = 1; l < levels; ++l) {
+      cv::pyrDown(gd[static_cast<size_t>(l - 1)], gd[static_cast<size_t>(l)]);
+      cv::pyrDown(gm[static_cast<size_t>(l - 1)], gm[static_cast<size_t>(l)]);
+    }
+  };
+  auto blend_region = [&] {
+    // Within `radius` of the mask, faded out over its outer half (weight 1 up to radius / 2, 0
+    // beyond radius + 1). Outside: where to_float_mask gives 0 (a NaN compares false).
+    cv::Mat outside;
+    cv::bitwise_not(mask(roi) > 0, outside);
+    cv::Mat dist;
+    cv::distanceTransform(outside, dist, cv::DIST_L2, cv::DIST_MASK_PRECISE);
+    const float inner = 0.5f * static_cast<float>(radius);
+    const float outer = static_cast<float>(radius) + 1.0f;
+    window = (outer - dist) / (outer - inner);
+    cv::min(window, 1.0, window);
+    cv::max(window, 0.0, window);
+  };
+  ParallelInvoke(threads, {pyramids, blend_region});
   // Band-pass levels of the difference, each weighted by the mask at its scale, summed back:
   // blended_l = up(blended_l+1) + m_l * (d_l - up(d_l+1)), the coarsest level d's own. One pass
   // per level over the three images (the per-level temporaries, the band, the mask in three
@@ -110,10 +142,10 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   for (int l = levels - 2; l >= 0; --l) {
     const cv::Mat& g = gd[static_cast<size_t>(l)];
     const cv::Mat& gmask = gm[static_cast<size_t>(l)];
-    cv::pyrUp(gd[static_cast<size_t>(l + 1)], up_d, g.size());
-    cv::pyrUp(blended, up_blended, g.size());
+    ParallelInvoke(threads, {[&] { cv::pyrUp(gd[static_cast<size_t>(l + 1)], up_d, g.size()); },
+                             [&] { cv::pyrUp(blended, up_blended, g.size()); }});
     blended.create(g.size(), CV_32FC3);
-    for (int y = 0; y < g.rows; ++y) {
+    by_rows(g.rows, [&](int y) {
       const cv::Vec3f* drow = g.ptr<cv::Vec3f>(y);
       const cv::Vec3f* urow = up_d.ptr<cv::Vec3f>(y);
       const cv::Vec3f* brow = up_blended.ptr<cv::Vec3f>(y);
@@ -121,29 +153,20 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
       cv::Vec3f* out = blended.ptr<cv::Vec3f>(y);
       for (int x = 0; x < g.cols; ++x)
         for (int c = 0; c < 3; ++c) out[x][c] = brow[x][c] + (drow[x][c] - urow[x][c]) * mrow[x];
-    }
+    });
   }
 
-  // The blend region: within `radius` of the mask, faded out over its outer half (weight 1 up
-  // to radius / 2, 0 beyond radius + 1).
-  cv::Mat outside = nonzero == 0;
-  cv::Mat dist;
-  cv::distanceTransform(outside, dist, cv::DIST_L2, cv::DIST_MASK_PRECISE);
-  const float inner = 0.5f * static_cast<float>(radius);
-  const float outer = static_cast<float>(radius) + 1.0f;
-  cv::Mat window = (outer - dist) / (outer - inner);
-  cv::min(window, 1.0, window);
-  cv::max(window, 0.0, window);
-
   cv::Mat out = target.clone();
-  int x0 = roi.width, x1 = -1, y0 = roi.height, y1 = -1;  // the region written, in the roi
+  // The region written, in the roi: each row's columns, then the rows that wrote any.
+  std::vector<cv::Vec2i> written(static_cast<size_t>(roi.height), cv::Vec2i(roi.width, -1));
   const bool bytes = out.type() == CV_8UC3;
-  for (int y = 0; y < roi.height; ++y) {
+  by_rows(roi.height, [&](int y) {
     const float* wrow = window.ptr<float>(y);
     const cv::Vec3f* trow = t.ptr<cv::Vec3f>(y);
     const cv::Vec3f* brow = blended.ptr<cv::Vec3f>(y);
     cv::Vec3b* orow8 = bytes ? out.ptr<cv::Vec3b>(roi.y + y) + roi.x : nullptr;
     cv::Vec3f* orowf = bytes ? nullptr : out.ptr<cv::Vec3f>(roi.y + y) + roi.x;
+    cv::Vec2i& span = written[static_cast<size_t>(y)];
     for (int x = 0; x < roi.width; ++x) {
       const float w = wrow[x];
       if (w <= 0.0f) continue;
@@ -152,8 +175,14 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
         orow8[x] = cv::Vec3b(cv::saturate_cast<uchar>(v[0]), cv::saturate_cast<uchar>(v[1]), cv::saturate_cast<uchar>(v[2]));
       else
         orowf[x] = v;
-      x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
+      span[0] = std::min(span[0], x), span[1] = std::max(span[1], x);
     }
+  });
+  int x0 = roi.width, x1 = -1, y0 = roi.height, y1 = -1;
+  for (int y = 0; y < roi.height; ++y) {
+    const cv::Vec2i span = written[static_cast<size_t>(y)];
+    if (span[1] < 0) continue;
+    x0 = std::min(x0, span[0]), x1 = std::max(x1, span[1]), y0 = std::min(y0, y), y1 = std::max(y1, y);
   }
   const cv::Rect region_box = x1 < 0 ? cv::Rect() : cv::Rect(roi.x + x0, roi.y + y0, x1 - x0 + 1, y1 - y0 + 1);
   summary->blend_region = region_box;

@@ -547,6 +547,7 @@ TrackedTarget ReenactmentPipeline::Track(PreparedTarget prepared) {
     if (im.options.mode == ReenactMode::kOverlay) detected = frame.landmarks;
     tt.eye_openings = EyeOpeningsFromLandmarks(frame.landmarks);
     out.tracked = im.tracker->Track(frame, prepared.info.landmarks_ms);
+    if (im.input) im.input->Recycle(std::move(frame));  // read no further: its buffers are the next frame's
     if (out.tracked.new_face) tt.forget_actor = true;  // the learned appearance was the other face's
     const bool has_fit = out.tracked.has_parameters && tracker::tracking_status_has_fit(out.tracked.status);
     // A landmark track that keeps finding nothing is restarted from a fresh detection (measured:

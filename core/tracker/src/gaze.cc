@@ -259,6 +259,14 @@ struct GazeEstimator::EyeRegion {
   int x0 = 0, y0 = 0;       // the crop's corner in the image
 };
 
+// The eye renders' parts; their states are not shaded (VertexColors::kNone) and their colours
+// never read.
+constexpr gpu::RenderOptions kEyeRegionRender = [] {
+  gpu::RenderOptions o = kTrackedParts;
+  o.colors = false;
+  return o;
+}();
+
 GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& renderer, const InputFrame& frame,
                                                         const gpu::FaceParameters& at, int threads) const {
   EyeRegion out;
@@ -301,7 +309,7 @@ GazeEstimator::EyeRegion GazeEstimator::RenderEyeRegion(const gpu::CpuRenderer& 
   crop.height = y1 - y0 + 1;
   crop.cx -= static_cast<float>(x0);
   crop.cy -= static_cast<float>(y0);
-  renderer.rasterize(out.state, crop, kTrackedParts, &out.g, threads);
+  renderer.rasterize(out.state, crop, kEyeRegionRender, &out.g, threads);
   out.x0 = x0;
   out.y0 = y0;
   return out;
@@ -684,7 +692,7 @@ bool GazeEstimator::ReadLids(const gpu::CpuRenderer& renderer, const InputFrame&
         const Eigen::Vector3f x = open.state.model_positions.segment<3>(3 * lv.vertex) + b * lv.offset;
         shut.camera_positions.segment<3>(3 * lv.vertex) = R * x + open_at.translation;
       }
-      renderer.rasterize(shut, open.crop, kTrackedParts, &shut_g, threads);
+      renderer.rasterize(shut, open.crop, kEyeRegionRender, &shut_g, threads);
     }
     const gpu::GBuffer& g = k > 0 ? shut_g : open.g;
     for (int e = 0; e < 2; ++e) {

@@ -27,8 +27,13 @@ bool RgbdInputOptions::IsValid(std::string* why) const {
   return true;
 }
 
-InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_depth) {
+InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_depth, InputFrame* reuse) {
   InputFrame in;
+  if (reuse) {
+    in.color = std::move(reuse->color);
+    in.depth = std::move(reuse->depth);
+    in.depth.clear();  // (its capacity kept: this frame may have none)
+  }
   in.camera = frame.camera;
   in.timestamp_s = std::isfinite(frame.timestamp_s) ? frame.timestamp_s : std::numeric_limits<double>::quiet_NaN();
   std::string why;
@@ -39,7 +44,7 @@ InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_d
                 std::to_string(w) + "x" + std::to_string(h));
   }
   const auto& table = srgb_decode_table();
-  in.color.resize(static_cast<size_t>(w) * h * 3);
+  in.color.resize(static_cast<size_t>(w) * h * 3);  // a reused buffer of this size as it is: written in full
   for (int j = 0; j < h; ++j) {
     const uint8_t* row = frame.color.ptr<uint8_t>(j);
     float* dst = &in.color[static_cast<size_t>(j) * w * 3];
@@ -110,14 +115,15 @@ landmarks::HeadPose HeadPoseFromParameters(const gpu::FaceParameters& params) {
 }
 
 InputFrame MakeInputFrame(const capture::RgbdFrame& frame, const RgbdInputOptions& options,
-                          landmarks::LandmarkTracker* detector, RgbdInputInfo* info, const landmarks::HeadPose* pose) {
+                          landmarks::LandmarkTracker* detector, RgbdInputInfo* info, const landmarks::HeadPose* pose,
+                          InputFrame* reuse) {
   std::string why;
   if (!options.IsValid(&why)) throw Error(why);
   RgbdInputInfo local;
   RgbdInputInfo& inf = info ? *info : local;
   inf = RgbdInputInfo();
   const auto t0 = Clock::now();
-  InputFrame in = MakeInputFrameNoLandmarks(frame, options.use_depth);
+  InputFrame in = MakeInputFrameNoLandmarks(frame, options.use_depth, reuse);
   inf.conversion_ms = ms_since(t0);
   inf.depth_used = in.has_depth();
   if (options.landmark_source == LandmarkSourceChoice::kRecording) {
@@ -156,7 +162,18 @@ RgbdInput::RgbdInput(RgbdInput&&) noexcept = default;
 RgbdInput& RgbdInput::operator=(RgbdInput&&) noexcept = default;
 
 InputFrame RgbdInput::Convert(const capture::RgbdFrame& frame, RgbdInputInfo* info) {
-  return MakeInputFrame(frame, options_, detector_.get(), info, have_pose_ ? &pose_ : nullptr);
+  InputFrame reuse;
+  {
+    std::lock_guard lock(*spare_mu_);
+    reuse = std::move(spare_);
+    spare_ = InputFrame();
+  }
+  return MakeInputFrame(frame, options_, detector_.get(), info, have_pose_ ? &pose_ : nullptr, &reuse);
+}
+
+void RgbdInput::Recycle(InputFrame&& frame) {
+  std::lock_guard lock(*spare_mu_);
+  spare_ = std::move(frame);
 }
 
 void RgbdInput::SetTrackedPose(const gpu::FaceParameters& params, bool has_fit) {

@@ -77,14 +77,14 @@ class CpuGaussNewton final : public internal::GaussNewtonBackend {
       const gpu::FaceParameters p = layout_.Unpack(xf, bases_[f]);
       // The synthesis' colours serve the robust colour weight alone, read where the colour follows
       // the projection (RGB-D: Linearize).
+      const bool colors = ColorFollowsProjection(options_.energy, frame);
       const gpu::VertexState vs =
-          renderer_.evaluate(p, nullptr, threads_,
-                             ColorFollowsProjection(options_.energy, frame) ? gpu::VertexColors::kShaded
-                                                                             : gpu::VertexColors::kNone);
+          renderer_.evaluate(p, nullptr, threads_, colors ? gpu::VertexColors::kShaded : gpu::VertexColors::kNone);
       FrameState& st = states_[f];
       // The synthesis' normals serve the depth terms alone (Linearize).
       gpu::RenderOptions render = options_.render;
       render.normals = UsesDepthTerms(options_.energy, frame);
+      render.colors = colors;
       const size_t level_index = static_cast<size_t>(level.level);
       if (st.gbuffers.size() <= level_index) st.gbuffers.resize(level_index + 1);
       gpu::GBuffer& gbuffer = st.gbuffers[level_index];

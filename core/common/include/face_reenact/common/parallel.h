@@ -14,6 +14,7 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <initializer_list>
 #include <future>
 #include <memory>
 #include <mutex>
@@ -29,6 +30,11 @@ namespace face_reenact {
 // waited for. An exception from an item is rethrown here after the others have finished. When
 // no helper thread can be started, the caller runs the rest.
 void ParallelFor(int count, int threads, const std::function<void(int item)>& item);
+
+// Each of `tasks` once, as ParallelFor's items (in this order when one thread runs them): steps of
+// one pass that read and write nothing in common (two images filtered at once), which a single
+// thread would otherwise run one after the other while the pool waits.
+void ParallelInvoke(int threads, std::initializer_list<std::function<void()>> tasks);
 
 // A thread count option resolved: `requested` when positive, else one per hardware thread, at
 // most 8 (beyond that the products here are bound by memory bandwidth).

@@ -106,6 +106,9 @@ struct RenderOptions {
   // looks up) saves every covered pixel a square root and three divisions, a fifth of its cost;
   // its buffer's normals are then zero. The other fields are the same bits either way.
   bool normals = true;
+  // The same for GBuffer::color, for callers that read only the geometry (those whose vertex
+  // states are not shaded, VertexColors::kNone, whose colours are zero anyway): left zero.
+  bool colors = true;
   bool IsValid(std::string* why) const;
 };
 

@@ -18,6 +18,7 @@ namespace face_reenact::reenact {
 
 struct LaplacianBlendOptions {
   int levels = 5;  // >= 1; 1 = a plain per-pixel alpha blend
+  int threads = 1;  // the pool's threads for its passes (face_reenact::ParallelFor); the same result for any count
   bool IsValid(std::string* why) const;
 };
 

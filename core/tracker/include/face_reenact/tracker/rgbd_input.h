@@ -6,6 +6,7 @@
 //
 // Contract header (the reenactment pipeline and the OBS source use it); changes are additive.
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include "face_reenact/capture/recording.h"
@@ -43,7 +44,9 @@ struct RgbdInputInfo {
 // Colour (CV_8UC3 BGR, sRGB) -> linear RGB, depth (CV_32FC1 metres; 0 / NaN / inf = no data,
 // kept as such), camera. No landmarks. Throws face_reenact::Error when the frame's images do
 // not match its camera (wrong type or size): that is a broken source, not a tracking problem.
-InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_depth);
+// `reuse` (optional): a finished frame whose buffers the new one takes, written over in full (no
+// allocation, page faults or zeroing when they already have this frame's size).
+InputFrame MakeInputFrameNoLandmarks(const capture::RgbdFrame& frame, bool use_depth, InputFrame* reuse = nullptr);
 
 // Landmarks stored with a recording frame (ground truth): visible points with `confidence`,
 // hidden ones with 0. Empty when the frame has none.
@@ -61,7 +64,7 @@ landmarks::HeadPose HeadPoseFromParameters(const gpu::FaceParameters& params);
 // One-call adapter: `detector` may be null when options.landmark_source == kRecording.
 InputFrame MakeInputFrame(const capture::RgbdFrame& frame, const RgbdInputOptions& options,
                           landmarks::LandmarkTracker* detector, RgbdInputInfo* info = nullptr,
-                          const landmarks::HeadPose* pose = nullptr);
+                          const landmarks::HeadPose* pose = nullptr, InputFrame* reuse = nullptr);
 
 // Starts reading the landmark model an RgbdInput with `options` will load (kDetector only), in the
 // background (landmarks::PreloadShapeModel): a pipeline calls it before its other set-up.
@@ -78,6 +81,11 @@ class RgbdInput {
   RgbdInput& operator=(RgbdInput&&) noexcept;
 
   InputFrame Convert(const capture::RgbdFrame& frame, RgbdInputInfo* info = nullptr);
+  // Hands back a frame Convert made, once nothing reads it: the next Convert writes into its
+  // buffers. Made anew, a 1280x720 frame's colour (11 MB) was faulted in and zeroed page by page
+  // before the conversion wrote it, more than the conversion itself. Safe beside a Convert on
+  // another thread (the live session's landmark stage).
+  void Recycle(InputFrame&& frame);
   // The last tracked fit (only used for kDetector); call with has_fit = false after a loss.
   void SetTrackedPose(const gpu::FaceParameters& params, bool has_fit);
   // Forget the landmark track (a cut in the video).
@@ -89,6 +97,8 @@ class RgbdInput {
   std::unique_ptr<landmarks::LandmarkTracker> detector_;
   bool have_pose_ = false;
   landmarks::HeadPose pose_;
+  std::unique_ptr<std::mutex> spare_mu_ = std::make_unique<std::mutex>();
+  InputFrame spare_;  // Recycle's, for the next Convert
 };
 
 }  // namespace face_reenact::tracker
