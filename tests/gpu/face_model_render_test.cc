@@ -81,69 +81,44 @@ TEST(CpuRendererThreads, GBufferIsBitIdenticalOnAnyThreadCount) {
   }
 }
 
-// A draw without normals (RenderOptions::normals false: the tracker's synthesis on colour-only
-// input, the frame texture's tracked geometry) writes the same bits into every other field, and
-// zero normals, also into a kept buffer whose last draw had them (the rasteriser clears only the
-// rectangle that draw covered).
-TEST(CpuRendererNormals, ADrawWithoutNormalsGivesTheSameOtherFieldsAndZeroNormals) {
+// A draw without normals (RenderOptions::normals: the tracker's synthesis on colour-only input,
+// the frame texture's tracked geometry) or without colours (RenderOptions::colors: those and the
+// gaze's eye renders, whose vertex states are unshaded) writes the same bits into every other
+// field and zeros into the one left out, also into a kept buffer whose last draw had it (the
+// rasteriser clears only the rectangle that draw covered).
+TEST(CpuRendererFields, ADrawWithoutNormalsOrColoursGivesTheSameOtherFieldsAndZeros) {
   if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
   const CpuRenderer cpu(RenderModel::FromFaceModel(face_model()));
-  std::mt19937 rng(77);
-  GBuffer kept;  // drawn with normals, then without, then with, as a per-frame caller keeps it
-  for (int trial = 0; trial < 3; ++trial) {
-    const VertexState state = cpu.evaluate(random_face_parameters(face_model(), rng));
-    const PinholeCamera camera = PinholeCamera{}.Downsampled(trial % 2);
-    GBuffer with;
-    cpu.rasterize(state, camera, RenderOptions{}, &with, 2);
-    ASSERT_GT(with.covered_count(), 100u);
-    RenderOptions no_normals;
-    no_normals.normals = false;
-    for (GBuffer* without : {&kept, static_cast<GBuffer*>(nullptr)}) {
-      GBuffer fresh;
-      GBuffer& g = without ? *without : fresh;
-      cpu.rasterize(state, camera, no_normals, &g, 2);
-      EXPECT_EQ(g.color, with.color) << "trial " << trial;
-      EXPECT_EQ(g.position, with.position);
-      EXPECT_EQ(g.barycentric, with.barycentric);
-      EXPECT_EQ(g.triangle, with.triangle);
-      EXPECT_EQ(g.vertices, with.vertices);
-      EXPECT_EQ(g.normal, std::vector<float>(with.normal.size(), 0.f));
+  RenderOptions no_normals, no_colors;
+  no_normals.normals = false;
+  no_colors.colors = false;
+  for (const RenderOptions& without_one : {no_normals, no_colors}) {
+    const bool normals = without_one.normals;
+    std::mt19937 rng(77);
+    GBuffer kept;  // drawn with both, then without one, then with both, as a per-frame caller keeps it
+    for (int trial = 0; trial < 3; ++trial) {
+      const VertexState state = cpu.evaluate(random_face_parameters(face_model(), rng));
+      const PinholeCamera camera = PinholeCamera{}.Downsampled(trial % 2);
+      GBuffer with;
+      cpu.rasterize(state, camera, RenderOptions{}, &with, 2);
+      ASSERT_GT(with.covered_count(), 100u);
+      const std::vector<float>& left_out = normals ? with.color : with.normal;
+      ASSERT_NE(left_out, std::vector<float>(left_out.size(), 0.f));
+      for (GBuffer* without : {&kept, static_cast<GBuffer*>(nullptr)}) {
+        GBuffer fresh;
+        GBuffer& g = without ? *without : fresh;
+        cpu.rasterize(state, camera, without_one, &g, 2);
+        EXPECT_EQ(g.position, with.position) << "trial " << trial << (normals ? ", no colours" : ", no normals");
+        EXPECT_EQ(g.barycentric, with.barycentric);
+        EXPECT_EQ(g.triangle, with.triangle);
+        EXPECT_EQ(g.vertices, with.vertices);
+        EXPECT_EQ(normals ? g.normal : g.color, normals ? with.normal : with.color);
+        EXPECT_EQ(normals ? g.color : g.normal, std::vector<float>(left_out.size(), 0.f));
+      }
+      cpu.rasterize(state, camera, RenderOptions{}, &kept, 2);
+      EXPECT_EQ(kept.normal, with.normal);
+      EXPECT_EQ(kept.color, with.color);
     }
-    cpu.rasterize(state, camera, RenderOptions{}, &kept, 2);
-    EXPECT_EQ(kept.normal, with.normal);
-  }
-}
-
-// A draw without colours (RenderOptions::colors; the tracker's synthesis on colour-only input, the
-// gaze's eye renders, the frame texture's tracked geometry) writes the same bits into every other
-// field and zero colours, also into a kept buffer whose last draw had them.
-TEST(CpuRendererColors, ADrawWithoutColoursGivesTheSameOtherFieldsAndZeroColours) {
-  if (face_model().num_vertices() == 0) GTEST_FAIL() << "no face model (see the failure above)";
-  const CpuRenderer cpu(RenderModel::FromFaceModel(face_model()));
-  std::mt19937 rng(78);
-  GBuffer kept;
-  for (int trial = 0; trial < 3; ++trial) {
-    const VertexState state = cpu.evaluate(random_face_parameters(face_model(), rng));
-    const PinholeCamera camera = PinholeCamera{}.Downsampled(trial % 2);
-    GBuffer with;
-    cpu.rasterize(state, camera, RenderOptions{}, &with, 2);
-    ASSERT_GT(with.covered_count(), 100u);
-    ASSERT_NE(with.color, std::vector<float>(with.color.size(), 0.f));
-    RenderOptions no_colors;
-    no_colors.colors = false;
-    for (GBuffer* without : {&kept, static_cast<GBuffer*>(nullptr)}) {
-      GBuffer fresh;
-      GBuffer& g = without ? *without : fresh;
-      cpu.rasterize(state, camera, no_colors, &g, 2);
-      EXPECT_EQ(g.normal, with.normal) << "trial " << trial;
-      EXPECT_EQ(g.position, with.position);
-      EXPECT_EQ(g.barycentric, with.barycentric);
-      EXPECT_EQ(g.triangle, with.triangle);
-      EXPECT_EQ(g.vertices, with.vertices);
-      EXPECT_EQ(g.color, std::vector<float>(with.color.size(), 0.f));
-    }
-    cpu.rasterize(state, camera, RenderOptions{}, &kept, 2);
-    EXPECT_EQ(kept.color, with.color);
   }
 }
 
