@@ -84,10 +84,11 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   while (levels < options.levels && std::min(roi.width, roi.height) >> levels >= 2) ++levels;
   summary->levels_used = levels;
 
-  // Two independent chains at a time on the pool's threads (the difference's and the mask's, the
-  // blended bands' and the difference's next level up), and the per-pixel passes by rows: every
-  // value is computed as one thread would, so the result is the same bits for any thread count.
-  // On one thread the blend was most of a frame's serial work at 1280x720 (docs/real-time.md).
+  // Independent steps two at a time on the pool's threads (the pyramids beside the blend region's
+  // distance transform, the blended bands' next level up beside the difference's), and the
+  // per-pixel passes by rows: every value is computed as one thread would, so the result is the
+  // same bits for any thread count. On one thread the blend was the largest part of a 1280x720
+  // frame's serial work (docs/real-time.md, "The compositor's serial passes").
   const int threads = options.threads;
   constexpr int kRowsPerItem = 16;
   auto by_rows = [threads](int rows, const std::function<void(int y)>& row) {
@@ -99,7 +100,6 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   cv::Mat t;
   std::vector<cv::Mat> gd(static_cast<size_t>(levels)), gm(static_cast<size_t>(levels));
   cv::Mat window;  // the blend region's weight, below
-  // The pyramids on one thread, the blend region's distance transform (as long as both) on another.
   auto pyramids = [&] {
     t = to_float3(target(roi));
     const cv::Mat r = to_float3(rendered(roi));
