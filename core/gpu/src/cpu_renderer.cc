@@ -70,6 +70,17 @@ CpuRenderer::CpuRenderer(RenderModel model) : model_(std::move(model)) {
 
 CpuRenderer::CpuRenderer(const CpuRenderer& other) : CpuRenderer(other.model_) {}
 
+const std::vector<int32_t>& CpuRenderer::drawn_triangles_for(PartMask parts) const {
+  std::lock_guard<std::mutex> lock(drawn_mutex_);
+  auto it = drawn_.find(parts);
+  if (it == drawn_.end()) {
+    RenderOptions options;
+    options.parts = parts;
+    it = drawn_.emplace(parts, drawn_triangles(model_, options)).first;
+  }
+  return it->second;
+}
+
 std::shared_ptr<const CpuRenderer::IdentityParts> CpuRenderer::identity_parts(const FaceParameters& params) const {
   {
     std::lock_guard<std::mutex> lock(identity_mutex_);
@@ -253,7 +264,7 @@ void CpuRenderer::rasterize(const VertexState& state, const PinholeCamera& camer
   const double near = camera.near_plane, far = camera.far_plane;
 
   // Setup pass: per triangle, in draw order, independent of the others.
-  const std::vector<int32_t> drawn = drawn_triangles(model_, options);
+  const std::vector<int32_t>& drawn = drawn_triangles_for(options.parts);
   const int setup_items = static_cast<int>((drawn.size() + kTrianglesPerSetupItem - 1) / kTrianglesPerSetupItem);
   // The caller's, kept like the depth buffer: lists that grew by doubling on every draw moved
   // their 190-byte entries again and again (1 % of a live session's time).

@@ -312,10 +312,16 @@ Linearization Linearize(const TrackerModel& model, const ParameterLayout& layout
   // A draw that says which rectangle it covered: room for that many samples at once, where they
   // were reallocated as they grew.
   const gpu::GBuffer::DrawnTrace& drawn = gbuffer.drawn;
-  if (gbuffer.DrawnIsKnown(gbuffer.width, gbuffer.height) && drawn.i0 <= drawn.i1 && drawn.j0 <= drawn.j1)
-    lin.pixels.reserve(static_cast<size_t>(drawn.i1 - drawn.i0 + 1) * static_cast<size_t>(drawn.j1 - drawn.j0 + 1));
-  for (int j = 0; j < frame.height(); ++j) {
-    for (int i = 0; i < w; ++i) {
+  // Only that rectangle holds covered pixels (the others are as GBuffer::Resize leaves them): the
+  // same samples in the same order as a scan of the whole level.
+  int i0 = 0, i1 = w - 1, j0 = 0, j1 = frame.height() - 1;
+  if (gbuffer.DrawnIsKnown(gbuffer.width, gbuffer.height)) {
+    i0 = std::max(i0, drawn.i0), i1 = std::min(i1, drawn.i1), j0 = std::max(j0, drawn.j0), j1 = std::min(j1, drawn.j1);
+    if (i0 <= i1 && j0 <= j1)
+      lin.pixels.reserve(static_cast<size_t>(i1 - i0 + 1) * static_cast<size_t>(j1 - j0 + 1));
+  }
+  for (int j = j0; j <= j1; ++j) {
+    for (int i = i0; i <= i1; ++i) {
       if (!SampledPixel(options.pixel_sampling, i, j)) continue;
       const size_t p = static_cast<size_t>(j) * w + i;
       if (gbuffer.triangle[p] < 0) continue;

@@ -8,6 +8,7 @@
 // - barycentrics are perspective-correct; depth is tested with LESS on the same depth value the
 //   GPU writes, d = far * (z - near) / ((far - near) * z), triangles in draw order.
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -62,10 +63,16 @@ class CpuRenderer {
   };
   std::shared_ptr<const IdentityParts> identity_parts(const FaceParameters& params) const;
 
+  // drawn_triangles(model_, {parts}), listed once per part mask: every draw listed them from all
+  // the model's triangles (a tracked frame draws 6-10 times, the compositor 3-4).
+  const std::vector<int32_t>& drawn_triangles_for(PartMask parts) const;
+
   RenderModel model_;
   std::vector<int32_t> incident_begin_, incident_;  // each vertex's triangles, ascending
   mutable std::mutex identity_mutex_;
   mutable std::shared_ptr<const IdentityParts> identity_;  // of the last evaluate
+  mutable std::mutex drawn_mutex_;
+  mutable std::map<PartMask, std::vector<int32_t>> drawn_;  // by part mask; entries stay where they are
 };
 
 }  // namespace face_reenact::gpu
