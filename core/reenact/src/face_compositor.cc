@@ -1679,25 +1679,16 @@ struct FaceCompositor::Impl {
     }
   }
 
-  // body(k) for each k in 0..count-1, in fixed blocks of `per_item` on the pool's threads. For
-  // passes whose elements write only their own outputs: the blocks are fixed by the data, so the
-  // result is the same for any thread count.
-  template <typename Body>
-  void ForBlocksOf(int count, int per_item, const Body& body) const {
-    ParallelFor((count + per_item - 1) / per_item, threads(), [&](int item) {
-      const int end = std::min(count, (item + 1) * per_item);
-      for (int k = item * per_item; k < end; ++k) body(k);
-    });
-  }
-  // body(row) for each row 0..box.height-1 of `box`, in bands of 8 rows (per-pixel passes).
+  // body(row) for each row 0..box.height-1 of `box`, in bands of 8 rows on the pool's threads
+  // (per-pixel passes; ParallelForBlocks).
   template <typename Body>
   void ForRowsOf(const cv::Rect& box, const Body& body) const {
-    ForBlocksOf(box.height, 8, body);
+    ParallelForBlocks(box.height, 8, threads(), body);
   }
   // body(v) for each vertex 0..n-1, in blocks of 1024 (per-vertex passes).
   template <typename Body>
   void ForVerticesOf(int n, const Body& body) const {
-    ForBlocksOf(n, 1024, body);
+    ParallelForBlocks(n, 1024, threads(), body);
   }
 
   // The albedo map's colour at G-buffer pixel p of `g` (before the frame texture replaces it): the

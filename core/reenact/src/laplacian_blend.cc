@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -91,11 +90,6 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   // frame's serial work (docs/real-time.md, "The compositor's serial passes").
   const int threads = options.threads;
   constexpr int kRowsPerItem = 16;
-  auto by_rows = [threads](int rows, const std::function<void(int y)>& row) {
-    ParallelFor((rows + kRowsPerItem - 1) / kRowsPerItem, threads, [&](int item) {
-      for (int y = item * kRowsPerItem; y < std::min(rows, (item + 1) * kRowsPerItem); ++y) row(y);
-    });
-  };
 
   cv::Mat t;
   std::vector<cv::Mat> gd(static_cast<size_t>(levels)), gm(static_cast<size_t>(levels));
@@ -145,7 +139,7 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
     ParallelInvoke(threads, {[&] { cv::pyrUp(gd[static_cast<size_t>(l + 1)], up_d, g.size()); },
                              [&] { cv::pyrUp(blended, up_blended, g.size()); }});
     blended.create(g.size(), CV_32FC3);
-    by_rows(g.rows, [&](int y) {
+    ParallelForBlocks(g.rows, kRowsPerItem, threads, [&](int y) {
       const cv::Vec3f* drow = g.ptr<cv::Vec3f>(y);
       const cv::Vec3f* urow = up_d.ptr<cv::Vec3f>(y);
       const cv::Vec3f* brow = up_blended.ptr<cv::Vec3f>(y);
@@ -160,7 +154,7 @@ cv::Mat LaplacianBlend(const cv::Mat& target, const cv::Mat& rendered, const cv:
   // The region written, in the roi: each row's columns, then the rows that wrote any.
   std::vector<cv::Vec2i> written(static_cast<size_t>(roi.height), cv::Vec2i(roi.width, -1));
   const bool bytes = out.type() == CV_8UC3;
-  by_rows(roi.height, [&](int y) {
+  ParallelForBlocks(roi.height, kRowsPerItem, threads, [&](int y) {
     const float* wrow = window.ptr<float>(y);
     const cv::Vec3f* trow = t.ptr<cv::Vec3f>(y);
     const cv::Vec3f* brow = blended.ptr<cv::Vec3f>(y);

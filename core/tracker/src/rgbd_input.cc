@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 #include "face_reenact/common/error.h"
 #include "face_reenact/common/srgb.h"
@@ -165,8 +166,7 @@ InputFrame RgbdInput::Convert(const capture::RgbdFrame& frame, RgbdInputInfo* in
   InputFrame reuse;
   {
     std::lock_guard lock(*spare_mu_);
-    reuse = std::move(spare_);
-    spare_ = InputFrame();
+    reuse = std::exchange(spare_, InputFrame());
   }
   return MakeInputFrame(frame, options_, detector_.get(), info, have_pose_ ? &pose_ : nullptr, &reuse);
 }

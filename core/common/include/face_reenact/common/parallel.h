@@ -10,6 +10,7 @@
 // moment before it sleeps (parallel.cc says why). Work handed over again and again to a thread of
 // its own (the other actor's fit beside the target's) goes to a kept NamedThread for the same
 // reason.
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <deque>
@@ -30,6 +31,17 @@ namespace face_reenact {
 // waited for. An exception from an item is rethrown here after the others have finished. When
 // no helper thread can be started, the caller runs the rest.
 void ParallelFor(int count, int threads, const std::function<void(int item)>& item);
+
+// body(k) for each k in 0..count-1, in fixed blocks of `per_item` as ParallelFor's items: for
+// per-element passes (pixels, rows, vertices) whose elements write only their own outputs. The
+// blocks are fixed by the data, so the result is the same for any thread count.
+template <typename Body>
+void ParallelForBlocks(int count, int per_item, int threads, const Body& body) {
+  ParallelFor((count + per_item - 1) / per_item, threads, [&](int item) {
+    const int end = std::min(count, (item + 1) * per_item);
+    for (int k = item * per_item; k < end; ++k) body(k);
+  });
+}
 
 // Each of `tasks` once, as ParallelFor's items (in this order when one thread runs them): steps of
 // one pass that read and write nothing in common (two images filtered at once), which a single
